@@ -1,0 +1,102 @@
+"""Configuration: pydantic models loaded from YAML, with ``key.sub=value`` overrides.
+
+Every model forbids unknown keys; :func:`load_config` reports every problem at once with its
+dotted path and raises one :class:`~ges_core.errors.ConfigError`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any, TypeVar
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from ges_core.errors import ConfigError
+
+__all__ = ["Defaults", "RegistryConfig", "apply_overrides", "load_config", "parse_model", "read_yaml"]
+
+M = TypeVar("M", bound=BaseModel)
+
+
+class Defaults(BaseModel):
+    """Which plugin of each kind is used when none is named."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    hand: str = Field("shadow", description="default hand plugin")
+    sim: str = Field("sapien", description="default simulator plugin")
+    gate: str | None = Field(None, description="default gate plugin (none until gating exists)")
+
+
+class RegistryConfig(BaseModel):
+    """The contents of ``registry.yaml``."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    defaults: Defaults = Field(default_factory=Defaults)
+    plugins: list[str] = Field(
+        default_factory=list,
+        description="local plugins: a dotted module ('pkg.mod') or a .py file path (relative to registry.yaml)",
+    )
+    settings: dict[str, dict[str, dict[str, Any]]] = Field(
+        default_factory=dict,
+        description="per-plugin factory keyword arguments: settings[kind][name] = {...}; kind in hand, sim, expert, gate",
+    )
+
+
+def read_yaml(path: str | Path) -> dict:
+    """A YAML mapping from ``path`` (empty file -> {}); clear errors for missing or malformed files."""
+    path = Path(path)
+    try:
+        data = yaml.safe_load(path.read_text())
+    except OSError as exc:
+        raise ConfigError(f"cannot read config file {path}: {exc.strerror}") from exc
+    except yaml.YAMLError as exc:
+        raise ConfigError(f"config file {path} is not valid YAML: {exc}") from exc
+    if data is None:
+        return {}
+    if not isinstance(data, dict):
+        raise ConfigError(f"config file {path} must hold a mapping at the top level, not {type(data).__name__}")
+    return data
+
+
+def apply_overrides(data: dict, overrides: Iterable[str]) -> dict:
+    """Copy of ``data`` with each ``"a.b.c=value"`` applied (value parsed as YAML)."""
+    out = _deep_copy(data)
+    for item in overrides:
+        key, sep, raw = item.partition("=")
+        if not sep or not key.strip():
+            raise ConfigError(f"override '{item}' must look like key.sub=value")
+        node = out
+        parts = key.strip().split(".")
+        for part in parts[:-1]:
+            node = node.setdefault(part, {})
+            if not isinstance(node, dict):
+                raise ConfigError(f"override '{item}': '{part}' is not a mapping")
+        node[parts[-1]] = yaml.safe_load(raw) if raw.strip() else None
+    return out
+
+
+def parse_model(model: type[M], data: dict, *, where: str = "config") -> M:
+    """Validate ``data`` into ``model``; one ConfigError listing every problem by dotted path."""
+    try:
+        return model.model_validate(data)
+    except ValidationError as exc:
+        problems = [f"{'.'.join(str(p) for p in err['loc']) or '<root>'}: {err['msg']}" for err in exc.errors()]
+        raise ConfigError(f"invalid {where}: " + "; ".join(problems), problems=problems) from None
+
+
+def load_config(model: type[M], path: str | Path | None = None, overrides: Iterable[str] = ()) -> M:
+    """Read ``path`` (or start empty), apply overrides, validate into ``model``."""
+    data = read_yaml(path) if path is not None else {}
+    return parse_model(model, apply_overrides(data, overrides), where=str(path or model.__name__))
+
+
+def _deep_copy(data: Any) -> Any:
+    if isinstance(data, dict):
+        return {k: _deep_copy(v) for k, v in data.items()}
+    if isinstance(data, list):
+        return [_deep_copy(v) for v in data]
+    return data

@@ -1,0 +1,73 @@
+"""The one error hierarchy of GES-UniGrasp.
+
+Every message says who failed, what went wrong and how to fix it. The CLI prints
+``str(error)`` on one line and exits non-zero; ``--debug`` shows the traceback.
+"""
+
+from __future__ import annotations
+
+import difflib
+from collections.abc import Iterable
+
+__all__ = [
+    "AssetError",
+    "BackendUnavailable",
+    "ConfigError",
+    "GesError",
+    "PluginError",
+    "RegistrationError",
+    "SimulationError",
+    "UnknownNameError",
+]
+
+
+class GesError(Exception):
+    """Base class of every error GES-UniGrasp raises on purpose."""
+
+
+class PluginError(GesError):
+    """A plugin failed to import or to register."""
+
+    def __init__(self, message: str, *, plugin: str | None = None) -> None:
+        super().__init__(message)
+        self.plugin = plugin
+
+
+class ConfigError(GesError):
+    """A configuration value is missing, unknown or out of range."""
+
+    def __init__(self, message: str, *, problems: list[str] | None = None) -> None:
+        super().__init__(message)
+        self.problems = problems or []
+
+
+class RegistrationError(GesError):
+    """Two plugins claim one name, or a spec is malformed."""
+
+
+class UnknownNameError(GesError, KeyError):
+    """A name was looked up that no plugin registered."""
+
+    def __init__(self, kind: str, name: str, known: Iterable[str]) -> None:
+        known = sorted(known)
+        close = difflib.get_close_matches(name, known, n=1)
+        hint = f" Did you mean '{close[0]}'?" if close else ""
+        listing = ", ".join(known) if known else "(none registered)"
+        msg = f"unknown {kind} '{name}'.{hint} Known {kind}s: {listing}."
+        super().__init__(msg)
+        self.kind, self.name, self.known = kind, name, known
+
+    def __str__(self) -> str:  # KeyError would otherwise quote the message
+        return str(self.args[0])
+
+
+class AssetError(GesError):
+    """A hand or object asset is missing, unreadable or physically invalid."""
+
+
+class BackendUnavailable(GesError):
+    """A simulator or optional package is not installed or cannot start here."""
+
+
+class SimulationError(GesError):
+    """The simulator produced non-finite or exploding state."""

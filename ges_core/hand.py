@@ -1,0 +1,175 @@
+"""The hand interface: what every hand plugin declares and provides.
+
+A hand plugin returns a :class:`HandModel`. Its :class:`HandDescription` is pure data (names,
+limits, finger-to-slot map, wrist convention, sizes, gains), usually read from a YAML file that
+sits beside the plugin; :meth:`HandModel.urdf_path` gives the kinematic and collision model.
+
+Conventions
+-----------
+* Joints are addressed by name. ``HandDescription.joint_names`` is the canonical order of every
+  joint vector ``q`` in GES-UniGrasp; simulators and kinematics map their own order to it once.
+* The hand's URDF root link is the *base*: with ``floating=True`` a simulator adds six virtual
+  joints above it (see :mod:`ges_core.urdf`), with ``floating=False`` it is fixed in the world.
+* The *wrist frame* is the frame of ``WristConvention.link``; its palm normal and finger direction
+  are declared in that frame and checked by ``ges hand lint``.
+* Coupled joints (tendon-driven distal joints of the Shadow hand) are declared in ``couplings``;
+  :meth:`HandDescription.apply_couplings` sets every follower from its leader.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ges_core.contact import FINGER_SLOTS
+
+__all__ = ["FingerSpec", "HandDescription", "HandModel", "JointCoupling", "WristConvention"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class FingerSpec:
+    """One physical finger of a hand."""
+
+    name: str
+    """The hand's own finger name (e.g. ``"ff"`` or ``"index"``)."""
+    slot: str
+    """The canonical slot this finger fills, one of :data:`ges_core.contact.FINGER_SLOTS`."""
+    joints: tuple[str, ...]
+    """Joint names of this finger, proximal to distal."""
+    tip_link: str
+    """Link whose origin (plus ``tip_offset``) is the fingertip contact point."""
+    tip_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    """Fingertip point in ``tip_link``'s frame, metres."""
+    keypoint_links: tuple[str, ...] = ()
+    """Links used as retargeting keypoints, proximal to distal (``tip_link`` last)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class WristConvention:
+    """Where the wrist frame is and how a hand sits in it."""
+
+    link: str
+    """Link whose frame is the wrist frame."""
+    palm_normal: tuple[float, float, float]
+    """Unit vector out of the palm (the side the fingers close toward), wrist frame."""
+    finger_direction: tuple[float, float, float]
+    """Unit vector from the wrist toward the middle fingertip at the open pose, wrist frame."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class JointCoupling:
+    """``q[follower] = ratio * q[leader]``: joints moved together by one tendon."""
+
+    follower: str
+    leader: str
+    ratio: float = 1.0
+
+
+@dataclass(frozen=True, kw_only=True)
+class HandDescription:
+    """Everything the framework needs to know about a hand, as data."""
+
+    name: str
+    """Registry name, e.g. ``"shadow"``."""
+    joint_names: tuple[str, ...]
+    """Canonical joint order of every hand joint vector (K joints)."""
+    joint_limits: tuple[tuple[float, float], ...]
+    """(K,) pairs (lower, upper), radians or metres, in ``joint_names`` order."""
+    fingers: tuple[FingerSpec, ...]
+    """Physical fingers of the hand."""
+    wrist: WristConvention
+    """Wrist-frame convention."""
+    middle_finger_length: float
+    """``l_p`` of the paper: anatomical middle-finger length of this hand, metres."""
+    scale: float
+    """``alpha`` of the paper: this hand's size relative to a human hand (1.0 = human)."""
+    open_pose: tuple[float, ...]
+    """(K,) joint values of the open hand."""
+    pd_stiffness: tuple[float, ...]
+    """(K,) PD stiffness per joint (N·m/rad)."""
+    pd_damping: tuple[float, ...]
+    """(K,) PD damping per joint (N·m·s/rad)."""
+    slot_fill: dict[str, str] = field(default_factory=dict)
+    """Slot -> finger name for slots no physical finger fills (e.g. Allegro's little finger)."""
+    couplings: tuple[JointCoupling, ...] = ()
+    """Joints that follow another joint (tendons)."""
+    base_link: str = ""
+    """URDF root link; filled by the plugin from its URDF."""
+
+    @property
+    def num_joints(self) -> int:
+        """K, the number of hand joints."""
+        return len(self.joint_names)
+
+    @property
+    def limits_array(self) -> np.ndarray:
+        """(K, 2) float64 joint limits."""
+        return np.asarray(self.joint_limits, dtype=np.float64).reshape(-1, 2)
+
+    def finger_for_slot(self, slot: str) -> FingerSpec:
+        """The physical finger that serves ``slot`` (directly or through ``slot_fill``)."""
+        for finger in self.fingers:
+            if finger.slot == slot:
+                return finger
+        if slot in self.slot_fill:
+            return self.finger(self.slot_fill[slot])
+        raise KeyError(f"hand '{self.name}' has no finger for slot '{slot}' and no slot_fill rule")
+
+    def finger(self, name: str) -> FingerSpec:
+        """The finger called ``name``."""
+        for finger in self.fingers:
+            if finger.name == name:
+                return finger
+        raise KeyError(f"hand '{self.name}' has no finger '{name}'; fingers: {[f.name for f in self.fingers]}")
+
+    @property
+    def slot_tip_links(self) -> tuple[str, ...]:
+        """Fingertip link per canonical slot, in :data:`FINGER_SLOTS` order."""
+        return tuple(self.finger_for_slot(s).tip_link for s in FINGER_SLOTS)
+
+    @property
+    def tip_links(self) -> tuple[str, ...]:
+        """Fingertip link of every physical finger, in ``fingers`` order."""
+        return tuple(f.tip_link for f in self.fingers)
+
+    def joint_index(self, names: list[str] | tuple[str, ...]) -> np.ndarray:
+        """Indices of ``names`` in ``joint_names``."""
+        lookup = {n: i for i, n in enumerate(self.joint_names)}
+        return np.array([lookup[n] for n in names], dtype=np.int64)
+
+    def apply_couplings(self, q: np.ndarray) -> np.ndarray:
+        """Copy of ``q`` (..., K) with every coupled follower set from its leader, then clipped."""
+        q = np.array(q, dtype=np.float64, copy=True)
+        for c in self.couplings:
+            f, lead = self.joint_index([c.follower, c.leader])
+            q[..., f] = c.ratio * q[..., lead]
+        lim = self.limits_array
+        return np.clip(q, lim[:, 0], lim[:, 1])
+
+
+class HandModel(ABC):
+    """A hand that GES-UniGrasp can simulate, retarget to and lint."""
+
+    @property
+    @abstractmethod
+    def description(self) -> HandDescription:
+        """The hand's declared data."""
+
+    @abstractmethod
+    def urdf_path(self) -> Path:
+        """Path of a URDF with the hand's links, joints, inertias and collision geometry.
+
+        No ``<material>`` tags; mesh paths absolute. Built (and cached) on first call.
+        """
+
+    @property
+    def name(self) -> str:
+        """Registry name of the hand."""
+        return self.description.name
+
+    def urdf_text(self) -> str:
+        """The URDF as text."""
+        return self.urdf_path().read_text()

@@ -1,0 +1,151 @@
+"""Read a :class:`~ges_core.hand.HandDescription` from YAML text plus the hand's URDF text.
+
+Joint limits always come from the URDF (one source of truth). Per-joint values (open pose,
+PD gains) are mappings whose keys are full-match regular expressions over joint names plus an
+optional ``default``; they are expanded once here, and a pattern that matches no joint is an
+error. ``ges info hand NAME`` prints the resolved table.
+
+Example::
+
+    name: allegro
+    fingers:
+      - {name: index, slot: index, joints: [joint_0.0, ...], tip_link: link_3.0_tip}
+    slot_fill: {little: ring}
+    wrist: {link: palm, palm_normal: [1, 0, 0], finger_direction: [0, 0, 1]}
+    middle_finger_length: 0.105
+    scale: 1.33
+    open_pose: {default: 0.0, "joint_12.0": 0.3}
+    pd_stiffness: {default: 5.0}
+    pd_damping: {default: 0.1}
+"""
+
+from __future__ import annotations
+
+import re
+import xml.etree.ElementTree as ET
+from typing import Any
+
+import yaml
+from pydantic import BaseModel, ConfigDict, Field, ValidationError
+
+from ges_core.errors import AssetError
+from ges_core.hand import FingerSpec, HandDescription, JointCoupling, WristConvention
+from ges_core.urdf import parse_urdf, root_link
+
+__all__ = ["description_from_yaml", "expand_per_joint", "urdf_joint_limits"]
+
+PerJoint = float | dict[str, float] | list[float]
+
+
+class _Finger(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str
+    slot: str
+    joints: list[str]
+    tip_link: str
+    tip_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    keypoint_links: list[str] = Field(default_factory=list)
+
+
+class _Wrist(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    link: str
+    palm_normal: tuple[float, float, float]
+    finger_direction: tuple[float, float, float]
+
+
+class _Coupling(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    follower: str
+    leader: str
+    ratio: float = 1.0
+
+
+class _HandFile(BaseModel):
+    model_config = ConfigDict(extra="forbid")
+    name: str
+    joint_names: list[str] | None = None
+    fingers: list[_Finger]
+    slot_fill: dict[str, str] = Field(default_factory=dict)
+    wrist: _Wrist
+    middle_finger_length: float = Field(gt=0)
+    scale: float = Field(gt=0)
+    open_pose: PerJoint = 0.0
+    pd_stiffness: PerJoint
+    pd_damping: PerJoint
+    couplings: list[_Coupling] = Field(default_factory=list)
+
+
+def urdf_joint_limits(urdf_text: str) -> dict[str, tuple[float, float] | None]:
+    """Movable joints in URDF file order -> (lower, upper), or None when the joint has no limit."""
+    out: dict[str, tuple[float, float] | None] = {}
+    for joint in parse_urdf(urdf_text).findall("joint"):
+        if joint.get("type") in ("fixed", None):
+            continue
+        limit = joint.find("limit")
+        out[joint.get("name")] = _limit_pair(limit, joint.get("type"))
+    return out
+
+
+def _limit_pair(limit: ET.Element | None, kind: str | None) -> tuple[float, float] | None:
+    if kind == "continuous" or limit is None or limit.get("lower") is None or limit.get("upper") is None:
+        return None
+    return float(limit.get("lower")), float(limit.get("upper"))
+
+
+def expand_per_joint(value: PerJoint, joint_names: list[str], what: str) -> tuple[float, ...]:
+    """Expand a scalar, a list, or a {regex|default: value} mapping to one value per joint."""
+    if isinstance(value, int | float):
+        return tuple(float(value) for _ in joint_names)
+    if isinstance(value, list):
+        if len(value) != len(joint_names):
+            raise AssetError(f"{what}: list has {len(value)} values for {len(joint_names)} joints")
+        return tuple(float(v) for v in value)
+    resolved: dict[str, float] = {}
+    for pattern, v in value.items():
+        if pattern == "default":
+            continue
+        hits = [n for n in joint_names if re.fullmatch(pattern, n)]
+        if not hits:
+            raise AssetError(f"{what}: pattern '{pattern}' matches no joint (joints: {', '.join(joint_names)})")
+        resolved.update({n: float(v) for n in hits if n not in resolved})
+    missing = [n for n in joint_names if n not in resolved]
+    if missing and "default" not in value:
+        raise AssetError(f"{what}: no value for {', '.join(missing)}; add them or a 'default'")
+    return tuple(resolved.get(n, float(value.get("default", 0.0))) for n in joint_names)
+
+
+def description_from_yaml(yaml_text: str, urdf_text: str, **overrides: Any) -> HandDescription:
+    """Build a HandDescription; ``overrides`` replace top-level YAML keys (registry settings)."""
+    try:
+        raw = yaml.safe_load(yaml_text) or {}
+        raw.update(overrides)
+        data = _HandFile.model_validate(raw)
+    except (yaml.YAMLError, ValidationError) as exc:
+        raise AssetError(f"invalid hand description: {exc}") from exc
+    limits = urdf_joint_limits(urdf_text)
+    names = data.joint_names or list(limits)
+    unknown = [n for n in names if n not in limits]
+    if unknown:
+        raise AssetError(f"hand '{data.name}': joints {unknown} are not movable joints of its URDF")
+    unlimited = [n for n in names if limits[n] is None]
+    joint_limits = tuple(limits[n] or (0.0, 0.0) for n in names)
+    fingers = tuple(FingerSpec(**{**f.model_dump(), "joints": tuple(f.joints), "keypoint_links": tuple(f.keypoint_links)})
+                    for f in data.fingers)
+    if unlimited:
+        raise AssetError(f"hand '{data.name}': joints {unlimited} have no limits in the URDF; give each a <limit>")
+    return HandDescription(
+        name=data.name,
+        joint_names=tuple(names),
+        joint_limits=joint_limits,
+        fingers=fingers,
+        wrist=WristConvention(**data.wrist.model_dump()),
+        middle_finger_length=data.middle_finger_length,
+        scale=data.scale,
+        open_pose=expand_per_joint(data.open_pose, names, f"{data.name}.open_pose"),
+        pd_stiffness=expand_per_joint(data.pd_stiffness, names, f"{data.name}.pd_stiffness"),
+        pd_damping=expand_per_joint(data.pd_damping, names, f"{data.name}.pd_damping"),
+        slot_fill=dict(data.slot_fill),
+        couplings=tuple(JointCoupling(**c.model_dump()) for c in data.couplings),
+        base_link=root_link(urdf_text),
+    )

@@ -1,0 +1,137 @@
+"""Building the plugin manager: discovery in a fixed, documented order.
+
+1. The entry-point group ``ges.plugins`` through pluggy's ``load_setuptools_entrypoints``: the
+   built-in hands and simulators (declared in this project's ``pyproject.toml``) and any
+   installed third-party package. ``GES_DISABLE_PLUGIN_AUTOLOAD=1`` (or ``autoload=False``)
+   keeps only this project's own entry points.
+2. Local plugins named in ``registry.yaml``: a dotted module (``pkg.mod``) or a ``.py`` file.
+3. ``pm.check_pending()``: a misspelled hook implementation fails here, not silently.
+
+There is no plugin manager at import time: call :func:`get_plugin_manager`.
+"""
+
+from __future__ import annotations
+
+import importlib
+import importlib.metadata
+import importlib.util
+import os
+import sys
+from collections.abc import Iterable
+from pathlib import Path
+from types import ModuleType
+
+import pluggy
+
+from ges_core import hookspecs
+from ges_core.errors import PluginError
+
+__all__ = ["AUTOLOAD_ENV", "ENTRY_POINT_GROUP", "OWN_DISTRIBUTION", "get_plugin_manager", "plugin_sources"]
+
+ENTRY_POINT_GROUP = "ges.plugins"
+"""Entry-point group that built-in and third-party plugins declare."""
+OWN_DISTRIBUTION = "ges-unigrasp"
+"""This project's distribution name; its entry points load even with autoload off."""
+AUTOLOAD_ENV = "GES_DISABLE_PLUGIN_AUTOLOAD"
+"""Set to 1 to skip third-party entry points."""
+
+
+def get_plugin_manager(
+    *,
+    local_plugins: Iterable[str] = (),
+    base_dir: Path | None = None,
+    blocked: Iterable[str] = (),
+    autoload: bool | None = None,
+) -> pluggy.PluginManager:
+    """A fresh plugin manager with every plugin discovered and checked.
+
+    local_plugins: registry.yaml ``plugins`` entries; file paths are relative to ``base_dir``.
+    blocked: plugin (entry-point) names not to load (the CLI's ``--no-plugin``).
+    autoload: load third-party entry points; default: unless ``GES_DISABLE_PLUGIN_AUTOLOAD=1``.
+    """
+    pm = pluggy.PluginManager(hookspecs.PROJECT)
+    pm.add_hookspecs(hookspecs)
+    for name in blocked:
+        pm.set_blocked(name)
+    if autoload is None:
+        autoload = os.environ.get(AUTOLOAD_ENV, "") not in ("1", "true", "yes")
+    _load_entry_points(pm, autoload=autoload)
+    for ref in local_plugins:
+        _load_local_plugin(pm, ref, base_dir or Path.cwd())
+    try:
+        pm.check_pending()
+    except pluggy.PluginValidationError as exc:
+        raise PluginError(f"plugin '{pm.get_name(exc.plugin)}' has an invalid hook: {exc}") from exc
+    return pm
+
+
+def plugin_sources(pm: pluggy.PluginManager) -> dict[str, str]:
+    """Plugin name -> where it came from (``dist-name version`` or ``local: ref``)."""
+    sources = {pm.get_name(plugin): f"{pm.get_name(plugin)} (local)" for plugin in pm.get_plugins()}
+    for plugin, dist in pm.list_plugin_distinfo():
+        sources[pm.get_name(plugin)] = f"{pm.get_name(plugin)} from {dist.metadata['name']} {dist.version}"
+    return sources
+
+
+def _entry_points() -> list[importlib.metadata.EntryPoint]:
+    return list(importlib.metadata.entry_points(group=ENTRY_POINT_GROUP))
+
+
+def _dist_name(ep: importlib.metadata.EntryPoint) -> str:
+    return ep.dist.metadata["name"] if ep.dist is not None else "?"
+
+
+def _load_entry_points(pm: pluggy.PluginManager, *, autoload: bool) -> None:
+    seen: dict[str, str] = {}
+    for ep in _entry_points():
+        dist = _dist_name(ep)
+        if ep.name in seen and seen[ep.name] != dist:
+            raise PluginError(
+                f"two packages declare the plugin '{ep.name}': {seen[ep.name]} and {dist}; uninstall one of them",
+                plugin=ep.name,
+            )
+        seen[ep.name] = dist
+        if not autoload and dist != OWN_DISTRIBUTION:
+            continue
+        if pm.is_blocked(ep.name) or pm.has_plugin(ep.name):
+            continue
+        try:
+            pm.load_setuptools_entrypoints(ENTRY_POINT_GROUP, name=ep.name)
+        except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
+            raise PluginError(
+                f"plugin '{ep.name}' (package {dist}) failed to import: {type(exc).__name__}: {exc}. "
+                f"Fix or uninstall it, or skip it with --no-plugin {ep.name}",
+                plugin=ep.name,
+            ) from exc
+
+
+def _load_local_plugin(pm: pluggy.PluginManager, ref: str, base_dir: Path) -> None:
+    name = f"local:{ref}"
+    if pm.is_blocked(ref) or pm.has_plugin(name):
+        return
+    try:
+        module = _import_file(ref, base_dir) if ref.endswith(".py") else importlib.import_module(ref)
+    except PluginError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
+        raise PluginError(
+            f"local plugin '{ref}' from registry.yaml failed to import: {type(exc).__name__}: {exc}", plugin=ref
+        ) from exc
+    pm.register(module, name=name)
+
+
+def _import_file(ref: str, base_dir: Path) -> ModuleType:
+    path = Path(ref) if Path(ref).is_absolute() else base_dir / ref
+    if not path.is_file():
+        raise PluginError(f"local plugin file '{ref}' not found (looked at {path})", plugin=ref)
+    module_name = f"ges_local_plugin_{path.stem}_{abs(hash(str(path.resolve()))):x}"
+    spec = importlib.util.spec_from_file_location(module_name, path)
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[module_name] = module
+    try:
+        spec.loader.exec_module(module)
+    except BaseException:
+        sys.modules.pop(module_name, None)
+        raise
+    return module

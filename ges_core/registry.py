@@ -1,0 +1,146 @@
+"""The registry: every hand, simulator, expert and gate by name, and how to build them.
+
+A :class:`Registry` is built from a plugin manager and a ``registry.yaml``; it collects specs
+through the ``ges_register_*`` hooks, rejects duplicate names (naming both sources) and builds
+plugins by name with their per-plugin settings.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import pluggy
+
+from ges_core.config import RegistryConfig, apply_overrides, parse_model, read_yaml
+from ges_core.errors import PluginError, RegistrationError, UnknownNameError
+from ges_core.hand import HandModel
+from ges_core.plugins import get_plugin_manager, plugin_sources
+from ges_core.sim import SceneConfig, SimBackend
+from ges_core.specs import ExpertSpec, GateSpec, HandSpec, PluginSpec, SimSpec
+
+__all__ = ["KINDS", "REGISTRY_ENV", "Registry", "default_registry_path", "load_registry"]
+
+KINDS: dict[str, tuple[str, type[PluginSpec]]] = {
+    "hand": ("ges_register_hands", HandSpec),
+    "sim": ("ges_register_sims", SimSpec),
+    "expert": ("ges_register_experts", ExpertSpec),
+    "gate": ("ges_register_gates", GateSpec),
+}
+"""Kind -> (registration hook, spec class)."""
+
+REGISTRY_ENV = "GES_REGISTRY"
+"""Environment variable naming a registry.yaml to use instead of the default."""
+
+
+def default_registry_path() -> Path | None:
+    """``$GES_REGISTRY``, else ``./registry.yaml``, else the repository's own ``registry.yaml``."""
+    if os.environ.get(REGISTRY_ENV):
+        return Path(os.environ[REGISTRY_ENV])
+    for candidate in (Path.cwd() / "registry.yaml", Path(__file__).resolve().parent.parent / "registry.yaml"):
+        if candidate.is_file():
+            return candidate
+    return None
+
+
+class Registry:
+    """Specs of every kind, collected from a plugin manager."""
+
+    def __init__(self, pm: pluggy.PluginManager, config: RegistryConfig | None = None) -> None:
+        self.pm = pm
+        self.config = config or RegistryConfig()
+        self._specs: dict[str, dict[str, PluginSpec]] = {kind: {} for kind in KINDS}
+        sources = plugin_sources(pm)
+        for kind, (hook_name, spec_cls) in KINDS.items():
+            for impl in getattr(pm.hook, hook_name).get_hookimpls():
+                source = sources.get(impl.plugin_name, impl.plugin_name)
+                impl.function(register=self._registrar(kind, spec_cls, source))
+
+    def _registrar(self, kind: str, spec_cls: type[PluginSpec], source: str):
+        def register(spec: PluginSpec) -> None:
+            if not isinstance(spec, spec_cls):
+                raise RegistrationError(f"{source} registered {spec!r} as a {kind}; expected a {spec_cls.__name__}")
+            known = self._specs[kind].get(spec.name)
+            if known is not None:
+                raise RegistrationError(
+                    f"two plugins register the {kind} '{spec.name}': {known.source} and {source}; "
+                    f"uninstall one, or block one with --no-plugin"
+                )
+            self._specs[kind][spec.name] = replace(spec, source=source)
+
+        return register
+
+    # -- look-ups -------------------------------------------------------------------------
+    def names(self, kind: str) -> list[str]:
+        """Registered names of ``kind`` (hand, sim, expert, gate), sorted."""
+        return sorted(self._kind(kind))
+
+    def specs(self, kind: str) -> list[PluginSpec]:
+        """Registered specs of ``kind``, sorted by name."""
+        return [self._kind(kind)[n] for n in self.names(kind)]
+
+    def spec(self, kind: str, name: str | None = None) -> PluginSpec:
+        """The spec called ``name`` (the registry.yaml default if None); unknown names list the known ones."""
+        name = name or self.default(kind)
+        specs = self._kind(kind)
+        if name not in specs:
+            raise UnknownNameError(kind, name, specs)
+        return specs[name]
+
+    def default(self, kind: str) -> str:
+        """The default name of ``kind`` from registry.yaml."""
+        name = getattr(self.config.defaults, kind, None)
+        if not name:
+            raise UnknownNameError(kind, "<default>", self.names(kind))
+        return name
+
+    def settings(self, kind: str, name: str) -> dict[str, Any]:
+        """Factory keyword arguments for one plugin from registry.yaml ``settings``."""
+        return dict(self.config.settings.get(kind, {}).get(name, {}))
+
+    def _kind(self, kind: str) -> dict[str, PluginSpec]:
+        if kind not in self._specs:
+            raise UnknownNameError("plugin kind", kind, self._specs)
+        return self._specs[kind]
+
+    # -- building -------------------------------------------------------------------------
+    def build_hand(self, name: str | None = None) -> HandModel:
+        """Build a hand by name (default from registry.yaml)."""
+        spec = self.spec("hand", name)
+        hand = self._call(spec, spec.load(), **self.settings("hand", spec.name))
+        if not isinstance(hand, HandModel):
+            raise PluginError(f"hand plugin '{spec.name}' ({spec.source}) returned {type(hand).__name__}, not a HandModel")
+        return hand
+
+    def build_sim(self, name: str | None = None, scene: SceneConfig | None = None) -> SimBackend:
+        """Build a simulator backend by name (default from registry.yaml)."""
+        spec = self.spec("sim", name)
+        sim = self._call(spec, spec.load(), scene or SceneConfig(), **self.settings("sim", spec.name))
+        if not isinstance(sim, SimBackend):
+            raise PluginError(f"sim plugin '{spec.name}' ({spec.source}) returned {type(sim).__name__}, not a SimBackend")
+        return sim
+
+    @staticmethod
+    def _call(spec: PluginSpec, factory: Any, *args: Any, **kwargs: Any) -> Any:
+        try:
+            return factory(*args, **kwargs)
+        except TypeError as exc:
+            raise PluginError(f"{spec.kind} '{spec.name}' rejected its settings: {exc}", plugin=spec.name) from exc
+
+
+def load_registry(
+    path: str | Path | None = None,
+    *,
+    overrides: tuple[str, ...] = (),
+    blocked: tuple[str, ...] = (),
+    autoload: bool | None = None,
+) -> Registry:
+    """Read registry.yaml (default: :func:`default_registry_path`), discover plugins, collect specs."""
+    path = Path(path) if path is not None else default_registry_path()
+    data = read_yaml(path) if path is not None else {}
+    config = parse_model(RegistryConfig, apply_overrides(data, overrides), where=str(path or "registry"))
+    base_dir = path.resolve().parent if path is not None else Path.cwd()
+    pm = get_plugin_manager(local_plugins=config.plugins, base_dir=base_dir, blocked=blocked, autoload=autoload)
+    return Registry(pm, config)

@@ -1,0 +1,150 @@
+"""The simulator interface: one physics engine running ``num_envs`` independent scenes.
+
+Arrays are numpy float64. Poses are ``(..., 7)``: position x, y, z in metres, then a unit
+quaternion **w, x, y, z**, world frame. Joint vectors follow the loaded hand's
+``HandDescription.joint_names``; links are addressed by name. Each backend maps its engine's
+own orders once at load time (``idx_sim_to_hand`` / ``idx_hand_to_sim``).
+
+The world: a table plane at z = 0 (the top of the table), gravity along -z.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from ges_core.hand import HandModel
+from ges_core.objects.asset import ObjectAsset
+
+__all__ = ["ContactPair", "SceneConfig", "SimBackend", "ContactPartner"]
+
+ContactPartner = Literal["object", "table", "any"]
+"""Whose contacts :meth:`SimBackend.contact_forces` sums: the object's, the table's or all."""
+
+
+class SceneConfig(BaseModel):
+    """Physics settings shared by every backend."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    num_envs: int = Field(1, ge=1, description="independent scenes stepped together")
+    timestep: float = Field(1 / 120, gt=0, le=0.05, description="physics step, seconds")
+    gravity: float = Field(-9.81, description="gravity along z, m/s^2")
+    table_friction: float = Field(1.0, ge=0, description="Coulomb friction of the table plane")
+    hand_friction: float = Field(1.0, ge=0, description="Coulomb friction of the hand links")
+    solver_iterations: int = Field(20, ge=1, description="position iterations of the contact solver")
+    self_collision: bool = Field(True, description="collide hand links with each other (not parent-child pairs)")
+    hand_gravity: bool = Field(False, description="apply gravity to the hand (off: the wrist drive holds it)")
+    wrist_stiffness: float = Field(2.0e4, gt=0, description="PD stiffness of the floating wrist, N/m and N·m/rad")
+    wrist_damping: float = Field(4.0e2, ge=0, description="PD damping of the floating wrist")
+
+
+@dataclass(frozen=True)
+class ContactPair:
+    """One touching pair (diagnostics; the fast path is :meth:`SimBackend.contact_forces`)."""
+
+    body_a: str
+    link_a: str
+    body_b: str
+    link_b: str
+    separation: float
+    """Signed distance, metres; negative = penetration."""
+    force: float
+    """Normal force magnitude, N."""
+
+
+class SimBackend(ABC):
+    """A physics engine behind one small interface. Create through the registry (``build_sim``)."""
+
+    name: str = ""
+    """Registry name of the backend."""
+
+    def __init__(self, config: SceneConfig) -> None:
+        self.config = config
+
+    @property
+    def num_envs(self) -> int:
+        """Number of independent scenes."""
+        return self.config.num_envs
+
+    # -- building -------------------------------------------------------------------------
+    @abstractmethod
+    def load_hand(self, hand: HandModel, *, floating: bool = True) -> None:
+        """Add the hand to every scene, PD drives on every joint, at its open pose.
+
+        floating: True adds a 6-DoF wrist driven by :meth:`set_wrist_targets`; False fixes the
+        hand's base link at the world origin (move it with :meth:`set_wrist_pose`).
+        """
+
+    @abstractmethod
+    def load_object(self, obj: ObjectAsset, pose: np.ndarray | None = None, env_ids: Sequence[int] | None = None) -> None:
+        """Put ``obj`` into the scenes ``env_ids`` (all if None), replacing any object there.
+
+        pose: (7,) or (len(env_ids), 7); None rests it on the table at the origin.
+        """
+
+    # -- commands -------------------------------------------------------------------------
+    @abstractmethod
+    def set_joint_targets(self, q: np.ndarray) -> None:
+        """PD position targets, (num_envs, K), hand joint order, radians."""
+
+    @abstractmethod
+    def set_wrist_targets(self, pose: np.ndarray) -> None:
+        """PD targets of the floating wrist, (num_envs, 7) base-link pose, world frame."""
+
+    @abstractmethod
+    def set_hand_state(self, q: np.ndarray, wrist_pose: np.ndarray | None = None) -> None:
+        """Teleport: joints (num_envs, K) and optionally base pose (num_envs, 7); zero velocity; targets follow."""
+
+    @abstractmethod
+    def set_object_pose(self, pose: np.ndarray) -> None:
+        """Teleport the object, (num_envs, 7), zero velocity."""
+
+    @abstractmethod
+    def step(self, n: int = 1) -> None:
+        """Advance every scene ``n`` physics steps; raises SimulationError on non-finite state."""
+
+    # -- reading --------------------------------------------------------------------------
+    @abstractmethod
+    def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+        """Joint positions and velocities, each (num_envs, K), hand joint order."""
+
+    @abstractmethod
+    def wrist_pose(self) -> np.ndarray:
+        """Base-link pose, (num_envs, 7), world frame."""
+
+    @abstractmethod
+    def link_poses(self, links: Sequence[str]) -> np.ndarray:
+        """Poses of the named hand links, (num_envs, L, 7), world frame."""
+
+    @abstractmethod
+    def contact_forces(self, links: Sequence[str], partner: ContactPartner = "object") -> np.ndarray:
+        """Net contact force on each named hand link from ``partner``, (num_envs, L, 3), world frame, N."""
+
+    @abstractmethod
+    def object_pose(self) -> np.ndarray:
+        """Object pose, (num_envs, 7), world frame."""
+
+    @abstractmethod
+    def contact_pairs(self, env_id: int = 0) -> list[ContactPair]:
+        """Every touching pair in scene ``env_id`` (slow; for diagnostics and linting)."""
+
+    # -- lifetime -------------------------------------------------------------------------
+    @abstractmethod
+    def reset(self) -> None:
+        """Return every scene to the state right after loading: hand open at its start pose, object at its load pose."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the engine. Calling twice is harmless."""
+
+    def __enter__(self) -> SimBackend:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()

@@ -1,0 +1,133 @@
+"""URDF text utilities shared by hands and simulators (parsers take text and return text).
+
+The floating wrist is six virtual joints above the hand's base link, in this order:
+prismatic x, y, z (world axes), then revolute about x, y, z, so the base orientation is
+``R = Rx(rx) @ Ry(ry) @ Rz(rz)``. Both simulators drive them with PD like any other joint,
+which makes a floating hand behave the same in every engine.
+"""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+import numpy as np
+
+from ges_core.errors import AssetError
+
+__all__ = [
+    "WRIST_JOINTS",
+    "add_floating_base",
+    "absolutize_mesh_paths",
+    "euler_xyz_to_quat",
+    "quat_to_euler_xyz",
+    "strip_render_data",
+    "root_link",
+]
+
+WRIST_JOINTS: tuple[str, ...] = ("ges_wrist_x", "ges_wrist_y", "ges_wrist_z", "ges_wrist_rx", "ges_wrist_ry", "ges_wrist_rz")
+"""Names of the six virtual floating-wrist joints, outermost first."""
+
+_WRIST_AXES = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 0, 0), (0, 1, 0), (0, 0, 1))
+_WRIST_LIMIT_M = 5.0
+"""Wrist translation range, metres either side of the world origin."""
+
+
+def parse_urdf(text: str) -> ET.Element:
+    """Parse URDF text; malformed XML or a non-robot root gives an AssetError."""
+    try:
+        root = ET.fromstring(text)
+    except ET.ParseError as exc:
+        raise AssetError(f"URDF is not valid XML: {exc}") from exc
+    if root.tag != "robot":
+        raise AssetError(f"URDF root element is <{root.tag}>, expected <robot>")
+    return root
+
+
+def root_link(text: str) -> str:
+    """Name of the one link that is no joint's child."""
+    root = parse_urdf(text)
+    links = [link.get("name") for link in root.findall("link")]
+    children = {j.find("child").get("link") for j in root.findall("joint") if j.find("child") is not None}
+    roots = [name for name in links if name not in children]
+    if len(roots) != 1:
+        raise AssetError(f"URDF must have exactly one root link, found {roots}")
+    return roots[0]
+
+
+def strip_render_data(text: str, *, keep_visuals: bool = False) -> str:
+    """Remove ``<material>`` tags (SAPIEN's loader needs a render device for them) and optionally visuals."""
+    root = parse_urdf(text)
+    for parent in root.iter():
+        for child in list(parent):
+            if child.tag == "material" or (child.tag == "visual" and not keep_visuals):
+                parent.remove(child)
+    return ET.tostring(root, encoding="unicode")
+
+
+def absolutize_mesh_paths(text: str, base_dir: Path) -> str:
+    """Rewrite relative (and ``package://``) mesh filenames against ``base_dir``."""
+    root = parse_urdf(text)
+    for mesh in root.iter("mesh"):
+        name = mesh.get("filename", "")
+        if name.startswith("package://"):
+            name = name.split("://", 1)[1].split("/", 1)[-1]
+        path = Path(name)
+        if not path.is_absolute():
+            path = (base_dir / path).resolve()
+        mesh.set("filename", str(path))
+    return ET.tostring(root, encoding="unicode")
+
+
+def add_floating_base(text: str, *, world_link: str = "ges_world") -> str:
+    """Put six PD-drivable virtual joints (:data:`WRIST_JOINTS`) between a world link and the base."""
+    root = parse_urdf(text)
+    base = root_link(text)
+    names = [world_link] + [f"{j}_link" for j in WRIST_JOINTS[:-1]] + [base]
+    new_links = [world_link] + [f"{j}_link" for j in WRIST_JOINTS[:-1]]
+    for i, name in enumerate(new_links):
+        link = ET.Element("link", name=name)
+        inertial = ET.SubElement(link, "inertial")
+        ET.SubElement(inertial, "origin", xyz="0 0 0", rpy="0 0 0")
+        ET.SubElement(inertial, "mass", value="0.01" if i else "0")  # tiny virtual masses keep solvers stable
+        ET.SubElement(inertial, "inertia", ixx="1e-5", iyy="1e-5", izz="1e-5", ixy="0", ixz="0", iyz="0")
+        root.insert(i, link)
+    for i, joint_name in enumerate(WRIST_JOINTS):
+        kind = "prismatic" if i < 3 else "revolute"
+        joint = ET.Element("joint", name=joint_name, type=kind)
+        ET.SubElement(joint, "parent", link=names[i])
+        ET.SubElement(joint, "child", link=names[i + 1])
+        ET.SubElement(joint, "origin", xyz="0 0 0", rpy="0 0 0")
+        ET.SubElement(joint, "axis", xyz=" ".join(str(a) for a in _WRIST_AXES[i]))
+        lim = _WRIST_LIMIT_M if i < 3 else 2 * np.pi
+        ET.SubElement(joint, "limit", lower=str(-lim), upper=str(lim), effort="1e6", velocity="100")
+        root.append(joint)
+    return ET.tostring(root, encoding="unicode")
+
+
+def euler_xyz_to_quat(angles: np.ndarray) -> np.ndarray:
+    """(..., 3) angles (rx, ry, rz) of ``R = Rx Ry Rz`` -> (..., 4) quaternion wxyz."""
+    a = np.asarray(angles, dtype=np.float64) / 2
+    cx, cy, cz = np.cos(a[..., 0]), np.cos(a[..., 1]), np.cos(a[..., 2])
+    sx, sy, sz = np.sin(a[..., 0]), np.sin(a[..., 1]), np.sin(a[..., 2])
+    w = cx * cy * cz - sx * sy * sz
+    x = sx * cy * cz + cx * sy * sz
+    y = cx * sy * cz - sx * cy * sz
+    z = cx * cy * sz + sx * sy * cz
+    return np.stack([w, x, y, z], axis=-1)
+
+
+def quat_to_euler_xyz(quat: np.ndarray) -> np.ndarray:
+    """(..., 4) quaternion wxyz -> (..., 3) angles (rx, ry, rz) with ``R = Rx Ry Rz``."""
+    q = np.asarray(quat, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
+    r02 = 2 * (x * z + w * y)
+    r12 = 2 * (y * z - w * x)
+    r22 = 1 - 2 * (x * x + y * y)
+    r01 = 2 * (x * y - w * z)
+    r00 = 1 - 2 * (y * y + z * z)
+    ry = np.arcsin(np.clip(r02, -1.0, 1.0))
+    rx = np.arctan2(-r12, r22)
+    rz = np.arctan2(-r01, r00)
+    return np.stack([rx, ry, rz], axis=-1)

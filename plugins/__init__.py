@@ -1,0 +1,1 @@
+"""Built-in GES-UniGrasp plugins: one folder per hand, simulator or gate."""
