@@ -16,6 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from ges_core.errors import AssetError
+from ges_core.paths import atomic_write_text
 
 __all__ = ["FINGER_SLOTS", "ContactSet"]
 
@@ -86,10 +87,7 @@ class ContactSet:
 
     def save(self, path: str | Path) -> None:
         """Write as JSON, atomically (temporary file, then rename)."""
-        path = Path(path)
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1))
-        tmp.replace(path)
+        atomic_write_text(path, json.dumps(self.to_dict(), indent=1))
 
     @classmethod
     def load(cls, path: str | Path) -> ContactSet:
