@@ -45,7 +45,9 @@ class ContactSet:
         nrm = np.asarray(self.normals, dtype=np.float64)
         n = len(FINGER_SLOTS)
         if pos.shape != (n, 3) or nrm.shape != (n, 3):
-            raise ValueError(f"ContactSet needs positions and normals of shape ({n}, 3); got {pos.shape} and {nrm.shape}")
+            raise ValueError(
+                f"ContactSet needs positions and normals of shape ({n}, 3); got {pos.shape} and {nrm.shape}"
+            )
         if not (np.isfinite(pos).all() and np.isfinite(nrm).all()):
             raise ValueError("ContactSet positions and normals must be finite (found NaN or inf)")
         lengths = np.linalg.norm(nrm, axis=1)
@@ -83,7 +85,9 @@ class ContactSet:
             raise AssetError(f"not a contact set: format is {data.get('format')!r}, expected {_FORMAT!r}")
         if tuple(data.get("slots", ())) != FINGER_SLOTS:
             raise AssetError(f"contact set slots {data.get('slots')} differ from {list(FINGER_SLOTS)}")
-        return cls(np.array(data["positions"]), np.array(data["normals"]), data.get("object_id", ""), data.get("meta", {}))
+        return cls(
+            np.array(data["positions"]), np.array(data["normals"]), data.get("object_id", ""), data.get("meta", {})
+        )
 
     def save(self, path: str | Path) -> None:
         """Write as JSON, atomically (temporary file, then rename)."""

@@ -130,8 +130,10 @@ def description_from_yaml(yaml_text: str, urdf_text: str, **overrides: Any) -> H
         raise AssetError(f"hand '{data.name}': joints {unknown} are not movable joints of its URDF")
     unlimited = [n for n in names if limits[n] is None]
     joint_limits = tuple(limits[n] or (0.0, 0.0) for n in names)
-    fingers = tuple(FingerSpec(**{**f.model_dump(), "joints": tuple(f.joints), "keypoint_links": tuple(f.keypoint_links)})
-                    for f in data.fingers)
+    fingers = tuple(
+        FingerSpec(**{**f.model_dump(), "joints": tuple(f.joints), "keypoint_links": tuple(f.keypoint_links)})
+        for f in data.fingers
+    )
     if unlimited:
         raise AssetError(f"hand '{data.name}': joints {unlimited} have no limits in the URDF; give each a <limit>")
     return HandDescription(

@@ -111,7 +111,9 @@ class Registry:
         spec = self.spec("hand", name)
         hand = self._call(spec, spec.load(), **self.settings("hand", spec.name))
         if not isinstance(hand, HandModel):
-            raise PluginError(f"hand plugin '{spec.name}' ({spec.source}) returned {type(hand).__name__}, not a HandModel")
+            raise PluginError(
+                f"hand plugin '{spec.name}' ({spec.source}) returned {type(hand).__name__}, not a HandModel"
+            )
         return hand
 
     def build_sim(self, name: str | None = None, scene: SceneConfig | None = None) -> SimBackend:
@@ -119,7 +121,9 @@ class Registry:
         spec = self.spec("sim", name)
         sim = self._call(spec, spec.load(), scene or SceneConfig(), **self.settings("sim", spec.name))
         if not isinstance(sim, SimBackend):
-            raise PluginError(f"sim plugin '{spec.name}' ({spec.source}) returned {type(sim).__name__}, not a SimBackend")
+            raise PluginError(
+                f"sim plugin '{spec.name}' ({spec.source}) returned {type(sim).__name__}, not a SimBackend"
+            )
         return sim
 
     @staticmethod

@@ -82,7 +82,9 @@ class SimBackend(ABC):
         """
 
     @abstractmethod
-    def load_object(self, obj: ObjectAsset, pose: np.ndarray | None = None, env_ids: Sequence[int] | None = None) -> None:
+    def load_object(
+        self, obj: ObjectAsset, pose: np.ndarray | None = None, env_ids: Sequence[int] | None = None
+    ) -> None:
         """Put ``obj`` into the scenes ``env_ids`` (all if None), replacing any object there.
 
         pose: (7,) or (len(env_ids), 7); None rests it on the table at the origin.

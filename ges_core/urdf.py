@@ -25,7 +25,14 @@ __all__ = [
     "root_link",
 ]
 
-WRIST_JOINTS: tuple[str, ...] = ("ges_wrist_x", "ges_wrist_y", "ges_wrist_z", "ges_wrist_rx", "ges_wrist_ry", "ges_wrist_rz")
+WRIST_JOINTS: tuple[str, ...] = (
+    "ges_wrist_x",
+    "ges_wrist_y",
+    "ges_wrist_z",
+    "ges_wrist_rx",
+    "ges_wrist_ry",
+    "ges_wrist_rz",
+)
 """Names of the six virtual floating-wrist joints, outermost first."""
 
 _WRIST_AXES = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 0, 0), (0, 1, 0), (0, 0, 1))

@@ -15,7 +15,13 @@ from ges_core.errors import GesError
 
 __all__ = ["build_parser", "main"]
 
-_COMMAND_MODULES = ("ges_core.cli.cmd_list", "ges_core.cli.cmd_info", "ges_core.cli.cmd_hand", "ges_core.cli.cmd_objects", "ges_core.cli.cmd_sim")
+_COMMAND_MODULES = (
+    "ges_core.cli.cmd_list",
+    "ges_core.cli.cmd_info",
+    "ges_core.cli.cmd_hand",
+    "ges_core.cli.cmd_objects",
+    "ges_core.cli.cmd_sim",
+)
 """Modules that add sub-commands, in ``--help`` order."""
 
 
@@ -23,12 +29,22 @@ def build_parser() -> argparse.ArgumentParser:
     """The full argument parser."""
     import importlib
 
-    parser = argparse.ArgumentParser(prog="ges", description="GES-UniGrasp: dexterous grasping with swappable hands and simulators.")
+    parser = argparse.ArgumentParser(
+        prog="ges", description="GES-UniGrasp: dexterous grasping with swappable hands and simulators."
+    )
     parser.add_argument("--debug", action="store_true", help="show full tracebacks")
-    parser.add_argument("--registry", metavar="PATH", help="registry.yaml to use (default: $GES_REGISTRY, ./registry.yaml)")
+    parser.add_argument(
+        "--registry", metavar="PATH", help="registry.yaml to use (default: $GES_REGISTRY, ./registry.yaml)"
+    )
     parser.add_argument("--no-plugin", action="append", default=[], metavar="NAME", help="do not load plugin NAME")
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", dest="registry_overrides",
-                        help="override a registry.yaml value, e.g. defaults.sim=pybullet")
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        dest="registry_overrides",
+        help="override a registry.yaml value, e.g. defaults.sim=pybullet",
+    )
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for module_name in _COMMAND_MODULES:
         importlib.import_module(module_name).add_parser(sub)
