@@ -42,7 +42,7 @@ class RegistryConfig(BaseModel):
     )
     settings: dict[str, dict[str, dict[str, Any]]] = Field(
         default_factory=dict,
-        description="per-plugin factory keyword arguments: settings[kind][name] = {...}; kind in hand, sim, expert, gate",
+        description="per-plugin factory keyword arguments: settings[kind][name] = {...}",
     )
 
 
