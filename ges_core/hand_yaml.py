@@ -115,8 +115,11 @@ def expand_per_joint(value: PerJoint, joint_names: list[str], what: str) -> tupl
     return tuple(resolved.get(n, float(value.get("default", 0.0))) for n in joint_names)
 
 
-def description_from_yaml(yaml_text: str, urdf_text: str, **overrides: Any) -> HandDescription:
-    """Build a HandDescription; ``overrides`` replace top-level YAML keys (registry settings)."""
+def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True, **overrides: Any) -> HandDescription:
+    """Build a HandDescription; ``overrides`` replace top-level YAML keys (registry settings).
+
+    strict: reject joints without limits (the hand linter passes False to report every problem).
+    """
     try:
         raw = yaml.safe_load(yaml_text) or {}
         raw.update(overrides)
@@ -134,7 +137,7 @@ def description_from_yaml(yaml_text: str, urdf_text: str, **overrides: Any) -> H
         FingerSpec(**{**f.model_dump(), "joints": tuple(f.joints), "keypoint_links": tuple(f.keypoint_links)})
         for f in data.fingers
     )
-    if unlimited:
+    if unlimited and strict:
         raise AssetError(f"hand '{data.name}': joints {unlimited} have no limits in the URDF; give each a <limit>")
     return HandDescription(
         name=data.name,

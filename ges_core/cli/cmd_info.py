@@ -1,0 +1,50 @@
+"""``ges info hand NAME``: the resolved description of a hand (joints, limits, gains, fingers)."""
+
+from __future__ import annotations
+
+import argparse
+
+from ges_core.contact import FINGER_SLOTS
+from ges_core.hand import HandDescription
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``ges info``."""
+    p = sub.add_parser("info", help="show one plugin in detail")
+    p.add_argument("kind", choices=["hand", "sim"], help="what to show")
+    p.add_argument("name", help="registry name")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Print the plugin's details."""
+    from ges_core.cli import registry_from_args
+
+    registry = registry_from_args(args)
+    spec = registry.spec(args.kind, args.name)
+    print(f"{spec.kind} '{spec.name}': {spec.description}\n  source: {spec.source}\n  entry point: {spec.entry_point}")
+    if args.kind == "hand":
+        hand = registry.build_hand(args.name)
+        print(f"  urdf: {hand.urdf_path()}")
+        print(format_hand(hand.description))
+    return 0
+
+
+def format_hand(d: HandDescription) -> str:
+    """A human-readable table of a hand description."""
+    lines = [
+        f"  base link: {d.base_link}   wrist link: {d.wrist.link}",
+        f"  palm normal (wrist frame): {d.wrist.palm_normal}   finger direction: {d.wrist.finger_direction}",
+        f"  middle-finger length l_p: {d.middle_finger_length:.4f} m   scale alpha: {d.scale:.3f}",
+        "  finger slots:",
+    ]
+    for slot in FINGER_SLOTS:
+        finger = d.finger_for_slot(slot)
+        via = "" if finger.slot == slot else f"  (filled by rule: {slot} -> {finger.name})"
+        lines.append(f"    {slot:<7} {finger.name:<8} tip {finger.tip_link}{via}")
+    lines.append(f"  {'joint':<14}{'lower':>9}{'upper':>9}{'open':>9}{'kp':>10}{'kd':>9}")
+    rows = zip(d.joint_names, d.joint_limits, d.open_pose, d.pd_stiffness, d.pd_damping, strict=True)
+    for name, (lo, hi), q0, kp, kd in rows:
+        lines.append(f"  {name:<14}{lo:>9.3f}{hi:>9.3f}{q0:>9.3f}{kp:>10.3g}{kd:>9.3g}")
+    lines.extend(f"  coupling: {c.follower} = {c.ratio:g} x {c.leader}" for c in d.couplings)
+    return "\n".join(lines)

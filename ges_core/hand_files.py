@@ -1,0 +1,44 @@
+"""A hand defined by two files, a URDF and a description YAML: the quickest way to add a hand.
+
+Use it from a local plugin::
+
+    @hookimpl
+    def ges_register_hands(register):
+        register(HandSpec(name="my_hand", entry_point="my_lab.hands:build_my_hand"))
+
+    def build_my_hand(**settings):
+        return FileHand(HERE / "my_hand.yaml", HERE / "my_hand.urdf", **settings)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from ges_core.errors import AssetError
+from ges_core.hand import HandDescription, HandModel
+from ges_core.hand_yaml import description_from_yaml
+
+__all__ = ["FileHand"]
+
+
+class FileHand(HandModel):
+    """A hand read from ``description.yaml`` + ``model.urdf`` (no ``<material>``, absolute or relative mesh paths)."""
+
+    def __init__(self, yaml_path: str | Path, urdf_path: str | Path, *, strict: bool = True, **overrides: Any) -> None:
+        self._yaml_path, self._urdf_path = Path(yaml_path), Path(urdf_path)
+        for path in (self._yaml_path, self._urdf_path):
+            if not path.is_file():
+                raise AssetError(f"hand file {path} does not exist")
+        self._description = description_from_yaml(
+            self._yaml_path.read_text(), self._urdf_path.read_text(), strict=strict, **overrides
+        )
+
+    @property
+    def description(self) -> HandDescription:
+        """The description read from the YAML file."""
+        return self._description
+
+    def urdf_path(self) -> Path:
+        """The URDF file as given."""
+        return self._urdf_path

@@ -1,0 +1,111 @@
+"""Small shared helpers for simulator tests: a test Allegro hand and a box object.
+
+The hand is built straight from the mani-skill Allegro URDF (render data stripped, mesh paths
+absolute) with an inline YAML, so simulator tests do not depend on the Allegro hand plugin.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.util
+from functools import cache
+from pathlib import Path
+
+from ges_core.errors import AssetError
+from ges_core.hand import HandDescription, HandModel
+from ges_core.hand_yaml import description_from_yaml
+from ges_core.objects.asset import ObjectAsset, PrimitiveShape
+from ges_core.paths import atomic_write_text, cache_dir
+from ges_core.urdf import absolutize_mesh_paths, strip_render_data
+
+__all__ = ["ALLEGRO_TIPS", "TestHand", "allegro_test_hand", "allegro_urdf_source", "box_asset"]
+
+ALLEGRO_TIPS: tuple[str, ...] = ("link_15.0_tip", "link_3.0_tip", "link_7.0_tip", "link_11.0_tip")
+"""Fingertip links of the test Allegro: thumb, index, middle, ring."""
+
+ALLEGRO_YAML = """
+name: allegro_test
+fingers:
+  - {name: thumb, slot: thumb, joints: [joint_12.0, joint_13.0, joint_14.0, joint_15.0], tip_link: link_15.0_tip}
+  - {name: index, slot: index, joints: [joint_0.0, joint_1.0, joint_2.0, joint_3.0], tip_link: link_3.0_tip}
+  - {name: middle, slot: middle, joints: [joint_4.0, joint_5.0, joint_6.0, joint_7.0], tip_link: link_7.0_tip}
+  - {name: ring, slot: ring, joints: [joint_8.0, joint_9.0, joint_10.0, joint_11.0], tip_link: link_11.0_tip}
+slot_fill: {little: ring}
+wrist: {link: palm, palm_normal: [1, 0, 0], finger_direction: [0, 0, 1]}
+middle_finger_length: 0.105
+scale: 1.33
+open_pose: {default: 0.0, "joint_12\\\\.0": 0.263}  # thumb rotation's lower limit is 0.263 rad
+pd_stiffness: {default: 400.0}  # mani-skill's Allegro agent (joint_stiffness = 4e2)
+pd_damping: {default: 10.0}  # mani-skill's Allegro agent (joint_damping = 1e1)
+"""
+
+
+def allegro_urdf_source() -> Path:
+    """The mani-skill right Allegro URDF (found without importing mani_skill, which is slow)."""
+    spec = importlib.util.find_spec("mani_skill")
+    if spec is None or not spec.submodule_search_locations:
+        raise AssetError("package 'mani_skill' is not installed; `pip install mani-skill==3.0.1`")
+    path = Path(spec.submodule_search_locations[0]) / "assets/robots/allegro/allegro_hand_right.urdf"
+    if not path.is_file():
+        raise AssetError(f"Allegro URDF missing at {path}; reinstall mani-skill")
+    return path
+
+
+class TestHand(HandModel):
+    """A HandModel over a ready URDF file and a description."""
+
+    __test__ = False  # not a pytest test class
+
+    def __init__(self, description: HandDescription, urdf: Path) -> None:
+        self._description = description
+        self._urdf = urdf
+
+    @property
+    def description(self) -> HandDescription:
+        return self._description
+
+    def urdf_path(self) -> Path:
+        return self._urdf
+
+
+@cache
+def allegro_test_hand() -> TestHand:
+    """The right Allegro hand (16 joints), URDF cleaned and cached under the GES cache dir."""
+    source = allegro_urdf_source()
+    text = absolutize_mesh_paths(strip_render_data(source.read_text()), source.parent)
+    key = hashlib.sha256(text.encode()).hexdigest()[:16]
+    path = cache_dir("test_hands") / f"allegro_right_{key}.urdf"
+    if not path.is_file():
+        atomic_write_text(path, text)
+    return TestHand(description_from_yaml(ALLEGRO_YAML, text), path)
+
+
+def box_asset(
+    half_extents: tuple[float, float, float] = (0.03, 0.03, 0.03),
+    *,
+    object_id: str = "test/box",
+    density: float = 500.0,
+    friction: float = 1.0,
+) -> ObjectAsset:
+    """A box centred on its object frame, collision = one exact box primitive, mesh = its OBJ."""
+    hx, hy, hz = half_extents
+    return ObjectAsset(
+        object_id=object_id,
+        category="box",
+        mesh_path=_box_mesh(half_extents),
+        collision=(PrimitiveShape(kind="box", size=half_extents),),
+        density=density,
+        mass=density * 8 * hx * hy * hz,
+        friction=friction,
+    )
+
+
+def _box_mesh(half_extents: tuple[float, float, float]) -> Path:
+    """OBJ surface of the box, cached by size."""
+    import trimesh
+
+    path = cache_dir("test_objects") / ("box_" + "_".join(f"{h:.5f}" for h in half_extents) + ".obj")
+    if not path.is_file():
+        mesh = trimesh.creation.box(extents=[2 * h for h in half_extents])
+        atomic_write_text(path, mesh.export(file_type="obj"))
+    return path
