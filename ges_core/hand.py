@@ -140,6 +140,18 @@ class HandDescription:
         lookup = {n: i for i, n in enumerate(self.joint_names)}
         return np.array([lookup[n] for n in names], dtype=np.int64)
 
+    def closed_pose(self, fraction: float = 0.6) -> np.ndarray:
+        """(K,) finger joints moved ``fraction`` of the way from open toward their farther limit.
+
+        For the usual hand (flexion range much larger than extension) this curls the fingers
+        toward the palm; wrist and arm joints stay at the open pose. Couplings applied.
+        """
+        q0, lim = np.asarray(self.open_pose, dtype=np.float64), self.limits_array
+        far = np.where(lim[:, 1] - q0 >= q0 - lim[:, 0], lim[:, 1], lim[:, 0])
+        finger_joints = {j for f in self.fingers for j in f.joints}
+        mask = np.array([n in finger_joints for n in self.joint_names])
+        return self.apply_couplings(np.where(mask, q0 + fraction * (far - q0), q0))
+
     def apply_couplings(self, q: np.ndarray) -> np.ndarray:
         """Copy of ``q`` (..., K) with every coupled follower set from its leader, then clipped."""
         q = np.array(q, dtype=np.float64, copy=True)

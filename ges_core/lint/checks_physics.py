@@ -47,16 +47,6 @@ def _tips_in_wrist(hand: HandModel, q: np.ndarray) -> np.ndarray:
     return np.einsum("nji,nlj->nli", rot, tips - pos[:, None, :])
 
 
-def _closed_pose(hand: HandModel) -> np.ndarray:
-    """Finger joints 60 % of the way from open toward whichever limit is farther (flexion, for sane hands)."""
-    d = hand.description
-    q0, lim = np.asarray(d.open_pose), d.limits_array
-    far = np.where(lim[:, 1] - q0 >= q0 - lim[:, 0], lim[:, 1], lim[:, 0])
-    finger_joints = {j for f in d.fingers for j in f.joints}
-    mask = np.array([n in finger_joints for n in d.joint_names])
-    return d.apply_couplings(np.where(mask, q0 + 0.6 * (far - q0), q0))
-
-
 def check_wrist_convention(hand: HandModel) -> list[LintProblem]:
     """Declared finger direction and palm normal agree with the kinematics at the open and a closed pose."""
     d = hand.description
@@ -65,7 +55,7 @@ def check_wrist_convention(hand: HandModel) -> list[LintProblem]:
     for label, vec in (("finger_direction", declared_dir), ("palm_normal", declared_normal)):
         if abs(np.linalg.norm(vec) - 1) > 1e-3:
             out.append(LintProblem("wrist-frame", f"{label} {vec.tolist()} is not a unit vector", "normalize it"))
-    tips = _tips_in_wrist(hand, np.stack([np.asarray(d.open_pose), _closed_pose(hand)]))
+    tips = _tips_in_wrist(hand, np.stack([np.asarray(d.open_pose), d.closed_pose()]))
     middle = tips[0, FINGER_SLOTS.index("middle")]
     angle = _angle_deg(middle, declared_dir)
     if angle > FINGER_DIRECTION_TOL_DEG:

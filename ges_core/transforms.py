@@ -1,0 +1,59 @@
+"""Pose conversions. Poses are (..., 7): position (m) then unit quaternion w, x, y, z."""
+
+from __future__ import annotations
+
+import numpy as np
+
+__all__ = ["matrix_to_pose", "matrix_to_quat", "pose_to_matrix", "quat_to_matrix", "rotation_between_frames"]
+
+
+def quat_to_matrix(quat: np.ndarray) -> np.ndarray:
+    """(..., 4) wxyz -> (..., 3, 3) rotation matrices (input normalized first)."""
+    q = np.asarray(quat, dtype=np.float64)
+    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
+    w, x, y, z = np.moveaxis(q, -1, 0)
+    rows = [
+        [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+        [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+        [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+    ]
+    return np.stack([np.stack(r, axis=-1) for r in rows], axis=-2)
+
+
+def matrix_to_quat(rot: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 4) wxyz with w >= 0."""
+    from scipy.spatial.transform import Rotation
+
+    r = np.asarray(rot, dtype=np.float64)
+    xyzw = Rotation.from_matrix(r.reshape(-1, 3, 3)).as_quat()
+    wxyz = np.concatenate([xyzw[:, 3:], xyzw[:, :3]], axis=1)
+    wxyz *= np.where(wxyz[:, :1] < 0, -1.0, 1.0)
+    return wxyz.reshape(r.shape[:-2] + (4,))
+
+
+def pose_to_matrix(pose: np.ndarray) -> np.ndarray:
+    """(..., 7) -> (..., 4, 4) homogeneous transforms."""
+    p = np.asarray(pose, dtype=np.float64)
+    out = np.zeros(p.shape[:-1] + (4, 4))
+    out[..., :3, :3] = quat_to_matrix(p[..., 3:])
+    out[..., :3, 3] = p[..., :3]
+    out[..., 3, 3] = 1.0
+    return out
+
+
+def matrix_to_pose(mat: np.ndarray) -> np.ndarray:
+    """(..., 4, 4) homogeneous transforms -> (..., 7)."""
+    m = np.asarray(mat, dtype=np.float64)
+    return np.concatenate([m[..., :3, 3], matrix_to_quat(m[..., :3, :3])], axis=-1)
+
+
+def rotation_between_frames(a1: np.ndarray, a2: np.ndarray, b1: np.ndarray, b2: np.ndarray) -> np.ndarray:
+    """(3, 3) rotation R with R a1 = b1 exactly and R a2 as close to b2 as possible (a1 ⟂ a2 part kept)."""
+
+    def basis(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+        u = u / np.linalg.norm(u)
+        v = v - (v @ u) * u
+        v = v / np.linalg.norm(v)
+        return np.stack([u, v, np.cross(u, v)], axis=1)
+
+    return basis(np.asarray(b1, float), np.asarray(b2, float)) @ basis(np.asarray(a1, float), np.asarray(a2, float)).T

@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Set up .venv at the repository root: CPU torch first (so pip does not pull a CUDA build), then the project.
+# Running it again is harmless and fast: it reinstalls only when pyproject.toml changed.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PY=${PYTHON:-python3}
+TORCH_VERSION=2.13.0
+if [ ! -x .venv/bin/python ]; then
+  echo "setup: creating .venv"
+  "$PY" -m venv .venv
+fi
+stamp=.venv/.ges-setup-stamp
+want="$(cat pyproject.toml scripts/setup.sh | sha256sum | cut -c1-16)"
+if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
+  echo "setup: .venv is up to date"
+  exit 0
+fi
+pip() { .venv/bin/python -m pip --disable-pip-version-check -q "$@" 2>&1 | grep -v "^WARNING: Location" || true; }
+echo "setup: installing torch==$TORCH_VERSION (CPU) and the project; this takes about a minute"
+pip install --upgrade pip setuptools wheel
+pip install "torch==$TORCH_VERSION"
+pip install -e ".[test]"
+.venv/bin/python -c "import torch, sapien, pybullet, pytorch_kinematics, ges_core" \
+  || { echo "setup: import check failed; see the pip output above" >&2; exit 1; }
+echo "$want" > "$stamp"
+echo "setup: done"
