@@ -26,7 +26,18 @@ import numpy as np
 
 from ges_core.contact import FINGER_SLOTS
 
-__all__ = ["FingerSpec", "HandDescription", "HandModel", "JointCoupling", "WristConvention"]
+__all__ = [
+    "HUMAN_MIDDLE_FINGER_LENGTH",
+    "FingerSpec",
+    "HandDescription",
+    "HandModel",
+    "JointCoupling",
+    "WristConvention",
+]
+
+HUMAN_MIDDLE_FINGER_LENGTH = 0.100
+"""Metres, MCP joint to fingertip of an adult human middle finger: every hand's ``scale`` (alpha)
+is its ``middle_finger_length`` divided by this, so alphas compare across hands."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -122,10 +122,16 @@ def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True
     """
     try:
         raw = yaml.safe_load(yaml_text) or {}
-        raw.update(overrides)
+    except yaml.YAMLError as exc:
+        raise AssetError(f"hand description is not valid YAML: {exc}") from exc
+    if not isinstance(raw, dict):
+        raise AssetError("hand description must be a YAML mapping")
+    raw.update(overrides)
+    try:
         data = _HandFile.model_validate(raw)
-    except (yaml.YAMLError, ValidationError) as exc:
-        raise AssetError(f"invalid hand description: {exc}") from exc
+    except ValidationError as exc:
+        problems = "; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors())
+        raise AssetError(f"invalid description of hand '{raw.get('name', '?')}': {problems}") from None
     limits = urdf_joint_limits(urdf_text)
     names = data.joint_names or list(limits)
     unknown = [n for n in names if n not in limits]

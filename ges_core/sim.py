@@ -111,6 +111,10 @@ class SimBackend(ABC):
     def step(self, n: int = 1) -> None:
         """Advance every scene ``n`` physics steps; raises SimulationError on non-finite state."""
 
+    def engine_step(self) -> None:
+        """One raw engine step in every scene, skipping our checks and bookkeeping (for benchmarks)."""
+        raise NotImplementedError(f"{type(self).__name__} does not expose a raw engine step")
+
     # -- reading --------------------------------------------------------------------------
     @abstractmethod
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:

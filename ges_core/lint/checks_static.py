@@ -130,12 +130,12 @@ def check_tip_links(d: HandDescription, tree: UrdfTree) -> list[LintProblem]:
 
 
 def check_collision_geometry(d: HandDescription, tree: UrdfTree) -> list[LintProblem]:
-    """Every link a finger joint moves, up to its tip, carries collision geometry."""
+    """Every link a finger joint moves carries collision geometry (zero-length knuckle links excepted)."""
     out = []
     for f in d.fingers:
         for joint in f.joints:
             child = tree.joint_child.get(joint)
-            if child is not None and child not in tree.has_collision:
+            if child is not None and child not in tree.has_collision and not tree.is_zero_length(child):
                 out.append(
                     LintProblem(
                         "collision",

@@ -22,6 +22,8 @@ class UrdfTree:
     """joint -> parent link"""
     joint_child: dict[str, str] = field(default_factory=dict)
     joint_type: dict[str, str] = field(default_factory=dict)
+    joint_offset: dict[str, float] = field(default_factory=dict)
+    """joint -> length of its origin translation, metres"""
     joint_limit: dict[str, tuple[float, float] | None] = field(default_factory=dict)
     has_collision: set[str] = field(default_factory=set)
     mass: dict[str, float] = field(default_factory=dict)
@@ -60,10 +62,18 @@ class UrdfTree:
         parent, child = joint.find("parent").get("link"), joint.find("child").get("link")
         self.joint_type[name], self.joint_parent[name], self.joint_child[name] = kind, parent, child
         self.parent_joint[child] = name
+        origin = joint.find("origin")
+        xyz = [float(v) for v in origin.get("xyz", "0 0 0").split()] if origin is not None else [0.0]
+        self.joint_offset[name] = float(np.linalg.norm(xyz))
         limit = joint.find("limit")
         ok = kind not in ("continuous", "floating", "planar") and limit is not None
         ok = ok and limit.get("lower") is not None and limit.get("upper") is not None
         self.joint_limit[name] = (float(limit.get("lower")), float(limit.get("upper"))) if ok else None
+
+    def is_zero_length(self, link: str) -> bool:
+        """True for a link whose child joints all sit at its origin (a knuckle between coincident axes)."""
+        children = [j for j, parent in self.joint_parent.items() if parent == link]
+        return bool(children) and all(self.joint_offset[j] < 1e-9 for j in children)
 
     def ancestors(self, link: str) -> list[str]:
         """Links from ``link``'s parent up to the root."""

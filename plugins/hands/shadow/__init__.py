@@ -1,0 +1,23 @@
+"""The Shadow Dexterous Hand, converted from gymnasium-robotics' MJCF (MIT) to a cached URDF.
+
+Registration only: the converter (MuJoCo) loads when the hand is built.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from ges_core import hookimpl
+from ges_core.specs import HandSpec
+
+
+@hookimpl
+def ges_register_hands(register: Callable[[HandSpec], None]) -> None:
+    """Register the ``shadow`` hand."""
+    register(
+        HandSpec(
+            name="shadow",
+            entry_point="plugins.hands.shadow.hand:build_hand",
+            description="Shadow Dexterous Hand with forearm, 24 joints (gymnasium-robotics MJCF -> URDF)",
+        )
+    )
