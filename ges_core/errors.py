@@ -48,12 +48,12 @@ class RegistrationError(GesError):
 class UnknownNameError(GesError, KeyError):
     """A name was looked up that no plugin registered."""
 
-    def __init__(self, kind: str, name: str, known: Iterable[str]) -> None:
+    def __init__(self, kind: str, name: str, known: Iterable[str], *, where: str = "") -> None:
         known = sorted(known)
         close = difflib.get_close_matches(name, known, n=1)
         hint = f" Did you mean '{close[0]}'?" if close else ""
         listing = ", ".join(known) if known else "(none registered)"
-        msg = f"unknown {kind} '{name}'.{hint} Known {kind}s: {listing}."
+        msg = f"unknown {kind} '{name}'{where}.{hint} Known {kind}s: {listing}."
         super().__init__(msg)
         self.kind, self.name, self.known = kind, name, known
 

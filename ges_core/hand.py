@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from ges_core.contact import FINGER_SLOTS
+from ges_core.errors import UnknownNameError
 
 __all__ = [
     "HUMAN_MIDDLE_FINGER_LENGTH",
@@ -103,7 +104,7 @@ class HandDescription:
     """(K,) PD stiffness per joint (N·m/rad)."""
     pd_damping: tuple[float, ...]
     """(K,) PD damping per joint (N·m·s/rad)."""
-    slot_fill: dict[str, str] = field(default_factory=dict)
+    slot_fill: dict[str, str] = field(default_factory=dict, hash=False)
     """Slot -> finger name for slots no physical finger fills (e.g. Allegro's little finger)."""
     couplings: tuple[JointCoupling, ...] = ()
     """Joints that follow another joint (tendons)."""
@@ -127,14 +128,15 @@ class HandDescription:
                 return finger
         if slot in self.slot_fill:
             return self.finger(self.slot_fill[slot])
-        raise KeyError(f"hand '{self.name}' has no finger for slot '{slot}' and no slot_fill rule")
+        where = f" in hand '{self.name}' (no finger and no slot_fill rule)"
+        raise UnknownNameError("finger slot", slot, [f.slot for f in self.fingers], where=where)
 
     def finger(self, name: str) -> FingerSpec:
         """The finger called ``name``."""
         for finger in self.fingers:
             if finger.name == name:
                 return finger
-        raise KeyError(f"hand '{self.name}' has no finger '{name}'; fingers: {[f.name for f in self.fingers]}")
+        raise UnknownNameError("finger", name, [f.name for f in self.fingers], where=f" in hand '{self.name}'")
 
     @property
     def slot_tip_links(self) -> tuple[str, ...]:

@@ -28,6 +28,7 @@ from typing import Any
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from ges_core.contact import FINGER_SLOTS
 from ges_core.errors import AssetError
 from ges_core.hand import FingerSpec, HandDescription, JointCoupling, WristConvention
 from ges_core.urdf import parse_urdf, root_link
@@ -115,6 +116,38 @@ def expand_per_joint(value: PerJoint, joint_names: list[str], what: str) -> tupl
     return tuple(resolved.get(n, float(value.get("default", 0.0))) for n in joint_names)
 
 
+def _check_joint_names(hand: str, names: list[str], urdf_joints: list[str]) -> None:
+    """joint_names must list every movable URDF joint exactly once."""
+    repeated = sorted({n for n in names if names.count(n) > 1})
+    unknown = [n for n in names if n not in urdf_joints]
+    missing = [n for n in urdf_joints if n not in names]
+    problems = [
+        f"{what} {items}"
+        for what, items in (("repeated", repeated), ("not in the URDF", unknown), ("missing", missing))
+        if items
+    ]
+    if problems:
+        raise AssetError(f"hand '{hand}': joint_names must list every movable URDF joint once: " + "; ".join(problems))
+
+
+def _check_references(data: _HandFile, names: list[str]) -> None:
+    """Fingers, slot_fill and couplings may only name joints, fingers and slots that exist."""
+    fingers = [f.name for f in data.fingers]
+    problems = [f"finger '{f.name}' has unknown slot '{f.slot}'" for f in data.fingers if f.slot not in FINGER_SLOTS]
+    problems += [
+        f"finger '{f.name}' names unknown joint '{j}'" for f in data.fingers for j in f.joints if j not in names
+    ]
+    problems += [f"slot_fill: unknown slot '{s}'" for s in data.slot_fill if s not in FINGER_SLOTS]
+    problems += [f"slot_fill: '{s}' -> unknown finger '{f}'" for s, f in data.slot_fill.items() if f not in fingers]
+    problems += [
+        f"coupling names unknown joint '{j}'" for c in data.couplings for j in (c.follower, c.leader) if j not in names
+    ]
+    if problems:
+        raise AssetError(
+            f"hand '{data.name}': " + "; ".join(problems) + f" (known fingers {fingers}, slots {list(FINGER_SLOTS)})"
+        )
+
+
 def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True, **overrides: Any) -> HandDescription:
     """Build a HandDescription; ``overrides`` replace top-level YAML keys (registry settings).
 
@@ -134,9 +167,9 @@ def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True
         raise AssetError(f"invalid description of hand '{raw.get('name', '?')}': {problems}") from None
     limits = urdf_joint_limits(urdf_text)
     names = data.joint_names or list(limits)
-    unknown = [n for n in names if n not in limits]
-    if unknown:
-        raise AssetError(f"hand '{data.name}': joints {unknown} are not movable joints of its URDF")
+    _check_joint_names(data.name, names, list(limits))
+    if strict:
+        _check_references(data, names)
     unlimited = [n for n in names if limits[n] is None]
     joint_limits = tuple(limits[n] or (0.0, 0.0) for n in names)
     fingers = tuple(

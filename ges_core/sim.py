@@ -30,7 +30,7 @@ ContactPartner = Literal["object", "table", "any"]
 class SceneConfig(BaseModel):
     """Physics settings shared by every backend."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True)
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     num_envs: int = Field(1, ge=1, description="independent scenes stepped together")
     timestep: float = Field(1 / 120, gt=0, le=0.05, description="physics step, seconds")
@@ -78,7 +78,8 @@ class SimBackend(ABC):
         """Add the hand to every scene, PD drives on every joint, at its open pose.
 
         floating: True adds a 6-DoF wrist driven by :meth:`set_wrist_targets`; False fixes the
-        hand's base link at the world origin (move it with :meth:`set_wrist_pose`).
+        hand's base link at the world origin. Either way the base starts at the origin (inside the
+        table): place a floating hand with :meth:`set_hand_state` before stepping.
         """
 
     @abstractmethod

@@ -1,0 +1,24 @@
+"""The Allegro Hand (right, 16 joints, 4 fingers) from the URDF shipped inside ``mani-skill``.
+
+Light on purpose: the hand itself (and any heavy import) lives in :mod:`plugins.hands.allegro.hand`,
+loaded only when the registry builds the hand.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+from ges_core import hookimpl
+from ges_core.specs import HandSpec
+
+
+@hookimpl
+def ges_register_hands(register: Callable[[HandSpec], None]) -> None:
+    """Register the right Allegro hand as ``allegro``."""
+    register(
+        HandSpec(
+            name="allegro",
+            entry_point="plugins.hands.allegro.hand:build_hand",
+            description="Allegro Hand, right (16 joints, 4 fingers; little-finger slot served by the ring finger)",
+        )
+    )

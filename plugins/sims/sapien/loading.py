@@ -1,0 +1,189 @@
+"""Building SAPIEN scenes, hands and objects on a CPU without a render device.
+
+Every function here follows the recipe in ``docs/platform-notes.md``: no render material or
+render shape is ever created (they need a Vulkan device), URDFs are loaded from text without
+``<material>`` tags through ``loader.parse`` with every link's visual records cleared.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from pathlib import Path
+
+import numpy as np
+import sapien
+
+from ges_core.errors import AssetError
+from ges_core.hand import HandDescription, HandModel
+from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
+from ges_core.paths import atomic_write_text, cache_dir
+from ges_core.sim import SceneConfig
+from ges_core.urdf import WRIST_JOINTS, absolutize_mesh_paths, add_floating_base, strip_render_data
+
+__all__ = ["build_hand", "build_object", "create_scene", "prepare_urdf", "rest_height", "set_contact_offset"]
+
+NO_SELF_COLLISION_BIT = 1 << 29
+"""Collision-group-2 bit put on every hand shape when self-collision is off: shapes that share a
+group-2 bit never collide in SAPIEN. Objects and the table leave group 2 empty."""
+
+REST_MARGIN = 2e-4
+"""Gap (m) left under an object placed on the table: a start in contact or slight penetration makes
+PhysX push it up; 0.2 mm falls in one step without a visible bounce."""
+
+
+def create_scene(config: SceneConfig) -> sapien.Scene:
+    """One CPU PhysX scene: timestep, gravity along z, a table plane at z = 0 with ``table_friction``."""
+    previous = sapien.physx.get_scene_config()
+    sapien.physx.set_scene_config(gravity=np.array([0.0, 0.0, config.gravity], dtype=np.float32))
+    try:
+        scene = sapien.Scene([sapien.physx.PhysxCpuSystem()])  # the system reads gravity when created
+    finally:
+        sapien.physx.set_scene_config(previous)
+    scene.set_timestep(config.timestep)
+    material = sapien.physx.PhysxMaterial(config.table_friction, config.table_friction, 0.0)
+    scene.add_ground(0.0, render=False, material=material)
+    return scene
+
+
+def prepare_urdf(hand: HandModel, *, floating: bool) -> Path:
+    """The hand's URDF without render data, mesh paths absolute, plus the floating wrist if asked.
+
+    Written once to the cache (keyed by a hash of the text) and reused.
+    """
+    source = hand.urdf_path()
+    text = absolutize_mesh_paths(strip_render_data(source.read_text()), source.parent)
+    if floating:
+        text = add_floating_base(text)
+    key = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+    path = cache_dir("sapien", "urdf") / f"{hand.name}_{'floating' if floating else 'fixed'}_{key}.urdf"
+    if not path.is_file():
+        atomic_write_text(path, text)
+    return path
+
+
+def build_hand(scene: sapien.Scene, urdf: Path, config: SceneConfig) -> sapien.physx.PhysxArticulation:
+    """Load the articulation with its root fixed in the world, hand friction, optional self-collision."""
+    loader = scene.create_urdf_loader()
+    loader.fix_root_link = True
+    loader.set_material(config.hand_friction, config.hand_friction, 0.0)
+    builders, actors, _cameras = loader.parse(str(urdf))
+    if len(builders) != 1 or actors:
+        raise AssetError(f"{urdf}: expected one articulation, SAPIEN found {len(builders)} and {len(actors)} actors")
+    builder = builders[0]
+    for link_builder in builder.link_builders:
+        link_builder.visual_records.clear()  # render shapes need a render device
+        if not config.self_collision:
+            link_builder.collision_groups[2] |= NO_SELF_COLLISION_BIT
+    articulation = builder.build(fix_root_link=True)
+    _configure_hand_body(articulation, config)
+    return articulation
+
+
+def _configure_hand_body(articulation: sapien.physx.PhysxArticulation, config: SceneConfig) -> None:
+    articulation.set_sleep_threshold(0.0)  # a sleeping hand stops simulating (platform notes)
+    articulation.set_solver_position_iterations(config.solver_iterations)
+    for link in articulation.get_links():
+        link.disable_gravity = not config.hand_gravity
+
+
+def sim_joint_order(
+    articulation: sapien.physx.PhysxArticulation, description: HandDescription, *, floating: bool
+) -> tuple[list[sapien.physx.PhysxArticulationJoint], np.ndarray, np.ndarray]:
+    """Split SAPIEN's breadth-first active joints into wrist and hand joints and map the hand's order.
+
+    Returns the active joints (sim order), ``idx_sim_to_hand`` (K,) and ``idx_hand_to_sim`` (K,):
+    with ``q_fingers`` the sim vector after the wrist joints, ``q_hand = q_fingers[idx_sim_to_hand]``
+    and ``q_fingers = q_hand[idx_hand_to_sim]``.
+    """
+    joints = list(articulation.get_active_joints())
+    names = [j.name for j in joints]
+    n_wrist = len(WRIST_JOINTS) if floating else 0
+    if tuple(names[:n_wrist]) != WRIST_JOINTS[:n_wrist]:
+        raise AssetError(f"hand '{description.name}': SAPIEN put the wrist joints at {names[:n_wrist]}")
+    finger_names = names[n_wrist:]
+    missing = sorted(set(description.joint_names) - set(finger_names))
+    extra = sorted(set(finger_names) - set(description.joint_names))
+    if missing or extra:
+        raise AssetError(
+            f"hand '{description.name}': joint_names and the URDF's movable joints differ "
+            f"(not in URDF: {missing}; not in joint_names: {extra}); make the description list every movable joint"
+        )
+    idx_sim_to_hand = np.array([finger_names.index(n) for n in description.joint_names], dtype=np.int64)
+    idx_hand_to_sim = np.argsort(idx_sim_to_hand)
+    return joints, idx_sim_to_hand, idx_hand_to_sim
+
+
+def set_drives(
+    joints: list[sapien.physx.PhysxArticulationJoint],
+    description: HandDescription,
+    idx_sim_to_hand: np.ndarray,
+    config: SceneConfig,
+) -> None:
+    """Force-mode PD drives: wrist joints from the scene config, hand joints from the description."""
+    n_wrist = len(joints) - description.num_joints
+    for joint in joints[:n_wrist]:
+        joint.set_drive_property(config.wrist_stiffness, config.wrist_damping)
+    for k, sim_index in enumerate(idx_sim_to_hand):
+        joint = joints[n_wrist + int(sim_index)]
+        joint.set_drive_property(description.pd_stiffness[k], description.pd_damping[k])
+
+
+def build_object(scene: sapien.Scene, obj: ObjectAsset, config: SceneConfig) -> sapien.Entity:
+    """A dynamic actor with ``obj.collision`` shapes (density ``obj.density``, friction ``obj.friction``)."""
+    if not obj.collision:
+        raise AssetError(f"object '{obj.object_id}' has no collision shapes; give it primitives or convex parts")
+    builder = scene.create_actor_builder()
+    material = sapien.physx.PhysxMaterial(obj.friction, obj.friction, 0.0)
+    for shape in obj.collision:
+        _add_shape(builder, shape, material, obj)
+    entity = builder.build(name=f"object:{obj.object_id}")
+    body = entity.find_component_by_type(sapien.physx.PhysxRigidDynamicComponent)
+    body.set_sleep_threshold(0.0)  # a sleeping object ignores a closing hand until woken (platform notes)
+    body.set_solver_position_iterations(config.solver_iterations)
+    return entity
+
+
+def _add_shape(
+    builder: sapien.ActorBuilder, shape: PrimitiveShape | ConvexPart, material: object, obj: ObjectAsset
+) -> None:
+    if isinstance(shape, ConvexPart):
+        if not Path(shape.path).is_file():
+            raise AssetError(f"object '{obj.object_id}': convex part {shape.path} does not exist; rebuild its asset")
+        builder.add_convex_collision_from_file(str(shape.path), material=material, density=obj.density)
+        return
+    pose = sapien.Pose(p=list(shape.pose[:3]), q=list(shape.pose[3:]))
+    kw = {"pose": pose, "material": material, "density": obj.density}
+    size = shape.size
+    if shape.kind == "box" and len(size) == 3:
+        builder.add_box_collision(half_size=list(size), **kw)
+    elif shape.kind == "sphere" and len(size) == 1:
+        builder.add_sphere_collision(radius=size[0], **kw)
+    elif shape.kind == "capsule" and len(size) == 2:  # SAPIEN's capsule axis is local x, as in PrimitiveShape
+        builder.add_capsule_collision(radius=size[0], half_length=size[1], **kw)
+    elif shape.kind == "cylinder" and len(size) == 2:
+        builder.add_cylinder_collision(radius=size[0], half_length=size[1], **kw)
+    else:
+        raise AssetError(
+            f"object '{obj.object_id}': bad {shape.kind} size {size}; box takes 3 half extents, sphere (radius,), "
+            "capsule and cylinder (radius, half_length)"
+        )
+
+
+def set_contact_offset(bodies: list[sapien.physx.PhysxRigidBaseComponent], offset: float | None) -> None:
+    """Set every collision shape's contact offset (m); None keeps SAPIEN's default of 0.01 m."""
+    if offset is None:
+        return
+    for body in bodies:
+        for shape in body.get_collision_shapes():
+            shape.set_contact_offset(offset)
+
+
+def rest_height(entity: sapien.Entity) -> float:
+    """z of the object frame that puts its lowest collision point ``REST_MARGIN`` above the table.
+
+    Uses the shapes' tight world bounding box at the identity orientation.
+    """
+    body = entity.find_component_by_type(sapien.physx.PhysxRigidDynamicComponent)
+    entity.pose = sapien.Pose()
+    z_min = float(body.compute_global_aabb_tight()[0, 2])
+    return -z_min + REST_MARGIN

@@ -1,0 +1,439 @@
+"""The SAPIEN backend against independent references: pytorch-kinematics FK, SAPIEN's own joint
+API, gravity, and physical sense of contact forces."""
+
+from __future__ import annotations
+
+import xml.etree.ElementTree as ET
+
+import numpy as np
+import pytest
+from helpers_sim import ALLEGRO_TIPS, allegro_test_hand, box_asset
+
+from ges_core.errors import AssetError, ConfigError, SimulationError, UnknownNameError
+from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
+from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig
+from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat, quat_to_euler_xyz
+from plugins.sims.sapien.backend import SapienBackend, euler_xyz
+from plugins.sims.sapien.bench import allegro_top_down
+from plugins.sims.sapien.loading import REST_MARGIN
+
+pytestmark = pytest.mark.sim
+
+UP = np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0])
+"""A base pose well above the table."""
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return allegro_test_hand()
+
+
+def make_sim(hand=None, *, floating: bool = True, **scene) -> SapienBackend:
+    sim = SapienBackend(SceneConfig(**scene))
+    if hand is not None:
+        sim.load_hand(hand, floating=floating)
+    return sim
+
+
+def open_q(hand, n: int = 1) -> np.ndarray:
+    return np.tile(np.asarray(hand.description.open_pose), (n, 1))
+
+
+# -- registry and joint order -------------------------------------------------------------------
+def test_registry_builds_sapien():
+    registry = load_registry(blocked=("shadow", "allegro", "pybullet"))  # only this plugin's registration
+    spec = registry.spec("sim", "sapien")
+    assert spec.requires == ("sapien",)
+    with registry.build_sim("sapien", SceneConfig(num_envs=2)) as sim:
+        assert isinstance(sim, SapienBackend) and sim.num_envs == 2
+
+
+@pytest.mark.parametrize("floating", [True, False])
+def test_joint_targets_reach_each_named_joint(hand, floating):
+    """A distinct target per joint name comes back by name, through our reads and SAPIEN's own."""
+    d = hand.description
+    lim = d.limits_array
+    target = lim[:, 0] + (np.arange(d.num_joints) + 1) / (d.num_joints + 1) * (lim[:, 1] - lim[:, 0])
+    sim = make_sim(hand, floating=floating)
+    sim.set_hand_state(open_q(hand), UP)
+    sim.set_joint_targets(target[None])
+    sim.step(120)
+    q, qvel = sim.joint_state()
+    np.testing.assert_allclose(q[0], target, atol=0.02)
+    assert np.abs(qvel).max() < 0.05
+    articulation = sim._envs[0].hand
+    sapien_by_name = {j.name: v for j, v in zip(articulation.get_active_joints(), articulation.get_qpos(), strict=True)}
+    np.testing.assert_allclose([sapien_by_name[n] for n in d.joint_names], q[0], atol=1e-6)
+    assert [n for n in sapien_by_name if n in WRIST_JOINTS] == (list(WRIST_JOINTS) if floating else [])
+
+
+def test_index_maps_are_inverse_permutations(hand):
+    sim = make_sim(hand)
+    assert np.array_equal(sim.idx_sim_to_hand[sim.idx_hand_to_sim], np.arange(hand.description.num_joints))
+    sim_names = [j.name for j in sim._envs[0].hand.get_active_joints()][len(WRIST_JOINTS) :]
+    assert [sim_names[i] for i in sim.idx_sim_to_hand] == list(hand.description.joint_names)
+    assert sim_names != list(hand.description.joint_names)  # SAPIEN's order differs: the map matters
+
+
+# -- kinematics against pytorch-kinematics --------------------------------------------------------
+def _matrix(quat: np.ndarray) -> np.ndarray:
+    w, x, y, z = quat / np.linalg.norm(quat)
+    return np.array(
+        [
+            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
+        ]
+    )
+
+
+@pytest.mark.parametrize("floating", [True, False])
+def test_link_poses_match_pytorch_kinematics(hand, floating):
+    pk = pytest.importorskip("pytorch_kinematics")
+    torch = pytest.importorskip("torch")
+    chain = pk.build_chain_from_urdf(hand.urdf_path().read_bytes()).to(dtype=torch.float64)
+    links = [n for n in chain.get_frame_names() if n != chain._root.name]
+    rng = np.random.default_rng(7)
+    lim = hand.description.limits_array
+    qs = rng.uniform(lim[:, 0], lim[:, 1], size=(3, len(lim)))
+    order = [hand.description.joint_names.index(n) for n in chain.get_joint_parameter_names()]
+    fk = chain.forward_kinematics(torch.as_tensor(qs[:, order]))
+    sim = make_sim(hand, floating=floating)
+    for i, q in enumerate(qs):
+        wrist = np.r_[rng.uniform(-0.3, 0.3, 3), euler_xyz_to_quat(rng.uniform(-2.5, 2.5, 3))]
+        sim.set_hand_state(q[None], wrist[None])
+        got = sim.link_poses(links)[0]
+        np.testing.assert_allclose(sim.wrist_pose()[0, :3], wrist[:3], atol=1e-5)
+        rot = _matrix(wrist[3:])
+        for j, name in enumerate(links):
+            expected = fk[name].get_matrix()[i].numpy()
+            np.testing.assert_allclose(got[j, :3], wrist[:3] + rot @ expected[:3, 3], atol=1e-3, err_msg=name)
+            np.testing.assert_allclose(_matrix(got[j, 3:]), rot @ expected[:3, :3], atol=2e-3, err_msg=name)
+
+
+def test_scalar_euler_matches_core_conversion():
+    quats = np.random.default_rng(3).normal(size=(200, 4))
+    expected = quat_to_euler_xyz(quats)
+    np.testing.assert_allclose([euler_xyz(*q) for q in quats], expected, atol=1e-12)
+
+
+def test_wrist_targets_move_the_base(hand):
+    sim = make_sim(hand)
+    sim.set_hand_state(open_q(hand), UP[None])
+    goal = np.r_[0.1, -0.05, 0.4, euler_xyz_to_quat(np.array([0.3, -0.4, 2.9]))]
+    sim.set_wrist_targets(goal[None])
+    sim.step(240)
+    got = sim.wrist_pose()[0]
+    np.testing.assert_allclose(got[:3], goal[:3], atol=2e-3)
+    assert abs(float(np.dot(got[3:], goal[3:]))) > 0.9999
+
+
+# -- objects on the table -----------------------------------------------------------------------
+def test_dropped_box_rests_at_half_height():
+    sim = make_sim()
+    sim.load_object(box_asset((0.04, 0.03, 0.02)), pose=np.array([0.1, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0]))
+    sim.step(180)
+    pose = sim.object_pose()[0]
+    assert abs(pose[2] - 0.02) < 2e-3
+    np.testing.assert_allclose(pose[:2], [0.1, 0.0], atol=2e-3)
+
+
+def test_default_pose_rests_the_object_on_the_table():
+    sim = make_sim()
+    sim.load_object(box_asset((0.03, 0.03, 0.05)))
+    np.testing.assert_allclose(sim.object_pose()[0], [0, 0, 0.05 + REST_MARGIN, 1, 0, 0, 0], atol=1e-6)
+    sim.step(60)
+    assert abs(sim.object_pose()[0, 2] - 0.05) < 1e-3
+
+
+def test_zero_gravity_keeps_the_object_floating():
+    sim = make_sim(gravity=0.0)
+    sim.load_object(box_asset(), pose=UP)
+    sim.step(60)
+    np.testing.assert_allclose(sim.object_pose()[0], UP, atol=1e-6)
+
+
+@pytest.mark.parametrize(
+    ("shape", "rest_z"),
+    [
+        (PrimitiveShape(kind="sphere", size=(0.03,)), 0.03),
+        (PrimitiveShape(kind="capsule", size=(0.02, 0.05)), 0.02),  # axis along local x: lies down
+        (PrimitiveShape(kind="cylinder", size=(0.02, 0.05)), 0.02),
+        (PrimitiveShape(kind="box", size=(0.02, 0.02, 0.02), pose=(0, 0, 0.03, 1, 0, 0, 0)), -0.01),
+    ],
+)
+def test_primitives_fall_to_their_physical_rest_height(shape, rest_z):
+    sim = make_sim()
+    obj = ObjectAsset(object_id="t/p", category="p", mesh_path=box_asset().mesh_path, collision=(shape,))
+    sim.load_object(obj, pose=np.array([0.0, 0.0, 0.3, 1.0, 0.0, 0.0, 0.0]))
+    sim.step(150)
+    assert abs(sim.object_pose()[0, 2] - rest_z) < 2e-3
+
+
+def test_convex_part_loads_from_file(tmp_path):
+    trimesh = pytest.importorskip("trimesh")
+    path = tmp_path / "part.obj"
+    trimesh.creation.box(extents=[0.06, 0.04, 0.05]).export(path)
+    obj = ObjectAsset(object_id="t/convex", category="c", mesh_path=path, collision=(ConvexPart(path=path),))
+    sim = make_sim()
+    sim.load_object(obj)
+    sim.step(60)
+    assert abs(sim.object_pose()[0, 2] - 0.025) < 1e-3
+    mass = sim._envs[0].obj_body.mass
+    assert mass == pytest.approx(500.0 * 0.06 * 0.04 * 0.05, rel=1e-3)
+
+
+def test_object_replacement_and_env_ids():
+    sim = make_sim(num_envs=2)
+    sim.load_object(box_asset(object_id="t/small"))
+    sim.load_object(box_asset((0.05, 0.05, 0.05), object_id="t/big"), env_ids=[1])
+    sim.step(60)
+    np.testing.assert_allclose(sim.object_pose()[:, 2], [0.03, 0.05], atol=1e-3)
+    for env, name in zip(sim._envs, ("t/small", "t/big"), strict=True):
+        assert len(env.scene.physx_system.get_rigid_dynamic_components()) == 1
+        assert {p.link_a for p in sim.contact_pairs(sim._envs.index(env))} == {name}
+
+
+def test_contact_pairs_report_the_weight_of_a_resting_box():
+    sim = make_sim()
+    box = box_asset()
+    sim.load_object(box)
+    sim.step(60)
+    (pair,) = sim.contact_pairs(0)
+    assert (pair.body_a, pair.link_a, pair.body_b) == ("object", "test/box", "table")
+    assert pair.force == pytest.approx(box.mass * 9.81, rel=0.02)
+
+
+# -- grasp contacts -----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def grasp(hand):
+    """A floating Allegro closed top-down on a 7 cm box (self-collision off so partners add up)."""
+    obj, wrist, q = allegro_top_down(hand)
+    sim = make_sim(hand, self_collision=False)
+    sim.load_object(obj)
+    sim.set_hand_state(open_q(hand), wrist[None])
+    sim.set_wrist_targets(wrist[None])
+    q0 = np.asarray(hand.description.open_pose)
+    for i in range(1, 121):
+        sim.set_joint_targets((q0 + min(1.0, i / 60) * (q - q0))[None])
+        sim.step()
+    forces = {p: sim.contact_forces(ALLEGRO_TIPS, p)[0] for p in ("object", "table", "any")}
+    return sim, forces, sim.link_poses(ALLEGRO_TIPS)[0], sim.object_pose()[0]
+
+
+def test_closing_hand_presses_fingertips_on_the_box(grasp):
+    sim, forces, tips, box = grasp
+    touching = np.linalg.norm(forces["object"], axis=1) > 0.5
+    assert touching.sum() >= 2
+    outward = np.einsum("ij,ij->i", forces["object"], tips[:, :3] - box[:3])
+    assert np.all(outward[touching] > 0)  # the box pushes each fingertip away from its centre
+    slow = {p.link_a for p in sim.contact_pairs(0) if p.body_b == "object" and p.force > 0}
+    assert {ALLEGRO_TIPS[i] for i in np.flatnonzero(touching)} <= slow
+
+
+def test_contact_partners_are_filtered(grasp):
+    _, forces, _, _ = grasp
+    np.testing.assert_allclose(forces["any"], forces["object"] + forces["table"], atol=1e-9)
+    on_table = np.linalg.norm(forces["table"], axis=1) > 0.5
+    on_box = np.linalg.norm(forces["object"], axis=1) > 0.5
+    assert np.all(forces["table"][on_table, 2] > 0)  # the table pushes up
+    assert on_table.any() and (on_box & ~on_table).any()  # the partners differ tip by tip
+
+
+def test_repeated_links_get_the_same_force(grasp):
+    sim, forces, _, _ = grasp
+    twice = sim.contact_forces([ALLEGRO_TIPS[2], ALLEGRO_TIPS[2]], "object")[0]
+    np.testing.assert_array_equal(twice, [forces["object"][2]] * 2)
+
+
+# -- collisions inside the hand ------------------------------------------------------------------
+def _parent_child_pairs(urdf_text: str) -> set[frozenset[str]]:
+    root = ET.fromstring(urdf_text)
+    return {frozenset((j.find("parent").get("link"), j.find("child").get("link"))) for j in root.findall("joint")}
+
+
+@pytest.mark.parametrize("self_collision", [True, False])
+def test_self_collision_setting(hand, self_collision):
+    sim = make_sim(hand, floating=False, self_collision=self_collision)
+    lim = hand.description.limits_array
+    rng = np.random.default_rng(0)
+    found = set()
+    for q in rng.uniform(lim[:, 0], lim[:, 1], size=(20, len(lim))):
+        sim.set_hand_state(q[None], UP[None])
+        sim.step(1)
+        found |= {frozenset((p.link_a, p.link_b)) for p in sim.contact_pairs(0) if p.body_a == p.body_b == "hand"}
+    assert bool(found) == self_collision
+    assert not found & _parent_child_pairs(hand.urdf_text())
+
+
+@pytest.mark.parametrize("hand_gravity", [True, False])
+def test_hand_gravity_setting(hand, hand_gravity):
+    sim = make_sim(hand, hand_gravity=hand_gravity)
+    sim.set_hand_state(open_q(hand), UP[None])
+    sim.step(120)
+    sag = UP[2] - sim.wrist_pose()[0, 2]
+    assert (1e-4 < sag < 2e-3) if hand_gravity else abs(sag) < 1e-5
+
+
+# -- state: reset, determinism, explosions ----------------------------------------------------------
+def _scripted_run(hand) -> tuple[np.ndarray, ...]:
+    obj, wrist, q = allegro_top_down(hand)
+    sim = make_sim(hand)
+    sim.load_object(obj)
+    sim.set_hand_state(open_q(hand), wrist[None])
+    sim.set_wrist_targets(wrist[None])
+    sim.set_joint_targets(q[None])
+    sim.step(60)
+    return (*sim.joint_state(), sim.object_pose(), sim.contact_forces(ALLEGRO_TIPS, "any"))
+
+
+def test_identical_runs_give_identical_states(hand):
+    for a, b in zip(_scripted_run(hand), _scripted_run(hand), strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_reset_restores_the_loaded_state(hand):
+    sim = make_sim(hand, num_envs=2)
+    start = np.array([0.2, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0])
+    sim.load_object(box_asset(), pose=start)
+    sim.set_hand_state(open_q(hand, 2) + 0.1, np.tile(UP, (2, 1)))
+    sim.set_joint_targets(open_q(hand, 2) + 0.2)
+    sim.step(30)
+    sim.reset()
+    q, qvel = sim.joint_state()
+    np.testing.assert_allclose(q, open_q(hand, 2), atol=1e-6)
+    assert np.all(qvel == 0)
+    np.testing.assert_allclose(sim.wrist_pose(), np.tile([0, 0, 0, 1, 0, 0, 0], (2, 1)), atol=1e-6)
+    np.testing.assert_allclose(sim.object_pose(), np.tile(start, (2, 1)), atol=1e-6)
+
+
+def test_huge_targets_raise_exploding_in_the_right_env(hand):
+    sim = make_sim(hand, num_envs=2)
+    sim.set_hand_state(open_q(hand, 2), np.tile(UP, (2, 1)))
+    wrist = np.tile(UP, (2, 1))
+    wrist[1, 0] = 1e30  # a wrist target 1e30 m away: the PD force overflows any sane velocity
+    sim.set_wrist_targets(wrist)
+    with pytest.raises(SimulationError, match=r"sapien env 1: exploding hand joint '\w+' velocity \(\d"):
+        sim.step(3)
+
+
+def test_overflowing_targets_raise_non_finite(hand):
+    sim = make_sim(hand)
+    sim.set_hand_state(open_q(hand), UP[None])
+    sim.set_joint_targets(np.full((1, hand.description.num_joints), 3e38))
+    with pytest.raises(SimulationError, match=r"sapien env 0: non-finite hand joint .* velocity \(nan"):
+        sim.step(5)
+
+
+def test_object_explosion_is_reported():
+    sim = make_sim(gravity=-1e6)
+    sim.load_object(box_asset(), pose=UP)
+    with pytest.raises(SimulationError, match=r"sapien env 0: exploding object velocity"):
+        sim.step(1)
+
+
+# -- error paths ---------------------------------------------------------------------------------
+def test_commands_check_shapes_and_values(hand):
+    sim = make_sim(hand)
+    with pytest.raises(SimulationError, match=r"set_joint_targets q has shape \(16,\), expected \(1, 16\)"):
+        sim.set_joint_targets(np.zeros(16))
+    with pytest.raises(SimulationError, match="set_hand_state q holds NaN or inf"):
+        sim.set_hand_state(np.full((1, 16), np.nan))
+    with pytest.raises(SimulationError, match="set_wrist_targets pose has a zero quaternion"):
+        sim.set_wrist_targets(np.zeros((1, 7)))
+    with pytest.raises(SimulationError, match=r"set_object_pose pose has shape \(1, 6\)"):
+        sim.set_object_pose(np.zeros((1, 6)))
+    with pytest.raises(SimulationError, match="partner 'hand' is not one of object, table, any"):
+        sim.contact_forces(ALLEGRO_TIPS, "hand")
+    with pytest.raises(SimulationError, match="n=-1"):
+        sim.step(-1)
+
+
+def test_unknown_link_names_suggest_a_close_one(hand):
+    sim = make_sim(hand)
+    with pytest.raises(UnknownNameError, match="unknown hand link 'link_3.0_tp'. Did you mean 'link_3.0_tip'"):
+        sim.link_poses(["link_3.0_tp"])
+    with pytest.raises(UnknownNameError, match="unknown hand link 'thumb'"):
+        sim.contact_forces(["thumb"])
+
+
+def test_lifecycle_errors(hand):
+    sim = make_sim()
+    with pytest.raises(SimulationError, match=r"sapien.joint_state: no hand loaded; call load_hand\(hand\) first"):
+        sim.joint_state()
+    with pytest.raises(SimulationError, match=r"sapien.object_pose: no object in env\(s\) \[0\]"):
+        sim.object_pose()
+    with pytest.raises(SimulationError, match=r"env ids \[3\] out of range for num_envs=1"):
+        sim.load_object(box_asset(), env_ids=[3])
+    sim.load_hand(hand, floating=False)
+    with pytest.raises(SimulationError, match="already loaded"):
+        sim.load_hand(hand)
+    with pytest.raises(SimulationError, match=r"loaded with floating=False; move it with set_hand_state"):
+        sim.set_wrist_targets(UP[None])
+    sim.close()
+    sim.close()  # twice is harmless
+    with pytest.raises(SimulationError, match="this backend is closed"):
+        sim.step()
+
+
+def test_bad_object_assets_are_rejected(tmp_path):
+    sim = make_sim()
+    mesh = box_asset().mesh_path
+
+    def asset(*shapes):
+        return ObjectAsset(object_id="t/bad", category="b", mesh_path=mesh, collision=shapes)
+
+    with pytest.raises(AssetError, match="'t/bad' has no collision shapes"):
+        sim.load_object(asset())
+    with pytest.raises(AssetError, match=r"bad capsule size \(0.1,\)"):
+        sim.load_object(asset(PrimitiveShape(kind="capsule", size=(0.1,))))
+    with pytest.raises(AssetError, match="convex part .*missing.obj does not exist"):
+        sim.load_object(asset(ConvexPart(path=tmp_path / "missing.obj")))
+
+
+def test_hand_description_must_name_every_urdf_joint(hand):
+    from dataclasses import replace
+
+    from helpers_sim import TestHand
+
+    d = hand.description
+    partial = TestHand(replace(d, name="partial", joint_names=d.joint_names[:-1]), hand.urdf_path())
+    with pytest.raises(AssetError, match=r"not in joint_names: \['joint_15.0'\]"):
+        make_sim(partial)
+
+
+def test_contact_offset_setting(hand):
+    with pytest.raises(ConfigError, match=r"contact_offset=0.0 m; give a value in \(0, 0.1\]"):
+        SapienBackend(SceneConfig(), contact_offset=0.0)
+    obj, wrist, q = allegro_top_down(hand)
+    listed = []
+    for offset in (None, 0.002):
+        sim = SapienBackend(SceneConfig(), contact_offset=offset)
+        sim.load_hand(hand)
+        sim.load_object(obj)
+        sim.set_hand_state(q[None], wrist[None])
+        sim.step(1)
+        shapes = [s for link in sim._envs[0].hand.get_links() for s in link.get_collision_shapes()]
+        assert {round(s.get_contact_offset(), 6) for s in shapes} == {offset or 0.01}
+        listed.append(len(sim._envs[0].scene.get_contacts()))
+    assert listed[1] < listed[0]  # fewer not-yet-touching pairs to scan
+
+
+def test_scene_settings_reach_physx(hand):
+    config = dict(timestep=1 / 240, solver_iterations=13, hand_friction=0.7, table_friction=0.4)
+    sim = make_sim(hand, **config)
+    sim.load_object(box_asset(friction=0.3))
+    env = sim._envs[0]
+    assert env.scene.get_timestep() == pytest.approx(1 / 240)
+    for body in (env.hand, env.obj_body):
+        assert body.get_solver_position_iterations() == 13
+        assert body.get_sleep_threshold() == 0.0
+    shapes = {
+        "hand": [s for link in env.hand.get_links() for s in link.collision_shapes],
+        "object": env.obj_body.collision_shapes,
+        "table": env.scene.entities[0].components[0].collision_shapes,
+    }
+    frictions = {k: {round(s.physical_material.static_friction, 6) for s in v} for k, v in shapes.items()}
+    assert frictions == {"hand": {0.7}, "object": {0.3}, "table": {0.4}}
+    assert all(link.disable_gravity for link in env.hand.get_links())
