@@ -107,9 +107,9 @@ def grasp_start_pose(hand: HandModel, object_centre: np.ndarray, closure: float)
 
 
 def _box(half_extents: tuple[float, float, float], density: float) -> ObjectAsset:
-    from ges_core.objects.procedural import box_asset
+    from ges_core.objects.simple import box_asset
 
-    return box_asset(half_extents, density=density)
+    return box_asset(half_extents, density=density, object_id="sim_check/box")
 
 
 def run_sim_check(hand: HandModel, sim: SimBackend, config: SimCheckConfig) -> SimCheckReport:

@@ -23,6 +23,7 @@ __all__ = [
     "quat_to_euler_xyz",
     "strip_render_data",
     "root_link",
+    "neighbour_link_pairs",
 ]
 
 WRIST_JOINTS: tuple[str, ...] = (
@@ -138,3 +139,34 @@ def quat_to_euler_xyz(quat: np.ndarray) -> np.ndarray:
     rx = np.arctan2(-r12, r22)
     rz = np.arctan2(-r01, r00)
     return np.stack([rx, ry, rz], axis=-1)
+
+
+def neighbour_link_pairs(text: str) -> set[frozenset[str]]:
+    """Link pairs that must not collide with each other: parent-child, and pairs joined through zero-length links.
+
+    A zero-length link is one whose child joints all sit at its origin (a knuckle between two
+    coincident joint axes, e.g. the Shadow hand's ``ffknuckle`` or ``thbase``). Its parent and its
+    children touch by construction, as do the links on either side of a chain of them; MuJoCo's
+    Shadow model avoids this with an explicit contact-pair list, we derive the exclusions from
+    the kinematic tree so that every simulator applies the same rule.
+    """
+    root = parse_urdf(text)
+    parent_of: dict[str, str] = {}
+    offsets: dict[str, list[float]] = {}
+    for joint in root.findall("joint"):
+        parent, child = joint.find("parent").get("link"), joint.find("child").get("link")
+        parent_of[child] = parent
+        origin = joint.find("origin")
+        xyz = [float(v) for v in origin.get("xyz", "0 0 0").split()] if origin is not None else [0.0]
+        offsets.setdefault(parent, []).append(float(np.linalg.norm(xyz)))
+
+    def zero_length(link: str) -> bool:
+        return bool(offsets.get(link)) and max(offsets[link]) < 1e-9
+
+    pairs: set[frozenset[str]] = set()
+    for child, parent in parent_of.items():
+        pairs.add(frozenset((child, parent)))
+        while zero_length(parent) and parent in parent_of:
+            parent = parent_of[parent]
+            pairs.add(frozenset((child, parent)))
+    return pairs
