@@ -1,0 +1,116 @@
+"""SAPIEN-like joint drives and friction on top of PyBullet's motors and friction rule.
+
+**PD drives.** SAPIEN (PhysX) drives a joint with an *implicit* spring-damper in physical units:
+over one step ``dt`` the drive force is ``f = Kp (q* - q') - Kd v'``, evaluated at the *next*
+state, so a joint of effective inertia ``I`` moves to ``v' = v + alpha (v_t - v)`` with
+``v_t = Kp (q* - q) / (Kd + Kp dt)`` (the velocity at which the drive force vanishes),
+``c = dt (Kd + Kp dt)`` and ``alpha = c / (I + c)``. For a dexterous hand's light links
+(``I`` ~ 1e-4 kg m^2) and the usual gains (Allegro: Kp = 400 N m/rad, Kd = 10 N m s/rad) this
+is heavily overdamped (``alpha`` ~ 1): an explicit PD (PyBullet's ``TORQUE_CONTROL`` or
+``PD_CONTROL``) explodes, and PyBullet's ``STABLE_PD_CONTROL`` drove Allegro joints the wrong way
+and past their limits when we tried it (PyBullet 3.2.7).
+
+PyBullet's ``POSITION_CONTROL`` motor is a velocity constraint, solved together with the contacts,
+that seeks ``v' = positionGain (q* - q) / dt + (1 - velocityGain) v* + velocityGain targetVelocity``
+with at most ``force``, where ``v*`` is the joint velocity after gravity and applied forces
+(Bullet's ``btMultiBodyJointMotor``; measured). Every physics step we send:
+
+* ``positionGain = alpha Kp dt / (Kd + Kp dt)``, ``velocityGain = alpha``, ``targetVelocity = 0``:
+  the servo seeks ``v' = alpha v_t + (1 - alpha) v*``, which is SAPIEN's implicit step including
+  gravity, with ``I`` the diagonal of the joint-space mass matrix at the start pose;
+* ``force = |Kp (q* - q) - (Kd + Kp dt) v|``: the PD force at the current state. A joint
+  blocked by contact (``v = 0``) therefore pushes with ``Kp (q* - q)``, the spring force, as in
+  SAPIEN, instead of PyBullet's usual "hold position with up to the effort limit".
+
+Static loads: a contact (a constraint) meets exactly the spring force. Gravity on the hand (off by
+default) is exact for the floating wrist (the whole hand falls with ``g``: sag ``m g / Kp``), but a
+finger loaded through its children settles at ``I_j (M^-1 tau)_j / Kp`` instead of ``tau_j / Kp``
+(Allegro joint_1.0 at Kp = 1: 0.097 vs 0.058 rad; at Kp = 400 both are below 2e-4 rad). Seeking
+``alpha v_t + (1 - alpha) v`` with ``velocityGain = 1`` gets the mean sag right but rings with
+period two under gravity (the force limit's explicit damping), so we keep the smooth form.
+
+A target beyond a joint limit: PyBullet clips ``POSITION_CONTROL`` targets to the limits itself
+(measured), so the servo seeks the limit, while the force limit keeps the raw target's spring
+force, as SAPIEN's drive does against its hard limit.
+
+Measured against SAPIEN 3.0.3 (Allegro joint_1.0 stepped 0 -> 1 rad, 1/120 s, no contacts): at
+Kp, Kd = 0.5, 0.01 both follow the same underdamped curve within 0.05 rad; at 400, 10 SAPIEN is
+ahead by up to 0.05 rad over the first 3 steps (its TGS solver integrates the drive over
+sub-iterations), both settle within 0.1 s.
+
+**Friction.** PhysX combines two materials' coefficients by their *average* (its default
+combine mode, which SAPIEN keeps); Bullet multiplies them. With three bodies (hand, object,
+table) the three per-body values whose pairwise products equal the pairwise averages exist
+and are computed by :func:`product_friction`.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from functools import cached_property
+
+import numpy as np
+
+__all__ = ["ImplicitPD", "product_friction"]
+
+_MIN_PAIR_FRICTION = 1e-9
+"""Floor of a pairwise friction in :func:`product_friction`; only guards a division by zero."""
+
+
+@dataclass(frozen=True)
+class ImplicitPD:
+    """PD gains of J joints in physical units and the PyBullet motor settings that mimic them.
+
+    stiffness: (J,) N m/rad (N/m for prismatic joints); damping: (J,) N m s/rad (N s/m);
+    inertia: (J,) effective inertia of each joint, kg m^2 (kg), the diagonal of the joint-space
+    mass matrix at the start pose; dt: physics step, seconds.
+    """
+
+    stiffness: np.ndarray
+    damping: np.ndarray
+    inertia: np.ndarray
+    dt: float
+
+    @property
+    def blend(self) -> np.ndarray:
+        """(J,) ``alpha = c / (I + c)``, ``c = dt (Kd + Kp dt)``: fraction of the gap to ``v_t`` closed per step."""
+        c = self.dt * self._velocity_coefficient
+        return np.divide(c, self.inertia + c, out=np.ones_like(c), where=(self.inertia + c) > 0)
+
+    @property
+    def position_gains(self) -> np.ndarray:
+        """(J,) PyBullet ``positionGains``: ``alpha Kp dt / (Kd + Kp dt)``."""
+        closed = np.divide(
+            self.stiffness * self.dt,
+            self._velocity_coefficient,
+            out=np.zeros_like(self.stiffness),
+            where=self._velocity_coefficient > 0,
+        )
+        return self.blend * closed
+
+    @property
+    def velocity_gains(self) -> np.ndarray:
+        """(J,) PyBullet ``velocityGains`` (with zero ``targetVelocities``): ``alpha``."""
+        return self.blend
+
+    def force_limits(self, q: np.ndarray, v: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """(E, J) PyBullet ``forces``: ``|Kp (q* - q) - (Kd + Kp dt) v|``, the PD force at ``q``, ``v`` (E, J)."""
+        return np.abs(self.stiffness * (target - q) - self._velocity_coefficient * v)
+
+    @cached_property
+    def _velocity_coefficient(self) -> np.ndarray:
+        return self.damping + self.stiffness * self.dt
+
+
+def product_friction(hand: float, obj: float, table: float) -> tuple[float, float, float]:
+    """Per-body Bullet friction (hand, object, table) whose products are PhysX's pairwise averages.
+
+    Bullet uses ``mu_a * mu_b`` for a touching pair; PhysX ``(mu_a + mu_b) / 2``. Hand-hand
+    contacts get ``k_hand**2`` instead of ``hand`` (a fourth equation three values cannot meet).
+    """
+    ho = max((hand + obj) / 2, _MIN_PAIR_FRICTION)
+    ot = max((obj + table) / 2, _MIN_PAIR_FRICTION)
+    ht = max((hand + table) / 2, _MIN_PAIR_FRICTION)
+    k_obj = math.sqrt(ho * ot / ht)
+    return ho / k_obj, k_obj, ot / k_obj

@@ -1,0 +1,237 @@
+"""Building one PyBullet scene: client, table, hand body and its layout, object body.
+
+Every scene is its own ``BulletClient`` (``p.DIRECT``). Hot-path calls elsewhere go straight to
+``pybullet`` with ``physicsClientId`` (``BulletClient.__getattr__`` builds a ``functools.partial``
+on every attribute access, about a microsecond each).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import pybullet as p
+from pybullet_utils.bullet_client import BulletClient
+
+from ges_core.errors import AssetError
+from ges_core.hand import HandModel
+from ges_core.objects.asset import ObjectAsset
+from ges_core.sim import SceneConfig
+from ges_core.urdf import WRIST_JOINTS, root_link
+
+from .drive import ImplicitPD
+from .hand_urdf import pybullet_hand_urdf
+from .poses import wxyz_to_xyzw
+from .shapes import MassProperties, mass_properties, shape_arrays
+
+__all__ = ["HandLayout", "Scene", "create_object", "hand_layout", "load_hand_body", "new_scene", "set_hand_friction"]
+
+_MOVABLE = (p.JOINT_REVOLUTE, p.JOINT_PRISMATIC)
+TABLE_HALF_EXTENTS = (10.0, 10.0, 0.5)
+"""m: the table is a static box with its top at z = 0, not a ``GEOM_PLANE``: plane-convex contacts
+gain one point per step, and a 4 cm cube dropped 20 cm on the plane landed 5-12 mm off to the side
+(once on another face); on the box it lands flat, in place. 10 m reaches past the wrist's 5 m range."""
+_OBJECT_MAX_VELOCITY = 1e3
+"""m/s and rad/s: PyBullet clamps every velocity coordinate of a body at 100 by default, which would hide
+a blown-up object from the backend's 100 m/s check (PhysX leaves a body's linear speed unclamped). The
+hand keeps PyBullet's 100 rad/s, like PhysX's default joint speed limit."""
+_OBJECT_ANGULAR_DAMPING = 0.05
+"""1/s, SAPIEN's default angular damping of a rigid body (PyBullet's default is 0.04 on both)."""
+
+
+@dataclass
+class Scene:
+    """One PyBullet world: the table plane and, once loaded, the hand and the object."""
+
+    client: BulletClient
+    cid: int
+    table: int
+    hand: int = -1
+    obj: int = -1
+    obj_mass: float = 0.0
+    """kg; its weight is applied by hand when the hand has no gravity (see the backend)."""
+    base_in_obj: tuple = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    """The object's PyBullet base (principal inertial) frame in the object frame, PyBullet (pos, xyzw)."""
+    obj_in_base: tuple = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
+    """The inverse: object frame in the base frame, PyBullet (pos, xyzw)."""
+    obj_load_pose: np.ndarray | None = None
+    """(7,) object pose right after loading, world frame (what reset() returns to)."""
+    obj_friction: float | None = None
+    """The object's own (PhysX-style) friction coefficient."""
+
+
+@dataclass(frozen=True)
+class HandLayout:
+    """Names and PyBullet indices of a loaded hand; identical in every scene."""
+
+    floating: bool
+    link_ids: dict[str, int]
+    """Hand URDF link name -> PyBullet link index (virtual wrist links excluded)."""
+    link_names: dict[int, str]
+    """PyBullet link index -> name, every link (virtual ones included)."""
+    base_link: int
+    """PyBullet link index of the hand's base (URDF root) link."""
+    drive_ids: np.ndarray
+    """(D,) PyBullet joint indices of every driven joint: wrist joints (floating only), then the
+    hand's joints in ``HandDescription.joint_names`` order."""
+    idx_sim_to_hand: np.ndarray
+    """(K,) ``q_hand = q_sim[idx_sim_to_hand]``: position of hand joint k among the hand's movable
+    PyBullet joints in PyBullet's (URDF file) order (the SAPIEN backend's convention)."""
+    idx_hand_to_sim: np.ndarray
+    """(K,) ``q_sim = q_hand[idx_hand_to_sim]``."""
+    pd: ImplicitPD
+    """Gains of the ``drive_ids`` joints."""
+
+    @property
+    def num_wrist(self) -> int:
+        """6 for a floating hand, else 0."""
+        return len(WRIST_JOINTS) if self.floating else 0
+
+
+def new_scene(config: SceneConfig) -> Scene:
+    """A DIRECT client with the config's physics settings and a static table whose top is z = 0."""
+    client = BulletClient(connection_mode=p.DIRECT)
+    client.setPhysicsEngineParameter(
+        fixedTimeStep=config.timestep,
+        numSolverIterations=config.solver_iterations,
+        numSubSteps=0,
+        deterministicOverlappingPairs=1,  # same contact order every run: determinism
+    )
+    # No per-body gravity switch in PyBullet: with hand_gravity off, gravity is zero and the
+    # backend applies the object's weight itself every step.
+    client.setGravity(0.0, 0.0, config.gravity if config.hand_gravity else 0.0)
+    slab = client.createCollisionShape(p.GEOM_BOX, halfExtents=TABLE_HALF_EXTENTS)
+    table = client.createMultiBody(
+        baseMass=0.0, baseCollisionShapeIndex=slab, basePosition=(0, 0, -TABLE_HALF_EXTENTS[2])
+    )
+    client.changeDynamics(table, -1, lateralFriction=config.table_friction)
+    return Scene(client=client, cid=client._client, table=table)
+
+
+def load_hand_body(scene: Scene, hand: HandModel, config: SceneConfig, floating: bool) -> None:
+    """Load the hand (prepared URDF, fixed world link) into ``scene``, velocity motors off."""
+    path = pybullet_hand_urdf(hand.urdf_text(), hand.name, floating=floating)
+    flags = p.URDF_USE_INERTIA_FROM_FILE  # safe: hand_urdf made every inertia valid
+    if config.self_collision:
+        flags |= p.URDF_USE_SELF_COLLISION | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT
+    if scene.hand >= 0:
+        p.removeBody(scene.hand, physicsClientId=scene.cid)
+    try:
+        scene.hand = p.loadURDF(str(path), useFixedBase=True, flags=flags, physicsClientId=scene.cid)
+    except p.error as exc:
+        raise AssetError(
+            f"PyBullet cannot load the URDF of hand '{hand.name}' ({path}): {exc}; "
+            "check that its mesh files exist (HandModel.urdf_path must give absolute mesh paths)"
+        ) from exc
+    n = p.getNumJoints(scene.hand, physicsClientId=scene.cid)
+    movable = [j for j in range(n) if p.getJointInfo(scene.hand, j, physicsClientId=scene.cid)[2] in _MOVABLE]
+    # PyBullet gives every movable joint a velocity motor with a small force: switch them off.
+    p.setJointMotorControlArray(
+        scene.hand, movable, p.VELOCITY_CONTROL, forces=[0.0] * len(movable), physicsClientId=scene.cid
+    )
+    for link in range(-1, n):
+        # The PD damping is the hand's damping; PyBullet's default body damping (0.04) would add to it.
+        p.changeDynamics(
+            scene.hand,
+            link,
+            linearDamping=0.0,
+            angularDamping=0.0,
+            activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
+            physicsClientId=scene.cid,
+        )
+
+
+def hand_layout(scene: Scene, hand: HandModel, config: SceneConfig, floating: bool) -> HandLayout:
+    """Index maps of the hand loaded in ``scene``, checked against the hand's declared joints."""
+    d = hand.description
+    count = p.getNumJoints(scene.hand, physicsClientId=scene.cid)
+    infos = [p.getJointInfo(scene.hand, j, physicsClientId=scene.cid) for j in range(count)]
+    link_names = {j: info[12].decode() for j, info in enumerate(infos)}
+    joint_ids = {info[1].decode(): j for j, info in enumerate(infos) if info[2] in _MOVABLE}
+    wrist = [joint_ids.pop(name) for name in WRIST_JOINTS] if floating else []
+    sim_order = sorted(joint_ids, key=joint_ids.get)
+    _check_joints(hand.name, d.joint_names, sim_order)
+    idx_sim_to_hand = np.array([sim_order.index(name) for name in d.joint_names], dtype=np.int64)
+    virtual = {f"{j}_link" for j in WRIST_JOINTS}
+    stiffness = [config.wrist_stiffness] * len(wrist) + list(d.pd_stiffness)
+    damping = [config.wrist_damping] * len(wrist) + list(d.pd_damping)
+    drive_ids = wrist + [joint_ids[name] for name in d.joint_names]
+    start = [0.0] * len(wrist) + list(d.open_pose)
+    inertia = _joint_inertia(scene, drive_ids, start)
+    return HandLayout(
+        floating=floating,
+        link_ids={name: j for j, name in link_names.items() if name not in virtual},
+        link_names=link_names,
+        base_link=next(j for j, name in link_names.items() if name == (d.base_link or root_link(hand.urdf_text()))),
+        drive_ids=np.array(drive_ids, dtype=np.int64),
+        idx_sim_to_hand=idx_sim_to_hand,
+        idx_hand_to_sim=np.argsort(idx_sim_to_hand),
+        pd=ImplicitPD(
+            np.array(stiffness, dtype=np.float64), np.array(damping, dtype=np.float64), inertia, config.timestep
+        ),
+    )
+
+
+def _joint_inertia(scene: Scene, drive_ids: list[int], start: list[float]) -> np.ndarray:
+    """(D,) diagonal of the joint-space mass matrix at ``start`` (kg m^2 or kg), ``drive_ids`` order.
+
+    ``calculateMassMatrix`` orders degrees of freedom by joint index; every movable joint is driven.
+    """
+    order = np.argsort(drive_ids)
+    q = np.asarray(start, dtype=np.float64)[order].tolist()
+    mass = np.asarray(p.calculateMassMatrix(scene.hand, q, physicsClientId=scene.cid))
+    diagonal = np.empty(len(drive_ids))
+    diagonal[order] = np.diag(mass)
+    return diagonal
+
+
+def _check_joints(hand: str, declared: tuple[str, ...], urdf: list[str]) -> None:
+    missing = [n for n in declared if n not in urdf]
+    extra = [n for n in urdf if n not in declared]
+    if missing or extra:
+        raise AssetError(
+            f"hand '{hand}': joint_names and the URDF's movable joints differ: declared but not in the URDF "
+            f"{missing}, in the URDF but not declared {extra}; fix the hand's joint_names"
+        )
+
+
+def set_hand_friction(scene: Scene, layout: HandLayout, friction: float) -> None:
+    """Lateral friction of every hand link (Bullet's per-body value, see ``drive.product_friction``)."""
+    for link in range(-1, len(layout.link_names)):
+        p.changeDynamics(scene.hand, link, lateralFriction=friction, physicsClientId=scene.cid)
+
+
+def create_object(scene: Scene, obj: ObjectAsset) -> MassProperties:
+    """Replace the scene's object by a new body of ``obj``'s collision shapes (no visuals), at the origin."""
+    if scene.obj >= 0:
+        p.removeBody(scene.obj, physicsClientId=scene.cid)
+        scene.obj = -1
+    props = mass_properties(obj)
+    try:
+        shape = p.createCollisionShapeArray(**shape_arrays(obj), physicsClientId=scene.cid)
+    except p.error as exc:
+        raise AssetError(
+            f"PyBullet could not create the collision shapes of object '{obj.object_id}' ({exc}); "
+            "check that its convex part files exist and are Wavefront OBJ or a format trimesh reads"
+        ) from exc
+    scene.obj = p.createMultiBody(
+        baseMass=props.mass,
+        baseCollisionShapeIndex=shape,
+        baseInertialFramePosition=props.inertial_pose[:3].tolist(),
+        baseInertialFrameOrientation=wxyz_to_xyzw(props.inertial_pose[3:]).tolist(),
+        physicsClientId=scene.cid,
+    )
+    p.changeDynamics(
+        scene.obj,
+        -1,
+        localInertiaDiagonal=props.inertia.tolist(),
+        linearDamping=0.0,  # SAPIEN's default
+        angularDamping=_OBJECT_ANGULAR_DAMPING,
+        maxJointVelocity=_OBJECT_MAX_VELOCITY,
+        activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,  # the object's weight is an external force
+        physicsClientId=scene.cid,
+    )
+    scene.obj_mass = props.mass
+    scene.base_in_obj = (tuple(props.inertial_pose[:3]), tuple(wxyz_to_xyzw(props.inertial_pose[3:])))
+    scene.obj_in_base = p.invertTransform(*scene.base_in_obj)
+    return props

@@ -1,0 +1,560 @@
+"""The PyBullet backend against independent references: pytorch-kinematics FK, PyBullet's own joint
+and body API, trimesh volumes, gravity and the physics of a resting box and a squeezed one."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pybullet as p
+import pytest
+from helpers_sim import TestHand, allegro_test_hand, box_asset
+
+from ges_core.errors import AssetError, SimulationError, UnknownNameError
+from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
+from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig
+from ges_core.transforms import quat_to_matrix
+from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat
+from plugins.sims.pybullet import shapes
+from plugins.sims.pybullet.backend import MAX_JOINT_SPEED, REST_MARGIN, PybulletBackend
+from plugins.sims.pybullet.bench import GRASP_BASE_POSE, grasp_scene
+from plugins.sims.pybullet.drive import ImplicitPD, product_friction
+from plugins.sims.pybullet.hand_urdf import principal_moments, pybullet_hand_urdf, sanitize_inertias
+
+pytestmark = pytest.mark.sim
+
+UP = np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0])
+"""A base pose well above the table."""
+
+
+@pytest.fixture(scope="module")
+def hand():
+    return allegro_test_hand()
+
+
+def make_sim(hand=None, *, floating: bool = True, **scene) -> PybulletBackend:
+    sim = PybulletBackend(SceneConfig(**scene))
+    if hand is not None:
+        sim.load_hand(hand, floating=floating)
+    return sim
+
+
+def open_q(hand, n: int = 1) -> np.ndarray:
+    return np.tile(np.asarray(hand.description.open_pose), (n, 1))
+
+
+def reordered(hand, order: list[int]) -> TestHand:
+    """The same hand with its per-joint data listed in another joint order."""
+    d = hand.description
+    pick = lambda values: tuple(values[i] for i in order)  # noqa: E731
+    fields = ("joint_names", "joint_limits", "open_pose", "pd_stiffness", "pd_damping")
+    return TestHand(dataclasses.replace(d, **{f: pick(getattr(d, f)) for f in fields}), hand.urdf_path())
+
+
+def single_shape(shape, density: float = 500.0) -> ObjectAsset:
+    return ObjectAsset(
+        object_id="t/shape", category="t", mesh_path=box_asset().mesh_path, collision=(shape,), density=density
+    )
+
+
+# -- registry and joint order -------------------------------------------------------------------
+def test_registry_builds_pybullet():
+    registry = load_registry(blocked=("shadow", "allegro", "sapien"))  # only this plugin's registration
+    assert registry.spec("sim", "pybullet").requires == ("pybullet",)
+    with registry.build_sim("pybullet", SceneConfig(num_envs=2)) as sim:
+        assert isinstance(sim, PybulletBackend) and sim.num_envs == 2
+
+
+@pytest.mark.parametrize("floating", [True, False])
+def test_joint_order_is_mapped_by_name(hand, floating):
+    """A hand declaring its joints in reverse order: every value lands on the PyBullet joint of that name."""
+    flipped = reordered(hand, list(range(hand.description.num_joints))[::-1])
+    d = flipped.description
+    lim = d.limits_array
+    q = lim[:, 0] + (np.arange(d.num_joints) + 1) / (d.num_joints + 1) * (lim[:, 1] - lim[:, 0])
+    sim = make_sim(flipped, floating=floating)
+    sim.set_hand_state(q[None], UP[None])
+    scene = sim._scenes[0]
+    by_name = {}
+    for j in range(p.getNumJoints(scene.hand, physicsClientId=scene.cid)):
+        info = p.getJointInfo(scene.hand, j, physicsClientId=scene.cid)
+        if info[2] != p.JOINT_FIXED:
+            by_name[info[1].decode()] = p.getJointState(scene.hand, j, physicsClientId=scene.cid)[0]
+    np.testing.assert_allclose([by_name[n] for n in d.joint_names], q, atol=1e-12)
+    np.testing.assert_allclose(sim.joint_state()[0][0], q, atol=1e-12)
+    urdf_order = [n for n in by_name if n not in WRIST_JOINTS]
+    assert urdf_order == list(hand.description.joint_names)  # PyBullet keeps the URDF file order
+    q_sim = np.array([by_name[n] for n in urdf_order])
+    np.testing.assert_allclose(q_sim[sim.idx_sim_to_hand], q)
+    np.testing.assert_allclose(q[sim.idx_hand_to_sim], q_sim)
+    assert [n for n in by_name if n in WRIST_JOINTS] == (list(WRIST_JOINTS) if floating else [])
+
+
+def test_joint_targets_reach_each_named_joint(hand):
+    flipped = reordered(hand, list(range(hand.description.num_joints))[::-1])
+    lim = flipped.description.limits_array
+    target = lim[:, 0] + 0.3 * (lim[:, 1] - lim[:, 0])
+    sim = make_sim(flipped, self_collision=False)
+    sim.set_hand_state(open_q(flipped), UP[None])
+    sim.set_joint_targets(target[None])
+    sim.step(120)
+    q, qvel = sim.joint_state()
+    np.testing.assert_allclose(q[0], target, atol=5e-3)
+    assert np.abs(qvel).max() < 0.05
+
+
+def test_hand_joints_must_match_the_urdf(hand):
+    d = hand.description
+    bad = TestHand(dataclasses.replace(d, joint_names=("joint_99.0", *d.joint_names[1:])), hand.urdf_path())
+    with pytest.raises(
+        AssetError, match=r"declared but not in the URDF \['joint_99.0'\].*not declared \['joint_0.0'\]"
+    ):
+        make_sim(bad)
+
+
+def test_missing_mesh_names_the_hand(hand, tmp_path):
+    urdf = tmp_path / "broken.urdf"
+    urdf.write_text(hand.urdf_path().read_text().replace("link_tip.obj", "no_such_tip.obj"))
+    with pytest.raises(AssetError, match="PyBullet cannot load the URDF of hand 'allegro_test'.*mesh files exist"):
+        make_sim(TestHand(hand.description, urdf))
+
+
+# -- kinematics against pytorch-kinematics --------------------------------------------------------
+@pytest.mark.parametrize("floating", [True, False])
+def test_link_poses_match_pytorch_kinematics(hand, floating):
+    import pytorch_kinematics as pk
+    import torch
+
+    chain = pk.build_chain_from_urdf(hand.urdf_path().read_bytes()).to(dtype=torch.float64)
+    links = [n for n in chain.get_frame_names() if n != chain._root.name]
+    rng = np.random.default_rng(11)
+    lim = hand.description.limits_array
+    qs = rng.uniform(lim[:, 0], lim[:, 1], size=(3, len(lim)))
+    order = [hand.description.joint_names.index(n) for n in chain.get_joint_parameter_names()]
+    fk = chain.forward_kinematics(torch.as_tensor(qs[:, order]))
+    sim = make_sim(hand, floating=floating)
+    for i, q in enumerate(qs):
+        wrist = np.r_[rng.uniform(-0.3, 0.3, 3), euler_xyz_to_quat(rng.uniform(-2.5, 2.5, 3))]
+        sim.set_hand_state(q[None], wrist[None])
+        got = sim.link_poses(links)[0]
+        np.testing.assert_allclose(sim.wrist_pose()[0, :3], wrist[:3], atol=1e-6)
+        assert abs(float(np.dot(sim.wrist_pose()[0, 3:], wrist[3:]))) > 1 - 1e-6  # PyBullet's link frames are float32
+        rot = quat_to_matrix(wrist[3:])
+        for j, name in enumerate(links):
+            expected = fk[name].get_matrix()[i].numpy()
+            np.testing.assert_allclose(got[j, :3], wrist[:3] + rot @ expected[:3, 3], atol=1e-3, err_msg=name)
+            np.testing.assert_allclose(quat_to_matrix(got[j, 3:]), rot @ expected[:3, :3], atol=2e-3, err_msg=name)
+
+
+def test_wrist_targets_move_the_base(hand):
+    sim = make_sim(hand)
+    sim.set_hand_state(open_q(hand), UP[None])
+    goal = np.r_[0.1, -0.05, 0.4, euler_xyz_to_quat(np.array([0.3, -0.4, 2.9]))]
+    sim.set_wrist_targets(goal[None])
+    sim.step(240)
+    got = sim.wrist_pose()[0]
+    np.testing.assert_allclose(got[:3], goal[:3], atol=1e-3)
+    assert abs(float(np.dot(got[3:], goal[3:]))) > 0.9999
+
+
+def test_unknown_link_suggests_a_name(hand):
+    sim = make_sim(hand)
+    with pytest.raises(UnknownNameError, match=r"unknown hand link 'link_3.0_top'. Did you mean 'link_3.0_tip'"):
+        sim.link_poses(["link_3.0_top"])
+
+
+# -- drives and gravity -------------------------------------------------------------------------
+def test_drive_gains_reproduce_the_implicit_spring_damper():
+    pd = ImplicitPD(np.array([400.0, 5.0, 0.5]), np.array([10.0, 0.1, 0.01]), np.array([1e-4, 1e-4, 1e-4]), 1 / 120)
+    c = pd.dt * (pd.damping + pd.stiffness * pd.dt)
+    # one implicit-Euler step from rest: v' = dt Kp e / (I + dt Kd + dt^2 Kp), i.e. v' = pGain e / dt
+    np.testing.assert_allclose(pd.position_gains / pd.dt, pd.dt * pd.stiffness / (pd.inertia + c))
+    q, v, target = np.zeros((1, 3)), np.array([[1.0, -2.0, 0.5]]), np.ones((1, 3))
+    np.testing.assert_allclose(pd.force_limits(q, v, target), np.abs(pd.stiffness - (c / pd.dt) * v))
+
+
+def test_a_finger_blocked_by_the_table_pushes_with_the_spring_force(hand):
+    """A finger driven into the table presses with Kp * (q* - q) about its joint, as SAPIEN's
+    implicit drive does; a plain PyBullet position motor would push with its whole effort limit.
+
+    100 solver iterations: with 20 the finger's light links chatter against the table (PGS does
+    not converge) and the balance holds only to about 10 %.
+    """
+    kp = 5.0
+    gains = {"pd_stiffness": (kp,) * 16, "pd_damping": (0.1,) * 16}
+    soft = TestHand(dataclasses.replace(hand.description, **gains), hand.urdf_path())
+    sim = make_sim(soft, floating=False, self_collision=False, solver_iterations=100)
+    palm_down = np.array([0.0, 0.0, 0.062, math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0])
+    sim.set_hand_state(open_q(soft), palm_down[None])
+    k = soft.description.joint_names.index("joint_1.0")
+    target = open_q(soft)
+    target[0, k] = 1.2
+    sim.set_joint_targets(target)
+    sim.step(120)
+    q = sim.joint_state()[0][0, k]
+    assert 0.2 < q < 1.0  # stopped by the table
+    scene, ids = sim._scenes[0], sim._layout.link_ids
+    joint = p.getLinkState(scene.hand, ids["link_1.0"], physicsClientId=scene.cid)
+    axis = quat_to_matrix(np.r_[joint[5][3], joint[5][:3]])[:, 1]  # the joint axis: y of its child link
+    finger = {ids[n] for n in ("link_1.0", "link_2.0", "link_3.0", "link_3.0_tip")}
+    torque = 0.0
+    for c in p.getContactPoints(bodyA=scene.hand, bodyB=scene.table, physicsClientId=scene.cid):
+        if c[3] in finger:
+            force = c[9] * np.array(c[7]) + c[10] * np.array(c[11]) + c[12] * np.array(c[13])
+            torque += float(axis @ np.cross(np.array(c[5]) - np.array(joint[4]), force))
+    assert abs(torque) == pytest.approx(kp * (1.2 - q), rel=0.01)
+    assert np.linalg.norm(sim.contact_forces(["link_3.0_tip"], "table")[0, 0]) > 1.0
+
+
+def test_floating_wrist_holds_the_hand_without_gravity_and_sags_with_it(hand):
+    still = make_sim(hand, self_collision=False)
+    still.set_hand_state(open_q(hand), UP[None])
+    still.step(120)
+    np.testing.assert_allclose(still.wrist_pose()[0, :3], UP[:3], atol=1e-6)
+    heavy = make_sim(hand, hand_gravity=True, self_collision=False)
+    heavy.set_hand_state(open_q(hand), UP[None])
+    heavy.step(240)
+    text = pybullet_hand_urdf(hand.urdf_text(), hand.name, floating=True).read_text()
+    import xml.etree.ElementTree as ET
+
+    moving = [
+        link
+        for link in ET.fromstring(text).findall("link")
+        if link.get("name") not in ("ges_world", "ges_wrist_x_link", "ges_wrist_y_link")
+    ]
+    mass = sum(float(link.find("inertial/mass").get("value")) for link in moving)
+    sag = UP[2] - heavy.wrist_pose()[0, 2]
+    assert sag == pytest.approx(mass * 9.81 / SceneConfig().wrist_stiffness, rel=0.05)
+
+
+# -- objects on the table -----------------------------------------------------------------------
+def test_dropped_box_rests_at_half_height():
+    sim = make_sim()
+    sim.load_object(box_asset((0.04, 0.03, 0.02)), pose=np.array([0.1, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0]))
+    sim.step(180)
+    pose = sim.object_pose()[0]
+    assert abs(pose[2] - 0.02) < 2e-3
+    np.testing.assert_allclose(pose[:2], [0.1, 0.0], atol=2e-3)
+    np.testing.assert_allclose(np.abs(pose[3]), 1.0, atol=1e-4)
+
+
+def test_default_pose_rests_the_object_on_the_table():
+    sim = make_sim()
+    sim.load_object(box_asset((0.03, 0.03, 0.05)))
+    np.testing.assert_allclose(sim.object_pose()[0], [0, 0, 0.05 + REST_MARGIN, 1, 0, 0, 0], atol=1e-9)
+    sim.step(60)
+    assert abs(sim.object_pose()[0, 2] - 0.05) < 1e-3
+
+
+@pytest.mark.parametrize(
+    ("shape", "rest_z"),
+    [
+        (PrimitiveShape(kind="sphere", size=(0.03,)), 0.03),
+        (PrimitiveShape(kind="capsule", size=(0.02, 0.05)), 0.02),  # axis along local x: it lies down
+        (PrimitiveShape(kind="cylinder", size=(0.02, 0.05)), 0.02),  # standing on an end would be 0.05
+        (PrimitiveShape(kind="box", size=(0.02, 0.02, 0.02), pose=(0, 0, 0.03, 1, 0, 0, 0)), -0.01),
+    ],
+)
+def test_primitives_fall_to_their_physical_rest_height(shape, rest_z):
+    sim = make_sim()
+    sim.load_object(single_shape(shape), pose=np.array([0.0, 0.0, 0.3, 1.0, 0.0, 0.0, 0.0]))
+    sim.step(150)
+    assert abs(sim.object_pose()[0, 2] - rest_z) < 2e-3
+
+
+def test_capsule_axis_is_local_x():
+    sim = make_sim()
+    sim.load_object(single_shape(PrimitiveShape(kind="capsule", size=(0.02, 0.05))), pose=UP)
+    scene = sim._scenes[0]
+    low, high = np.array(p.getAABB(scene.obj, physicsClientId=scene.cid))
+    np.testing.assert_allclose(high - low, [0.14, 0.04, 0.04], atol=2e-3)
+
+
+def test_mass_is_density_times_volume():
+    """Mass and inertia from density: analytic for a capsule, trimesh for a convex part (PyBullet's
+    own estimate would use bounding boxes)."""
+    import trimesh
+
+    capsule = single_shape(PrimitiveShape(kind="capsule", size=(0.02, 0.05)), density=1000.0)
+    mesh = trimesh.creation.capsule(height=0.1, radius=0.02, count=[64, 64])
+    props = shapes.mass_properties(capsule)
+    assert props.mass == pytest.approx(1000.0 * mesh.volume, rel=2e-3)
+    np.testing.assert_allclose(
+        np.sort(props.inertia), np.sort(np.linalg.eigvalsh(mesh.moment_inertia * 1000.0)), rtol=5e-3
+    )
+    sim = make_sim()
+    sim.load_object(capsule)
+    scene = sim._scenes[0]
+    dyn = p.getDynamicsInfo(scene.obj, -1, physicsClientId=scene.cid)
+    assert dyn[0] == pytest.approx(props.mass)
+    np.testing.assert_allclose(dyn[2], props.inertia, rtol=1e-9)
+
+
+def test_convex_part_from_a_file(tmp_path):
+    import trimesh
+
+    path = tmp_path / "part.stl"  # not OBJ: converted once into the cache
+    mesh = trimesh.creation.box(extents=[0.06, 0.04, 0.05])
+    mesh.apply_translation([0.02, 0.0, 0.0])  # centre of mass off the object origin
+    mesh.export(path)
+    obj = ObjectAsset(object_id="t/convex", category="c", mesh_path=path, collision=(ConvexPart(path=path),))
+    sim = make_sim()
+    sim.load_object(obj)
+    sim.step(60)
+    pose = sim.object_pose()[0]
+    assert abs(pose[2] - 0.025) < 2e-3
+    assert abs(pose[0]) < 1e-3  # the object frame, not the centre of mass (at x = 0.02)
+    scene = sim._scenes[0]
+    assert p.getDynamicsInfo(scene.obj, -1, physicsClientId=scene.cid)[0] == pytest.approx(500.0 * 0.06 * 0.04 * 0.05)
+
+
+def test_object_replacement_and_env_ids():
+    sim = make_sim(num_envs=2)
+    sim.load_object(box_asset(object_id="t/small"))
+    sim.load_object(box_asset((0.05, 0.05, 0.05), object_id="t/big"), env_ids=[1])
+    sim.step(60)
+    np.testing.assert_allclose(sim.object_pose()[:, 2], [0.03, 0.05], atol=1e-3)
+    for scene in sim._scenes:
+        assert p.getNumBodies(physicsClientId=scene.cid) == 2  # the table and one object
+    with pytest.raises(SimulationError, match=r"env ids \[2\] out of range 0..1"):
+        sim.load_object(box_asset(), env_ids=[2])
+    with pytest.raises(SimulationError, match=r"env ids \[5\] out of range 0..1"):
+        sim.contact_pairs(5)
+
+
+def test_object_pose_round_trip_is_wxyz():
+    """Poses go in and come out as wxyz, also for an object whose centre of mass and principal axes
+    are off its frame; a 90 deg turn about z (read as xyzw it would be a turn about x) shows in PyBullet's AABB."""
+    parts = (
+        PrimitiveShape(kind="box", size=(0.05, 0.01, 0.01), pose=(0.02, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0)),
+        PrimitiveShape(kind="sphere", size=(0.01,), pose=(-0.03, 0.01, 0.0, 1.0, 0.0, 0.0, 0.0)),
+    )
+    obj = ObjectAsset(object_id="t/lopsided", category="t", mesh_path=box_asset().mesh_path, collision=parts)
+    sim = make_sim(num_envs=3, gravity=0.0)
+    sim.load_object(obj, pose=UP)
+    rng = np.random.default_rng(5)
+    quats = rng.normal(size=(3, 4))
+    quats /= np.linalg.norm(quats, axis=1, keepdims=True)
+    poses = np.concatenate([rng.uniform(-0.2, 0.2, (3, 3)) + [0, 0, 0.5], quats], axis=1)
+    sim.set_object_pose(poses)
+    got = sim.object_pose()
+    np.testing.assert_allclose(got[:, :3], poses[:, :3], atol=1e-12)
+    np.testing.assert_allclose(np.abs(np.sum(got[:, 3:] * quats, axis=1)), 1.0, atol=1e-12)
+    bar = single_shape(PrimitiveShape(kind="box", size=(0.05, 0.01, 0.01)))
+    sim.load_object(bar, pose=np.array([0.0, 0.0, 0.5, math.cos(math.pi / 4), 0.0, 0.0, math.sin(math.pi / 4)]))
+    scene = sim._scenes[0]
+    low, high = np.array(p.getAABB(scene.obj, physicsClientId=scene.cid))
+    np.testing.assert_allclose(high - low, [0.02, 0.1, 0.02], atol=1e-3)
+
+
+def test_object_errors_name_the_object(tmp_path, monkeypatch):
+    sim = make_sim()
+    with pytest.raises(SimulationError, match=r"no object in envs \[0\]; call load_object"):
+        sim.object_pose()
+    empty = ObjectAsset(object_id="t/empty", category="t", mesh_path=box_asset().mesh_path, collision=())
+    with pytest.raises(AssetError, match="object 't/empty' has no collision shapes"):
+        sim.load_object(empty)
+    with pytest.raises(AssetError, match=r"object 't/shape': a capsule needs 2 positive size values, got \(0.02,\)"):
+        sim.load_object(single_shape(PrimitiveShape(kind="capsule", size=(0.02,))))
+    flat = tmp_path / "flat.obj"
+    flat.write_text("v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n")
+    with pytest.raises(AssetError, match="convex part .*flat.obj has no volume"):
+        sim.load_object(single_shape(ConvexPart(path=flat)))
+    with pytest.raises(AssetError, match="cannot read convex part .*missing.obj"):
+        sim.load_object(single_shape(ConvexPart(path=tmp_path / "missing.obj")))
+    good = tmp_path / "good.obj"
+    good.write_text(flat.read_text().replace("f 1 2 3", "v 0 0 1\nf 1 2 3\nf 1 2 4\nf 1 3 4\nf 2 3 4"))
+    monkeypatch.setattr(shapes, "_obj_file", lambda path: tmp_path / "vanished.obj")
+    with pytest.raises(AssetError, match="PyBullet could not create the collision shapes of object 't/shape'"):
+        sim.load_object(single_shape(ConvexPart(path=good)))
+
+
+# -- contacts -----------------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def grasped(hand):
+    sim = make_sim(num_envs=2)
+    grasp_scene(sim, hand)
+    sim.step(20)
+    yield sim
+    sim.close()
+
+
+def test_closing_hand_presses_the_box_with_its_fingertips(hand, grasped):
+    d = hand.description
+    tips = [d.finger_for_slot(slot).tip_link for slot in ("thumb", "index", "middle", "ring")]
+    force = grasped.contact_forces(tips, "object")
+    magnitude = np.linalg.norm(force, axis=-1)
+    assert (magnitude[:, 0] > 0.1).all(), magnitude  # the thumb
+    assert (magnitude[:, 1:].max(axis=1) > 0.1).all(), magnitude  # and at least one finger opposing it
+    thumb, fingers = force[0, 0], force[0, 1:].sum(axis=0)
+    assert float(np.dot(thumb, fingers)) < 0  # they squeeze from opposite sides
+    pairs = grasped.contact_pairs(0)
+    touching = {(c.link_a, c.body_b) for c in pairs if c.body_a == "hand" and c.force > 0}
+    assert (tips[0], "object") in touching
+    np.testing.assert_array_equal(force[0], force[1])  # two identical scenes
+
+
+def test_partner_filtering(hand, grasped):
+    links = list(grasped._layout.link_ids)
+    on_object = grasped.contact_forces(links, "object")
+    on_table = grasped.contact_forces(links, "table")
+    np.testing.assert_array_equal(grasped.contact_forces(links, "any"), on_object)  # no other contact here
+    assert np.abs(on_object).sum() > 0.1 and np.abs(on_table).sum() == 0.0  # the hand floats above the table
+    # the box in balance: the table pushes it up with its weight plus what the hand pushes down
+    box = grasped._scenes[0]
+    table = np.zeros(3)
+    for c in p.getContactPoints(bodyA=box.obj, bodyB=box.table, physicsClientId=box.cid):
+        table += c[9] * np.array(c[7]) + c[10] * np.array(c[11]) + c[12] * np.array(c[13])
+    weight = np.array([0.0, 0.0, box.obj_mass * -9.81])
+    np.testing.assert_allclose(table - on_object[0].sum(axis=0) + weight, 0.0, atol=0.05 * np.abs(on_object).sum())
+    with pytest.raises(SimulationError, match="partner 'floor' is not one of object, table, any"):
+        grasped.contact_forces(links, "floor")
+
+
+def test_any_partner_includes_the_hands_own_links(hand):
+    """A fist in the air: fingers press on each other; those forces cancel over the whole hand."""
+    sim = make_sim(hand)
+    sim.set_hand_state(open_q(hand), UP[None])
+    sim.set_joint_targets(hand.description.closed_pose(1.0)[None])
+    sim.step(90)
+    links = list(sim._layout.link_ids)
+    on_any = sim.contact_forces(links, "any")[0]
+    assert np.abs(on_any).max() > 0.1
+    np.testing.assert_allclose(on_any.sum(axis=0), 0.0, atol=1e-6)
+    assert np.abs(sim.contact_forces(links, "object")).max() == 0.0
+    assert any(c.body_a == c.body_b == "hand" for c in sim.contact_pairs(0))
+
+
+def test_palm_on_the_table_is_a_table_contact(hand):
+    sim = make_sim(hand, self_collision=False)
+    palm_down = np.array([0.0, 0.0, 0.02, math.cos(math.pi / 4), 0.0, math.sin(math.pi / 4), 0.0])  # palm (+x) down
+    sim.set_hand_state(open_q(hand), palm_down[None])
+    sim.load_object(box_asset(), pose=np.array([0.5, 0.5, 0.03, 1.0, 0.0, 0.0, 0.0]))
+    sim.set_wrist_targets((palm_down - [0, 0, 0.005, 0, 0, 0, 0])[None])  # press 5 mm into the table
+    sim.step(60)
+    on_table = sim.contact_forces(["base_link"], "table")[0, 0]
+    assert on_table[2] > 1.0  # the table pushes the palm up ...
+    assert np.linalg.norm(on_table[:2]) <= on_table[2] * 1.0 + 1e-6  # ... inside the friction cone (mu = 1)
+    assert np.abs(sim.contact_forces(["base_link"], "object")).max() == 0.0
+    assert {(c.body_a, c.link_a, c.body_b) for c in sim.contact_pairs(0)} >= {("hand", "base_link", "table")}
+
+
+# -- errors and lifetime ------------------------------------------------------------------------
+def test_exploding_state_names_the_env(hand):
+    sim = make_sim(hand, num_envs=2)
+    sim.set_hand_state(open_q(hand, 2), np.tile(UP, (2, 1)))
+    sim.load_object(box_asset())
+    sim.step(2)
+    scene = sim._scenes[1]
+    p.resetBaseVelocity(scene.obj, [500.0, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=scene.cid)
+    with pytest.raises(SimulationError, match=r"pybullet env 1: the object moves at [\d.]+ m/s"):
+        sim.step()
+    sim.set_object_pose(np.tile([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0], (2, 1)))
+    p.resetBaseVelocity(scene.obj, [math.nan, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=scene.cid)
+    with pytest.raises(SimulationError, match="pybullet env 1: the object's pose or velocity is NaN or inf"):
+        sim.step()
+    sim.reset()
+    joint = int(sim._layout.drive_ids[-1])
+    p.resetJointState(scene.hand, joint, 0.0, 5 * MAX_JOINT_SPEED, physicsClientId=scene.cid)
+    sim._state = None  # the joint was changed behind the backend's back
+    with pytest.raises(SimulationError, match="pybullet env 1: a hand joint moves at 5e.03 after stepping"):
+        sim.step()
+
+
+def test_command_errors(hand):
+    sim = make_sim()
+    with pytest.raises(SimulationError, match=r"no hand loaded; call load_hand\(hand\) first"):
+        sim.set_joint_targets(open_q(hand))
+    sim.load_hand(hand, floating=False)
+    with pytest.raises(SimulationError, match=r"joint targets q must have shape \(1, 16\).*got \(16,\)"):
+        sim.set_joint_targets(open_q(hand)[0])
+    with pytest.raises(SimulationError, match="joint targets q contains NaN or inf"):
+        sim.set_joint_targets(np.full((1, 16), np.nan))
+    with pytest.raises(SimulationError, match=r"set_wrist_targets needs a floating wrist.*floating=False"):
+        sim.set_wrist_targets(UP[None])
+    with pytest.raises(SimulationError, match="hand state wrist_pose has a zero quaternion"):
+        sim.set_hand_state(open_q(hand), np.zeros((1, 7)))
+    with pytest.raises(SimulationError, match=r"step\(n\) needs a whole number n >= 0, got -1"):
+        sim.step(-1)
+    sim.close()
+    sim.close()  # harmless
+    with pytest.raises(SimulationError, match="pybullet backend is closed"):
+        sim.step()
+
+
+def test_determinism_and_reset(hand):
+    runs = []
+    for _ in range(2):
+        with make_sim(num_envs=1) as sim:
+            grasp_scene(sim, hand, steps=40)
+            runs.append((*sim.joint_state(), sim.object_pose(), sim.contact_forces(list(hand.description.tip_links))))
+    for a, b in zip(*runs, strict=True):
+        np.testing.assert_array_equal(a, b)
+    sim = make_sim(hand)
+    sim.set_hand_state(open_q(hand), GRASP_BASE_POSE[None])
+    sim.load_object(box_asset(), pose=np.array([0.3, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0]))
+    sim.set_joint_targets(np.asarray(hand.description.closed_pose(0.5))[None])
+    sim.step(30)
+    sim.reset()
+    np.testing.assert_allclose(sim.object_pose()[0], [0.3, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0], atol=1e-7)
+    np.testing.assert_allclose(sim.wrist_pose()[0], [0, 0, 0, 1, 0, 0, 0], atol=1e-12)
+    q, qvel = sim.joint_state()
+    np.testing.assert_array_equal(q, open_q(hand))
+    np.testing.assert_array_equal(qvel, 0.0)
+
+
+# -- helpers ------------------------------------------------------------------------------------
+def test_friction_products_equal_physx_averages():
+    for hand_mu, obj_mu, table_mu in [(1.0, 1.0, 1.0), (1.0, 0.3, 0.8), (0.2, 1.5, 0.0)]:
+        k_hand, k_obj, k_table = product_friction(hand_mu, obj_mu, table_mu)
+        assert k_hand * k_obj == pytest.approx((hand_mu + obj_mu) / 2)
+        assert k_obj * k_table == pytest.approx((obj_mu + table_mu) / 2)
+        assert k_hand * k_table == pytest.approx((hand_mu + table_mu) / 2)
+
+
+def test_sanitized_inertia_keeps_the_tensor():
+    """Rewritten in principal axes (rpy in the inertial origin), a valid tensor is unchanged, also
+    when its principal frame sits at a 90 deg pitch."""
+    import xml.etree.ElementTree as ET
+
+    from scipy.spatial.transform import Rotation
+
+    rot = Rotation.from_euler("xyz", [0.3, math.pi / 2, -0.2]).as_matrix()
+    tensor = rot @ np.diag([2e-5, 3e-5, 4e-5]) @ rot.T
+    names = ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")
+    values = dict(
+        zip(names, (tensor[0, 0], tensor[0, 1], tensor[0, 2], tensor[1, 1], tensor[1, 2], tensor[2, 2]), strict=True)
+    )
+    inertia = " ".join(f'{k}="{float(v)!r}"' for k, v in values.items())
+    inertial = f'<inertial><origin xyz="0.1 0 0" rpy="0 0 0.4"/><mass value="0.2"/><inertia {inertia}/></inertial>'
+    text = f'<robot name="r"><link name="a">{inertial}</link></robot>'
+    out = ET.fromstring(sanitize_inertias(text)).find("link/inertial")
+    frame = Rotation.from_euler("xyz", [float(v) for v in out.find("origin").get("rpy").split()]).as_matrix()
+    diag = np.diag([float(out.find("inertia").get(k)) for k in ("ixx", "iyy", "izz")])
+    expected = Rotation.from_euler("z", 0.4).as_matrix() @ tensor @ Rotation.from_euler("z", 0.4).as_matrix().T
+    np.testing.assert_allclose(frame @ diag @ frame.T, expected, atol=1e-12)
+    assert out.find("origin").get("xyz") == "0.1 0.0 0.0" and out.find("mass").get("value") == "0.2"
+
+
+def test_inertias_are_loaded_valid(hand):
+    """Every Allegro link keeps its URDF mass and gets a non-zero inertia PyBullet accepts (it zeroes
+    'bad' tensors), and the virtual palm/wrist links get a gram, not PyBullet's default kilogram."""
+    import xml.etree.ElementTree as ET
+
+    tensor = np.array([[7.96e-5, 1.72e-5, 8.76e-6], [1.72e-5, 2.47e-5, 2.41e-5], [8.76e-6, 2.41e-5, 7.96e-5]])
+    moments, axes = principal_moments(tensor)  # link_1.0's tensor: its eigenvalues break I1 + I2 >= I3
+    assert moments.max() < moments.sum() - moments.max() and np.linalg.det(axes) > 0
+    urdf = {
+        link.get("name"): float(link.find("inertial/mass").get("value"))
+        for link in ET.parse(hand.urdf_path()).findall("link")
+        if link.find("inertial") is not None
+    }
+    sim = make_sim(hand)
+    scene = sim._scenes[0]
+    for name, j in sim._layout.link_ids.items():
+        mass, _, inertia = p.getDynamicsInfo(scene.hand, j, physicsClientId=scene.cid)[:3]
+        assert min(inertia) > 0, name
+        assert mass == pytest.approx(urdf.get(name, 1e-3)), name
+    assert {"palm", "wrist"} <= set(sim._layout.link_ids) - set(urdf)
