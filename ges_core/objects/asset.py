@@ -40,7 +40,11 @@ class ObjectAsset:
     category: str
     """Category name (for splits and geometry clustering)."""
     mesh_path: Path
-    """Watertight surface mesh in the object frame, metres (also the visual)."""
+    """Watertight surface mesh in the object frame, metres (also the visual).
+
+    Library objects are in their resting frame: lowest point at z = 0, centre of mass over the
+    origin, so an identity pose rests them on the table. Backends compute the centre of mass and
+    inertia from ``collision`` and ``density`` themselves."""
     collision: tuple[PrimitiveShape | ConvexPart, ...]
     """Collision shapes; all in the object frame."""
     density: float = 500.0

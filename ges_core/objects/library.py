@@ -1,0 +1,184 @@
+"""``ObjectLibrary``: list objects, get an :class:`ObjectAsset` or a point cloud by id.
+
+>>> lib = ObjectLibrary(LibraryConfig(sources=("procedural",), procedural_count=3))
+>>> [o.object_id for o in lib.list(split="train")][:2]
+>>> asset = lib.get("procedural/can/001")          # primitive: exact cylinder collision
+>>> points, normals = lib.point_cloud("procedural/mug/000", 1024, fps=True)
+"""
+
+from __future__ import annotations
+
+import difflib
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from pathlib import Path
+
+import numpy as np
+
+from ges_core.errors import ConfigError, UnknownNameError
+from ges_core.objects.asset import ObjectAsset
+from ges_core.objects.decompose import FAST, CoacdSettings
+from ges_core.objects.pointcloud import sample_surface
+from ges_core.objects.processing import ProcessedObject, collision_shapes, min_width, process_entry
+from ges_core.objects.sources import SOURCES, ObjectEntry, list_procedural, list_pybullet, list_user
+from ges_core.objects.splits import SPLITS, assign_splits
+
+__all__ = ["LibraryConfig", "ObjectInfo", "ObjectLibrary", "UnknownObjectError"]
+
+_ASSET_DEFAULTS = ObjectAsset(object_id="", category="", mesh_path=Path(), collision=())
+
+
+@dataclass(frozen=True, kw_only=True)
+class LibraryConfig:
+    """Which objects the library holds and how it processes them."""
+
+    sources: tuple[str, ...] = ("procedural", "pybullet")
+    """Any of ``procedural``, ``pybullet``, ``user`` (``user`` needs ``user_dir``)."""
+    seed: int = 0
+    """Seed of the procedural dimensions."""
+    procedural_count: int = 10
+    """Objects per procedural category."""
+    user_dir: Path | None = None
+    """Folder laid out ``<category>/<instance>.{obj,stl,ply,glb}``."""
+    user_scale: float = 1.0
+    """Factor taking the user files' units to metres."""
+    normalize_size: float | None = None
+    """If set, every object is scaled uniformly so its largest extent is this many metres."""
+    split_seed: int = 0
+    """Seed of the train / unseen splits."""
+    coacd: CoacdSettings = field(default_factory=lambda: FAST)
+    """Decomposition settings; ``get`` looks up the cache under these."""
+    decompose: bool = False
+    """Compute a missing decomposition on demand in ``get`` (slow) instead of raising."""
+    density: float = _ASSET_DEFAULTS.density
+    """kg/m^3 of every object."""
+    friction: float = _ASSET_DEFAULTS.friction
+
+    def validate(self) -> None:
+        """Raise ConfigError listing every invalid field."""
+        problems = [
+            f"sources: unknown source '{s}' (known: {', '.join(SOURCES)})" for s in self.sources if s not in SOURCES
+        ]
+        if "user" in self.sources and self.user_dir is None:
+            problems.append("user_dir: required when sources include 'user'")
+        if self.procedural_count < 0:
+            problems.append(f"procedural_count: must be >= 0, got {self.procedural_count}")
+        for name in ("user_scale", "density", "normalize_size"):
+            value = getattr(self, name)
+            if value is not None and not value > 0:
+                problems.append(f"{name}: must be positive, got {value}")
+        if problems:
+            raise ConfigError("invalid object library config: " + "; ".join(problems), problems=problems)
+
+
+@dataclass(frozen=True)
+class ObjectInfo:
+    """One row of :meth:`ObjectLibrary.list`."""
+
+    object_id: str
+    category: str
+    source: str
+    split: str
+
+
+class UnknownObjectError(UnknownNameError):
+    """An object id that the library does not hold (short message: the libraries are large)."""
+
+    def __init__(self, name: str, known: list[str]) -> None:
+        close = difflib.get_close_matches(name, known, n=3)
+        hint = f" Did you mean {', '.join(close)}?" if close else ""
+        msg = f"unknown object '{name}'.{hint} `ges objects list` shows the {len(known)} known ids."
+        KeyError.__init__(self, msg)
+        self.kind, self.name, self.known = "object", name, known
+
+
+class ObjectLibrary:
+    """All objects of the configured sources, with splits, assets, point clouds and sizes."""
+
+    def __init__(self, config: LibraryConfig | None = None, **overrides) -> None:
+        config = replace(config or LibraryConfig(), **overrides)
+        if config.user_dir is not None and "user" not in config.sources and not overrides.get("sources"):
+            config = replace(config, sources=(*config.sources, "user"))
+        config.validate()
+        self.config = config
+        self._processed: dict[str, ProcessedObject] = {}
+
+    @cached_property
+    def _entries(self) -> dict[str, ObjectEntry]:
+        cfg, found = self.config, []
+        if "procedural" in cfg.sources:
+            found += list_procedural(count=cfg.procedural_count, seed=cfg.seed)
+        if "pybullet" in cfg.sources:
+            found += list_pybullet()
+        if "user" in cfg.sources:
+            found += list_user(cfg.user_dir, scale=cfg.user_scale)
+        return {e.object_id: e for e in found}
+
+    @cached_property
+    def splits(self) -> dict[str, str]:
+        """object id → ``train`` / ``unseen_object`` / ``unseen_category`` (see :mod:`.splits`)."""
+        return assign_splits(((e.object_id, e.category) for e in self._entries.values()), seed=self.config.split_seed)
+
+    def entries(self, *, source: str | None = None, split: str | None = None) -> list[ObjectEntry]:
+        """Entries in listing order, optionally of one source and one split."""
+        if split is not None and split not in SPLITS:
+            raise ConfigError(f"unknown split '{split}'; choose one of {', '.join(SPLITS)}")
+        return [
+            e
+            for e in self._entries.values()
+            if (source is None or e.source == source) and (split is None or self.splits[e.object_id] == split)
+        ]
+
+    def list(self, *, source: str | None = None, split: str | None = None) -> list[ObjectInfo]:
+        """One :class:`ObjectInfo` per object; reads no mesh."""
+        return [
+            ObjectInfo(e.object_id, e.category, e.source, self.splits[e.object_id])
+            for e in self.entries(source=source, split=split)
+        ]
+
+    def entry(self, object_id: str) -> ObjectEntry:
+        """The entry of ``object_id``; UnknownObjectError (a KeyError) if there is none."""
+        try:
+            return self._entries[object_id]
+        except KeyError:
+            raise UnknownObjectError(object_id, list(self._entries)) from None
+
+    def processed(self, object_id: str) -> ProcessedObject:
+        """Repaired, placed geometry of ``object_id`` (memoized per library)."""
+        if object_id not in self._processed:
+            self._processed[object_id] = process_entry(self.entry(object_id), normalize_size=self.config.normalize_size)
+        return self._processed[object_id]
+
+    def get(self, object_id: str, *, decompose: bool | None = None) -> ObjectAsset:
+        """The :class:`ObjectAsset` of ``object_id``.
+
+        decompose: compute a missing CoACD decomposition now (default: ``config.decompose``); when
+        False a concave object without a cached decomposition raises an AssetError that says to run
+        ``ges objects prepare``.
+        """
+        obj = self.processed(object_id)
+        compute = self.config.decompose if decompose is None else decompose
+        cfg = self.config
+        return ObjectAsset(
+            object_id=object_id,
+            category=obj.entry.category,
+            mesh_path=obj.mesh_path,
+            collision=collision_shapes(obj, cfg.coacd, compute=compute),
+            density=cfg.density,
+            mass=cfg.density * obj.volume,
+            friction=cfg.friction,
+        )
+
+    def point_cloud(
+        self, object_id: str, n: int = 2048, *, seed: int = 0, fps: bool = False
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Surface points (n, 3) and outward unit normals (n, 3), object frame, metres (seeded)."""
+        return sample_surface(self.processed(object_id).mesh, n, seed=seed, fps=fps)
+
+    def extents(self, object_id: str) -> np.ndarray:
+        """(3,) axis-aligned size (m) in the resting object frame."""
+        return np.asarray(self.processed(object_id).mesh.extents, dtype=np.float64)
+
+    def min_width(self, object_id: str) -> float:
+        """Narrowest width (m) across the object (convex hull); compare with a hand's span."""
+        return min_width(self.processed(object_id).mesh)

@@ -1,0 +1,88 @@
+"""``prepare``: validate objects and cache the convex decomposition of every concave one.
+
+Runs in a process pool (``workers``), with a tqdm progress bar; each object is independent, so a
+killed run resumes where it stopped (finished decompositions are cache hits) and an object that
+fails is reported while the others go on.
+"""
+
+from __future__ import annotations
+
+import time
+from concurrent.futures import ProcessPoolExecutor, as_completed
+from dataclasses import dataclass
+from multiprocessing import get_context
+from typing import Literal
+
+from ges_core.errors import GesError
+from ges_core.objects.decompose import CoacdSettings, cached_parts
+from ges_core.objects.processing import collision_shapes, process_entry
+from ges_core.objects.sources import ObjectEntry
+
+__all__ = ["PrepareResult", "prepare", "prepare_one"]
+
+Status = Literal["decomposed", "cached", "not_needed", "failed"]
+
+
+@dataclass(frozen=True)
+class PrepareResult:
+    """What ``prepare`` did for one object."""
+
+    object_id: str
+    status: Status
+    """``decomposed`` now, ``cached`` already, ``not_needed`` (primitive or convex), or ``failed``."""
+    seconds: float
+    detail: str = ""
+    """Number of parts, or the one-line error."""
+
+
+def prepare_one(entry: ObjectEntry, settings: CoacdSettings, normalize_size: float | None = None) -> PrepareResult:
+    """Process one entry and decompose it if concave and not cached; never raises a GesError."""
+    start = time.perf_counter()
+    try:
+        obj = process_entry(entry, normalize_size=normalize_size)
+        was_cached = obj.kind == "concave" and cached_parts(obj.mesh_hash, settings) is not None
+        shapes = collision_shapes(obj, settings, compute=True)
+    except GesError as exc:
+        return PrepareResult(entry.object_id, "failed", time.perf_counter() - start, str(exc))
+    status: Status = "not_needed" if obj.kind != "concave" else "cached" if was_cached else "decomposed"
+    return PrepareResult(entry.object_id, status, time.perf_counter() - start, f"{len(shapes)} parts ({obj.kind})")
+
+
+def prepare(
+    entries: list[ObjectEntry],
+    settings: CoacdSettings,
+    *,
+    workers: int = 1,
+    normalize_size: float | None = None,
+    progress: bool = True,
+) -> list[PrepareResult]:
+    """:func:`prepare_one` for every entry, ``workers`` at a time; results in the entries' order."""
+    from tqdm import tqdm
+
+    bar = tqdm(total=len(entries), desc="prepare", unit="obj", disable=not progress)
+    results: dict[str, PrepareResult] = {}
+    try:
+        for result in _run(entries, settings, workers, normalize_size):
+            results[result.object_id] = result
+            bar.update()
+            if result.status == "failed":
+                bar.write(f"failed: {result.detail}")
+    finally:
+        bar.close()
+    return [results[e.object_id] for e in entries]
+
+
+def _run(entries, settings, workers, normalize_size):
+    if workers <= 1 or len(entries) <= 1:
+        for entry in entries:
+            yield prepare_one(entry, settings, normalize_size)
+        return
+    # spawn, not fork: the parent may hold threads (tqdm, torch) that a fork would copy half-locked
+    with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
+        futures = [pool.submit(prepare_one, e, settings, normalize_size) for e in entries]
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        except BaseException:
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise

@@ -1,0 +1,188 @@
+"""From an :class:`ObjectEntry` to a repaired, placed mesh and its collision shapes.
+
+Steps: build (procedural) or load (file, URDF scale) → repair and validate → optional scale
+normalization → resting placement (lowest point at z = 0, centre of mass above the origin) →
+write the mesh, content-addressed, under ``<cache_dir>/objects/meshes`` → collision shapes.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+import trimesh
+
+from ges_core.errors import AssetError
+from ges_core.objects.asset import ConvexPart, PrimitiveShape
+from ges_core.objects.decompose import CoacdSettings, cached_parts, decompose, mesh_to_obj_bytes
+from ges_core.objects.placement import place_on_table, transform_primitive
+from ges_core.objects.procedural import build_shape, shape_seed
+from ges_core.objects.sources import ObjectEntry
+from ges_core.objects.validate import CONVEX_RATIO, load_mesh_file, repair_mesh
+from ges_core.paths import atomic_write_bytes, cache_dir
+
+__all__ = ["CollisionKind", "ProcessedObject", "collision_shapes", "min_width", "process_entry", "solid_volume"]
+
+CollisionKind = Literal["primitive", "convex", "convex_parts", "concave"]
+"""``primitive``: exact shapes; ``convex``: the mesh's own hull; ``convex_parts``: the mesh is several
+convex bodies (pybullet's random_urdfs, VHACD files), each its own part; ``concave``: needs CoACD."""
+
+VOLUME_SAMPLES = 100_000
+"""Monte-Carlo points for the overlap volume of overlapping bodies (teddy's 15 hulls overlap by a
+fraction of a percent; the estimate's error scales with the overlap, not the whole volume)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class ProcessedObject:
+    """One object's geometry, ready for collision assembly, sampling and size checks."""
+
+    entry: ObjectEntry
+    mesh: trimesh.Trimesh
+    """Repaired mesh in the resting object frame (z = 0 at the lowest point), metres."""
+    mesh_path: Path
+    """The same mesh as an OBJ file in the cache (content-addressed)."""
+    mesh_hash: str
+    """16 hex digits of the SHA-256 of that file (decomposition cache key)."""
+    kind: CollisionKind
+    primitives: tuple[PrimitiveShape, ...] = ()
+    volume: float
+    """m^3 of the solid (overlapping bodies counted once)."""
+
+
+def process_entry(entry: ObjectEntry, *, normalize_size: float | None = None) -> ProcessedObject:
+    """Build or load ``entry``'s mesh, repair it, optionally scale its largest extent to
+    ``normalize_size`` (m), place it at rest, and write it to the mesh cache."""
+    mesh, kind, primitives = _raw_geometry(entry)
+    placed, transform = place_on_table(mesh, rotate=entry.source != "procedural")
+    primitives = tuple(transform_primitive(p, transform) for p in primitives)
+    if normalize_size is not None:  # after placement: scaling about the origin keeps the rest pose
+        factor = normalize_size / float(np.max(placed.extents))
+        placed.apply_scale(factor)
+        primitives = tuple(_scale_primitive(p, factor) for p in primitives)
+    data = mesh_to_obj_bytes(placed)
+    digest = hashlib.sha256(data).hexdigest()[:16]
+    path = cache_dir("objects", "meshes") / f"{digest}.obj"
+    if not path.is_file():
+        atomic_write_bytes(path, data)
+    volume = solid_volume(placed)
+    return ProcessedObject(
+        entry=entry, mesh=placed, mesh_path=path, mesh_hash=digest, kind=kind, primitives=primitives, volume=volume
+    )
+
+
+def _raw_geometry(entry: ObjectEntry) -> tuple[trimesh.Trimesh, CollisionKind, tuple[PrimitiveShape, ...]]:
+    if entry.source == "procedural":
+        shape = build_shape(entry.category, shape_seed(entry.seed, entry.category, entry.index))
+        return repair_mesh(shape.mesh, name=entry.object_id), shape.kind, shape.primitives
+    name = f"{entry.object_id} ({entry.path})"
+    mesh = repair_mesh(load_mesh_file(entry.path, scale=entry.scale), name=name)
+    return mesh, _classify(mesh), ()
+
+
+def _classify(mesh: trimesh.Trimesh) -> CollisionKind:
+    bodies = mesh.split(only_watertight=False)
+    convex = [b.volume >= CONVEX_RATIO * b.convex_hull.volume for b in bodies]
+    if not all(convex):
+        return "concave"
+    return "convex" if len(bodies) == 1 else "convex_parts"
+
+
+def _scale_primitive(prim: PrimitiveShape, factor: float) -> PrimitiveShape:
+    pose = tuple(v * factor for v in prim.pose[:3]) + tuple(prim.pose[3:])
+    return PrimitiveShape(kind=prim.kind, size=tuple(s * factor for s in prim.size), pose=pose)
+
+
+def solid_volume(mesh: trimesh.Trimesh, *, seed: int = 0) -> float:
+    """Volume (m^3) of the solid: the bodies' exact volumes, minus a seeded Monte-Carlo estimate of
+    their overlaps when some overlap (estimating only the overlap keeps the error small)."""
+    bodies = mesh.split(only_watertight=False)
+    if len(bodies) == 1:
+        return float(mesh.volume)
+    inside = [_inside_test(b) for b in bodies]
+    if not _bodies_overlap(bodies, inside):
+        return float(mesh.volume)
+    lo, hi = mesh.bounds
+    points = np.random.default_rng(seed).uniform(lo, hi, size=(VOLUME_SAMPLES, 3))
+    count = np.zeros(len(points), dtype=np.int64)
+    for body, test in zip(bodies, inside, strict=True):
+        near = _boxes_intersect(body.bounds, points[:, None, :].repeat(2, axis=1))
+        count[near] += test(points[near])
+    overlap = np.maximum(count - 1, 0).mean() * np.prod(hi - lo)
+    return float(mesh.volume - overlap)
+
+
+def _inside_test(body: trimesh.Trimesh):
+    """``points (n, 3) -> (n,) bool`` strictly inside ``body``: half-space tests for a convex body
+    (100x faster than ray casting), else trimesh's ray-parity ``contains``."""
+    if body.volume < CONVEX_RATIO * body.convex_hull.volume:
+        return body.contains
+    hull = body.convex_hull
+    normals, offsets = hull.face_normals, np.einsum("ij,ij->i", hull.face_normals, hull.triangles[:, 0])
+    return lambda points: np.all(points @ normals.T < offsets, axis=1)
+
+
+def _bodies_overlap(bodies: list[trimesh.Trimesh], inside: list) -> bool:
+    """Whether a vertex of one body lies strictly inside another (touching bodies do not count).
+    Only pairs whose bounding boxes intersect are tested: pybullet objects have up to 127 bodies."""
+    bounds = np.array([b.bounds for b in bodies])  # (n, 2, 3)
+    for i, body in enumerate(bodies):
+        inner = _shrunk_vertices(body)
+        for j in np.flatnonzero(_boxes_intersect(bounds[i], bounds)):
+            if j != i and inside[j](inner).any():
+                return True
+    return False
+
+
+def _boxes_intersect(box: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """(n,) bool: axis-aligned ``box`` (2, 3) intersects each of ``boxes`` (n, 2, 3)."""
+    return np.all((boxes[:, 0] < box[1]) & (boxes[:, 1] > box[0]), axis=1)
+
+
+def _shrunk_vertices(body: trimesh.Trimesh) -> np.ndarray:
+    """Vertices moved 1 % toward the body's centroid, so a vertex lying on a neighbour's face is not
+    counted inside it."""
+    centre = body.vertices.mean(axis=0)
+    return centre + 0.99 * (body.vertices - centre)
+
+
+def collision_shapes(
+    obj: ProcessedObject, settings: CoacdSettings, *, compute: bool
+) -> tuple[PrimitiveShape | ConvexPart, ...]:
+    """The collision set of ``obj``; for a concave mesh, the cached CoACD parts (computed now when
+    ``compute``, else an AssetError saying how to prepare them)."""
+    if obj.kind == "primitive":
+        return obj.primitives
+    if obj.kind == "convex":
+        return (ConvexPart(path=_write_hull(obj.mesh)),)
+    if obj.kind == "convex_parts":
+        return tuple(ConvexPart(path=_write_hull(b)) for b in obj.mesh.split(only_watertight=False))
+    parts = cached_parts(obj.mesh_hash, settings)
+    if parts is None and not compute:
+        oid = obj.entry.object_id
+        raise AssetError(
+            f"{oid}: concave mesh has no cached convex decomposition (CoACD settings {settings.key()}); "
+            f"run `ges objects prepare --ids {oid}` or load it with decompose=True"
+        )
+    if parts is None:
+        parts = decompose(obj.mesh, obj.mesh_hash, settings, name=obj.entry.object_id)
+    return tuple(ConvexPart(path=p) for p in parts)
+
+
+def _write_hull(mesh: trimesh.Trimesh) -> Path:
+    """Convex hull of ``mesh`` written content-addressed under ``<cache_dir>/objects/hulls``."""
+    data = mesh_to_obj_bytes(mesh.convex_hull)
+    path = cache_dir("objects", "hulls") / f"{hashlib.sha256(data).hexdigest()[:16]}.obj"
+    if not path.is_file():
+        atomic_write_bytes(path, data)
+    return path
+
+
+def min_width(mesh: trimesh.Trimesh) -> float:
+    """Smallest width (m) of the convex hull over its face normals: the narrowest opening a
+    parallel-jaw or thumb-finger grasp across the object needs (an upper bound on the exact width)."""
+    hull = mesh.convex_hull
+    proj = hull.vertices @ hull.face_normals.T  # (n_vertices, n_faces)
+    return float(np.min(proj.max(axis=0) - proj.min(axis=0)))
