@@ -30,6 +30,8 @@ class SimCheckConfig(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
     hand: str | None = Field(None, description="hand plugin (default: registry.yaml)")
+    object: str | None = Field(None, description="object-library id (default: a box of box_half_extents)")
+    user_dir: str | None = Field(None, description="user object folder, for object ids starting with 'user/'")
     sim: str | None = Field(None, description="simulator plugin (default: registry.yaml)")
     box_half_extents: tuple[float, float, float] = Field(
         (0.025, 0.035, 0.05), description="half extents of the box, metres (x along the fingers)"
@@ -106,25 +108,50 @@ def grasp_start_pose(hand: HandModel, object_centre: np.ndarray, closure: float)
     return matrix_to_pose(world_wrist @ np.linalg.inv(base_to_wrist))
 
 
-def _box(half_extents: tuple[float, float, float], density: float) -> ObjectAsset:
-    from ges_core.objects.simple import box_asset
+def build_check_object(config: SimCheckConfig) -> ObjectAsset:
+    """The configured library object, or the default box."""
+    if config.object is None:
+        from ges_core.objects.simple import box_asset
 
-    return box_asset(half_extents, density=density, object_id="sim_check/box")
+        return box_asset(config.box_half_extents, density=config.box_density, object_id="sim_check/box")
+    from pathlib import Path
+
+    from ges_core.objects.library import LibraryConfig, ObjectLibrary
+
+    source = config.object.split("/", 1)[0]
+    user_dir = Path(config.user_dir) if config.user_dir else None
+    return ObjectLibrary(LibraryConfig(sources=(source,), user_dir=user_dir)).get(config.object)
 
 
-def run_sim_check(hand: HandModel, sim: SimBackend, config: SimCheckConfig) -> SimCheckReport:
+def _object_centre(sim: SimBackend, obj: ObjectAsset) -> np.ndarray:
+    """(3,) world position of the centre of the object's bounding box, as it rests now."""
+    import trimesh
+
+    from ges_core.transforms import pose_to_matrix
+
+    local = trimesh.load(obj.mesh_path, force="mesh").bounds.mean(axis=0)
+    world = pose_to_matrix(sim.object_pose()[0])
+    return world[:3, :3] @ local + world[:3, 3]
+
+
+def run_sim_check(
+    hand: HandModel, sim: SimBackend, config: SimCheckConfig, obj: ObjectAsset | None = None
+) -> SimCheckReport:
     """Run the close-and-lift scene in ``sim`` (already built) and report fingertip forces."""
+    from ges_core.graspability import check_graspable
+
     d = hand.description
+    obj = obj or build_check_object(config)
+    check_graspable(hand, obj)
     start = time.perf_counter()
-    hz = config.box_half_extents[2]
-    box_pose = np.array([0.0, 0.0, hz, 1.0, 0.0, 0.0, 0.0])
-    base = grasp_start_pose(hand, box_pose[:3], config.closure)
     n = sim.num_envs
     sim.load_hand(hand, floating=True)
-    sim.load_object(_box(config.box_half_extents, config.box_density), pose=box_pose)
+    sim.load_object(obj)  # resting on the table at the origin
+    base = grasp_start_pose(hand, _object_centre(sim, obj), config.closure)
     open_q, closed_q = np.asarray(d.open_pose), d.closed_pose(config.closure)
     sim.set_hand_state(np.tile(open_q, (n, 1)), np.tile(base, (n, 1)))
-    sim.step(config.settle_steps) if config.settle_steps else None
+    if config.settle_steps:
+        sim.step(config.settle_steps)
     for i in range(1, config.close_steps + 1):
         sim.set_joint_targets(np.tile(open_q + (closed_q - open_q) * min(1.0, 2 * i / config.close_steps), (n, 1)))
         sim.step()

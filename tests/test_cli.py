@@ -65,3 +65,61 @@ def test_registry_settings_reach_the_factory(capsys, tmp_path):
     (tmp_path / "registry.yaml").write_text("settings:\n  hand:\n    allegro: {bogus_option: 1}\n")
     code, _, err = run(capsys, "--registry", str(tmp_path / "registry.yaml"), "info", "hand", "allegro")
     assert code == 1 and "allegro" in err and "bogus_option" in err
+
+
+def _user_objects(tmp_path, name: str, vertices, faces):
+    import numpy as np
+    import trimesh
+
+    folder = tmp_path / "objects" / "junk"
+    folder.mkdir(parents=True)
+    mesh = trimesh.Trimesh(np.asarray(vertices, float), np.asarray(faces), process=False)
+    (folder / f"{name}.obj").write_text(mesh.export(file_type="obj"))
+    return tmp_path / "objects"
+
+
+def test_mesh_with_nan_vertices(capsys, tmp_path):
+    import trimesh
+
+    box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    vertices = box.vertices.copy()
+    vertices[0, 0] = float("nan")
+    folder = _user_objects(tmp_path, "nan_box", vertices, box.faces)
+    code, _, err = run(capsys, "sim", "check", "--object", "user/junk/nan_box", "--user-dir", str(folder))
+    assert code == 1 and "nan_box" in err and "NaN" in err and err.count("\n") == 1
+
+
+def test_mesh_with_no_volume(capsys, tmp_path):
+    folder = _user_objects(
+        tmp_path, "sheet", [[0, 0, 0], [0.1, 0, 0], [0, 0.1, 0], [0.1, 0.1, 0]], [[0, 1, 2], [1, 3, 2]]
+    )
+    code, _, err = run(capsys, "sim", "check", "--object", "user/junk/sheet", "--user-dir", str(folder))
+    assert code == 1 and "sheet" in err and err.count("\n") == 1
+
+
+def test_missing_mesh_file_in_library(capsys, tmp_path):
+    code, _, err = run(capsys, "sim", "check", "--object", "user/junk/ghost", "--user-dir", str(tmp_path))
+    assert code == 1 and "ghost" in err
+
+
+def test_object_larger_than_the_hand_can_span(capsys):
+    code, out, err = run(
+        capsys, "sim", "check", "--hand", "allegro", "--sim", "pybullet", "-o", "box_half_extents=[0.3,0.3,0.3]"
+    )
+    assert code == 1 and out == ""
+    assert "60.0 cm across at its narrowest" in err and "hand 'allegro' opens at most" in err
+
+
+def test_missing_hand_asset(capsys, tmp_path):
+    (tmp_path / "registry.yaml").write_text(f"settings:\n  hand:\n    shadow: {{asset_dir: {tmp_path / 'nowhere'}}}\n")
+    code, _, err = run(capsys, "--registry", str(tmp_path / "registry.yaml"), "info", "hand", "shadow")
+    assert code == 1 and "nowhere" in err and "gymnasium-robotics" in err and err.count("\n") == 1
+
+
+def test_broken_hand_urdf(capsys, tmp_path):
+    from conftest import EXAMPLE_HAND_PKG
+
+    (tmp_path / "hand.yaml").write_text((EXAMPLE_HAND_PKG / "ges_example_hand" / "gripper.yaml").read_text())
+    (tmp_path / "hand.urdf").write_text("<robot name='x'><link name='palm'>")
+    code, _, err = run(capsys, "hand", "lint", str(tmp_path / "hand.yaml"))
+    assert code == 1 and "URDF is not valid XML" in err

@@ -11,7 +11,9 @@ from ges_core.sim_check import SimCheckConfig
 
 
 def test_overrides_parse_yaml_values_and_nest():
-    data = apply_overrides({"scene": {"timestep": 0.01}}, ["scene.num_envs=4", "hand=allegro", "box_half_extents=[0.1,0.1,0.1]"])
+    data = apply_overrides(
+        {"scene": {"timestep": 0.01}}, ["scene.num_envs=4", "hand=allegro", "box_half_extents=[0.1,0.1,0.1]"]
+    )
     cfg = SimCheckConfig.model_validate(data)
     assert cfg.scene.num_envs == 4 and cfg.scene.timestep == 0.01 and cfg.hand == "allegro"
     assert cfg.box_half_extents == (0.1, 0.1, 0.1)

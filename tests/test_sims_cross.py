@@ -9,11 +9,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from ges_core.lint.checks_physics import check_fk_matches_sims
+from ges_core.lint.checks_physics import check_fk_matches_sims, check_self_collision
 from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import SimCheckConfig, run_sim_check
+from ges_core.urdf import neighbour_link_pairs
 
 HANDS = tuple(load_registry(autoload=False).names("hand"))
 """Every registered built-in hand: each must pass every test below."""
@@ -39,8 +40,8 @@ def _rest_height(registry, sim_name: str, obj, drop: float) -> np.ndarray:
 def test_dropped_box_rests_at_the_same_height_in_both(registry, half_extents):
     obj = box_asset(half_extents)
     heights = [_rest_height(registry, s, obj, drop=0.1)[2] for s in SIMS]
-    for z in heights:
-        assert z == pytest.approx(half_extents[2], abs=2e-3)
+    for z in heights:  # resting frame: the bottom face is the origin
+        assert z == pytest.approx(0.0, abs=2e-3)
     assert max(heights) - min(heights) < 2e-3
 
 
@@ -79,3 +80,44 @@ def test_every_registered_sim_builds_and_closes(registry, name):
     assert sim.num_envs == 2
     sim.close()
     sim.close()  # idempotent
+
+
+# -- self-collision: neighbour pairs excluded, every other pair colliding --------------------------
+def _hand_pairs(sim) -> dict[frozenset[str], float]:
+    """Deepest separation (m) of every touching hand-hand link pair in env 0."""
+    out: dict[frozenset[str], float] = {}
+    for c in sim.contact_pairs(0):
+        if c.body_a == c.body_b == "hand":
+            key = frozenset((c.link_a, c.link_b))
+            out[key] = min(out.get(key, np.inf), c.separation)
+    return out
+
+
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_shadow_neighbour_links_are_excluded_and_the_rest_collide(registry, sim_name):
+    """Open pose: no overlap deeper than 1 mm (palm-thproximal overlapped 15 mm and thproximal-thmiddle
+    24 mm while only parent-child pairs were excluded). Index and middle spread toward each other
+    (a pair that is no neighbour): their proximal links must still report a contact."""
+    hand = registry.build_hand("shadow")
+    d = hand.description
+    neighbours = neighbour_link_pairs(hand.urdf_text())
+    open_q = np.asarray(d.open_pose)[None]
+    lim = d.limits_array
+    with registry.build_sim(sim_name, SceneConfig(self_collision=True, gravity=0.0)) as sim:
+        sim.load_hand(hand, floating=False)
+        sim.set_hand_state(open_q)
+        sim.step(1)
+        assert {pair: sep for pair, sep in _hand_pairs(sim).items() if sep < -1e-3} == {}
+        spread = open_q.copy()
+        spread[0, d.joint_names.index("FFJ3")] = lim[d.joint_names.index("FFJ3"), 0]
+        spread[0, d.joint_names.index("MFJ3")] = lim[d.joint_names.index("MFJ3"), 1]
+        sim.set_hand_state(spread)
+        sim.step(1)
+        assert _hand_pairs(sim).get(frozenset(("ffproximal", "mfproximal")), 0.0) < -5e-3
+        seen: set[frozenset[str]] = set()
+        for q in np.random.default_rng(3).uniform(lim[:, 0], lim[:, 1], size=(8, d.num_joints)):
+            sim.set_hand_state(q[None])
+            sim.step(1)
+            seen |= set(_hand_pairs(sim))
+        assert seen and not seen & neighbours
+    assert check_self_collision(hand, sim_name, registry.build_sim) == []  # `ges hand lint`'s check

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from conftest import EXAMPLE_HAND_PKG
 from scipy.spatial.transform import Rotation
 
 from ges_core.errors import AssetError
@@ -17,7 +18,6 @@ from ges_core.urdf import (
     root_link,
     strip_render_data,
 )
-from conftest import EXAMPLE_HAND_PKG
 
 GRIPPER = (EXAMPLE_HAND_PKG / "ges_example_hand" / "gripper.urdf").read_text()
 
@@ -57,7 +57,9 @@ def test_floating_base_moves_root_like_the_pose():
 
 
 def test_strip_render_data_removes_materials_and_visuals():
-    text = GRIPPER.replace("</link>", '<visual><geometry><box size="1 1 1"/></geometry><material name="m"/></visual></link>', 1)
+    text = GRIPPER.replace(
+        "</link>", '<visual><geometry><box size="1 1 1"/></geometry><material name="m"/></visual></link>', 1
+    )
     out = strip_render_data(text)
     assert "<material" not in out and "<visual" not in out
     assert "<visual" in strip_render_data(text, keep_visuals=True)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ges_core.errors import ConfigError
+from ges_core.errors import AssetError, ConfigError
 
 SOURCE_CHOICES = ("procedural", "pybullet", "user")
 SPLIT_CHOICES = ("train", "unseen_object", "unseen_category")
@@ -62,13 +62,18 @@ def run_list(args: argparse.Namespace) -> int:
     """Print ``id  category  source  split`` per object (and sizes with ``--sizes``)."""
     library = library_from_args(args)
     rows = library.list(split=args.split)
+    invalid = 0
     for info in rows:
         line = f"{info.object_id:<34} {info.category:<14} {info.source:<10} {info.split}"
         if args.sizes:
-            ext, width = library.extents(info.object_id) * 100, library.min_width(info.object_id) * 100
-            line += f"  {ext[0]:5.1f} x {ext[1]:5.1f} x {ext[2]:5.1f} cm  min width {width:5.1f} cm"
+            try:
+                ext, width = library.extents(info.object_id) * 100, library.min_width(info.object_id) * 100
+                line += f"  {ext[0]:5.1f} x {ext[1]:5.1f} x {ext[2]:5.1f} cm  min width {width:5.1f} cm"
+            except AssetError as exc:  # list the rest; say why this one is unusable
+                invalid += 1
+                line += f"  INVALID: {exc}"
         print(line)
-    print(f"{len(rows)} objects")
+    print(f"{len(rows)} objects" + (f", {invalid} invalid" if invalid else ""))
     return 0
 
 

@@ -17,13 +17,13 @@ def box_asset(
     density: float = 500.0,
     friction: float = 1.0,
 ) -> ObjectAsset:
-    """A box centred on its object frame: one exact box primitive; its OBJ surface is cached by size."""
+    """A box in the resting frame (bottom face at z = 0, centred on the z axis): one exact box primitive."""
     hx, hy, hz = half_extents
     return ObjectAsset(
         object_id=object_id,
         category="box",
         mesh_path=_box_mesh(half_extents),
-        collision=(PrimitiveShape(kind="box", size=tuple(half_extents)),),
+        collision=(PrimitiveShape(kind="box", size=tuple(half_extents), pose=(0.0, 0.0, hz, 1.0, 0.0, 0.0, 0.0)),),
         density=density,
         mass=density * 8 * hx * hy * hz,
         friction=friction,
@@ -33,7 +33,9 @@ def box_asset(
 def _box_mesh(half_extents: tuple[float, float, float]) -> Path:
     import trimesh
 
-    path = cache_dir("simple_objects") / ("box_" + "_".join(f"{h:.5f}" for h in half_extents) + ".obj")
+    path = cache_dir("simple_objects") / ("box_rest_" + "_".join(f"{h:.5f}" for h in half_extents) + ".obj")
     if not path.is_file():
-        atomic_write_text(path, trimesh.creation.box(extents=[2 * h for h in half_extents]).export(file_type="obj"))
+        mesh = trimesh.creation.box(extents=[2 * h for h in half_extents])
+        mesh.apply_translation((0.0, 0.0, half_extents[2]))
+        atomic_write_text(path, mesh.export(file_type="obj"))
     return path
