@@ -17,6 +17,7 @@ __all__ = [
     "PluginError",
     "RegistrationError",
     "SimulationError",
+    "SynthesisError",
     "UnknownNameError",
 ]
 
@@ -71,3 +72,15 @@ class BackendUnavailable(GesError):
 
 class SimulationError(GesError):
     """The simulator produced non-finite or exploding state."""
+
+
+class SynthesisError(GesError):
+    """Grasp synthesis cannot handle this object (no graspable width, degenerate point cloud, ...).
+
+    Pipelines record it as that object's failure reason and go on with the next object.
+    """
+
+    def __init__(self, message: str, *, reason: str = "failed") -> None:
+        super().__init__(message)
+        self.reason = reason
+        """Short machine-readable failure code, e.g. ``no_graspable_width`` or ``degenerate_cloud``."""
