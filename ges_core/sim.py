@@ -28,7 +28,13 @@ ContactPartner = Literal["object", "table", "any"]
 
 
 class SceneConfig(BaseModel):
-    """Physics settings shared by every backend."""
+    """Physics settings shared by every backend.
+
+    ``self_collision=True`` collides every pair of hand links except the pairs of
+    :func:`ges_core.urdf.neighbour_link_pairs`: parent-child pairs and pairs joined through
+    zero-length links (the Shadow hand's palm and ffproximal, through ``ffknuckle``). Every backend
+    excludes exactly those, so a hand touches itself in the same places in every engine.
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
@@ -38,7 +44,7 @@ class SceneConfig(BaseModel):
     table_friction: float = Field(1.0, ge=0, description="Coulomb friction of the table plane")
     hand_friction: float = Field(1.0, ge=0, description="Coulomb friction of the hand links")
     solver_iterations: int = Field(20, ge=1, description="position iterations of the contact solver")
-    self_collision: bool = Field(True, description="collide hand links with each other (not parent-child pairs)")
+    self_collision: bool = Field(True, description="collide hand links with each other, except ges_core.urdf.neighbour_link_pairs")
     hand_gravity: bool = Field(False, description="apply gravity to the hand (off: the wrist drive holds it)")
     wrist_stiffness: float = Field(2.0e4, gt=0, description="PD stiffness of the floating wrist, N/m and N·m/rad")
     wrist_damping: float = Field(4.0e2, ge=0, description="PD damping of the floating wrist")
@@ -144,7 +150,14 @@ class SimBackend(ABC):
     # -- lifetime -------------------------------------------------------------------------
     @abstractmethod
     def reset(self) -> None:
-        """Return every scene to the state right after loading: hand open at its start pose, object at its load pose."""
+        """Put every scene back at its start, each env on its own.
+
+        The hand: joints at the open pose, base at the pose last given to :meth:`set_hand_state` in
+        that env (the world origin if none was given; poses the wrist reached under
+        :meth:`set_wrist_targets` do not count), joint and wrist targets equal to that state, every
+        velocity zero. The object: back at its load pose (the one :meth:`load_object` used), at rest.
+        Nothing is rebuilt; settings and loaded bodies stay.
+        """
 
     @abstractmethod
     def close(self) -> None:

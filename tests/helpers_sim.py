@@ -8,6 +8,9 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import os
+import subprocess
+import sys
 from functools import cache
 from pathlib import Path
 
@@ -18,7 +21,14 @@ from ges_core.objects.asset import ObjectAsset, PrimitiveShape
 from ges_core.paths import atomic_write_text, cache_dir
 from ges_core.urdf import absolutize_mesh_paths, strip_render_data
 
-__all__ = ["ALLEGRO_TIPS", "TestHand", "allegro_test_hand", "allegro_urdf_source", "box_asset"]
+__all__ = [
+    "ALLEGRO_TIPS",
+    "TestHand",
+    "allegro_test_hand",
+    "allegro_urdf_source",
+    "box_asset",
+    "run_python",
+]
 
 ALLEGRO_TIPS: tuple[str, ...] = ("link_15.0_tip", "link_3.0_tip", "link_7.0_tip", "link_11.0_tip")
 """Fingertip links of the test Allegro: thumb, index, middle, ring."""
@@ -38,6 +48,21 @@ open_pose: {default: 0.0, "joint_12\\\\.0": 0.263}  # thumb rotation's lower lim
 pd_stiffness: {default: 400.0}  # mani-skill's Allegro agent (joint_stiffness = 4e2)
 pd_damping: {default: 10.0}  # mani-skill's Allegro agent (joint_damping = 1e1)
 """
+
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+
+
+def run_python(*args: str) -> subprocess.CompletedProcess[str]:
+    """``python ARGS`` in a fresh process at the repository root, output captured.
+
+    PYTHONUNBUFFERED is dropped so that C's stdout is block-buffered on the pipe, as for a user
+    piping ``ges`` into a file (with it set, C output is unbuffered and leaks differently).
+    """
+    env = {k: v for k, v in os.environ.items() if k != "PYTHONUNBUFFERED"}
+    return subprocess.run(
+        [sys.executable, *args], cwd=REPO_ROOT, env=env, capture_output=True, text=True, timeout=120, check=False
+    )
 
 
 def allegro_urdf_source() -> Path:

@@ -9,9 +9,9 @@ import math
 import numpy as np
 import pybullet as p
 import pytest
-from helpers_sim import TestHand, allegro_test_hand, box_asset
+from helpers_sim import TestHand, allegro_test_hand, box_asset, run_python
 
-from ges_core.errors import AssetError, SimulationError, UnknownNameError
+from ges_core.errors import AssetError, ConfigError, SimulationError, UnknownNameError
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
@@ -65,6 +65,45 @@ def test_registry_builds_pybullet():
     assert registry.spec("sim", "pybullet").requires == ("pybullet",)
     with registry.build_sim("pybullet", SceneConfig(num_envs=2)) as sim:
         assert isinstance(sim, PybulletBackend) and sim.num_envs == 2
+
+
+def test_solver_iterations_setting_overrides_the_scene_config():
+    """registry.yaml ``settings.sim.pybullet.solver_iterations`` reaches PyBullet; SceneConfig's value otherwise."""
+    override = ("settings.sim.pybullet.solver_iterations=100",)
+    registry = load_registry(overrides=override, blocked=("shadow", "allegro", "sapien"))
+    for sim, expected in ((registry.build_sim("pybullet", SceneConfig(num_envs=2)), 100), (make_sim(), 20)):
+        with sim:
+            used = {p.getPhysicsEngineParameters(physicsClientId=s.cid)["numSolverIterations"] for s in sim._scenes}
+            assert used == {expected} and sim.solver_iterations == expected
+    for bad in (0, 2.5, True):
+        with pytest.raises(ConfigError, match=rf"pybullet: solver_iterations={bad!r}; give a whole number >= 1"):
+            PybulletBackend(SceneConfig(), solver_iterations=bad)
+
+
+def test_pybullet_chatter_stays_out_of_ges_output():
+    """PyBullet prints 'pybullet build time' (stderr) on import and 'argv[0]=' (stdout) per client;
+    ``ges sim check`` shows neither."""
+    raw = run_python("-c", "from pybullet_utils.bullet_client import BulletClient as C; C(connection_mode=2)")
+    assert "argv[0]=" in raw.stdout and "pybullet build time" in raw.stderr  # the control: the chatter exists
+    args = ("--hand", "allegro", "--sim", "pybullet", "-o", "close_steps=5", "-o", "lift_steps=0")
+    ges = run_python("-m", "ges_core.cli", "sim", "check", *args)
+    assert "hand allegro in pybullet:" in ges.stdout, ges.stderr  # the check ran and printed its report
+    for line in (ges.stdout + ges.stderr).splitlines():
+        assert "argv[0]" not in line and "build time" not in line
+
+
+def test_silenced_hides_c_and_python_output_of_the_block_only():
+    code = """
+import ctypes, os, sys
+from plugins.sims.pybullet.engine import silenced
+libc = ctypes.CDLL(None)
+print("before", flush=False)
+with silenced(1, 2):
+    libc.printf(b"hidden-c\\n"); print("hidden-py"); print("hidden-err", file=sys.stderr); os.write(2, b"hidden-fd\\n")
+libc.printf(b"after-c\\n"); print("after-py"); print("after-err", file=sys.stderr)
+"""
+    out = run_python("-c", code)
+    assert sorted(out.stdout.split()) == ["after-c", "after-py", "before"] and out.stderr.split() == ["after-err"]
 
 
 @pytest.mark.parametrize("floating", [True, False])
@@ -484,7 +523,7 @@ def test_command_errors(hand):
         sim.step()
 
 
-def test_determinism_and_reset(hand):
+def test_determinism(hand):
     runs = []
     for _ in range(2):
         with make_sim(num_envs=1) as sim:
@@ -492,17 +531,41 @@ def test_determinism_and_reset(hand):
             runs.append((*sim.joint_state(), sim.object_pose(), sim.contact_forces(list(hand.description.tip_links))))
     for a, b in zip(*runs, strict=True):
         np.testing.assert_array_equal(a, b)
-    sim = make_sim(hand)
-    sim.set_hand_state(open_q(hand), GRASP_BASE_POSE[None])
-    sim.load_object(box_asset(), pose=np.array([0.3, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0]))
-    sim.set_joint_targets(np.asarray(hand.description.closed_pose(0.5))[None])
+
+
+@pytest.mark.parametrize("floating", [True, False])
+def test_reset_opens_the_hand_at_the_last_base_pose(hand, floating):
+    """reset(): open hand at the base pose last given to set_hand_state, targets there, object at its load pose."""
+    sim = make_sim(hand, floating=floating, num_envs=2)
+    start = np.array([0.3, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0])
+    sim.load_object(box_asset(), pose=start)
+    bases = np.stack([GRASP_BASE_POSE, [0.1, -0.2, 0.4, *euler_xyz_to_quat(np.array([0.4, -0.3, 1.2]))]])
+    sim.set_hand_state(open_q(hand, 2) + 0.1, bases)
+    sim.set_hand_state(open_q(hand, 2) + 0.2)  # no base pose: the last one given still counts
+    sim.set_joint_targets(np.tile(hand.description.closed_pose(0.5), (2, 1)))
+    if floating:
+        sim.set_wrist_targets(bases + [0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     sim.step(30)
     sim.reset()
-    np.testing.assert_allclose(sim.object_pose()[0], [0.3, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0], atol=1e-7)
-    np.testing.assert_allclose(sim.wrist_pose()[0], [0, 0, 0, 1, 0, 0, 0], atol=1e-12)
+    np.testing.assert_allclose(sim.object_pose(), np.tile(start, (2, 1)), atol=1e-7)
+    np.testing.assert_allclose(sim.wrist_pose(), bases, atol=1e-6)
     q, qvel = sim.joint_state()
-    np.testing.assert_array_equal(q, open_q(hand))
+    np.testing.assert_allclose(q, open_q(hand, 2), atol=1e-12)
     np.testing.assert_array_equal(qvel, 0.0)
+    sim.step(30)  # joint and wrist targets were reset too: nothing moves
+    np.testing.assert_allclose(sim.joint_state()[0], open_q(hand, 2), atol=1e-4)
+    np.testing.assert_allclose(sim.wrist_pose(), bases, atol=1e-5)
+
+
+def test_reset_without_a_base_pose_returns_to_the_origin(hand):
+    sim = make_sim(hand)
+    sim.set_wrist_targets(UP[None])
+    sim.set_joint_targets(open_q(hand) + 0.2)
+    sim.step(30)
+    assert sim.wrist_pose()[0, 2] > 0.1
+    sim.reset()
+    np.testing.assert_allclose(sim.wrist_pose()[0], [0, 0, 0, 1, 0, 0, 0], atol=1e-12)
+    np.testing.assert_array_equal(sim.joint_state()[0], open_q(hand))
 
 
 # -- helpers ------------------------------------------------------------------------------------

@@ -4,19 +4,20 @@ API, gravity, and physical sense of contact forces."""
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from itertools import combinations
 
 import numpy as np
 import pytest
-from helpers_sim import ALLEGRO_TIPS, allegro_test_hand, box_asset
+from helpers_sim import ALLEGRO_TIPS, allegro_test_hand, box_asset, run_python
 
 from ges_core.errors import AssetError, ConfigError, SimulationError, UnknownNameError
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
-from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat, quat_to_euler_xyz
+from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat, neighbour_link_pairs, quat_to_euler_xyz
 from plugins.sims.sapien.backend import SapienBackend, euler_xyz
 from plugins.sims.sapien.bench import allegro_top_down
-from plugins.sims.sapien.loading import REST_MARGIN
+from plugins.sims.sapien.loading import PAIR_BITS, REST_MARGIN, pair_exclusion_bits
 
 pytestmark = pytest.mark.sim
 
@@ -267,6 +268,53 @@ def test_self_collision_setting(hand, self_collision):
     assert not found & _parent_child_pairs(hand.urdf_text())
 
 
+def _filtered(groups_a: list[list[int]], groups_b: list[list[int]]) -> bool:
+    """SAPIEN's PhysX filter (TypeAffinityIgnoreFilterShader): a shared group-2 bit and equal low 16 bits of group 3."""
+    return any(a[2] & b[2] and (a[3] & 0xFFFF) == (b[3] & 0xFFFF) for a in groups_a for b in groups_b)
+
+
+def test_shadow_pair_bits_filter_exactly_the_extra_neighbour_pairs():
+    """Read back from the built shapes: the pairs SAPIEN filters are the neighbour pairs that PhysX does
+    not already skip as parent-child, and no others (the physics is tested in test_sims_cross)."""
+    shadow = load_registry().build_hand("shadow")
+    sim = make_sim(shadow)
+    links = {link.name: link.get_collision_shapes() for link in sim._envs[0].hand.get_links()}
+    groups = {name: [s.get_collision_groups() for s in shapes] for name, shapes in links.items() if shapes}
+    filtered = {frozenset((a, b)) for a, b in combinations(groups, 2) if _filtered(groups[a], groups[b])}
+    expected = neighbour_link_pairs(shadow.urdf_text()) - _parent_child_pairs(shadow.urdf_text())
+    assert filtered == {pair for pair in expected if pair <= set(groups)}
+    assert {frozenset(("palm", "thproximal")), frozenset(("thproximal", "thmiddle"))} <= filtered
+    off = make_sim(shadow, self_collision=False)  # every hand pair filtered, the table still collides
+    groups = [s.get_collision_groups() for link in off._envs[0].hand.get_links() for s in link.get_collision_shapes()]
+    assert all(_filtered([a], [b]) for a, b in combinations(groups, 2))
+    table = off._envs[0].scene.entities[0].components[0].collision_shapes[0].get_collision_groups()
+    assert not any(_filtered([table], [g]) for g in groups)
+
+
+def test_too_many_excluded_pairs_is_an_asset_error():
+    """30 links hanging from one zero-length hub all touch the base: 30 pairs, 29 bits."""
+    box = '<collision><geometry><box size="0.01 0.01 0.01"/></geometry></collision>'
+    leaves = "".join(
+        f'<link name="leaf{i}">{box}</link><joint name="j{i}" type="revolute"><parent link="hub"/>'
+        f'<child link="leaf{i}"/><origin xyz="0 0 0"/><axis xyz="0 0 1"/>'
+        '<limit lower="-1" upper="1" effort="1" velocity="1"/></joint>'
+        for i in range(PAIR_BITS + 1)
+    )
+    text = (
+        f'<robot name="star"><link name="base">{box}</link><link name="hub"/>'
+        '<joint name="hub" type="fixed"><parent link="base"/><child link="hub"/><origin xyz="0 0 0.1"/></joint>'
+        f"{leaves}</robot>"
+    )
+    with pytest.raises(AssetError, match=r"hand 'star': 30 link pairs joined through zero-length links .* 29 "):
+        pair_exclusion_bits("star", text)
+    bits = pair_exclusion_bits(
+        "star", text.replace(f'<link name="leaf{PAIR_BITS}">{box}', f'<link name="leaf{PAIR_BITS}">')
+    )
+    assert bits["base"] == (1 << PAIR_BITS) - 1 and sorted(bits[f"leaf{i}"] for i in range(PAIR_BITS)) == [
+        1 << i for i in range(PAIR_BITS)
+    ]
+
+
 @pytest.mark.parametrize("hand_gravity", [True, False])
 def test_hand_gravity_setting(hand, hand_gravity):
     sim = make_sim(hand, hand_gravity=hand_gravity)
@@ -293,19 +341,39 @@ def test_identical_runs_give_identical_states(hand):
         np.testing.assert_array_equal(a, b)
 
 
-def test_reset_restores_the_loaded_state(hand):
-    sim = make_sim(hand, num_envs=2)
+@pytest.mark.parametrize("floating", [True, False])
+def test_reset_opens_the_hand_at_the_last_base_pose(hand, floating):
+    """reset(): open hand at the base pose last given to set_hand_state, targets there, object at its load pose."""
+    sim = make_sim(hand, floating=floating, num_envs=2)
     start = np.array([0.2, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0])
     sim.load_object(box_asset(), pose=start)
-    sim.set_hand_state(open_q(hand, 2) + 0.1, np.tile(UP, (2, 1)))
-    sim.set_joint_targets(open_q(hand, 2) + 0.2)
+    bases = np.stack([UP, [0.1, -0.2, 0.4, *euler_xyz_to_quat(np.array([0.4, -0.3, 1.2]))]])
+    sim.set_hand_state(open_q(hand, 2) + 0.1, bases)
+    sim.set_hand_state(open_q(hand, 2) + 0.2)  # no base pose: the last one given still counts
+    sim.set_joint_targets(open_q(hand, 2) + 0.3)
+    if floating:
+        sim.set_wrist_targets(bases + [0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     sim.step(30)
     sim.reset()
     q, qvel = sim.joint_state()
     np.testing.assert_allclose(q, open_q(hand, 2), atol=1e-6)
     assert np.all(qvel == 0)
-    np.testing.assert_allclose(sim.wrist_pose(), np.tile([0, 0, 0, 1, 0, 0, 0], (2, 1)), atol=1e-6)
+    np.testing.assert_allclose(sim.wrist_pose(), bases, atol=1e-6)
     np.testing.assert_allclose(sim.object_pose(), np.tile(start, (2, 1)), atol=1e-6)
+    sim.step(30)  # joint and wrist targets were reset too: nothing moves
+    np.testing.assert_allclose(sim.joint_state()[0], open_q(hand, 2), atol=1e-4)
+    np.testing.assert_allclose(sim.wrist_pose(), bases, atol=1e-5)
+
+
+def test_reset_without_a_base_pose_returns_to_the_origin(hand):
+    sim = make_sim(hand)
+    sim.set_wrist_targets(UP[None])
+    sim.set_joint_targets(open_q(hand) + 0.2)
+    sim.step(30)
+    assert sim.wrist_pose()[0, 2] > 0.1
+    sim.reset()
+    np.testing.assert_allclose(sim.wrist_pose()[0], [0, 0, 0, 1, 0, 0, 0], atol=1e-6)
+    np.testing.assert_allclose(sim.joint_state()[0], open_q(hand), atol=1e-6)
 
 
 def test_huge_targets_raise_exploding_in_the_right_env(hand):
@@ -437,3 +505,14 @@ def test_scene_settings_reach_physx(hand):
     frictions = {k: {round(s.physical_material.static_friction, 6) for s in v} for k, v in shapes.items()}
     assert frictions == {"hand": {0.7}, "object": {0.3}, "table": {0.4}}
     assert all(link.disable_gravity for link in env.hand.get_links())
+
+
+def test_vulkan_warning_stays_out_of_ges_output():
+    """``import sapien`` warns about the missing system libvulkan here; ``ges sim check`` must not show it."""
+    raw = run_python("-c", "import sapien")
+    if "libvulkan" not in raw.stderr:
+        pytest.skip("this machine has a system libvulkan: SAPIEN has no warning to hide")
+    args = ("--hand", "allegro", "--sim", "sapien", "-o", "close_steps=5", "-o", "lift_steps=0")
+    ges = run_python("-m", "ges_core.cli", "sim", "check", *args)
+    assert "hand allegro in sapien:" in ges.stdout, ges.stderr  # the check ran and printed its report
+    assert "libvulkan" not in ges.stderr + ges.stdout

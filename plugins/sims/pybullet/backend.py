@@ -10,11 +10,15 @@ Choices that make it behave like the SAPIEN backend (details in the helper modul
 * friction: per-body coefficients whose Bullet products equal PhysX's pairwise averages;
 * ``hand_gravity=False``: world gravity is zero and the object's weight is applied at its
   centre of mass every step (PyBullet has no per-body gravity switch);
-* the table is a static box whose top is z = 0 (a ``GEOM_PLANE`` let dropped boxes skid).
+* the table is a static box whose top is z = 0 (a ``GEOM_PLANE`` let dropped boxes skid);
+* self-collision: ``URDF_USE_SELF_COLLISION`` with every pair of
+  :func:`ges_core.urdf.neighbour_link_pairs` switched off (:func:`.scene.exclude_neighbour_pairs`),
+  the SAPIEN backend's rule.
 
-``SceneConfig.solver_iterations`` goes to PyBullet's ``numSolverIterations`` unchanged. PyBullet's
-PGS converges more slowly than PhysX's TGS on light finger links in contact: a finger pressed on
-the table chatters at 20 iterations and balances its drive within 1 % at 100.
+``SceneConfig.solver_iterations`` goes to PyBullet's ``numSolverIterations`` unchanged unless the
+backend's own ``solver_iterations`` setting (``registry.yaml``: ``settings.sim.pybullet``) overrides
+it. PyBullet's PGS converges more slowly than PhysX's TGS on light finger links in contact: a
+finger pressed on the table chatters at 20 iterations and balances its drive within 1 % at 100.
 
 Quaternions are wxyz at this class's boundary and xyzw inside PyBullet (:mod:`.poses`).
 """
@@ -25,9 +29,8 @@ import math
 from collections.abc import Sequence
 
 import numpy as np
-import pybullet as p
 
-from ges_core.errors import SimulationError, UnknownNameError
+from ges_core.errors import ConfigError, SimulationError, UnknownNameError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import ContactPair, ContactPartner, SceneConfig, SimBackend
@@ -35,6 +38,7 @@ from ges_core.urdf import quat_to_euler_xyz
 
 from .contacts import contact_pairs, link_forces
 from .drive import product_friction
+from .engine import p
 from .hand_urdf import WORLD_LINK
 from .poses import IDENTITY_POSE, from_pybullet, to_pybullet
 from .scene import HandLayout, Scene, create_object, hand_layout, load_hand_body, new_scene, set_hand_friction
@@ -63,12 +67,24 @@ class PybulletBackend(SimBackend):
 
     name = "pybullet"
 
-    def __init__(self, config: SceneConfig) -> None:
+    def __init__(self, config: SceneConfig, *, solver_iterations: int | None = None) -> None:
+        """solver_iterations: PyBullet's ``numSolverIterations`` (registry setting), overriding
+        ``config.solver_iterations`` for this backend only; None keeps the config's value.
+
+        PyBullet's PGS needs about 100 where SAPIEN's TGS is fine at 20 (module docs), so
+        ``registry.yaml`` can raise it here without changing SAPIEN's.
+        """
         super().__init__(config)
-        self._scenes: list[Scene] = [new_scene(config) for _ in range(config.num_envs)]
+        self.solver_iterations = (
+            config.solver_iterations if solver_iterations is None else _iterations(solver_iterations)
+        )
+        """Solver iterations in use: the setting if given, else ``config.solver_iterations``."""
+        self._scenes: list[Scene] = [new_scene(config, self.solver_iterations) for _ in range(config.num_envs)]
         self._layout: HandLayout | None = None
         self._start = np.zeros(0)
         """(D,) drive positions of the start pose (wrist joints at 0, fingers open)."""
+        self._reset_base = np.tile(IDENTITY_POSE, (config.num_envs, 1))
+        """(E, 7) base pose that reset() returns to: the last one given to set_hand_state, wxyz."""
         self._targets = np.zeros((config.num_envs, 0))
         """(E, D) drive targets, ``HandLayout.drive_ids`` order."""
         self._state: tuple[np.ndarray, np.ndarray] | None = None
@@ -153,12 +169,8 @@ class PybulletBackend(SimBackend):
         drives = np.array(self._drive_state()[0])
         drives[:, layout.num_wrist :] = q
         if wrist_pose is not None:
-            wrist_pose = _pose_array(wrist_pose, (self.num_envs, 7), "hand state wrist_pose")
-            if layout.floating:
-                drives[:, :3], drives[:, 3:6] = wrist_pose[:, :3], quat_to_euler_xyz(wrist_pose[:, 3:])
-            else:
-                for scene, pose in zip(self._scenes, wrist_pose, strict=True):
-                    p.resetBasePositionAndOrientation(scene.hand, *to_pybullet(pose), physicsClientId=scene.cid)
+            self._reset_base = _pose_array(wrist_pose, (self.num_envs, 7), "hand state wrist_pose")
+            self._place_base(drives, self._reset_base)
         self._reset_hand(drives)
 
     def set_object_pose(self, pose: np.ndarray) -> None:
@@ -239,14 +251,15 @@ class PybulletBackend(SimBackend):
 
     # -- lifetime ------------------------------------------------------------------------------
     def reset(self) -> None:
-        """Hand open at its start pose (fixed base back at the origin), objects at their load poses, at rest."""
+        """Open hand at the base pose last given to set_hand_state (else the origin), targets there, at rest;
+        objects at their load poses."""
         for scene in self._live():
-            if self._layout is not None and not self._layout.floating:
-                p.resetBasePositionAndOrientation(scene.hand, *to_pybullet(IDENTITY_POSE), physicsClientId=scene.cid)
             if scene.obj >= 0:
                 _teleport_object(scene, scene.obj_load_pose)
         if self._layout is not None:
-            self._reset_hand(np.tile(self._start, (self.num_envs, 1)))
+            drives = np.tile(self._start, (self.num_envs, 1))
+            self._place_base(drives, self._reset_base)
+            self._reset_hand(drives)
 
     def close(self) -> None:
         """Disconnect every client; calling twice is harmless."""
@@ -313,6 +326,15 @@ class PybulletBackend(SimBackend):
         p.changeDynamics(scene.table, -1, lateralFriction=k_table, physicsClientId=scene.cid)
         if self._layout is not None:
             set_hand_friction(scene, self._layout, k_hand)
+
+    def _place_base(self, drives: np.ndarray, base: np.ndarray) -> None:
+        """Put the hand's base at ``base`` (E, 7): the wrist coordinates of ``drives`` (E, D) if floating,
+        else the fixed root, moved now."""
+        if self._hand_layout().floating:
+            drives[:, :3], drives[:, 3:6] = base[:, :3], quat_to_euler_xyz(base[:, 3:])
+            return
+        for scene, pose in zip(self._scenes, base, strict=True):
+            p.resetBasePositionAndOrientation(scene.hand, *to_pybullet(pose), physicsClientId=scene.cid)
 
     def _reset_hand(self, drives: np.ndarray) -> None:
         """Teleport every drive joint to ``drives`` (E, D), zero velocity, targets = positions."""
@@ -397,6 +419,13 @@ def _blown(env: int, what: str) -> str:
         "or table, a time step too large for the gains, or a target far outside the joint limits. "
         "reset() or reload the scene"
     )
+
+
+def _iterations(value: object) -> int:
+    """The ``solver_iterations`` setting as an int >= 1, else a ConfigError."""
+    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
+        raise ConfigError(f"pybullet: solver_iterations={value!r}; give a whole number >= 1 or leave it unset")
+    return int(value)
 
 
 def _array(value: np.ndarray, shape: tuple[int, ...], what: str) -> np.ndarray:

@@ -1,6 +1,7 @@
 """Interface overhead of the PyBullet backend: raw physics step vs one full control step.
 
-``python -m plugins.sims.pybullet.bench [HAND] [--envs N] [--steps N] [--no-self-collision]`` builds
+``python -m plugins.sims.pybullet.bench [HAND] [--envs N] [--steps N] [--no-self-collision]
+[--solver-iterations N]`` builds
 the registry's hand (default ``allegro``; the scene's pose is made for it) and prints microseconds
 per physics step per scene for:
 
@@ -20,7 +21,6 @@ import argparse
 import time
 
 import numpy as np
-import pybullet as p
 
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset, PrimitiveShape
@@ -28,6 +28,7 @@ from ges_core.sim import SceneConfig
 from ges_core.transforms import matrix_to_pose
 
 from .backend import PybulletBackend
+from .engine import p
 
 __all__ = ["GRASP_BASE_POSE", "grasp_scene", "main", "measure"]
 
@@ -125,12 +126,13 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--steps", type=int, default=3000)
     parser.add_argument("--repeats", type=int, default=30)
     parser.add_argument("--no-self-collision", action="store_true")
+    parser.add_argument("--solver-iterations", type=int, help="the backend's solver_iterations setting")
     args = parser.parse_args(argv)
     from ges_core.registry import load_registry
 
     hand = load_registry().build_hand(args.hand)
     config = SceneConfig(num_envs=args.envs, self_collision=not args.no_self_collision)
-    with PybulletBackend(config) as sim:
+    with PybulletBackend(config, solver_iterations=args.solver_iterations) as sim:
         result = measure(sim, hand, args.steps, args.repeats)
     ratios = f"full/raw {result['full'] / result['raw']:.2f}, full/physics {result['full'] / result['physics']:.2f}"
     print(" ".join(f"{k} {v:.0f} us" for k, v in result.items()), ratios)

@@ -12,9 +12,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-import pybullet as p
 
 from ges_core.sim import ContactPair
+
+from .engine import p
 
 __all__ = ["TOUCH_SEPARATION", "contact_pairs", "link_forces"]
 

@@ -20,7 +20,9 @@ with at most ``force``, where ``v*`` is the joint velocity after gravity and app
   gravity, with ``I`` the diagonal of the joint-space mass matrix at the start pose;
 * ``force = |Kp (q* - q) - (Kd + Kp dt) v|``: the PD force at the current state. A joint
   blocked by contact (``v = 0``) therefore pushes with ``Kp (q* - q)``, the spring force, as in
-  SAPIEN, instead of PyBullet's usual "hold position with up to the effort limit".
+  SAPIEN, instead of PyBullet's usual "hold position with up to the effort limit". (SAPIEN's own
+  blocked drive only approximates it: measured +15 % at 20 solver iterations, -26 % at 10, +104 % at
+  100; see ``docs/simulators.md``.)
 
 Static loads: a contact (a constraint) meets exactly the spring force. Gravity on the hand (off by
 default) is exact for the floating wrist (the whole hand falls with ``g``: sag ``m g / Kp``), but a

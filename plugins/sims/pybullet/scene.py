@@ -10,21 +10,29 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import pybullet as p
-from pybullet_utils.bullet_client import BulletClient
 
 from ges_core.errors import AssetError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SceneConfig
-from ges_core.urdf import WRIST_JOINTS, root_link
+from ges_core.urdf import WRIST_JOINTS, neighbour_link_pairs, root_link
 
 from .drive import ImplicitPD
+from .engine import BulletClient, connect_direct, p
 from .hand_urdf import pybullet_hand_urdf
 from .poses import wxyz_to_xyzw
 from .shapes import MassProperties, mass_properties, shape_arrays
 
-__all__ = ["HandLayout", "Scene", "create_object", "hand_layout", "load_hand_body", "new_scene", "set_hand_friction"]
+__all__ = [
+    "HandLayout",
+    "Scene",
+    "create_object",
+    "exclude_neighbour_pairs",
+    "hand_layout",
+    "load_hand_body",
+    "new_scene",
+    "set_hand_friction",
+]
 
 _MOVABLE = (p.JOINT_REVOLUTE, p.JOINT_PRISMATIC)
 TABLE_HALF_EXTENTS = (10.0, 10.0, 0.5)
@@ -88,12 +96,15 @@ class HandLayout:
         return len(WRIST_JOINTS) if self.floating else 0
 
 
-def new_scene(config: SceneConfig) -> Scene:
-    """A DIRECT client with the config's physics settings and a static table whose top is z = 0."""
-    client = BulletClient(connection_mode=p.DIRECT)
+def new_scene(config: SceneConfig, solver_iterations: int | None = None) -> Scene:
+    """A DIRECT client with the config's physics settings and a static table whose top is z = 0.
+
+    solver_iterations: overrides ``config.solver_iterations`` (None keeps it).
+    """
+    client = connect_direct()
     client.setPhysicsEngineParameter(
         fixedTimeStep=config.timestep,
-        numSolverIterations=config.solver_iterations,
+        numSolverIterations=config.solver_iterations if solver_iterations is None else solver_iterations,
         numSubSteps=0,
         deterministicOverlappingPairs=1,  # same contact order every run: determinism
     )
@@ -124,6 +135,8 @@ def load_hand_body(scene: Scene, hand: HandModel, config: SceneConfig, floating:
             "check that its mesh files exist (HandModel.urdf_path must give absolute mesh paths)"
         ) from exc
     n = p.getNumJoints(scene.hand, physicsClientId=scene.cid)
+    if config.self_collision:
+        exclude_neighbour_pairs(scene, neighbour_link_pairs(hand.urdf_text()))
     movable = [j for j in range(n) if p.getJointInfo(scene.hand, j, physicsClientId=scene.cid)[2] in _MOVABLE]
     # PyBullet gives every movable joint a velocity motor with a small force: switch them off.
     p.setJointMotorControlArray(
@@ -139,6 +152,21 @@ def load_hand_body(scene: Scene, hand: HandModel, config: SceneConfig, floating:
             activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,
             physicsClientId=scene.cid,
         )
+
+
+def exclude_neighbour_pairs(scene: Scene, pairs: set[frozenset[str]]) -> None:
+    """Switch off collisions between the named link pairs of the scene's hand (both directions).
+
+    ``URDF_USE_SELF_COLLISION_EXCLUDE_PARENT`` already drops parent-child pairs; the pairs joined
+    through a zero-length link (Shadow: palm-ffproximal through ``ffknuckle``) need this call.
+    Every pair of ``pairs`` is switched off, parent-child ones included, so the rule does not rest
+    on the flag alone.
+    """
+    count = p.getNumJoints(scene.hand, physicsClientId=scene.cid)
+    index = {p.getJointInfo(scene.hand, j, physicsClientId=scene.cid)[12].decode(): j for j in range(count)}
+    for pair in pairs:
+        link_a, link_b = sorted(index[name] for name in pair)
+        p.setCollisionFilterPair(scene.hand, scene.hand, link_a, link_b, 0, physicsClientId=scene.cid)
 
 
 def hand_layout(scene: Scene, hand: HandModel, config: SceneConfig, floating: bool) -> HandLayout:

@@ -59,7 +59,7 @@ def mass_properties(obj: ObjectAsset) -> MassProperties:
 
 def shape_arrays(obj: ObjectAsset) -> dict[str, list]:
     """Keyword arguments of ``createCollisionShapeArray`` for the object's shapes (xyzw frames)."""
-    import pybullet as p
+    from .engine import p
 
     keys = ("shapeTypes", "radii", "halfExtents", "lengths", "fileNames", "collisionFramePositions")
     out: dict[str, list] = {k: [] for k in (*keys, "collisionFrameOrientations", "meshScales")}

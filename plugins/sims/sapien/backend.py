@@ -3,6 +3,8 @@
 Frames and units follow :mod:`ges_core.sim`: world frame, metres, quaternions w, x, y, z (SAPIEN's
 own convention, so poses pass through unchanged). Joint vectors are in the hand's
 ``joint_names`` order; SAPIEN's breadth-first order is mapped once in :meth:`SapienBackend.load_hand`.
+With self-collision on, hand links collide except the pairs of :func:`ges_core.urdf.neighbour_link_pairs`
+(PhysX skips parent-child pairs itself; the others get collision-group bits, :func:`.loading.pair_exclusion_bits`).
 """
 
 from __future__ import annotations
@@ -12,7 +14,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 import numpy as np
-import sapien
 
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
@@ -21,6 +22,7 @@ from ges_core.sim import ContactPair, ContactPartner, SceneConfig, SimBackend
 from ges_core.urdf import quat_to_euler_xyz
 from plugins.sims.sapien import loading
 from plugins.sims.sapien.contacts import PARTNERS, ContactReader
+from plugins.sims.sapien.engine import sapien
 from plugins.sims.sapien.poses import PoseTable, sapien_pose
 
 __all__ = ["MAX_JOINT_SPEED", "MAX_OBJECT_SPEED", "SapienBackend"]
@@ -33,6 +35,10 @@ MAX_JOINT_SPEED = 1.0e3
 MAX_OBJECT_SPEED = 1.0e2
 """m/s. Above this the object counts as exploding: a box dropped from 30 cm and struck by a
 snapping hand peaked at 2.2 m/s; 100 leaves room for throws and still catches blow-ups."""
+
+
+_IDENTITY = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+"""(7,) the identity pose: x, y, z, qw, qx, qy, qz."""
 
 
 @dataclass
@@ -77,6 +83,9 @@ class SapienBackend(SimBackend):
         self._floating = False
         self._base_link = ""
         self._start_qpos = np.zeros(0, dtype=np.float32)
+        """(D,) SAPIEN qpos of the open hand with the wrist joints at zero."""
+        self._reset_base = np.tile(_IDENTITY, (config.num_envs, 1))
+        """(num_envs, 7) base pose that reset() returns to: the last one given to set_hand_state."""
         self.idx_sim_to_hand = np.zeros(0, dtype=np.int64)
         """(K,) ``q_hand = q_fingers[idx_sim_to_hand]``; ``q_fingers`` = SAPIEN's active-joint vector
         after the six wrist joints."""
@@ -93,9 +102,10 @@ class SapienBackend(SimBackend):
                 f"sapien: hand '{self._description.name}' is already loaded; build a new backend for '{hand.name}'"
             )
         urdf = loading.prepare_urdf(hand, floating=floating)
+        pair_bits = loading.pair_exclusion_bits(hand.name, hand.urdf_text()) if self.config.self_collision else None
         description = hand.description
         for env in self._envs:
-            env.hand = loading.build_hand(env.scene, urdf, self.config)
+            env.hand = loading.build_hand(env.scene, urdf, self.config, pair_bits)
             loading.set_contact_offset(env.hand.get_links(), self._contact_offset)
             joints, self.idx_sim_to_hand, self.idx_hand_to_sim = loading.sim_joint_order(
                 env.hand, description, floating=floating
@@ -161,6 +171,8 @@ class SapienBackend(SimBackend):
             elif wrist is not None:
                 env.hand.set_root_pose(sapien_pose(wrist[e]))
             self._teleport_hand(env, qpos)
+        if wrist is not None:
+            self._reset_base = wrist.copy()
 
     def set_object_pose(self, pose: np.ndarray) -> None:
         pose = self._poses(pose, self.num_envs, "set_object_pose pose")
@@ -224,6 +236,8 @@ class SapienBackend(SimBackend):
 
     # -- lifetime -------------------------------------------------------------------------
     def reset(self) -> None:
+        """Open hand at the base pose last given to set_hand_state (else the origin), targets there, at rest;
+        objects at their load poses."""
         self._live()
         if self._description is not None:
             self._reset_hand()
@@ -232,11 +246,15 @@ class SapienBackend(SimBackend):
                 self._teleport_object(env, env.obj_load_pose)
 
     def _reset_hand(self) -> None:
-        """Hand open at its start pose (wrist joints at zero: base link at the origin), targets there."""
-        for env in self._envs:
-            if not self._floating:
-                env.hand.set_root_pose(sapien.Pose())
-            self._teleport_hand(env, self._start_qpos.copy())
+        """Hand open with its base at ``_reset_base``, every drive target at that state, zero velocity."""
+        coords = self._wrist_coordinates(self._reset_base) if self._floating else None
+        for e, env in enumerate(self._envs):
+            qpos = self._start_qpos.copy()
+            if coords is not None:
+                qpos[:6] = coords[e]
+            else:
+                env.hand.set_root_pose(sapien_pose(self._reset_base[e]))
+            self._teleport_hand(env, qpos)
 
     def close(self) -> None:
         self._envs = []

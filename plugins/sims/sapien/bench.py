@@ -107,6 +107,8 @@ def main() -> None:
     from ges_core.registry import load_registry
 
     hand = load_registry().build_hand(args.hand)
+    if not set(_ALLEGRO_CLOSE) <= set(hand.description.joint_names):
+        parser.error(f"the bench scene is posed for the Allegro hand (joint_0.0 ... joint_15.0); got '{args.hand}'")
     obj, wrist, q = allegro_top_down(hand)
     for self_collision in (False, True):
         result = measure_overhead(hand, obj, wrist, q, steps=args.steps, self_collision=self_collision)

@@ -12,10 +12,10 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-import sapien
 
 from ges_core.errors import UnknownNameError
 from ges_core.sim import ContactPair, ContactPartner
+from plugins.sims.sapien.engine import sapien
 
 __all__ = ["PARTNERS", "TOUCH_DISTANCE", "ContactReader"]
 

@@ -11,20 +11,41 @@ import hashlib
 from pathlib import Path
 
 import numpy as np
-import sapien
 
 from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
 from ges_core.paths import atomic_write_text, cache_dir
 from ges_core.sim import SceneConfig
-from ges_core.urdf import WRIST_JOINTS, absolutize_mesh_paths, add_floating_base, strip_render_data
+from ges_core.urdf import (
+    WRIST_JOINTS,
+    absolutize_mesh_paths,
+    add_floating_base,
+    neighbour_link_pairs,
+    parse_urdf,
+    strip_render_data,
+)
+from plugins.sims.sapien.engine import sapien
 
-__all__ = ["build_hand", "build_object", "create_scene", "prepare_urdf", "rest_height", "set_contact_offset"]
+__all__ = [
+    "build_hand",
+    "build_object",
+    "create_scene",
+    "pair_exclusion_bits",
+    "prepare_urdf",
+    "rest_height",
+    "set_contact_offset",
+]
 
 NO_SELF_COLLISION_BIT = 1 << 29
-"""Collision-group-2 bit put on every hand shape when self-collision is off: shapes that share a
-group-2 bit never collide in SAPIEN. Objects and the table leave group 2 empty."""
+"""Collision-group-2 bit put on every hand shape when self-collision is off. SAPIEN's PhysX filter
+(``TypeAffinityIgnoreFilterShader``) drops a shape pair when the two group-2 words share a bit and the
+low 16 bits of their group-3 words are equal; every shape here keeps group 3 at 0. Objects and the
+table leave group 2 empty, so they collide with everything."""
+
+PAIR_BITS = 29
+"""Group-2 bits 0..28 are handed out one per excluded link pair (:func:`pair_exclusion_bits`); bit 29
+is :data:`NO_SELF_COLLISION_BIT` and bits 30-31 stay free for users."""
 
 REST_MARGIN = 2e-4
 """Gap (m) left under an object placed on the table: a start in contact or slight penetration makes
@@ -61,8 +82,13 @@ def prepare_urdf(hand: HandModel, *, floating: bool) -> Path:
     return path
 
 
-def build_hand(scene: sapien.Scene, urdf: Path, config: SceneConfig) -> sapien.physx.PhysxArticulation:
-    """Load the articulation with its root fixed in the world, hand friction, optional self-collision."""
+def build_hand(
+    scene: sapien.Scene, urdf: Path, config: SceneConfig, pair_bits: dict[str, int] | None = None
+) -> sapien.physx.PhysxArticulation:
+    """Load the articulation with its root fixed in the world, hand friction, optional self-collision.
+
+    pair_bits: link name -> group-2 bits that switch off its excluded pairs (:func:`pair_exclusion_bits`).
+    """
     loader = scene.create_urdf_loader()
     loader.fix_root_link = True
     loader.set_material(config.hand_friction, config.hand_friction, 0.0)
@@ -74,9 +100,37 @@ def build_hand(scene: sapien.Scene, urdf: Path, config: SceneConfig) -> sapien.p
         link_builder.visual_records.clear()  # render shapes need a render device
         if not config.self_collision:
             link_builder.collision_groups[2] |= NO_SELF_COLLISION_BIT
+        elif pair_bits:
+            link_builder.collision_groups[2] |= pair_bits.get(link_builder.name, 0)
     articulation = builder.build(fix_root_link=True)
     _configure_hand_body(articulation, config)
     return articulation
+
+
+def pair_exclusion_bits(hand_name: str, urdf_text: str) -> dict[str, int]:
+    """Group-2 bits that keep apart exactly the neighbour pairs that PhysX does not already skip.
+
+    :func:`ges_core.urdf.neighbour_link_pairs` lists the pairs that must not collide. A PhysX
+    articulation never collides a link with its parent; every other neighbour pair whose two links
+    both have collision geometry gets its own bit, set on both links. Two links then share a bit
+    exactly when they form such a pair, so every other pair keeps colliding.
+    Returns link name -> bit mask (links without excluded pairs absent).
+    """
+    root = parse_urdf(urdf_text)
+    solid = {link.get("name") for link in root.findall("link") if link.find("collision") is not None}
+    parent_child = {frozenset((j.find("parent").get("link"), j.find("child").get("link"))) for j in root.iter("joint")}
+    extra = sorted(sorted(pair) for pair in neighbour_link_pairs(urdf_text) - parent_child if pair <= solid)
+    if len(extra) > PAIR_BITS:
+        raise AssetError(
+            f"hand '{hand_name}': {len(extra)} link pairs joined through zero-length links must not collide, but "
+            f"SAPIEN has {PAIR_BITS} collision-group bits to exclude them with; merge zero-length links into "
+            "their parents in the URDF, or run with self_collision=False"
+        )
+    bits: dict[str, int] = {}
+    for bit, pair in enumerate(extra):
+        for name in pair:
+            bits[name] = bits.get(name, 0) | 1 << bit
+    return bits
 
 
 def _configure_hand_body(articulation: sapien.physx.PhysxArticulation, config: SceneConfig) -> None:

@@ -11,9 +11,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-import sapien
 
 from ges_core.errors import UnknownNameError
+from plugins.sims.sapien.engine import sapien
 
 __all__ = ["PoseTable", "pose_array", "sapien_pose"]
 
