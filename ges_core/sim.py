@@ -44,7 +44,9 @@ class SceneConfig(BaseModel):
     table_friction: float = Field(1.0, ge=0, description="Coulomb friction of the table plane")
     hand_friction: float = Field(1.0, ge=0, description="Coulomb friction of the hand links")
     solver_iterations: int = Field(20, ge=1, description="position iterations of the contact solver")
-    self_collision: bool = Field(True, description="collide hand links with each other, except ges_core.urdf.neighbour_link_pairs")
+    self_collision: bool = Field(
+        True, description="collide hand links, except the pairs of ges_core.urdf.neighbour_link_pairs"
+    )
     hand_gravity: bool = Field(False, description="apply gravity to the hand (off: the wrist drive holds it)")
     wrist_stiffness: float = Field(2.0e4, gt=0, description="PD stiffness of the floating wrist, N/m and N·m/rad")
     wrist_damping: float = Field(4.0e2, ge=0, description="PD damping of the floating wrist")

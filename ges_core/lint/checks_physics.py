@@ -83,7 +83,7 @@ def check_wrist_convention(hand: HandModel) -> list[LintProblem]:
 
 
 def check_self_collision(hand: HandModel, sim_name: str, make_sim: SimFactory) -> list[LintProblem]:
-    """The open pose has no overlapping hand links (the pairs of ges_core.urdf.neighbour_link_pairs excepted) in ``sim_name``."""
+    """The open pose has no overlapping hand links in ``sim_name`` (neighbour_link_pairs excepted)."""
     config = SceneConfig(self_collision=True, gravity=0.0)
     try:
         with make_sim(sim_name, config) as sim:

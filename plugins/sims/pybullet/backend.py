@@ -196,6 +196,11 @@ class PybulletBackend(SimBackend):
             self._state = None
         self._check_state()
 
+    def engine_step(self) -> None:
+        """One bare ``stepSimulation`` per scene: no PD update, no weight force, no checks (benchmarks)."""
+        for scene in self._live():
+            p.stepSimulation(physicsClientId=scene.cid)
+
     # -- reading -------------------------------------------------------------------------------
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
         """Joint positions and velocities, each (num_envs, K), hand joint order (rad, rad/s)."""
