@@ -12,12 +12,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import EXAMPLE_HAND_PKG
 from ges_core.cli import main
 from ges_core.hand_files import FileHand
 from ges_core.lint import lint_hand
 from ges_core.lint.checks_physics import check_fk_matches_sims
 from ges_core.registry import load_registry
+
+from conftest import EXAMPLE_HAND_PKG
 
 SRC = EXAMPLE_HAND_PKG / "ges_example_hand"
 URDF, YAML = (SRC / "gripper.urdf").read_text(), (SRC / "gripper.yaml").read_text()

@@ -9,7 +9,6 @@ import math
 import numpy as np
 import pybullet as p
 import pytest
-from helpers_sim import TestHand, allegro_test_hand, box_asset, run_python
 
 from ges_core.errors import AssetError, ConfigError, SimulationError, UnknownNameError
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
@@ -22,6 +21,8 @@ from plugins.sims.pybullet.backend import MAX_JOINT_SPEED, REST_MARGIN, Pybullet
 from plugins.sims.pybullet.bench import GRASP_BASE_POSE, grasp_scene
 from plugins.sims.pybullet.drive import ImplicitPD, product_friction
 from plugins.sims.pybullet.hand_urdf import principal_moments, pybullet_hand_urdf, sanitize_inertias
+
+from helpers_sim import TestHand, allegro_test_hand, box_asset, run_python
 
 pytestmark = pytest.mark.sim
 

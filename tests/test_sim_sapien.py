@@ -8,7 +8,6 @@ from itertools import combinations
 
 import numpy as np
 import pytest
-from helpers_sim import ALLEGRO_TIPS, allegro_test_hand, box_asset, run_python
 
 from ges_core.errors import AssetError, ConfigError, SimulationError, UnknownNameError
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
@@ -18,6 +17,8 @@ from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat, neighbour_link_pairs,
 from plugins.sims.sapien.backend import SapienBackend, euler_xyz
 from plugins.sims.sapien.bench import allegro_top_down
 from plugins.sims.sapien.loading import PAIR_BITS, REST_MARGIN, pair_exclusion_bits
+
+from helpers_sim import ALLEGRO_TIPS, allegro_test_hand, box_asset, run_python
 
 pytestmark = pytest.mark.sim
 

@@ -5,7 +5,6 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from conftest import EXAMPLE_HAND_PKG
 from scipy.spatial.transform import Rotation
 
 from ges_core.errors import AssetError
@@ -18,6 +17,8 @@ from ges_core.urdf import (
     root_link,
     strip_render_data,
 )
+
+from conftest import EXAMPLE_HAND_PKG
 
 GRIPPER = (EXAMPLE_HAND_PKG / "ges_example_hand" / "gripper.urdf").read_text()
 
