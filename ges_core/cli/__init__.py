@@ -21,6 +21,7 @@ _COMMAND_MODULES = (
     "ges_core.cli.cmd_hand",
     "ges_core.cli.cmd_objects",
     "ges_core.cli.cmd_sim",
+    "ges_core.cli.cmd_dataset",
 )
 """Modules that add sub-commands, in ``--help`` order."""
 

@@ -1,0 +1,40 @@
+"""``ges dataset info`` and ``ges dataset validate``: look into a grasp dataset folder."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``ges dataset {info,validate}``."""
+    p = sub.add_parser("dataset", help="summarize or validate a grasp dataset folder")
+    dsub = p.add_subparsers(dest="dataset_command", metavar="ACTION", required=True)
+    ip = dsub.add_parser("info", help="counts, success rate per step and timing medians")
+    ip.add_argument("path", type=Path, metavar="PATH", help="dataset folder (holds manifest.json)")
+    ip.set_defaults(func=run_info)
+    vp = dsub.add_parser("validate", help="check every record; one line per problem, exit 1 on problems")
+    vp.add_argument("path", type=Path, metavar="PATH", help="dataset folder (holds manifest.json)")
+    vp.set_defaults(func=run_validate)
+
+
+def run_info(args: argparse.Namespace) -> int:
+    """Print the dataset summary."""
+    from ges_core.dataset import open_dataset, summarize
+
+    print(summarize(open_dataset(args.path)).format())
+    return 0
+
+
+def run_validate(args: argparse.Namespace) -> int:
+    """Print every problem; 0 when there is none."""
+    from ges_core.dataset import open_dataset, validate_dataset
+
+    problems = validate_dataset(args.path)
+    for line in problems:
+        print(line)
+    if problems:
+        print(f"{len(problems)} problem(s) in {args.path}")
+        return 1
+    print(f"{args.path}: {len(open_dataset(args.path))} records, no problems")
+    return 0

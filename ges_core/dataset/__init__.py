@@ -1,0 +1,42 @@
+"""The ContactGrasp-style grasp dataset: records, the on-disk folder, checks and summaries.
+
+See ``docs/dataset.md`` for the format. Writers and readers:
+:class:`DatasetWriter` (incremental, atomic, resumable) and :func:`open_dataset`.
+"""
+
+from __future__ import annotations
+
+from ges_core.dataset.layout import DATASET_FORMAT, DATASET_VERSION, record_relpath
+from ges_core.dataset.record import (
+    NOT_RUN,
+    SKIPPED,
+    STEPS,
+    GraspRecord,
+    HandPose,
+    Quality,
+    StepOutcome,
+    software_versions,
+)
+from ges_core.dataset.store import Dataset, DatasetWriter, load_record, open_dataset
+from ges_core.dataset.summary import summarize
+from ges_core.dataset.validate import validate_dataset
+
+__all__ = [
+    "DATASET_FORMAT",
+    "DATASET_VERSION",
+    "NOT_RUN",
+    "SKIPPED",
+    "STEPS",
+    "Dataset",
+    "DatasetWriter",
+    "GraspRecord",
+    "HandPose",
+    "Quality",
+    "StepOutcome",
+    "load_record",
+    "open_dataset",
+    "record_relpath",
+    "software_versions",
+    "summarize",
+    "validate_dataset",
+]

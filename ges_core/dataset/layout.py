@@ -1,0 +1,158 @@
+"""The dataset folder: file names, the manifest and its index, and a scan of what is on disk.
+
+::
+
+    DATASET/
+      manifest.json                       format tag + version, creation info, run config, index
+      records/<hand>/<object-slug>-<hash>.npz   one record per (object, hand)
+
+Every file is written through :func:`ges_core.paths.atomic_write_bytes` (temporary file + rename),
+so a killed run leaves whole files and at most some hidden ``.*.tmp`` files.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import datetime
+import hashlib
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+from ges_core.dataset.record import STEPS, GraspRecord
+from ges_core.errors import AssetError
+from ges_core.paths import atomic_write_text
+
+__all__ = [
+    "DATASET_FORMAT",
+    "DATASET_VERSION",
+    "MANIFEST",
+    "RECORDS_DIR",
+    "FolderScan",
+    "config_differences",
+    "index_entry",
+    "normalize_config",
+    "read_manifest",
+    "record_relpath",
+    "scan_folder",
+    "utc_now",
+    "write_manifest",
+]
+
+DATASET_FORMAT = "ges.contactgrasp_dataset"
+DATASET_VERSION = 1
+MANIFEST = "manifest.json"
+RECORDS_DIR = "records"
+INDEX_FIELDS = ("object_id", "hand", "simulator", "category", "split")
+"""Record fields copied into each manifest index entry (with file, success, failed_step, steps)."""
+
+
+def _slug(text: str) -> str:
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", text.replace("/", "__")).strip("._") or "x"
+
+
+def record_relpath(object_id: str, hand: str) -> str:
+    """Path of the record of ``(object_id, hand)`` relative to the dataset folder (POSIX separators).
+
+    Readable (the object id with '/' as '__') and unique (8 hex digits of a hash of the exact key).
+    """
+    digest = hashlib.sha256(f"{object_id}\n{hand}".encode()).hexdigest()[:8]
+    return f"{RECORDS_DIR}/{_slug(hand)}/{_slug(object_id)}-{digest}.npz"
+
+
+def index_entry(record: GraspRecord, file: str) -> dict:
+    """The manifest's summary of one record: enough for ``ges dataset info`` without opening it."""
+    steps = {name: [record.steps[name].ok, record.steps[name].reason, record.steps[name].seconds] for name in STEPS}
+    entry = {"file": file, **{k: getattr(record, k) for k in INDEX_FIELDS}}
+    return entry | {"success": record.success, "failed_step": record.failed_step, "steps": steps}
+
+
+def utc_now() -> str:
+    """Current UTC time, ISO 8601 to the second."""
+    return datetime.datetime.now(datetime.timezone.utc).replace(microsecond=0).isoformat()
+
+
+def normalize_config(config: object) -> dict:
+    """A run config (dict, pydantic model or dataclass) as plain JSON data, for storing and comparing."""
+    if hasattr(config, "model_dump"):
+        config = config.model_dump(mode="json")
+    elif dataclasses.is_dataclass(config) and not isinstance(config, type):
+        config = dataclasses.asdict(config)
+    if not isinstance(config, dict):
+        raise TypeError(f"run_config must be a dict, a pydantic model or a dataclass, got {type(config).__name__}")
+    return json.loads(json.dumps(config, sort_keys=True, default=str))
+
+
+def config_differences(old: object, new: object, prefix: str = "") -> list[str]:
+    """Dotted paths where two JSON configs differ, as ``path: old -> new``."""
+    if isinstance(old, dict) and isinstance(new, dict):
+        out = []
+        for key in sorted(set(old) | set(new)):
+            path = f"{prefix}.{key}" if prefix else str(key)
+            out += config_differences(old.get(key, "<absent>"), new.get(key, "<absent>"), path)
+        return out
+    return [] if old == new else [f"{prefix or '<root>'}: {old!r} -> {new!r}"]
+
+
+def read_manifest(root: Path) -> dict:
+    """The parsed manifest of the dataset at ``root``; AssetError if missing, unreadable or foreign."""
+    path = root / MANIFEST
+    try:
+        data = json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise AssetError(f"{root} is not a grasp dataset: it has no {MANIFEST}") from exc
+    except (OSError, json.JSONDecodeError) as exc:
+        raise AssetError(
+            f"cannot read {path}: {exc}. Delete it and open the folder with the writer (DatasetWriter / the "
+            "synthesis run): the index is rebuilt from the record files"
+        ) from exc
+    if not isinstance(data, dict) or data.get("format") != DATASET_FORMAT:
+        found = data.get("format") if isinstance(data, dict) else type(data).__name__
+        raise AssetError(f"{path} is not a grasp dataset manifest: format {found!r}, expected {DATASET_FORMAT!r}")
+    if data.get("version") != DATASET_VERSION:
+        raise AssetError(
+            f"{path}: dataset version {data.get('version')!r} is not supported by this GES-UniGrasp "
+            f"(reads version {DATASET_VERSION}); use the GES-UniGrasp version that wrote it"
+        )
+    return data
+
+
+def write_manifest(root: Path, manifest: dict, entries: list[dict]) -> None:
+    """Write ``manifest`` with ``entries`` as its index (sorted by hand then object id), atomically.
+
+    The header is indented; the index holds one compact line per record (diffs and ``grep`` stay easy).
+    """
+    header = {k: v for k, v in manifest.items() if k != "records"} | {"updated": utc_now()}
+    index = sorted(entries, key=lambda e: (e["hand"], e["object_id"]))
+    rows = ",\n".join("  " + json.dumps(e, sort_keys=True) for e in index)
+    text = json.dumps(header, indent=1, sort_keys=True)[:-2] + f',\n "records": [\n{rows}\n ]\n}}\n'
+    atomic_write_text(root / MANIFEST, text)
+
+
+@dataclass(frozen=True)
+class FolderScan:
+    """What the manifest lists against what the folder holds."""
+
+    listed: dict[str, dict]
+    """Relative file -> index entry, for every manifest entry whose file exists."""
+    missing: tuple[str, ...]
+    """Files the manifest lists that are not on disk."""
+    unlisted: tuple[str, ...]
+    """Record files on disk that the manifest does not list (a run killed between the two writes)."""
+    temp_files: tuple[str, ...]
+    """Leftover temporary files of interrupted atomic writes."""
+
+
+def scan_folder(root: Path, manifest: dict) -> FolderScan:
+    """Compare the manifest's index with the ``.npz`` and ``.tmp`` files under ``root``."""
+    entries = [e for e in manifest.get("records", []) if isinstance(e, dict) and isinstance(e.get("file"), str)]
+    on_disk = {p.relative_to(root).as_posix() for p in root.glob(f"{RECORDS_DIR}/**/*.npz")}
+    on_disk = {f for f in on_disk if not Path(f).name.startswith(".")}
+    temp = sorted(p.relative_to(root).as_posix() for p in root.glob("**/.*.tmp"))
+    return FolderScan(
+        listed={e["file"]: e for e in entries if e["file"] in on_disk},
+        missing=tuple(sorted(e["file"] for e in entries if e["file"] not in on_disk)),
+        unlisted=tuple(sorted(on_disk - {e["file"] for e in entries})),
+        temp_files=tuple(temp),
+    )

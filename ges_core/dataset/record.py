@@ -1,0 +1,291 @@
+"""One dataset record: everything Stage 1 produced for one object and one hand.
+
+A :class:`GraspRecord` is self-describing: it carries the hand's joint names beside every joint
+vector, the simulator's name and the software versions, so a later stage reads it without
+building the hand or the simulator that produced it.
+
+Frames and units: every position, normal, direction and pose is in the **object frame** (the
+object's resting frame: z up, table plane z = 0), metres; poses are (7,) position + unit
+quaternion w, x, y, z; joint angles radians (metres for prismatic joints); times seconds.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import platform
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ges_core.contact import ContactSet
+
+__all__ = [
+    "NOT_RUN",
+    "RECORD_FORMAT",
+    "RECORD_VERSION",
+    "SKIPPED",
+    "STEPS",
+    "GraspRecord",
+    "HandPose",
+    "Quality",
+    "StepOutcome",
+    "record_from_bytes",
+    "record_from_raw",
+    "raw_to_bytes",
+    "read_raw",
+    "record_to_bytes",
+    "record_to_raw",
+    "software_versions",
+]
+
+RECORD_FORMAT = "ges.grasp_record"
+RECORD_VERSION = 1
+
+STEPS: tuple[str, ...] = ("contacts", "retargeting", "refinement", "validation")
+"""The Stage 1 steps, in pipeline order; every record holds one :class:`StepOutcome` per step."""
+
+SKIPPED = "skipped"
+"""Reason of a step that was not attempted because an earlier step failed."""
+NOT_RUN = "not_run"
+"""Reason of a step that the run configuration switched off (e.g. no physics validation)."""
+
+JSON_KEY = "record_json"
+"""Name of the npz entry holding the record's scalars as JSON text (a 0-d unicode array)."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class StepOutcome:
+    """Outcome of one pipeline step for one record."""
+
+    ok: bool
+    """True when the step succeeded."""
+    reason: str = ""
+    """'' when ok; otherwise a short failure code, or SKIPPED / NOT_RUN when not attempted."""
+    seconds: float = 0.0
+    """Wall time the step took, seconds (0 when not attempted)."""
+
+    @property
+    def attempted(self) -> bool:
+        """Whether the step ran at all (success rates count only attempted steps)."""
+        return self.ok or self.reason not in (SKIPPED, NOT_RUN)
+
+    @classmethod
+    def failed(cls, reason: str, seconds: float = 0.0) -> StepOutcome:
+        """A failed step with its reason code."""
+        return cls(ok=False, reason=reason, seconds=seconds)
+
+    @classmethod
+    def skipped(cls) -> StepOutcome:
+        """A step not attempted because an earlier one failed."""
+        return cls(ok=False, reason=SKIPPED)
+
+
+@dataclass(frozen=True)
+class HandPose:
+    """A hand configuration: base-link pose and joint angles (order: the record's ``joint_names``)."""
+
+    wrist_pose: np.ndarray
+    """(7,) float64 pose of the hand's base link, object frame, metres + quaternion wxyz."""
+    q: np.ndarray
+    """(K,) float64 joint angles, radians, in the record's ``joint_names`` order."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "wrist_pose", np.asarray(self.wrist_pose, dtype=np.float64))
+        object.__setattr__(self, "q", np.asarray(self.q, dtype=np.float64))
+
+
+@dataclass(frozen=True, kw_only=True)
+class Quality:
+    """Quality figures of a record; None where the step that measures it did not produce one."""
+
+    force_closure: float | None = None
+    """Ferrari-Canny epsilon of the contacts (0 = no force closure), unit-wrench scale."""
+    retarget_residual: float | None = None
+    """Mean distance between the retargeted fingertips and their targets, metres."""
+    max_penetration: float | None = None
+    """Deepest hand-object penetration after refinement, metres (>= 0)."""
+    table_contact: bool | None = None
+    """Whether any hand link touches the table after refinement."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class GraspRecord:
+    """Everything Stage 1 produced for one (object, hand) pair; see ``docs/dataset.md``."""
+
+    object_id: str
+    category: str
+    split: str
+    """'train', 'unseen_object' or 'unseen_category' (the object library's split)."""
+    hand: str
+    simulator: str
+    joint_names: tuple[str, ...]
+    """(K,) names of the hand's joints: the order of every ``q`` in this record."""
+    steps: Mapping[str, StepOutcome]
+    """One outcome per name in :data:`STEPS`."""
+    contacts: ContactSet | None = None
+    """Five contacts (thumb..little), object frame; None when contact generation produced none."""
+    strategy: str | None = None
+    """'horizontal' or 'vertical' (the contact step's grasp strategy)."""
+    approach: np.ndarray | None = None
+    """(3,) unit direction the hand moves toward the object, object frame."""
+    grasp: HandPose | None = None
+    """The final grasp: the refined pose when refinement ran, else the retargeted one."""
+    grasp_stage: str = ""
+    """Which step produced ``grasp``: 'retargeting', 'refinement' or '' (no grasp)."""
+    pregrasp: HandPose | None = None
+    """The pre-grasp: 0.02 m back along ``approach``, intermediate joints opened."""
+    quality: Quality = field(default_factory=Quality)
+    validation_flags: Mapping[str, bool] = field(default_factory=dict)
+    """Physics validation details, e.g. reached_grasp, fingertips_touching, lifted, held."""
+    versions: Mapping[str, str] = field(default_factory=dict)
+    """Software versions (see :func:`software_versions`)."""
+    seed: int = 0
+    extra: Mapping[str, Any] = field(default_factory=dict)
+    """Free-form JSON-ready data (picture path, frozen fingers, ...)."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "joint_names", tuple(self.joint_names))
+        if self.approach is not None:
+            object.__setattr__(self, "approach", np.asarray(self.approach, dtype=np.float64))
+
+    @property
+    def key(self) -> tuple[str, str]:
+        """(object_id, hand): the identity of a record inside a dataset."""
+        return (self.object_id, self.hand)
+
+    @property
+    def failed_step(self) -> str | None:
+        """The first step that was attempted and failed, or None."""
+        return next((s for s in STEPS if self.steps[s].attempted and not self.steps[s].ok), None)
+
+    @property
+    def success(self) -> bool:
+        """Every step succeeded (a step switched off by the run config, NOT_RUN, does not count)."""
+        return all(self.steps[s].ok or self.steps[s].reason == NOT_RUN for s in STEPS)
+
+    @property
+    def total_seconds(self) -> float:
+        """Sum of the step times, seconds."""
+        return float(sum(self.steps[s].seconds for s in STEPS))
+
+
+def software_versions(*packages: str) -> dict[str, str]:
+    """Versions of GES-UniGrasp, Python, numpy, torch, pytorch-kinematics and ``packages`` (e.g. the
+    simulator's engine: ``software_versions("sapien")``); 'missing' for packages not installed."""
+    from importlib import metadata
+
+    import ges_core
+
+    out = {"ges": ges_core.__version__, "python": platform.python_version()}
+    for name in ("numpy", "torch", "pytorch-kinematics", *packages):
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = "missing"
+    return out
+
+
+def record_to_raw(record: GraspRecord) -> tuple[dict, dict[str, np.ndarray]]:
+    """The record as (JSON-ready scalars, named float64 arrays): the on-disk layout."""
+    arrays: dict[str, np.ndarray] = {}
+    contacts = None
+    if record.contacts is not None:
+        contacts = {k: v for k, v in record.contacts.to_dict().items() if k not in ("positions", "normals")}
+        arrays["contact_positions"] = record.contacts.positions
+        arrays["contact_normals"] = record.contacts.normals
+    if record.approach is not None:
+        arrays["approach"] = record.approach
+    for prefix, pose in (("", record.grasp), ("pregrasp_", record.pregrasp)):
+        if pose is not None:
+            arrays[f"{prefix}wrist_pose"], arrays[f"{prefix}q"] = pose.wrist_pose, pose.q
+    meta = {
+        "format": RECORD_FORMAT,
+        "version": RECORD_VERSION,
+        **{k: getattr(record, k) for k in ("object_id", "category", "split", "hand", "simulator")},
+        "joint_names": list(record.joint_names),
+        "steps": {name: _step_to_dict(record.steps[name]) for name in record.steps},
+        "contacts": contacts,
+        "strategy": record.strategy,
+        "grasp_stage": record.grasp_stage,
+        "quality": _quality_to_dict(record.quality),
+        "validation_flags": dict(record.validation_flags),
+        "versions": dict(record.versions),
+        "seed": record.seed,
+        "extra": dict(record.extra),
+    }
+    return _plain(meta), arrays
+
+
+def _plain(value: Any) -> Any:
+    """``value`` with numpy scalars turned into Python ones (JSON cannot hold np.float32 or np.bool_)."""
+    if isinstance(value, dict):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    return value.item() if isinstance(value, np.generic) else value
+
+
+def _step_to_dict(step: StepOutcome) -> dict:
+    return {"ok": step.ok, "reason": step.reason, "seconds": step.seconds}
+
+
+def _quality_to_dict(quality: Quality) -> dict:
+    return {k: getattr(quality, k) for k in Quality.__dataclass_fields__}
+
+
+def record_from_raw(meta: dict, arrays: Mapping[str, np.ndarray]) -> GraspRecord:
+    """Inverse of :func:`record_to_raw` (no checks beyond what the types need; see ``validate``)."""
+    contacts = None
+    if meta.get("contacts") is not None:
+        data = dict(meta["contacts"], positions=arrays["contact_positions"], normals=arrays["contact_normals"])
+        contacts = ContactSet.from_dict(data)
+    return GraspRecord(
+        **{k: meta[k] for k in ("object_id", "category", "split", "hand", "simulator", "strategy", "seed")},
+        joint_names=tuple(meta["joint_names"]),
+        steps={name: StepOutcome(**step) for name, step in meta["steps"].items()},
+        contacts=contacts,
+        approach=arrays.get("approach"),
+        grasp=_pose(arrays, ""),
+        grasp_stage=meta.get("grasp_stage", ""),
+        pregrasp=_pose(arrays, "pregrasp_"),
+        quality=Quality(**meta.get("quality", {})),
+        validation_flags=meta.get("validation_flags", {}),
+        versions=meta.get("versions", {}),
+        extra=meta.get("extra", {}),
+    )
+
+
+def _pose(arrays: Mapping[str, np.ndarray], prefix: str) -> HandPose | None:
+    if f"{prefix}wrist_pose" not in arrays:
+        return None
+    return HandPose(arrays[f"{prefix}wrist_pose"], arrays[f"{prefix}q"])
+
+
+def record_to_bytes(record: GraspRecord) -> bytes:
+    """The record as the bytes of one ``.npz`` file: its arrays plus the scalars as JSON text."""
+    return raw_to_bytes(*record_to_raw(record))
+
+
+def raw_to_bytes(meta: dict, arrays: Mapping[str, np.ndarray]) -> bytes:
+    """The bytes of one ``.npz`` file holding ``arrays`` and ``meta`` as JSON text under JSON_KEY."""
+    buf = io.BytesIO()
+    np.savez_compressed(buf, **arrays, **{JSON_KEY: np.array(json.dumps(meta, sort_keys=True))})
+    return buf.getvalue()
+
+
+def read_raw(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
+    """(scalars, arrays) of an ``.npz`` record; raises ValueError/OSError/KeyError on a damaged file."""
+    with np.load(io.BytesIO(data), allow_pickle=False) as npz:
+        arrays = {name: npz[name] for name in npz.files}  # reading every member checks its CRC
+    meta = json.loads(str(arrays.pop(JSON_KEY)))
+    if not isinstance(meta, dict):
+        raise ValueError(f"{JSON_KEY} holds a {type(meta).__name__}, not an object")
+    return meta, arrays
+
+
+def record_from_bytes(data: bytes) -> GraspRecord:
+    """Inverse of :func:`record_to_bytes`."""
+    return record_from_raw(*read_raw(data))

@@ -1,0 +1,111 @@
+"""``ges dataset info``: counts, per-step success rates and timing medians, from the manifest index."""
+
+from __future__ import annotations
+
+from collections import Counter
+from dataclasses import dataclass
+
+import numpy as np
+
+from ges_core.dataset.record import NOT_RUN, SKIPPED, STEPS
+from ges_core.dataset.store import Dataset
+
+__all__ = ["DatasetSummary", "GroupStats", "StepStats", "summarize"]
+
+COUNT_FIELDS = ("hand", "simulator", "split", "category")
+
+
+@dataclass(frozen=True)
+class StepStats:
+    """One step over a group of records: only attempted steps count (not SKIPPED, not NOT_RUN)."""
+
+    attempted: int
+    ok: int
+    median_seconds: float | None
+    """Median wall time of the attempted steps, seconds (None if none was attempted)."""
+
+    @property
+    def rate(self) -> float | None:
+        """ok / attempted, or None when nothing was attempted."""
+        return self.ok / self.attempted if self.attempted else None
+
+
+@dataclass(frozen=True)
+class GroupStats:
+    """Statistics of the records of one hand in one simulator (or of all records)."""
+
+    label: str
+    records: int
+    succeeded: int
+    """Records whose every step succeeded."""
+    steps: dict[str, StepStats]
+    median_total_seconds: float | None
+    """Median over records of the summed step times, seconds."""
+
+
+@dataclass(frozen=True)
+class DatasetSummary:
+    """What ``ges dataset info`` prints."""
+
+    root: str
+    records: int
+    counts: dict[str, dict[str, int]]
+    """Field (hand, simulator, split, category) -> value -> number of records."""
+    groups: tuple[GroupStats, ...]
+    """One per (hand, simulator), then one over all records."""
+    notes: tuple[str, ...]
+    """Unlisted or missing record files."""
+
+    def format(self) -> str:
+        """Human-readable text, one table row per group."""
+        lines = [f"dataset {self.root}: {self.records} records"]
+        for field in COUNT_FIELDS:
+            counts = ", ".join(f"{k} {n}" for k, n in sorted(self.counts[field].items()))
+            lines.append(f"  by {field + ':':<10} {counts or '-'}")
+        lines += [f"  note: {n}" for n in self.notes]
+        lines.append("success per step (succeeded/attempted, rate, median time):")
+        header = f"  {'group':<20}" + "".join(f"{s:>26}" for s in STEPS) + f"{'all steps':>16}{'total time':>12}"
+        lines.append(header)
+        lines += [_row(g) for g in self.groups]
+        return "\n".join(lines)
+
+
+def _row(group: GroupStats) -> str:
+    cells = "".join(f"{_step_cell(group.steps[s]):>26}" for s in STEPS)
+    share = f"{group.succeeded}/{group.records}"
+    total = "-" if group.median_total_seconds is None else f"{group.median_total_seconds:.3f} s"
+    return f"  {group.label:<20}{cells}{share:>16}{total:>12}"
+
+
+def _step_cell(stats: StepStats) -> str:
+    if not stats.attempted:
+        return "-"
+    return f"{stats.ok}/{stats.attempted} {100 * stats.rate:5.1f}% {stats.median_seconds:.3f} s"
+
+
+def summarize(dataset: Dataset) -> DatasetSummary:
+    """Summary of ``dataset`` read from its index (record files are not opened)."""
+    entries = dataset.entries
+    counts = {f: dict(Counter(str(e.get(f)) for e in entries)) for f in COUNT_FIELDS}
+    pairs = sorted({(e["hand"], e["simulator"]) for e in entries})
+    groups = [_group(f"{h} / {s}", [e for e in entries if (e["hand"], e["simulator"]) == (h, s)]) for h, s in pairs]
+    if len(pairs) != 1:
+        groups.append(_group("all", list(entries)))
+    notes = [f"{f} is not listed in the manifest (adopted)" for f in dataset.unlisted]
+    notes += [f"{f} is listed in the manifest but missing" for f in dataset.missing]
+    notes += [f"{f} is not listed in the manifest and cannot be read (left out)" for f in dataset.damaged]
+    return DatasetSummary(str(dataset.root), len(entries), counts, tuple(groups), tuple(notes))
+
+
+def _group(label: str, entries: list[dict]) -> GroupStats:
+    steps = {name: _step_stats([e["steps"][name] for e in entries]) for name in STEPS}
+    totals = [sum(e["steps"][s][2] for s in STEPS) for e in entries]
+    median = float(np.median(totals)) if totals else None
+    return GroupStats(label, len(entries), sum(bool(e["success"]) for e in entries), steps, median)
+
+
+def _step_stats(outcomes: list[list]) -> StepStats:
+    """``outcomes``: [ok, reason, seconds] triples as stored in the index."""
+    tried = [o for o in outcomes if o[0] or o[1] not in (SKIPPED, NOT_RUN)]
+    median = float(np.median([o[2] for o in tried])) if tried else None
+    return StepStats(len(tried), sum(bool(o[0]) for o in tried), median)
