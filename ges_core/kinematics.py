@@ -136,6 +136,12 @@ class HandKinematics:
 
         offsets: as in :meth:`points`.
         """
+        return self.points_and_jacobians(q, links, offsets)[1]
+
+    def points_and_jacobians(
+        self, q: torch.Tensor, links: Sequence[str], offsets: torch.Tensor | None = None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, L, 3) points and (B, L, 3, K) Jacobians from one forward-kinematics pass (see :meth:`jacobians`)."""
         idx = self._frame_indices(links)
         key = tuple(idx)
         if key not in self._pairs_cache:
@@ -146,7 +152,7 @@ class HandKinematics:
         fk = self._fk(q_chain, needed)
         poses = torch.stack([fk[i] for i in idx], dim=1)
         points = self._apply_offsets(poses, self._offsets(offsets, len(idx), q_chain.shape[0]))
-        return self._scatter_columns(points, fk, pairs)
+        return points, self._scatter_columns(points, fk, pairs)
 
     # -- internals ------------------------------------------------------------------------
     def _check_joint_names(self, chain_joints: list[str]) -> None:

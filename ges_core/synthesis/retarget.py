@@ -1,0 +1,185 @@
+"""Grasp retargeting (Stage 1, step 2): five contacts -> wrist pose and joint angles of one hand.
+
+For each :class:`~ges_core.contact.ContactSet` (object frame):
+
+1. topology descriptors ``(F, n_palm, d_palm, u_palm)`` and the wrist-link pose from them, the
+   paper's constant roll/pitch coupling and the wrist origin (:mod:`.retarget_wrist`);
+2. the contacts in the hand's base-link frame, then vector retargeting of the finger joints
+   (:mod:`.retarget_solver`), batched over all contact sets given at once;
+3. the base-link pose in the object frame: ``T_obj_base = T_obj_wrist inv(T_base_wrist(q_open))``.
+   The wrist link may differ from the base (Shadow: base = forearm, wrist = palm, with WRJ1/WRJ0
+   between them); joints of no finger stay at the open pose, so that transform is fixed.
+
+Equations and readings: ``docs/synthesis/retargeting.md``.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+
+import numpy as np
+import torch
+from pydantic import BaseModel, ConfigDict, Field
+
+from ges_core.contact import FINGER_SLOTS, ContactSet
+from ges_core.errors import SynthesisError
+from ges_core.hand import HandModel
+from ges_core.kinematics import HandKinematics
+from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
+from ges_core.synthesis.retarget_wrist import (
+    HandFrame,
+    TopologyDescriptors,
+    contact_problems,
+    hand_frame,
+    topology_descriptors,
+    wrist_poses,
+)
+from ges_core.synthesis.types import Grasp
+from ges_core.transforms import matrix_to_pose
+
+__all__ = ["GraspRetargeter", "RetargetConfig", "VectorRetargetConfig", "VectorRetargeter", "retarget_contacts"]
+
+
+class RetargetConfig(BaseModel):
+    """Settings of grasp retargeting."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+    roll_deg: float = Field(10.0, description="pronation about the grasp axis, degrees (paper: 10)")
+    pitch_deg: float = Field(20.0, description="fingers tilted toward the object about the lateral axis, degrees (20)")
+    palm_distance: float = Field(
+        0.75, ge=0, description="O_palm = O_center - palm_distance * l_p * n_palm (paper: 3/4), in units of l_p"
+    )
+    y_d: float = Field(
+        0.0, description="metres along the hand's finger direction from the placed knuckle centre (paper's y_d)"
+    )
+    init_closure: float = Field(
+        0.0, ge=0, le=1, description="start of the joint solve: this fraction of the way open -> closed_pose()"
+    )
+    max_residual: float = Field(
+        0.01, gt=0, description="metres: mean fingertip-to-contact distance up to which meta['reached'] is True"
+    )
+    solver: VectorRetargetConfig = Field(default_factory=VectorRetargetConfig)
+
+
+class GraspRetargeter:
+    """Retargets contact sets to grasps of one hand; build once, call many times.
+
+    hand: the hand; config: settings; kinematics: an already built HandKinematics of ``hand``.
+    """
+
+    def __init__(
+        self, hand: HandModel, config: RetargetConfig | None = None, *, kinematics: HandKinematics | None = None
+    ) -> None:
+        self.hand, self.config = hand, config or RetargetConfig()
+        self.kinematics = kinematics or HandKinematics.from_hand(hand)
+        self.solver = VectorRetargeter(hand, self.config.solver, kinematics=self.kinematics)
+        d = hand.description
+        self.q_init = d.closed_pose(self.config.init_closure)
+        """(K,) start of the joint solve; its non-finger joints (Shadow's wrist) define T_base_wrist."""
+        q_open = torch.as_tensor(self.q_init)[None]
+        self.base_to_wrist = self.kinematics.link_poses(q_open, [d.wrist.link])[0, 0].numpy()
+        """(4, 4) wrist-link pose in the base-link frame at ``q_init``."""
+        self.frame: HandFrame = hand_frame(d, self._wrist_points(q_open))
+
+    def retarget(self, contacts: ContactSet) -> Grasp:
+        """One grasp; raises SynthesisError(reason="degenerate_contacts") for contacts spanning no plane."""
+        result = self.retarget_many([contacts])[0]
+        if isinstance(result, SynthesisError):
+            raise result
+        return result
+
+    def retarget_many(self, contacts: Sequence[ContactSet]) -> list[Grasp | SynthesisError]:
+        """One grasp per contact set, solved as one batch; degenerate sets come back as SynthesisError."""
+        start = time.perf_counter()
+        pos = self._positions(contacts)
+        problems = contact_problems(pos)
+        good = [i for i, p in enumerate(problems) if p is None]
+        out: list = [None if p is None else _degenerate(i, p) for i, p in enumerate(problems)]
+        if good:
+            topo = topology_descriptors(pos[good], self.frame.chirality)
+            base, q, residual, tip_err = self._solve(topo)
+            seconds = (time.perf_counter() - start) / len(contacts)
+            for j, i in enumerate(good):
+                out[i] = self._grasp(base[j], q[j], residual[j], tip_err[j], topo, j, seconds)
+        return out
+
+    def wrist_link_poses(self, topo: TopologyDescriptors) -> np.ndarray:
+        """(B, 4, 4) wrist-link poses in the object frame for ``topo``."""
+        c = self.config
+        return wrist_poses(
+            topo, self.frame, roll_deg=c.roll_deg, pitch_deg=c.pitch_deg, palm_distance=c.palm_distance, y_d=c.y_d
+        )
+
+    # -- internals ------------------------------------------------------------------------
+    def _solve(self, topo: TopologyDescriptors) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Base poses (B, 4, 4), joints (B, K), residual (B,) and per-slot errors (B, 5), all numpy."""
+        base = self.wrist_link_poses(topo) @ np.linalg.inv(self.base_to_wrist)
+        rot, trans = base[:, :3, :3], base[:, :3, 3]
+        targets = np.einsum("bji,bsj->bsi", rot, topo.contacts - trans[:, None])  # R^T (p - t), base frame
+        q0 = torch.as_tensor(self.q_init).expand(len(base), -1)
+        q, residual = self.solver.solve(torch.as_tensor(targets), q0)
+        tip_err = (self.solver.fingertips(q) - torch.as_tensor(targets)).norm(dim=-1)
+        return base, q.numpy(), residual.numpy(), tip_err.numpy()
+
+    def _grasp(
+        self,
+        base: np.ndarray,
+        q: np.ndarray,
+        residual: float,
+        tip_err: np.ndarray,
+        topo: TopologyDescriptors,
+        j: int,
+        seconds: float,
+    ) -> Grasp:
+        meta = {
+            "residual": float(residual),
+            "tip_errors": dict(zip(FINGER_SLOTS, map(float, tip_err), strict=True)),
+            "reached": bool(residual <= self.config.max_residual),
+            "palm_normal": topo.palm_normal[j].tolist(),
+            "grasp_axis": topo.grasp_axis[j].tolist(),
+            "lateral_axis": topo.lateral_axis[j].tolist(),
+            "seconds": seconds,
+        }
+        return Grasp(hand=self.hand.name, wrist_pose=matrix_to_pose(base), q=q, meta=meta)
+
+    def _positions(self, contacts: Sequence[ContactSet]) -> np.ndarray:
+        if isinstance(contacts, ContactSet) or not all(isinstance(c, ContactSet) for c in contacts):
+            raise TypeError("retarget_many takes a sequence of ContactSet objects (object frame, five slots)")
+        if len(contacts) == 0:
+            raise ValueError("retarget_many got no contact sets")
+        return np.stack([c.positions for c in contacts])
+
+    def _wrist_points(self, q: torch.Tensor) -> dict[str, np.ndarray]:
+        """Open-pose knuckles and middle/little-slot fingertips in the wrist-link frame."""
+        d = self.hand.description
+        inv = np.linalg.inv(self.base_to_wrist)
+        tips = self.solver.fingertips(q)[0].numpy() @ inv[:3, :3].T + inv[:3, 3]
+        knuckles = []
+        for finger in {d.finger_for_slot(s).name: d.finger_for_slot(s) for s in FINGER_SLOTS[1:]}.values():
+            if finger.keypoint_links:
+                knuckles.append(self.kinematics.points(q, [finger.keypoint_links[0]])[0, 0].numpy())
+            else:  # no declared keypoints: one finger length back from the tip
+                tip = self.kinematics.points(q, [finger.tip_link], torch.tensor([finger.tip_offset]))[0, 0].numpy()
+                knuckles.append(tip - self.base_to_wrist[:3, :3] @ (d.middle_finger_length * self._finger_dir()))
+        knuckles = np.asarray(knuckles) @ inv[:3, :3].T + inv[:3, 3]
+        middle, little = FINGER_SLOTS.index("middle"), FINGER_SLOTS.index("little")
+        return {"knuckles": knuckles, "middle_tip": tips[middle], "little_tip": tips[little]}
+
+    def _finger_dir(self) -> np.ndarray:
+        f = np.asarray(self.hand.description.wrist.finger_direction, dtype=np.float64)
+        return f / np.linalg.norm(f)
+
+
+def retarget_contacts(hand: HandModel, contacts: ContactSet, config: RetargetConfig | None = None) -> Grasp:
+    """One-off convenience: build a :class:`GraspRetargeter` and retarget one contact set."""
+    return GraspRetargeter(hand, config).retarget(contacts)
+
+
+def _degenerate(index: int, problem: str) -> SynthesisError:
+    return SynthesisError(
+        f"grasp retargeting: contact set {index}: {problem}; the contact generator must give five contacts "
+        "spanning a plane",
+        reason="degenerate_contacts",
+    )

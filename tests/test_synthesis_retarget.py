@@ -1,0 +1,344 @@
+"""Grasp retargeting: the batched joint solver, topology descriptors, wrist placement, bad input.
+
+Reachable targets are fingertip points of random joint values (our FK, itself checked against
+PyBullet in test_kinematics.py); wrist placement is checked by composing the returned base pose
+with FK independently of the retargeter's own frame conversions.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+from pydantic import ValidationError
+
+from ges_core.contact import FINGER_SLOTS, ContactSet
+from ges_core.errors import AssetError, SynthesisError
+from ges_core.hand import HandModel
+from ges_core.kinematics import HandKinematics
+from ges_core.registry import load_registry
+from ges_core.synthesis.retarget import GraspRetargeter, RetargetConfig, retarget_contacts
+from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
+from ges_core.synthesis.retarget_wrist import (
+    check_contact_array,
+    contact_problems,
+    coupling_rotation,
+    hand_frame,
+    topology_descriptors,
+)
+from ges_core.synthesis.types import Grasp
+from ges_core.transforms import pose_to_matrix
+
+HANDS = ("allegro", "shadow")
+
+
+@pytest.fixture(scope="module")
+def hands() -> dict[str, HandModel]:
+    registry = load_registry()
+    return {name: registry.build_hand(name) for name in HANDS}
+
+
+@pytest.fixture(scope="module")
+def kins(hands) -> dict[str, HandKinematics]:
+    return {name: HandKinematics.from_hand(hand) for name, hand in hands.items()}
+
+
+@pytest.fixture(scope="module")
+def solvers(hands, kins) -> dict[str, VectorRetargeter]:
+    return {name: VectorRetargeter(hands[name], kinematics=kins[name]) for name in HANDS}
+
+
+def random_finger_q(hand: HandModel, n: int, seed: int) -> torch.Tensor:
+    """(n, K) uniform finger joints within limits, other joints (Shadow's wrist) open, couplings applied."""
+    d = hand.description
+    lim = d.limits_array
+    q = np.random.default_rng(seed).uniform(lim[:, 0], lim[:, 1], size=(n, d.num_joints))
+    finger_joints = {j for f in d.fingers for j in f.joints}
+    fixed = [i for i, name in enumerate(d.joint_names) if name not in finger_joints]
+    q[:, fixed] = np.asarray(d.open_pose)[fixed]
+    return torch.as_tensor(d.apply_couplings(q))
+
+
+# -- the joint solver ------------------------------------------------------------------------------
+@pytest.mark.parametrize("name", HANDS)
+@pytest.mark.parametrize(
+    ("seeds", "closure"), [(512, 0.0), (0, 0.3)], ids=["start-table-from-open", "cold-from-30pct-closed"]
+)
+def test_reaches_reachable_targets(hands, kins, name, seeds, closure):
+    hand = hands[name]
+    solver = VectorRetargeter(hand, VectorRetargetConfig(seeds=seeds, iterations=10), kinematics=kins[name])
+    targets = solver.fingertips(random_finger_q(hand, 32, seed=1))
+    q0 = torch.as_tensor(hand.description.closed_pose(closure)).expand(32, -1)
+    q, residual = solver.solve(targets, q0)
+    err = (solver.fingertips(q) - targets).norm(dim=-1)
+    assert err.mean() < 1e-3, f"{name}: mean fingertip error {err.mean() * 1e3:.3f} mm"
+    assert torch.allclose(residual, err.mean(dim=1), atol=1e-12)
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_limits_and_couplings_hold_for_unreachable_targets(hands, solvers, name):
+    d = hands[name].description
+    targets = torch.as_tensor(np.random.default_rng(2).normal(scale=0.4, size=(16, 5, 3)))  # mostly out of reach
+    q, residual = solvers[name].solve(targets)
+    lim = torch.as_tensor(d.limits_array)
+    assert (q >= lim[:, 0]).all() and (q <= lim[:, 1]).all()
+    np.testing.assert_allclose(d.apply_couplings(q.numpy()), q.numpy(), atol=1e-12)
+    assert (residual > 0.05).any()  # the targets really were out of reach
+
+
+def test_shadow_followers_track_leaders(hands, solvers):
+    d = hands["shadow"].description
+    q, _ = solvers["shadow"].solve(solvers["shadow"].fingertips(random_finger_q(hands["shadow"], 16, seed=3)))
+    for c in d.couplings:
+        fol, lead = d.joint_index([c.follower, c.leader])
+        expected = np.clip(c.ratio * q[:, lead].numpy(), *d.limits_array[fol])
+        np.testing.assert_allclose(q[:, fol].numpy(), expected, atol=1e-12)
+    assert len(d.couplings) == 4
+
+
+def test_non_finger_joints_stay_at_q_init(hands, solvers):
+    d = hands["shadow"].description
+    q0 = torch.as_tensor(d.closed_pose(0.2)).expand(4, -1).clone()
+    q0[:, :2] = torch.tensor([-0.3, 0.1])  # WRJ1, WRJ0
+    targets = solvers["shadow"].fingertips(random_finger_q(hands["shadow"], 4, seed=4))
+    q, _ = solvers["shadow"].solve(targets, q0)
+    assert d.joint_names[:2] == ("WRJ1", "WRJ0")
+    assert torch.equal(q[:, :2], q0[:, :2])
+
+
+def test_beta_pulls_toward_q_prev(hands, kins):
+    hand = hands["allegro"]
+    q_target = random_finger_q(hand, 8, seed=5)
+    q_prev = random_finger_q(hand, 8, seed=6)
+    distances, errors = [], []
+    for beta in (0.0, 1e-4, 1.0):
+        config = VectorRetargetConfig(beta=beta, seeds=0, iterations=15)
+        solver = VectorRetargeter(hand, config, kinematics=kins["allegro"])
+        targets = solver.fingertips(q_target)
+        q, residual = solver.solve(targets, q_init=q_prev, q_prev=q_prev)
+        distances.append(float((q - q_prev).norm(dim=1).mean()))
+        errors.append(float(residual.mean()))
+    assert distances[0] > distances[1] > distances[2], distances
+    assert errors[0] < errors[1] < errors[2], errors
+    assert distances[2] < 0.1 * distances[0], distances
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_batch_equals_one_by_one(hands, solvers, name):
+    solver = solvers[name]
+    targets = solver.fingertips(random_finger_q(hands[name], 6, seed=7))
+    targets = targets + torch.as_tensor(np.random.default_rng(8).normal(scale=0.01, size=targets.shape))
+    q_batch, res_batch = solver.solve(targets)
+    for i in range(len(targets)):
+        q_one, res_one = solver.solve(targets[i : i + 1])
+        torch.testing.assert_close(q_one[0], q_batch[i], atol=1e-9, rtol=0)
+        torch.testing.assert_close(res_one[0], res_batch[i], atol=1e-9, rtol=0)
+
+
+def test_finger_serving_two_slots_aims_at_their_mean(hands, solvers):
+    solver = solvers["allegro"]
+    targets = solver.fingertips(random_finger_q(hands["allegro"], 4, seed=9))
+    ring, little = FINGER_SLOTS.index("ring"), FINGER_SLOTS.index("little")
+    split = targets.clone()
+    split[:, ring, 2] += 0.01
+    split[:, little, 2] -= 0.01  # same mean, 2 cm apart
+    q, residual = solver.solve(split)
+    tips = solver.fingertips(q)
+    torch.testing.assert_close(tips[:, ring], targets[:, ring], atol=1e-4, rtol=0)
+    torch.testing.assert_close(residual, torch.full((4,), 0.2 * 0.02, dtype=residual.dtype), atol=1e-4, rtol=0)
+
+
+# -- topology descriptors ------------------------------------------------------------------------
+def rotation(seed: int) -> np.ndarray:
+    from scipy.spatial.transform import Rotation
+
+    return Rotation.random(random_state=seed).as_matrix()
+
+
+def top_grasp(half_width: float = 0.03, spacing: float = 0.025, height: float = 0.05) -> np.ndarray:
+    """(5, 3) right-hand top-down grasp of a box: thumb on the -x face opposite the middle finger, fingers on +x,
+    index at +y."""
+    ys = np.array([1.5, 0.5, -0.5, -1.5]) * spacing
+    return np.array([[-half_width, ys[1], height]] + [[half_width, y, height] for y in ys])
+
+
+def test_palm_normal_is_orthogonal_to_a_planar_contact_set():
+    rng = np.random.default_rng(10)
+    planar = np.concatenate([rng.uniform(-0.01, 0.01, size=(8, 5, 2)), np.zeros((8, 5, 1))], axis=2)
+    planar[:, :, 0] += np.array([-0.06, 0.04, 0.05, 0.04, 0.03])  # thumb apart from the fingers
+    planar[:, :, 1] += np.array([0.0, 0.06, 0.02, -0.02, -0.06])  # index .. little spread along -y
+    rots = np.stack([rotation(s) for s in range(8)])
+    pos = np.einsum("bij,bsj->bsi", rots, planar) + rng.normal(size=(8, 1, 3))
+    topo = topology_descriptors(pos)
+    plane_normal = rots[:, :, 2]
+    np.testing.assert_allclose(np.abs(np.sum(topo.palm_normal * plane_normal, axis=1)), 1.0, atol=1e-9)
+    basis = topo.basis
+    np.testing.assert_allclose(basis.transpose(0, 2, 1) @ basis, np.broadcast_to(np.eye(3), (8, 3, 3)), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(basis), 1.0, atol=1e-12)  # right hand: n = d x u
+
+
+def test_descriptors_of_a_top_down_box_grasp():
+    topo = topology_descriptors(top_grasp())
+    np.testing.assert_allclose(topo.palm_normal[0], [0, 0, -1], atol=1e-12)  # palm above, facing down
+    np.testing.assert_allclose(topo.grasp_axis[0], [1, 0, 0], atol=1e-12)  # thumb -> middle
+    np.testing.assert_allclose(topo.lateral_axis[0], [0, -1, 0], atol=1e-12)  # toward the little finger
+    np.testing.assert_allclose(topo.center[0], top_grasp().mean(axis=0))
+    left = topology_descriptors(top_grasp() * [1, -1, 1], chirality=-1.0)  # mirror image for a left hand
+    np.testing.assert_allclose(left.palm_normal[0], [0, 0, -1], atol=1e-12)
+
+
+def test_coupling_rotation_pitches_fingers_toward_the_object_and_pronates():
+    r = coupling_rotation(10.0, 20.0, 1.0)  # columns: where d, u, n go, in (d, u, n) coordinates
+    assert np.isclose(np.linalg.det(r), 1.0)
+    assert r[2, 0] > 0.3  # the finger direction d gains a component along n (toward the object)
+    assert np.isclose(r[0, 0], np.cos(np.radians(20.0)))  # d turned by the 20 degree pitch
+    assert coupling_rotation(10.0, 0.0, 1.0)[1, 2] > 0  # pronation: n tilts toward the little-finger side
+
+
+# -- wrist placement -----------------------------------------------------------------------------
+@pytest.fixture(scope="module")
+def retargeters(hands, kins) -> dict[str, GraspRetargeter]:
+    return {name: GraspRetargeter(hands[name], kinematics=kins[name]) for name in HANDS}
+
+
+def box_contact_sets() -> list[ContactSet]:
+    normals = np.array([[-1.0, 0, 0]] + [[1.0, 0, 0]] * 4)
+    return [
+        ContactSet(top_grasp(hw, sp), normals, f"box_{hw}_{sp}") for hw in (0.02, 0.03, 0.04) for sp in (0.02, 0.03)
+    ]
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_box_grasp_puts_fingertips_on_the_contacts(hands, kins, retargeters, name):
+    d = hands[name].description
+    contacts = box_contact_sets()
+    grasps = retargeters[name].retarget_many(contacts)
+    errors = []
+    for g, c in zip(grasps, contacts, strict=True):
+        assert isinstance(g, Grasp) and g.hand == name and g.q.shape == (d.num_joints,)
+        base = pose_to_matrix(g.wrist_pose)
+        tips = kins[name].points(torch.as_tensor(g.q)[None], list(d.tip_links), [f.tip_offset for f in d.fingers])
+        tips = tips[0].numpy() @ base[:3, :3].T + base[:3, 3]  # object frame
+        for finger, tip in zip(d.fingers, tips, strict=True):
+            slots = [FINGER_SLOTS.index(s) for s in FINGER_SLOTS if d.finger_for_slot(s).name == finger.name]
+            errors.append(np.linalg.norm(tip - c.positions[slots].mean(axis=0)))
+        wrist_link = base @ kins[name].link_poses(torch.as_tensor(g.q)[None], [d.wrist.link])[0, 0].numpy()
+        assert (wrist_link[:3, 3] - c.positions.mean(axis=0))[2] > 0.03  # the hand is above the contacts
+        assert g.meta["reached"] and g.meta["residual"] < 0.02
+    mean_mm, max_mm = np.mean(errors) * 1e3, np.max(errors) * 1e3
+    print(f"{name}: box grasp, fingertip to its contact(s) mean {mean_mm:.2f} mm, max {max_mm:.2f} mm")
+    assert mean_mm < 5.0, f"mean {mean_mm:.2f} mm"
+
+
+def test_shadow_base_is_the_forearm_below_the_palm(hands, kins, retargeters):
+    d = hands["shadow"].description
+    g = retargeters["shadow"].retarget(box_contact_sets()[0])
+    base = pose_to_matrix(g.wrist_pose)
+    palm = base @ kins["shadow"].link_poses(torch.as_tensor(g.q)[None], ["palm"])[0, 0].numpy()
+    assert kins["shadow"].base_link == "forearm" and d.wrist.link == "palm"
+    assert np.linalg.norm(palm[:3, 3] - base[:3, 3]) > 0.2  # forearm origin 0.29 m behind the palm
+
+
+def test_hand_frames_are_right_handed(retargeters):
+    for r in retargeters.values():
+        assert r.frame.chirality == 1.0
+
+
+# -- bad input -----------------------------------------------------------------------------------
+def test_nan_and_wrongly_shaped_targets_are_refused(solvers):
+    solver = solvers["allegro"]
+    bad = torch.zeros(3, 5, 3, dtype=torch.float64)
+    bad[1, 2, 0] = float("nan")
+    with pytest.raises(ValueError, match=r"NaN or inf \(grasps \[1\]\)"):
+        solver.solve(bad)
+    with pytest.raises(ValueError, match=r"shape \(B, 5, 3\).*got \(3, 4, 3\)"):
+        solver.solve(torch.zeros(3, 4, 3))
+    with pytest.raises(ValueError, match=r"q_init must be a finite \(3, 16\) tensor in 'allegro' joint order"):
+        solver.solve(torch.zeros(3, 5, 3), q_init=torch.zeros(3, 15))
+    with pytest.raises(ValueError, match="q_prev .* with NaN or inf"):
+        solver.solve(torch.zeros(3, 5, 3), q_prev=torch.full((3, 16), float("nan")))
+
+
+def test_nan_and_wrongly_shaped_contacts_are_refused():
+    with pytest.raises(ValueError, match=r"contact positions contain NaN or inf \(contact sets \[0\]\)"):
+        check_contact_array(np.full((5, 3), np.nan))
+    with pytest.raises(ValueError, match=r"shape \(B, 5, 3\) or \(5, 3\).*got \(4, 3\)"):
+        topology_descriptors(np.zeros((4, 3)))
+
+
+def test_degenerate_contacts_fail_with_a_reason(retargeters):
+    line = np.stack([np.linspace(0, 0.1, 5), np.zeros(5), np.zeros(5)], axis=1)
+    with pytest.raises(SynthesisError, match="contact set 0: the contacts are .*collinear") as info:
+        topology_descriptors(line)
+    assert info.value.reason == "degenerate_contacts"
+    same_line = top_grasp()
+    same_line[[3, 4]] = same_line[[1, 2]]  # ring/little on index/middle: no lateral spread
+    assert contact_problems(same_line[None]) == ["no lateral spread from index/middle to ring/little"]
+    good, bad = box_contact_sets()[0], ContactSet(line, np.tile([0.0, 0, 1], (5, 1)))
+    out = retargeters["shadow"].retarget_many([good, bad])
+    assert isinstance(out[0], Grasp) and isinstance(out[1], SynthesisError)
+    assert out[1].reason == "degenerate_contacts" and "contact set 1" in str(out[1])
+    with pytest.raises(SynthesisError, match="collinear"):
+        retargeters["shadow"].retarget(bad)
+
+
+def test_wrong_types_and_config_keys_are_refused(retargeters):
+    with pytest.raises(TypeError, match="sequence of ContactSet"):
+        retargeters["allegro"].retarget_many(box_contact_sets()[0])
+    with pytest.raises(TypeError, match="sequence of ContactSet"):
+        retargeters["allegro"].retarget_many([np.zeros((5, 3))])
+    with pytest.raises(ValueError, match="got no contact sets"):
+        retargeters["allegro"].retarget_many([])
+    with pytest.raises(ValidationError, match="extra"):
+        RetargetConfig(pich_deg=20)
+
+
+class _SharedJointHand(HandModel):
+    """Allegro whose index finger also claims the middle finger's first joint."""
+
+    def __init__(self, hand: HandModel) -> None:
+        self._hand = hand
+        d = hand.description
+        index = dataclasses.replace(d.fingers[0], joints=d.fingers[0].joints + ("joint_4.0",))
+        self._d = dataclasses.replace(d, fingers=(index, *d.fingers[1:]))
+
+    @property
+    def description(self):
+        return self._d
+
+    def urdf_path(self):
+        return self._hand.urdf_path()
+
+
+def test_fingers_sharing_a_joint_are_refused(hands, kins):
+    with pytest.raises(AssetError, match="finger 'middle' shares joints with another finger"):
+        VectorRetargeter(_SharedJointHand(hands["allegro"]), kinematics=kins["allegro"])
+
+
+def test_hand_without_left_or_right_is_refused(hands):
+    d = hands["allegro"].description
+    points = {"knuckles": np.zeros((3, 3)), "middle_tip": np.array([0, 0, 0.1]), "little_tip": np.array([0, 0, 0.1])}
+    with pytest.raises(AssetError, match="hand 'allegro': its middle and little-slot fingertips are not side by side"):
+        hand_frame(d, points)
+
+
+def test_one_off_helper_matches_the_reusable_retargeter(hands, retargeters):
+    box = box_contact_sets()[1]
+    np.testing.assert_allclose(retarget_contacts(hands["shadow"], box).q, retargeters["shadow"].retarget(box).q)
+
+
+class _NoKeypointsHand(_SharedJointHand):
+    """Allegro with no keypoint_links declared."""
+
+    def __init__(self, hand: HandModel) -> None:
+        self._hand = hand
+        d = hand.description
+        self._d = dataclasses.replace(d, fingers=tuple(dataclasses.replace(f, keypoint_links=()) for f in d.fingers))
+
+
+def test_knuckles_fall_back_to_one_finger_length_behind_the_tips(hands, kins, retargeters):
+    estimated = GraspRetargeter(_NoKeypointsHand(hands["allegro"]), kinematics=kins["allegro"]).frame.knuckle_center
+    declared = retargeters["allegro"].frame.knuckle_center
+    assert np.linalg.norm(estimated - declared) < 0.02, (estimated, declared)
