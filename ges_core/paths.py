@@ -7,7 +7,7 @@ import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["CACHE_ENV", "atomic_write_bytes", "atomic_write_text", "cache_dir", "file_sha256"]
+__all__ = ["CACHE_ENV", "atomic_write_bytes", "atomic_write_text", "cache_dir", "cached_text_file", "file_sha256"]
 
 CACHE_ENV = "GES_CACHE_DIR"
 """Environment variable overriding the cache folder."""
@@ -24,6 +24,15 @@ def cache_dir(*parts: str) -> Path:
 def file_sha256(path: str | Path, *, length: int = 16) -> str:
     """First ``length`` hex digits of the SHA-256 of a file's bytes (cache keys)."""
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()[:length]
+
+
+def cached_text_file(text: str, *folder: str, stem: str, suffix: str = ".urdf") -> Path:
+    """``cache_dir(*folder)/{stem}_{hash of text}{suffix}``, written once (atomically) and reused."""
+    key = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
+    path = cache_dir(*folder) / f"{stem}_{key}{suffix}"
+    if not path.is_file():
+        atomic_write_text(path, text)
+    return path
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> Path:

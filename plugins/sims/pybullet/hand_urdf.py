@@ -21,7 +21,6 @@ because PyBullet reports a *base* at its centre of mass, not at its URDF frame.
 
 from __future__ import annotations
 
-import hashlib
 import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
@@ -29,7 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ges_core.paths import atomic_write_text, cache_dir
+from ges_core.paths import cached_text_file
 from ges_core.urdf import add_floating_base, parse_urdf, root_link
 
 __all__ = ["FIXED_WRIST_JOINT", "WORLD_LINK", "add_fixed_base", "pybullet_hand_urdf", "sanitize_inertias"]
@@ -53,12 +52,8 @@ tripped PyBullet's check after the decimal round trip (3 Allegro links)."""
 def pybullet_hand_urdf(text: str, name: str, *, floating: bool) -> Path:
     """Write the PyBullet-ready URDF of a hand to the cache (keyed by its text) and return the path."""
     text = add_floating_base(text, world_link=WORLD_LINK) if floating else add_fixed_base(text)
-    text = sanitize_inertias(text)
-    key = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
-    path = cache_dir("pybullet", "hands") / f"{name}_{'floating' if floating else 'fixed'}_{key}.urdf"
-    if not path.is_file():
-        atomic_write_text(path, text)
-    return path
+    stem = f"{name}_{'floating' if floating else 'fixed'}"
+    return cached_text_file(sanitize_inertias(text), "pybullet", "hands", stem=stem)
 
 
 def add_fixed_base(text: str) -> str:

@@ -7,7 +7,6 @@ render shape is ever created (they need a Vulkan device), URDFs are loaded from 
 
 from __future__ import annotations
 
-import hashlib
 from pathlib import Path
 
 import numpy as np
@@ -15,7 +14,7 @@ import numpy as np
 from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
-from ges_core.paths import atomic_write_text, cache_dir
+from ges_core.paths import cached_text_file
 from ges_core.sim import SceneConfig
 from ges_core.urdf import (
     WRIST_JOINTS,
@@ -75,11 +74,7 @@ def prepare_urdf(hand: HandModel, *, floating: bool) -> Path:
     text = absolutize_mesh_paths(strip_render_data(source.read_text()), source.parent)
     if floating:
         text = add_floating_base(text)
-    key = hashlib.sha256(text.encode("utf-8")).hexdigest()[:16]
-    path = cache_dir("sapien", "urdf") / f"{hand.name}_{'floating' if floating else 'fixed'}_{key}.urdf"
-    if not path.is_file():
-        atomic_write_text(path, text)
-    return path
+    return cached_text_file(text, "sapien", "urdf", stem=f"{hand.name}_{'floating' if floating else 'fixed'}")
 
 
 def build_hand(
