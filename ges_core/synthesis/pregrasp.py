@@ -1,0 +1,77 @@
+"""Pre-grasp pose: the grasp backed off along the approach direction with the fingers opened.
+
+The paper (Stage 1, step 4): "shifts g 0.02 m along the approach direction and resets intermediate
+joints to produce the pre-grasp pose g_init". Our reading, documented in
+``docs/synthesis/refine_validate.md``:
+
+* the base link moves back by ``backoff`` metres against the approach direction (the direction the
+  hand travels toward the object): ``t_init = t - backoff * approach``; the rotation is kept;
+* every finger joint goes to the hand's open pose, except the thumb's first ``thumb_keep`` joints
+  (proximal first: rotation and abduction on both built-in hands), which keep the grasp's values so
+  the thumb stays opposed and closing is a flexion of every finger; joints that belong to no finger
+  (the Shadow hand's wrist joints) keep the grasp's values;
+* ``open_fraction`` < 1 opens only part of the way (1 = fully open).
+
+A pure function: no simulator.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from ges_core.errors import ConfigError
+from ges_core.hand import HandDescription, HandModel
+from ges_core.synthesis.sim_scene import check_grasp
+from ges_core.synthesis.types import Grasp
+
+__all__ = ["PregraspConfig", "open_joint_mask", "pregrasp"]
+
+
+class PregraspConfig(BaseModel):
+    """How far to back off and which joints to open."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    backoff: float = Field(0.02, ge=0, description="metres moved back against the approach direction (paper: 0.02)")
+    thumb_keep: int = Field(1, ge=0, description="proximal thumb joints that keep the grasp's values")
+    open_fraction: float = Field(1.0, ge=0, le=1, description="fraction of the way from the grasp to the open pose")
+
+
+def pregrasp(hand: HandModel, grasp: Grasp, approach: np.ndarray, config: PregraspConfig | None = None) -> Grasp:
+    """The pre-grasp ``g_init`` of ``grasp``, object frame like the grasp.
+
+    approach: (3,) direction the hand moves toward the object, object frame (normalized here).
+    Returns a :class:`Grasp` with the backed-off base pose and the opened joints (couplings applied).
+    """
+    config = config or PregraspConfig()
+    d = hand.description
+    check_grasp(d, grasp, "pregrasp")
+    direction = _unit(approach)
+    pose = np.array(grasp.wrist_pose, dtype=np.float64)
+    pose[:3] -= config.backoff * direction
+    q = np.asarray(grasp.q, dtype=np.float64)
+    mask = open_joint_mask(d, config.thumb_keep)
+    opened = q + config.open_fraction * (np.asarray(d.open_pose) - q)
+    q_init = d.apply_couplings(np.where(mask, opened, q))
+    meta = {**grasp.meta, "pregrasp_backoff": config.backoff, "approach": direction.tolist()}
+    return Grasp(hand=grasp.hand, wrist_pose=pose, q=q_init, meta=meta)
+
+
+def open_joint_mask(description: HandDescription, thumb_keep: int) -> np.ndarray:
+    """(K,) bool: the joints the pre-grasp opens (finger joints minus the thumb's first ``thumb_keep``)."""
+    thumb = description.finger_for_slot("thumb")
+    kept = set(thumb.joints[:thumb_keep])
+    opened = {j for f in description.fingers for j in f.joints} - kept
+    return np.array([name in opened for name in description.joint_names])
+
+
+def _unit(approach: np.ndarray) -> np.ndarray:
+    """``approach`` as a (3,) unit vector, or a ConfigError saying what is wrong with it."""
+    v = np.asarray(approach, dtype=np.float64)
+    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
+        raise ConfigError(
+            f"pregrasp: approach must be a finite, non-zero (3,) direction in the object frame, got {v.tolist()}; "
+            "pass ContactResult.approach"
+        )
+    return v / np.linalg.norm(v)

@@ -1,0 +1,237 @@
+"""Collision-aware refinement: close the hand on the object in physics and stop each finger at contact.
+
+The paper (Stage 1, step 3): PD control ``tau = Kp (q_d - q) + Kd (qdot_d - qdot)`` toward the
+retargeted joints; when fingertip i's contact force exceeds ``gamma``, freeze its targets at the
+current joints, ``q_d(t+) = q(t-)``; the result is a penetration-free, stable pose.
+
+Here, through :class:`ges_core.sim.SimBackend` only (any hand, any backend):
+
+1. the hand (floating) and the object (resting on the table, gravity on: the table holds it, no
+   kinematic object exists in the interface) are loaded; the base link is put at the grasp's wrist
+   pose with the fingers open (the joints :func:`ges_core.synthesis.pregrasp.open_joint_mask` opens;
+   the others start at the grasp's values) and held there by the wrist drive;
+2. finger targets ramp linearly from open to the grasp's ``q`` over ``ramp_steps``, then creep on
+   along the closing direction up to ``overshoot`` rad further over ``creep_steps`` (fingertips
+   retargeted onto the surface often stop a few mm short of it), then stay;
+3. every step each fingertip's contact force on the object is read; a finger whose tip pushes
+   harder than ``gamma`` N gets all its joint targets set to its measured joints (couplings
+   re-applied) and keeps them;
+4. it stops when every finger is frozen, has settled at its target or has stalled (blocked by a
+   link other than its tip), plus ``settle_steps``, or after ``max_steps``.
+
+The output grasp is the measured state, the base pose expressed in the object's final frame (the
+object may be nudged a little), with the deepest hand-object penetration, any table contact and the
+fingers whose tips touch the object (``meta["touching_fingers"]``: frozen, or touching at the end)
+read from the backend's contact pairs at the end.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from ges_core.errors import SimulationError, SynthesisError
+from ges_core.hand import HandDescription, HandModel
+from ges_core.objects.asset import ObjectAsset
+from ges_core.sim import SimBackend
+from ges_core.synthesis.pregrasp import open_joint_mask
+from ges_core.synthesis.sim_scene import (
+    check_grasp,
+    closing_direction,
+    compose,
+    finger_joint_indices,
+    hand_contacts,
+    relative,
+    stage_scene,
+    tip_forces,
+)
+from ges_core.synthesis.types import Grasp, RefinedGrasp
+
+__all__ = ["RefineConfig", "refine_grasp", "refine_verdict"]
+
+
+class RefineConfig(BaseModel):
+    """Settings of collision-aware refinement (steps are physics steps of the backend's timestep)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+    # gamma: the paper gives no value. 0.5 N is ten times the 'touching' bar of the sim check (0.05 N) and
+    # about half the test box's weight. On the Allegro test grasp gamma = 0.2 and 0.5 give identical
+    # refinements (a tip's force jumps past both in its first contact step); gamma = 2 changed which fingers
+    # froze and moved the box 4-5 mm (measured, docs/synthesis/refine_validate.md).
+    gamma: float = Field(0.5, gt=0, description="fingertip contact force that freezes a finger, N")
+    ramp_steps: int = Field(60, ge=1, description="steps over which finger targets go from open to the grasp")
+    max_steps: int = Field(150, ge=1, description="hard stop, steps")
+    settle_steps: int = Field(5, ge=0, description="extra steps once every finger is frozen or settled")
+    # 0.02 rad: a fingertip ~0.1 m from its joints then sits within ~2 mm of its target.
+    settle_tolerance: float = Field(0.02, gt=0, description="joint error under which a free finger has settled, rad")
+    # 10 steps / 5 mrad: a finger still closing after the ramp moves ~0.1 rad in 10 steps; one blocked by a
+    # link other than its tip (so never frozen) moves less than 5 mrad, though SAPIEN keeps such a joint
+    # jittering at ~0.6 rad/s (measured), so speed is no test. Without this such grasps ran to max_steps.
+    stall_window: int = Field(10, ge=1, description="steps over which a free finger's motion is measured")
+    stall_motion: float = Field(0.005, ge=0, description="joint motion over stall_window under which it stalled, rad")
+    max_penetration: float = Field(0.004, ge=0, description="refine_verdict: deepest penetration accepted, m")
+    min_touching: int = Field(2, ge=0, description="refine_verdict: fingertips that must touch, thumb included")
+    table_force: float = Field(0.05, ge=0, description="a hand-table pair pushing harder than this touches, N")
+    thumb_keep: int = Field(1, ge=0, description="proximal thumb joints that start at the grasp, not open")
+    # overshoot: retargeting puts fingertips *on* their contacts, give or take a few mm, so a tip often
+    # stops 1-3 mm short and never touches (0-2 of 4 Allegro fingers frozen on the procedural objects).
+    # Creeping 0.1 rad further (~1 cm at the tip) after the ramp lets them reach the surface and freeze;
+    # slowly (30 steps) so it does not change which finger lands first (pushing 0.05-0.1 rad further
+    # within the ramp tilted the test box 8-17 degrees).
+    overshoot: float = Field(0.1, ge=0, description="free fingers creep this far past the grasp joints, rad")
+    creep_steps: int = Field(30, ge=1, description="steps of that creep, after the ramp")
+
+
+def refine_grasp(
+    sim: SimBackend, hand: HandModel, obj: ObjectAsset, grasp: Grasp, config: RefineConfig | None = None
+) -> RefinedGrasp:
+    """Close ``hand`` from open toward ``grasp.q`` at ``grasp.wrist_pose`` on ``obj``, freezing fingers on contact.
+
+    sim: a backend with ``num_envs == 1``, fresh or used before by these functions with the same hand.
+    grasp: base pose in the object frame and joints (K,). Returns the settled grasp, object frame.
+    Raises SynthesisError (reason ``unstable``) when the simulation blows up.
+    """
+    config = config or RefineConfig()
+    start = time.perf_counter()
+    d = hand.description
+    check_grasp(d, grasp, "refine_grasp")
+    object_pose = stage_scene(sim, hand, obj)
+    wrist = compose(object_pose, np.asarray(grasp.wrist_pose, dtype=np.float64))
+    q_grasp = d.apply_couplings(grasp.q)
+    q_open = np.where(open_joint_mask(d, config.thumb_keep), np.asarray(d.open_pose), q_grasp)
+    sim.set_hand_state(q_open[None], wrist[None])
+    sim.set_wrist_targets(wrist[None])
+    try:
+        frozen, steps = _close(sim, d, q_open, q_grasp, config)
+    except SimulationError as error:
+        raise SynthesisError(
+            f"refine_grasp: {sim.name} blew up closing hand '{hand.name}' on object '{obj.object_id}': {error}",
+            reason="unstable",
+        ) from error
+    return _result(sim, d, grasp, frozen, steps, config, start)
+
+
+def refine_verdict(refined: RefinedGrasp, hand: HandModel, config: RefineConfig | None = None) -> str:
+    """'ok', or why the refined grasp is unusable: 'penetration', 'table_contact' or 'few_contacts'.
+
+    few_contacts: fewer than ``min_touching`` fingertips touched the object at the end or were frozen
+    on contact (``grasp.meta["touching_fingers"]``, else ``frozen``), or the thumb was not among them.
+    A fingertip that reaches its retargeted contact exactly touches with almost no force and is not
+    frozen, so frozen alone undercounts.
+    """
+    config = config or RefineConfig()
+    thumb = hand.description.finger_for_slot("thumb").name
+    touching = refined.grasp.meta.get("touching_fingers", refined.frozen)
+    if refined.max_penetration > config.max_penetration:
+        return "penetration"
+    if refined.table_contact:
+        return "table_contact"
+    if config.min_touching and (len(touching) < config.min_touching or thumb not in touching):
+        return "few_contacts"
+    return "ok"
+
+
+def _close(
+    sim: SimBackend, d: HandDescription, q_open: np.ndarray, q_grasp: np.ndarray, config: RefineConfig
+) -> tuple[np.ndarray, int]:
+    """Ramp (and creep) the targets, freeze fingers on contact; returns ((F,) frozen flags, steps taken)."""
+    fingers, tips = finger_joint_indices(d), list(d.tip_links)
+    frozen = np.zeros(len(fingers), dtype=bool)
+    held = np.zeros(d.num_joints, dtype=bool)  # joints whose targets are frozen
+    history = np.empty((config.max_steps + 1, d.num_joints))  # measured q per step
+    push = config.overshoot * closing_direction(q_open, q_grasp)
+    q_goal = d.apply_couplings(q_grasp + push)
+    targets, settled_at = q_open.copy(), None
+    for step in range(1, config.max_steps + 1):
+        targets = np.where(held, targets, d.apply_couplings(_schedule(q_open, q_grasp, push, step, config)))
+        sim.set_joint_targets(targets[None])
+        sim.step()
+        touching = (tip_forces(sim, tips) > config.gamma) & ~frozen
+        history[step] = sim.joint_state()[0][0]
+        if touching.any():
+            targets, frozen, held = _freeze(d, fingers, touching, history[step], targets, frozen, held)
+        if settled_at is None and (step >= config.ramp_steps or frozen.all()):
+            recent = history[max(1, step - config.stall_window) : step + 1]
+            settled_at = step if _all_done(fingers, frozen, recent, q_goal, config) else None
+        if settled_at is not None and step - settled_at >= config.settle_steps:
+            return frozen, step
+    return frozen, config.max_steps
+
+
+def _schedule(q_open: np.ndarray, q_grasp: np.ndarray, push: np.ndarray, step: int, c: RefineConfig) -> np.ndarray:
+    """(K,) targets at ``step``: open -> grasp over ``ramp_steps``, then ``push`` (K,) further over ``creep_steps``."""
+    if step <= c.ramp_steps:
+        return q_open + (q_grasp - q_open) * (step / c.ramp_steps)
+    return q_grasp + push * min(1.0, (step - c.ramp_steps) / c.creep_steps)
+
+
+def _freeze(
+    d: HandDescription,
+    fingers: list[np.ndarray],
+    touching: np.ndarray,
+    q: np.ndarray,
+    targets: np.ndarray,
+    frozen: np.ndarray,
+    held: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``q_d(t+) = q(t-)`` for the joints of every finger in ``touching``; couplings re-applied."""
+    targets, held = targets.copy(), held.copy()
+    for f in np.flatnonzero(touching):
+        targets[fingers[f]] = q[fingers[f]]
+        held[fingers[f]] = True
+    return d.apply_couplings(targets), frozen | touching, held
+
+
+def _all_done(
+    fingers: list[np.ndarray], frozen: np.ndarray, recent: np.ndarray, q_goal: np.ndarray, c: RefineConfig
+) -> bool:
+    """Every finger frozen, within ``settle_tolerance`` of its goal, or stalled.
+
+    recent: (<= stall_window + 1, K) measured joints of the last steps, oldest first. Stalled: a full
+    window in which no joint of the finger moved more than ``stall_motion`` (blocked by a link other
+    than its tip, so never frozen).
+    """
+    q, moved = recent[-1], np.abs(recent - recent[-1]).max(axis=0)
+    full = len(recent) > c.stall_window
+    return all(
+        frozen[f]
+        or np.abs(q[idx] - q_goal[idx]).max() < c.settle_tolerance
+        or (full and moved[idx].max() < c.stall_motion)
+        for f, idx in enumerate(fingers)
+    )
+
+
+def _result(
+    sim: SimBackend,
+    d: HandDescription,
+    grasp: Grasp,
+    frozen: np.ndarray,
+    steps: int,
+    config: RefineConfig,
+    start: float,
+) -> RefinedGrasp:
+    """The measured final state as a RefinedGrasp (base pose in the object's final frame)."""
+    q = sim.joint_state()[0][0]
+    object_pose = sim.object_pose()[0]
+    contacts = hand_contacts(sim, config.table_force)
+    names = tuple(f.name for f, hit in zip(d.fingers, frozen, strict=True) if hit)
+    touching = tuple(
+        f.name for f, hit in zip(d.fingers, frozen, strict=True) if hit or f.tip_link in contacts.object_links
+    )
+    meta = {
+        **grasp.meta,
+        "refine_steps": steps,
+        "object_pose_after_refine": object_pose.tolist(),
+        "touching_fingers": touching,
+    }
+    refined = Grasp(hand=grasp.hand, wrist_pose=relative(object_pose, sim.wrist_pose()[0]), q=q, meta=meta)
+    return RefinedGrasp(
+        grasp=refined,
+        max_penetration=contacts.depth,
+        table_contact=contacts.table,
+        frozen=names,
+        seconds=time.perf_counter() - start,
+    )

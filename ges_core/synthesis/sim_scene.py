@@ -1,0 +1,160 @@
+"""Shared simulator plumbing of refinement and validation: staging a scene, frames, fingertip reads.
+
+Both steps run one grasp in env 0 of a :class:`ges_core.sim.SimBackend` with ``num_envs == 1``. The
+object rests on the table (``load_object(obj)`` with no pose), so its resting frame is the world
+frame up to the backend's rest margin; grasps are given in the object frame and mapped to the world
+through the object's pose read right after loading.
+"""
+
+from __future__ import annotations
+
+import weakref
+from dataclasses import dataclass
+
+import numpy as np
+
+from ges_core.errors import ConfigError, SimulationError
+from ges_core.hand import HandDescription, HandModel
+from ges_core.objects.asset import ObjectAsset
+from ges_core.sim import SimBackend
+from ges_core.synthesis.types import Grasp
+from ges_core.transforms import matrix_to_pose, pose_to_matrix
+
+__all__ = [
+    "TOUCH_SEPARATION",
+    "HandContacts",
+    "check_grasp",
+    "closing_direction",
+    "compose",
+    "finger_joint_indices",
+    "hand_contacts",
+    "interpolate_pose",
+    "relative",
+    "stage_scene",
+    "tip_forces",
+    "tip_rule",
+]
+
+TOUCH_SEPARATION = 5e-4
+"""m: a listed hand-table or hand-object pair closer than this touches (both backends' own touching distance)."""
+
+_LOADED: weakref.WeakKeyDictionary[SimBackend, str] = weakref.WeakKeyDictionary()
+"""Which hand these helpers loaded into which backend (a backend takes one hand for its lifetime)."""
+
+
+def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset) -> np.ndarray:
+    """Load ``hand`` (floating, once per backend) and ``obj`` (resting on the table); return the object pose.
+
+    Returns (7,) the object's pose in the world right after loading, position m + quaternion wxyz.
+    A backend keeps the hand between calls; the object is replaced on every call.
+    """
+    if sim.num_envs != 1:
+        raise ConfigError(
+            f"{sim.name}: refinement and validation run one grasp in one scene, but the backend has "
+            f"num_envs={sim.num_envs}; build it with SceneConfig(num_envs=1)"
+        )
+    loaded = _LOADED.get(sim)
+    if loaded is None:
+        sim.load_hand(hand, floating=True)
+        _LOADED[sim] = hand.name
+    elif loaded != hand.name:
+        raise SimulationError(
+            f"{sim.name}: this backend already holds hand '{loaded}'; build a new backend for hand '{hand.name}'"
+        )
+    sim.load_object(obj)
+    return sim.object_pose()[0]
+
+
+def check_grasp(description: HandDescription, grasp: Grasp, what: str) -> None:
+    """ConfigError unless ``grasp`` belongs to this hand and holds a finite (7,) pose and (K,) joints."""
+    q, pose = np.asarray(grasp.q, dtype=np.float64), np.asarray(grasp.wrist_pose, dtype=np.float64)
+    problems = []
+    if grasp.hand != description.name:
+        problems.append(f"it is for hand '{grasp.hand}', not '{description.name}'")
+    if q.shape != (description.num_joints,):
+        problems.append(f"q has shape {q.shape}, expected ({description.num_joints},) in joint_names order")
+    if pose.shape != (7,):
+        problems.append(f"wrist_pose has shape {pose.shape}, expected (7,) x, y, z, qw, qx, qy, qz")
+    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(pose))):
+        problems.append("it holds NaN or inf values")
+    elif pose.shape == (7,) and np.linalg.norm(pose[3:]) < 1e-9:
+        problems.append("its wrist quaternion is zero")
+    if problems:
+        raise ConfigError(f"{what}: bad grasp: {'; '.join(problems)}; check the step that produced it")
+
+
+def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(7,) pose ``a * b``: ``b`` given in ``a``'s frame, returned in ``a``'s parent frame."""
+    return matrix_to_pose(pose_to_matrix(a) @ pose_to_matrix(b))
+
+
+def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(7,) pose of ``b`` in the frame ``a`` (both (7,) in one parent frame): ``a^-1 * b``."""
+    return matrix_to_pose(np.linalg.inv(pose_to_matrix(a)) @ pose_to_matrix(b))
+
+
+def interpolate_pose(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
+    """(7,) pose ``t`` of the way from ``a`` to ``b``: linear position, spherical (slerp) rotation."""
+    qa, qb = a[3:] / np.linalg.norm(a[3:]), b[3:] / np.linalg.norm(b[3:])
+    dot = float(qa @ qb)
+    if dot < 0.0:  # the shorter way round
+        qb, dot = -qb, -dot
+    angle = np.arccos(min(1.0, dot))
+    if angle < 1e-6:
+        quat = qa + t * (qb - qa)
+    else:
+        quat = (np.sin((1 - t) * angle) * qa + np.sin(t * angle) * qb) / np.sin(angle)
+    return np.concatenate([a[:3] + t * (b[:3] - a[:3]), quat / np.linalg.norm(quat)])
+
+
+def closing_direction(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:
+    """(K,) sign of each joint's motion from ``q_from`` to ``q_to``; 0 for joints that move less than 1 mrad."""
+    delta = np.asarray(q_to, dtype=np.float64) - np.asarray(q_from, dtype=np.float64)
+    return np.sign(delta) * (np.abs(delta) > 1e-3)
+
+
+def finger_joint_indices(description: HandDescription) -> list[np.ndarray]:
+    """Per finger (``fingers`` order), the indices of its joints in ``joint_names``."""
+    return [description.joint_index(f.joints) for f in description.fingers]
+
+
+def tip_forces(sim: SimBackend, tips: list[str]) -> np.ndarray:
+    """(F,) magnitude of the object's contact force on each fingertip link, N (env 0)."""
+    return np.linalg.norm(sim.contact_forces(tips, "object")[0], axis=-1)
+
+
+def tip_rule(forces: np.ndarray, thumb: int, min_force: float, min_tips: int, require_thumb: bool) -> bool:
+    """Whether fingertip forces (F,) N count as a fingertip grasp: ``min_tips`` tips above ``min_force``,
+    the thumb (index ``thumb``) among them if ``require_thumb``."""
+    touching = forces > min_force
+    return bool(int(touching.sum()) >= min_tips and (touching[thumb] or not require_thumb))
+
+
+@dataclass(frozen=True)
+class HandContacts:
+    """The hand's contacts in env 0 at one moment (from the slow pair list)."""
+
+    depth: float
+    """Deepest hand-object penetration, m (>= 0)."""
+    table: bool
+    """Some hand link touches the table."""
+    object_links: frozenset[str]
+    """Hand links touching the object (closer than :data:`TOUCH_SEPARATION` or pushing)."""
+
+
+def hand_contacts(sim: SimBackend, table_force: float) -> HandContacts:
+    """Penetration, table contact and object-touching links of the hand in env 0.
+
+    A hand-table pair touches when closer than :data:`TOUCH_SEPARATION` or pushing harder than
+    ``table_force`` N. Reads the slow pair list: call it once, not every step.
+    """
+    depth, table, links = 0.0, False, set()
+    for pair in sim.contact_pairs(0):
+        bodies = {pair.body_a, pair.body_b}
+        if bodies == {"hand", "object"}:
+            depth = max(depth, -pair.separation)
+            if pair.separation < TOUCH_SEPARATION or pair.force > 0.0:
+                links.add(pair.link_a if pair.body_a == "hand" else pair.link_b)
+        elif bodies == {"hand", "table"} and (pair.separation < TOUCH_SEPARATION or pair.force > table_force):
+            table = True
+    return HandContacts(depth, table, frozenset(links))

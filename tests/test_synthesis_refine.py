@@ -1,0 +1,335 @@
+"""Collision-aware refinement and the pre-grasp: pure checks, a fake backend for error paths, real engines.
+
+The grasps come from the foundation's sim check (``grasp_start_pose`` + ``closed_pose``), not from the
+other Stage 1 steps, so these tests stand alone. ``test_synthesis_validate.py`` reuses the helpers.
+"""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+import torch
+
+from ges_core.errors import ConfigError, SimulationError, SynthesisError
+from ges_core.kinematics import HandKinematics
+from ges_core.objects.simple import box_asset
+from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig, SimBackend
+from ges_core.sim_check import grasp_start_pose
+from ges_core.synthesis.pregrasp import PregraspConfig, open_joint_mask, pregrasp
+from ges_core.synthesis.refine import RefineConfig, refine_grasp, refine_verdict
+from ges_core.synthesis.sim_scene import closing_direction, compose, interpolate_pose, relative, stage_scene
+from ges_core.synthesis.types import Grasp, RefinedGrasp
+
+REGISTRY = load_registry(autoload=False)
+HANDS = tuple(REGISTRY.names("hand"))
+SIMS = tuple(REGISTRY.names("sim"))
+BOX_HALF_EXTENTS = (0.025, 0.035, 0.05)
+"""The sim check's default box: 5 x 7 x 10 cm, fingers close across its 5 cm side."""
+DOWN = np.array([0.0, 0.0, -1.0])
+"""Approach direction of the palm-down grasps below, object frame."""
+
+
+def box_object():
+    """The 0.105 kg box every test grasps (resting frame: bottom face at z = 0)."""
+    return box_asset(BOX_HALF_EXTENTS, density=300.0, object_id="test/refine_box")
+
+
+def top_grasp(hand, height: float = 0.07, closure: float = 0.5, shift=(0.0, 0.0)) -> Grasp:
+    """Palm-down grasp of the test box: closed fingertips centred at (shift, height), q = closed_pose(closure).
+
+    closure 0.5 is the sim check's geometry made gentler: at 0.9 the Allegro palm sits 38 mm inside
+    the box; at 0.5 the open hand clears it and index, middle and thumb close on its sides.
+    """
+    centre = np.array([shift[0], shift[1], height])
+    d = hand.description
+    return Grasp(hand=hand.name, wrist_pose=grasp_start_pose(hand, centre, closure), q=d.closed_pose(closure))
+
+
+@pytest.fixture(scope="module")
+def allegro():
+    return REGISTRY.build_hand("allegro")
+
+
+class ExplodingBackend(SimBackend):
+    """A backend double: does nothing, reads zeros and raises SimulationError once stepped past ``explode_after``."""
+
+    name = "exploding"
+
+    def __init__(self, config: SceneConfig | None = None, *, explode_after: int = 0) -> None:
+        super().__init__(config or SceneConfig())
+        self.explode_after, self.steps, self.k = explode_after, 0, 0
+
+    def load_hand(self, hand, *, floating=True):
+        self.k = hand.description.num_joints
+
+    def load_object(self, obj, pose=None, env_ids=None):
+        pass
+
+    def set_joint_targets(self, q):
+        pass
+
+    def set_wrist_targets(self, pose):
+        pass
+
+    def set_hand_state(self, q, wrist_pose=None):
+        pass
+
+    def set_object_pose(self, pose):
+        pass
+
+    def step(self, n=1):
+        self.steps += n
+        if self.steps > self.explode_after:
+            raise SimulationError("exploding env 0: non-finite object velocity (nan); the state blew up")
+
+    def joint_state(self):
+        return np.zeros((self.num_envs, self.k)), np.zeros((self.num_envs, self.k))
+
+    def wrist_pose(self):
+        return np.tile([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], (self.num_envs, 1))
+
+    def link_poses(self, links):
+        return np.tile([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], (self.num_envs, len(links), 1))
+
+    def contact_forces(self, links, partner="object"):
+        return np.zeros((self.num_envs, len(links), 3))
+
+    def object_pose(self):
+        return self.wrist_pose()
+
+    def contact_pairs(self, env_id=0):
+        return []
+
+    def reset(self):
+        pass
+
+    def close(self):
+        pass
+
+
+# -- pre-grasp (pure) -------------------------------------------------------------------------
+def test_pregrasp_backs_off_along_the_approach_and_keeps_the_rotation(allegro):
+    grasp = top_grasp(allegro)
+    approach = np.array([1.0, 2.0, -2.0])  # not unit: pregrasp normalizes it
+    pre = pregrasp(allegro, grasp, approach)
+    np.testing.assert_allclose(pre.wrist_pose[:3], grasp.wrist_pose[:3] - 0.02 * approach / 3.0, atol=1e-12)
+    np.testing.assert_allclose(pre.wrist_pose[3:], grasp.wrist_pose[3:])
+    assert pre.meta["approach"] == pytest.approx((approach / 3.0).tolist())
+
+
+@pytest.mark.parametrize("hand_name", HANDS)
+def test_pregrasp_opens_the_fingers_but_keeps_thumb_rotation_and_wrist(hand_name):
+    hand = REGISTRY.build_hand(hand_name)
+    d = hand.description
+    grasp = top_grasp(hand, closure=0.7)
+    pre = pregrasp(hand, grasp, DOWN)
+    thumb = d.finger_for_slot("thumb")
+    finger_joints = {j for f in d.fingers for j in f.joints}
+    for k, name in enumerate(d.joint_names):
+        kept = name == thumb.joints[0] or name not in finger_joints  # thumb rotation; Shadow's wrist joints
+        assert pre.q[k] == pytest.approx(grasp.q[k] if kept else d.open_pose[k]), name
+    # independent check with forward kinematics: the opened fingertips spread away from the thumb tip
+    kin = HandKinematics.from_hand(hand)
+    offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
+    tips = kin.points(torch.as_tensor(np.stack([grasp.q, pre.q])), list(d.tip_links), offsets).numpy()
+    i = [f.slot for f in d.fingers].index("thumb")
+    spread = np.linalg.norm(np.delete(tips, i, axis=1) - tips[:, i : i + 1], axis=-1).mean(axis=1)
+    assert spread[1] > spread[0] + 0.01
+
+
+def test_pregrasp_half_open_respects_couplings():
+    shadow = REGISTRY.build_hand("shadow")
+    d = shadow.description
+    grasp = top_grasp(shadow, closure=0.8)
+    pre = pregrasp(shadow, grasp, DOWN, PregraspConfig(open_fraction=0.5, backoff=0.0))
+    np.testing.assert_allclose(pre.wrist_pose, grasp.wrist_pose)
+    assert d.couplings, "the Shadow hand declares its tendon couplings"
+    for c in d.couplings:
+        follower, leader = d.joint_index([c.follower, c.leader])
+        assert pre.q[follower] == pytest.approx(min(c.ratio * pre.q[leader], d.joint_limits[follower][1]))
+    mask, open_q = open_joint_mask(d, thumb_keep=1), np.asarray(d.open_pose)
+    assert np.all(np.abs(pre.q - open_q)[mask] <= np.abs(grasp.q - open_q)[mask] + 1e-12)
+
+
+@pytest.mark.parametrize(
+    ("change", "message"),
+    [
+        ({"approach": np.zeros(3)}, "approach must be a finite, non-zero (3,) direction"),
+        ({"approach": np.array([0.0, np.nan, 1.0])}, "approach must be a finite, non-zero (3,) direction"),
+        ({"hand": "shadow"}, "it is for hand 'shadow', not 'allegro'"),
+        ({"q": np.zeros(3)}, "q has shape (3,), expected (16,)"),
+        ({"q": np.full(16, np.nan)}, "NaN or inf"),
+        ({"wrist_pose": np.zeros(7)}, "wrist quaternion is zero"),
+        ({"wrist_pose": np.zeros((4, 4))}, "wrist_pose has shape (4, 4), expected (7,)"),
+    ],
+)
+def test_pregrasp_rejects_bad_input(allegro, change, message):
+    grasp = top_grasp(allegro)
+    approach = change.pop("approach", DOWN)
+    fields = {"hand": grasp.hand, "wrist_pose": grasp.wrist_pose, "q": grasp.q, **change}
+    with pytest.raises(ConfigError) as info:
+        pregrasp(allegro, Grasp(**fields), approach)
+    assert message in str(info.value)
+
+
+# -- frames (pure) ----------------------------------------------------------------------------
+def test_pose_helpers_against_scipy():
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(0)
+    a, b = (np.concatenate([rng.normal(size=3), np.roll(Rotation.random(random_state=s).as_quat(), 1)]) for s in (1, 2))
+
+    def canonical(pose):  # q and -q are one rotation: compare with w >= 0
+        return np.concatenate([pose[:3], pose[3:] * np.sign(pose[3])])
+
+    np.testing.assert_allclose(canonical(compose(a, relative(a, b))), canonical(b), atol=1e-12)
+    np.testing.assert_allclose(canonical(interpolate_pose(a, b, 0.0)), canonical(a), atol=1e-12)
+    np.testing.assert_allclose(canonical(interpolate_pose(a, b, 1.0)), canonical(b), atol=1e-12)
+    mid = interpolate_pose(a, b, 0.5)
+    ra, rb, rm = (Rotation.from_quat(np.roll(p[3:], -1)) for p in (a, b, mid))
+    assert (ra.inv() * rm).magnitude() == pytest.approx((ra.inv() * rb).magnitude() / 2)
+    np.testing.assert_allclose(mid[:3], (a[:3] + b[:3]) / 2)
+
+
+# -- refine_verdict and error paths (no engine) -----------------------------------------------
+@pytest.mark.parametrize(
+    ("depth", "table", "frozen", "verdict"),
+    [
+        (0.001, False, ("index", "thumb"), "ok"),
+        (0.010, False, ("index", "thumb"), "penetration"),
+        (0.001, True, ("index", "thumb"), "table_contact"),
+        (0.001, False, ("index", "middle"), "few_contacts"),  # no thumb
+        (0.001, False, ("thumb",), "few_contacts"),
+    ],
+)
+def test_refine_verdict(allegro, depth, table, frozen, verdict):
+    refined = RefinedGrasp(grasp=top_grasp(allegro), max_penetration=depth, table_contact=table, frozen=frozen)
+    assert refine_verdict(refined, allegro) == verdict
+
+
+def test_refine_verdict_counts_tips_that_touch_without_freezing(allegro):
+    """A tip that reaches its retargeted contact exactly touches with ~0 N and is never frozen."""
+    grasp = top_grasp(allegro)
+    touching = Grasp(
+        hand=grasp.hand, wrist_pose=grasp.wrist_pose, q=grasp.q, meta={"touching_fingers": ("index", "thumb")}
+    )
+    assert (
+        refine_verdict(RefinedGrasp(grasp=touching, max_penetration=0.0, table_contact=False, frozen=()), allegro)
+        == "ok"
+    )
+
+
+def test_refinement_blow_up_becomes_a_synthesis_error(allegro):
+    with pytest.raises(SynthesisError) as info:
+        refine_grasp(ExplodingBackend(explode_after=3), allegro, box_object(), top_grasp(allegro))
+    assert info.value.reason == "unstable"
+    assert "exploding blew up closing hand 'allegro' on object 'test/refine_box'" in str(info.value)
+    assert "non-finite object velocity" in str(info.value)
+
+
+def test_scene_needs_one_env(allegro):
+    with pytest.raises(ConfigError) as info:
+        stage_scene(ExplodingBackend(SceneConfig(num_envs=2)), allegro, box_object())
+    assert "num_envs=2; build it with SceneConfig(num_envs=1)" in str(info.value)
+
+
+def test_scene_keeps_one_hand_per_backend(allegro):
+    sim = ExplodingBackend()
+    stage_scene(sim, allegro, box_object())
+    stage_scene(sim, allegro, box_object())  # the same hand again: fine, loaded once
+    with pytest.raises(SimulationError) as info:
+        stage_scene(sim, REGISTRY.build_hand("shadow"), box_object())
+    assert "already holds hand 'allegro'; build a new backend for hand 'shadow'" in str(info.value)
+
+
+# -- real engines -----------------------------------------------------------------------------
+def _shift(refined: RefinedGrasp) -> float:
+    """How far the object's origin moved during refinement, m."""
+    return float(np.linalg.norm(refined.grasp.meta["object_pose_after_refine"][:2]))
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_refinement_freezes_fingers_on_contact(allegro, sim_name):
+    d, config = allegro.description, RefineConfig()
+    grasp = top_grasp(allegro)
+    with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+        refined = refine_grasp(sim, allegro, box_object(), grasp, config)
+        start = time.perf_counter()
+        again = refine_grasp(sim, allegro, box_object(), grasp, config)
+        ms = (time.perf_counter() - start) * 1e3
+    print(f"\n{sim_name}: refinement {ms:.0f} ms, {refined.grasp.meta['refine_steps']} steps, frozen {refined.frozen}")
+    assert refine_verdict(refined, allegro, config) == "ok", refined
+    assert {"thumb", "index"} <= set(refined.frozen) <= set(refined.grasp.meta["touching_fingers"])
+    assert refined.max_penetration < 0.002 and not refined.table_contact
+    assert refined.grasp.meta["refine_steps"] < config.max_steps  # stopped: every finger frozen or settled
+    q_open = np.where(open_joint_mask(d, config.thumb_keep), np.asarray(d.open_pose), grasp.q)
+    goal = grasp.q + config.overshoot * closing_direction(q_open, grasp.q)
+    for finger in d.fingers:  # frozen fingers stopped short of the goal, free ones reached it
+        idx = d.joint_index(finger.joints)
+        gap = np.abs(refined.grasp.q[idx] - goal[idx]).max()
+        reached = gap < 2 * config.settle_tolerance  # measured: frozen fingers stop 0.09-0.26 rad short
+        assert reached != (finger.name in refined.frozen), (finger.name, gap)
+    # the wrist drive held the base at the grasp pose (object frame in and out)
+    np.testing.assert_allclose(refined.grasp.wrist_pose[:3], grasp.wrist_pose[:3], atol=3e-3)
+    # a reused backend gives the same answer as a fresh one
+    np.testing.assert_allclose(again.grasp.q, refined.grasp.q, atol=1e-6)
+    assert again.frozen == refined.frozen
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_freezing_keeps_the_object_in_place(allegro, sim_name):
+    """The same closing with freezing switched off (gamma huge) shoves the box around."""
+    with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+        frozen = refine_grasp(sim, allegro, box_object(), top_grasp(allegro))
+        pushing = refine_grasp(sim, allegro, box_object(), top_grasp(allegro), RefineConfig(gamma=1e9))
+    assert pushing.frozen == ()
+    assert _shift(frozen) < 0.002
+    assert _shift(pushing) > 0.005 and _shift(pushing) > 3 * _shift(frozen)
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_creep_brings_fingertips_that_stop_short_onto_the_object(allegro, sim_name):
+    """A retargeted pose a little short of the surface: without the creep no tip ever touches."""
+    d = allegro.description
+    with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+        touching = refine_grasp(sim, allegro, box_object(), top_grasp(allegro), RefineConfig(overshoot=0.0)).grasp
+        q_open = np.where(open_joint_mask(d, 1), np.asarray(d.open_pose), touching.q)
+        q_short = touching.q - 0.05 * closing_direction(q_open, touching.q)  # each joint 0.05 rad more open
+        short = Grasp(hand=touching.hand, wrist_pose=touching.wrist_pose, q=q_short)
+        stops = refine_grasp(sim, allegro, box_object(), short, RefineConfig(overshoot=0.0))
+        creeps = refine_grasp(sim, allegro, box_object(), short)
+    assert stops.grasp.meta["touching_fingers"] == () and refine_verdict(stops, allegro) == "few_contacts"
+    assert {"index", "thumb"} <= set(creeps.frozen) and refine_verdict(creeps, allegro) == "ok"
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_hand_beside_the_object_freezes_nothing(allegro, sim_name):
+    grasp = top_grasp(allegro, shift=(0.0, 0.15))
+    with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+        refined = refine_grasp(sim, allegro, box_object(), grasp)
+    assert refined.frozen == () == refined.grasp.meta["touching_fingers"]
+    assert refine_verdict(refined, allegro) == "few_contacts"
+    assert refined.max_penetration == 0.0 and not refined.table_contact
+    config, d = RefineConfig(), allegro.description
+    q_open = np.where(open_joint_mask(d, config.thumb_keep), np.asarray(d.open_pose), grasp.q)
+    goal = grasp.q + config.overshoot * closing_direction(q_open, grasp.q)  # every finger free: all reach it
+    np.testing.assert_allclose(refined.grasp.q, goal, atol=2 * config.settle_tolerance)
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+@pytest.mark.parametrize("hand_name", HANDS)
+def test_refinement_touches_without_penetrating_for_every_hand(hand_name, sim_name):
+    hand = REGISTRY.build_hand(hand_name)
+    with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+        refined = refine_grasp(sim, hand, box_object(), top_grasp(hand, height=0.08))
+    print(f"\n{hand_name} in {sim_name}: frozen {refined.frozen}, {refined.max_penetration * 1e3:.2f} mm")
+    assert len(refined.frozen) >= 2
+    assert refined.max_penetration < 0.003 and not refined.table_contact

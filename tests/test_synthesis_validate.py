@@ -1,0 +1,175 @@
+"""Physics validation: the verdict rules, the squeeze, agreement, and real lifts with negative controls.
+
+Every grasp is validated in every simulator once (module fixture); the tests then check the good
+grasps succeed, each negative control fails for the right reason, and the simulators agree.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from test_synthesis_refine import DOWN, REGISTRY, SIMS, ExplodingBackend, box_object, top_grasp
+
+from ges_core.errors import ConfigError
+from ges_core.sim import SceneConfig
+from ges_core.synthesis.pregrasp import pregrasp
+from ges_core.synthesis.refine import refine_grasp, refine_verdict
+from ges_core.synthesis.sim_scene import tip_rule
+from ges_core.synthesis.types import Grasp, ValidationResult
+from ges_core.synthesis.validate import HoldRecord, ValidateConfig, agreement, classify, squeeze_targets, validate_grasp
+
+CONFIG = ValidateConfig()
+
+
+@pytest.fixture(scope="module")
+def allegro():
+    return REGISTRY.build_hand("allegro")
+
+
+# -- verdict rules (pure) ---------------------------------------------------------------------
+def _record(touched=True, lifted=True, high=1.0, tips=1.0, n=200) -> HoldRecord:
+    """A run whose object was high for the first ``high`` share of the hold and tip-held for ``tips``."""
+    steps = np.arange(n)
+    return HoldRecord(touched, lifted, steps < high * n, steps < tips * n)
+
+
+@pytest.mark.parametrize(
+    ("record", "reason"),
+    [
+        (_record(), "success"),
+        (_record(tips=0.9), "success"),  # a chattering contact now and then is tolerated
+        (_record(tips=0.85), "palm_only"),
+        (_record(tips=0.0), "palm_only"),
+        (_record(touched=False, tips=0.0), "palm_only"),  # carried without any fingertip
+        (_record(high=0.5), "dropped"),
+        (_record(lifted=False, high=0.0, tips=0.0), "not_lifted"),
+        (_record(touched=False, lifted=False, high=0.0, tips=0.0), "no_contact"),
+    ],
+)
+def test_classify(record, reason):
+    assert classify(record, CONFIG) == reason
+
+
+def test_tip_rule_needs_two_tips_with_the_thumb():
+    forces = np.array([0.0, 0.3, 0.3, 0.0])  # index, middle, ring, thumb (Allegro order)
+    assert not tip_rule(forces, thumb=3, min_force=0.05, min_tips=2, require_thumb=True)
+    assert tip_rule(forces, thumb=3, min_force=0.05, min_tips=2, require_thumb=False)
+    forces[3] = 0.06
+    assert tip_rule(forces, thumb=3, min_force=0.05, min_tips=2, require_thumb=True)
+    assert not tip_rule(forces, thumb=3, min_force=0.05, min_tips=4, require_thumb=True)
+
+
+def test_squeeze_goes_past_the_grasp_by_a_torque_bounded_angle(allegro):
+    d = allegro.description
+    q_grasp = d.closed_pose(0.5)
+    q_pre = pregrasp(allegro, top_grasp(allegro), DOWN).q
+    close = squeeze_targets(d, q_pre, q_grasp, CONFIG)
+    moved = np.abs(q_grasp - q_pre) > 1e-3
+    # Allegro's Kp = 400 N·m/rad: 1 N·m would be 2.5 mrad, so the 0.05 rad floor applies
+    np.testing.assert_allclose((close - q_grasp)[moved], 0.05 * np.sign(q_grasp - q_pre)[moved])
+    np.testing.assert_allclose(close[~moved], q_grasp[~moved])  # thumb rotation: not pushed
+
+    shadow = REGISTRY.build_hand("shadow").description
+    q_grasp = shadow.closed_pose(0.5)
+    close = squeeze_targets(shadow, np.asarray(shadow.open_pose), q_grasp, CONFIG)
+    ffj1, ffj2 = shadow.joint_index(["FFJ1", "FFJ2"])
+    assert close[ffj2] - q_grasp[ffj2] == pytest.approx(0.6)  # Kp = 1: 1 rad, capped at max_squeeze
+    assert close[ffj1 + 1] == pytest.approx(min(1.141844 * close[ffj1], 1.571))  # FFJ0 follows FFJ1
+
+
+def test_agreement():
+    ok, bad = ValidationResult(True, "success"), ValidationResult(False, "no_contact")
+    assert agreement([ok, bad, ok, bad], [ok, bad, bad, bad]) == 0.75
+    assert agreement([ok], [ok]) == 1.0
+    with pytest.raises(ConfigError) as info:
+        agreement([ok, bad], [ok])
+    assert "equally long, non-empty result lists" in str(info.value) and "got 2 and 1" in str(info.value)
+    with pytest.raises(ConfigError):
+        agreement([], [])
+
+
+def test_blow_up_is_recorded_as_unstable_not_raised(allegro):
+    grasp = top_grasp(allegro)
+    sim = ExplodingBackend(explode_after=100)  # blows up while closing
+    result = validate_grasp(sim, allegro, box_object(), grasp, pregrasp(allegro, grasp, DOWN))
+    assert not result.success and result.reason == "unstable"
+    assert result.flags == {"reached_grasp": False, "fingertips_touching": False, "lifted": False, "held": False}
+    assert sim.steps == 101
+
+
+def test_validation_rejects_a_grasp_of_another_hand(allegro):
+    grasp = top_grasp(allegro)
+    foreign = Grasp(hand="shadow", wrist_pose=grasp.wrist_pose, q=grasp.q)
+    with pytest.raises(ConfigError) as info:
+        validate_grasp(ExplodingBackend(), allegro, box_object(), grasp, foreign)
+    assert "validate_grasp pregrasp: bad grasp: it is for hand 'shadow', not 'allegro'" in str(info.value)
+
+
+# -- real engines -----------------------------------------------------------------------------
+def _cases(hand) -> dict[str, tuple[Grasp, bool]]:
+    """name -> (grasp, refine it first?). Two good grasps and three negative controls."""
+    d = hand.description
+    good = top_grasp(hand, height=0.07)
+    open_q = np.asarray(d.open_pose)
+    index = d.joint_index(d.finger_for_slot("index").joints)
+    single = open_q.copy()
+    single[index] = good.q[index]  # only the index finger flexes
+    return {
+        "good": (good, True),
+        "good_high": (top_grasp(hand, height=0.09), True),
+        "open_no_closing": (Grasp(hand=hand.name, wrist_pose=good.wrist_pose, q=open_q), False),
+        "beside": (top_grasp(hand, height=0.07, shift=(0.0, 0.15)), False),
+        "single_finger": (Grasp(hand=hand.name, wrist_pose=good.wrist_pose, q=single), False),
+    }
+
+
+@pytest.fixture(scope="module")
+def validated(allegro) -> dict[str, dict[str, ValidationResult]]:
+    """sim -> case -> result; good grasps go through refinement first, controls as they are."""
+    out: dict[str, dict[str, ValidationResult]] = {}
+    for sim_name in SIMS:
+        out[sim_name] = {}
+        with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+            for name, (grasp, refine) in _cases(allegro).items():
+                if refine:
+                    refined = refine_grasp(sim, allegro, box_object(), grasp)
+                    assert refine_verdict(refined, allegro) == "ok", (sim_name, name, refined)
+                    grasp = refined.grasp
+                out[sim_name][name] = validate_grasp(sim, allegro, box_object(), grasp, pregrasp(allegro, grasp, DOWN))
+    return out
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+@pytest.mark.parametrize("case", ["good", "good_high"])
+def test_good_grasps_lift_and_hold(validated, sim_name, case):
+    result = validated[sim_name][case]
+    print(f"\n{sim_name} {case}: validation {result.seconds * 1e3:.0f} ms")
+    assert result.success and result.reason == "success", result
+    assert all(result.flags.values()), result.flags
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+@pytest.mark.parametrize(
+    ("case", "reasons"),
+    [
+        ("open_no_closing", {"no_contact", "not_lifted"}),
+        ("beside", {"no_contact"}),
+        ("single_finger", {"not_lifted", "palm_only", "dropped"}),
+    ],
+)
+def test_negative_controls_fail_for_the_right_reason(validated, sim_name, case, reasons):
+    result = validated[sim_name][case]
+    print(f"\n{sim_name} {case}: {result.reason} {result.flags}")
+    assert not result.success and result.reason in reasons, result
+    assert not result.flags["held"]
+
+
+@pytest.mark.sim
+def test_simulators_agree_on_clear_cases(validated):
+    names = list(_cases(REGISTRY.build_hand("allegro")))
+    a, b = ([validated[s][n] for n in names] for s in SIMS[:2])
+    rate = agreement(a, b)
+    print(f"\ncross-simulator agreement {SIMS[0]} vs {SIMS[1]} on {len(names)} grasps: {rate:.2f}")
+    assert rate >= 0.75
