@@ -37,7 +37,7 @@ class SimCheckConfig(BaseModel):
         (0.025, 0.035, 0.05), description="half extents of the box, metres (x along the fingers)"
     )
     box_density: float = Field(300.0, gt=0, description="kg/m^3 (0.1 kg for the default box)")
-    closure: float = Field(0.9, gt=0, le=1, description="fraction of the way to the closed pose the targets go")
+    closure: float = Field(0.7, gt=0, le=1, description="fraction of the way to the closed pose the targets go")
     settle_steps: int = Field(30, ge=0, description="steps before closing")
     close_steps: int = Field(180, ge=1, description="steps of closing (targets ramp linearly)")
     lift_steps: int = Field(120, ge=0, description="steps of lifting after closing")
@@ -84,8 +84,20 @@ class SimCheckReport:
         return "\n".join(lines)
 
 
-def grasp_start_pose(hand: HandModel, object_centre: np.ndarray, closure: float) -> np.ndarray:
-    """(7,) base-link pose that puts the palm down over ``object_centre`` with the closed fingertips around it."""
+TABLE_CLEARANCE = 0.025
+"""Metres every hand link origin stays above the table at the start (link geometry is ~1-2 cm thick)."""
+PALM_CLEARANCE = 0.005
+"""Metres the wrist-link origin stays above the object's top, so the palm does not start inside it."""
+
+
+def grasp_start_pose(
+    hand: HandModel, object_centre: np.ndarray, closure: float, object_top: float | None = None
+) -> np.ndarray:
+    """(7,) base-link pose: palm down over ``object_centre``, closed fingertips around it.
+
+    The hand is raised if needed so that its open pose clears the table by TABLE_CLEARANCE and,
+    when ``object_top`` (world z, m) is given, the palm clears the object's top.
+    """
     import torch
 
     from ges_core.kinematics import HandKinematics
@@ -93,9 +105,9 @@ def grasp_start_pose(hand: HandModel, object_centre: np.ndarray, closure: float)
     d = hand.description
     kin = HandKinematics.from_hand(hand)
     q = torch.as_tensor(np.stack([np.asarray(d.open_pose), d.closed_pose(closure)]))
-    base_to_wrist = kin.link_poses(q[:1], [d.wrist.link])[0, 0].numpy()
+    links = kin.link_poses(q[:1], kin.link_names)[0].numpy()  # (L, 4, 4) base frame, open pose
+    base_to_wrist = links[kin.link_names.index(d.wrist.link)]
     tips = kin.points(q[1:], list(d.tip_links), [f.tip_offset for f in d.fingers])[0].numpy()  # base frame
-    tips_wrist = (tips - base_to_wrist[:3, 3]) @ base_to_wrist[:3, :3]
     rot = rotation_between_frames(
         np.array(d.wrist.palm_normal),
         np.array(d.wrist.finger_direction),
@@ -104,8 +116,14 @@ def grasp_start_pose(hand: HandModel, object_centre: np.ndarray, closure: float)
     )
     world_wrist = np.eye(4)
     world_wrist[:3, :3] = rot
-    world_wrist[:3, 3] = object_centre - rot @ tips_wrist.mean(axis=0)
-    return matrix_to_pose(world_wrist @ np.linalg.inv(base_to_wrist))
+    world_wrist[:3, 3] = object_centre - rot @ ((tips - base_to_wrist[:3, 3]) @ base_to_wrist[:3, :3]).mean(axis=0)
+    world_base = world_wrist @ np.linalg.inv(base_to_wrist)
+    lowest = (world_base[:3, :3] @ links[:, :3, 3].T + world_base[:3, 3:4])[2].min()
+    rise = max(0.0, TABLE_CLEARANCE - lowest)
+    if object_top is not None:
+        rise = max(rise, object_top + PALM_CLEARANCE - world_wrist[2, 3])
+    world_base[2, 3] += rise
+    return matrix_to_pose(world_base)
 
 
 def build_check_object(config: SimCheckConfig) -> ObjectAsset:
@@ -123,15 +141,16 @@ def build_check_object(config: SimCheckConfig) -> ObjectAsset:
     return ObjectLibrary(LibraryConfig(sources=(source,), user_dir=user_dir)).get(config.object)
 
 
-def _object_centre(sim: SimBackend, obj: ObjectAsset) -> np.ndarray:
-    """(3,) world position of the centre of the object's bounding box, as it rests now."""
+def _object_bounds(sim: SimBackend, obj: ObjectAsset) -> np.ndarray:
+    """(2, 3) world-frame axis-aligned bounds of the object, as it rests now."""
     import trimesh
 
     from ges_core.transforms import pose_to_matrix
 
-    local = trimesh.load(obj.mesh_path, force="mesh").bounds.mean(axis=0)
+    vertices = trimesh.load(obj.mesh_path, force="mesh").vertices
     world = pose_to_matrix(sim.object_pose()[0])
-    return world[:3, :3] @ local + world[:3, 3]
+    points = vertices @ world[:3, :3].T + world[:3, 3]
+    return np.stack([points.min(axis=0), points.max(axis=0)])
 
 
 def run_sim_check(
@@ -147,7 +166,8 @@ def run_sim_check(
     n = sim.num_envs
     sim.load_hand(hand, floating=True)
     sim.load_object(obj)  # resting on the table at the origin
-    base = grasp_start_pose(hand, _object_centre(sim, obj), config.closure)
+    bounds = _object_bounds(sim, obj)
+    base = grasp_start_pose(hand, bounds.mean(axis=0), config.closure, object_top=bounds[1, 2])
     open_q, closed_q = np.asarray(d.open_pose), d.closed_pose(config.closure)
     sim.set_hand_state(np.tile(open_q, (n, 1)), np.tile(base, (n, 1)))
     if config.settle_steps:
