@@ -11,14 +11,14 @@ from ges_core import plugins as plugin_mod
 from ges_core.errors import PluginError, RegistrationError, UnknownNameError
 from ges_core.registry import Registry, load_registry
 
-LOCAL_HAND = '''
+LOCAL_HAND = """
 from ges_core import hookimpl
 from ges_core.specs import HandSpec
 
 @hookimpl
 def ges_register_hands(register):
     register(HandSpec(name="{name}", entry_point="x:y", description="local test hand"))
-'''
+"""
 
 
 def test_builtins_come_from_entry_points():

@@ -22,6 +22,7 @@ _COMMAND_MODULES = (
     "ges_core.cli.cmd_objects",
     "ges_core.cli.cmd_sim",
     "ges_core.cli.cmd_dataset",
+    "ges_core.cli.cmd_synth",
 )
 """Modules that add sub-commands, in ``--help`` order."""
 

@@ -323,9 +323,6 @@ class VectorRetargeter:
         return self.kinematics.points_and_jacobians(q, self.layout.tip_links, self.layout.offsets)
 
 
-
-
-
 def _finger_layout(d: HandDescription, dtype: torch.dtype) -> _FingerLayout:
     """Which fingers serve the slots, their joints (leaders only) and fingertip points."""
     followers = {c.follower for c in d.couplings}

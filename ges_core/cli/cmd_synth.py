@@ -1,0 +1,125 @@
+"""``ges demo``, ``ges synth`` and ``ges retarget``: run Stage 1 grasp synthesis from the command line."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from ges_core.errors import ConfigError
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``ges demo``, ``ges synth`` and ``ges retarget``."""
+    dp = sub.add_parser("demo", help="synthesize and validate grasps of ~20 built-in objects with both hands")
+    dp.add_argument("--config", type=Path, metavar="PATH", help="demo config (default configs/demo.yaml)")
+    _common(dp)
+    dp.add_argument("--out", metavar="DIR", help="output folder (default runs/demo)")
+    dp.set_defaults(func=run_demo_cmd)
+
+    sp = sub.add_parser("synth", help="generate a grasp dataset for chosen hands, objects and simulator")
+    sp.add_argument("--config", type=Path, metavar="PATH", help="synthesis config YAML (SynthesisConfig)")
+    _common(sp)
+    sp.add_argument("--hands", nargs="+", default=["shadow", "allegro"], metavar="HAND", help="hands (default both)")
+    sp.add_argument("--objects", nargs="+", metavar="ID", help="object ids (default: the whole library)")
+    sp.add_argument("--limit", type=int, metavar="N", help="only the first N objects")
+    sp.add_argument("--sim", metavar="NAME", help="simulator of refinement and validation (sets both)")
+    sp.add_argument("--pictures", type=Path, metavar="DIR", help="also draw a PNG per grasp into DIR")
+    sp.add_argument("--out", type=Path, required=True, metavar="DIR", help="dataset folder (created or resumed)")
+    sp.set_defaults(func=run_synth_cmd)
+
+    rp = sub.add_parser("retarget", help="retarget a dataset's stored contacts to another hand and validate")
+    rp.add_argument("dataset", type=Path, metavar="DATASET", help="dataset folder holding records of --from")
+    rp.add_argument("--from", dest="source_hand", required=True, metavar="HAND", help="hand whose contacts to reuse")
+    rp.add_argument("--to", dest="target_hand", required=True, metavar="HAND", help="hand to produce grasps for")
+    rp.add_argument("--out", type=Path, metavar="DIR", help="write the new records here (default: DATASET)")
+    rp.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    rp.add_argument("--no-progress", action="store_true", help="no progress bar")
+    rp.set_defaults(func=run_retarget_cmd)
+
+
+def _common(p: argparse.ArgumentParser) -> None:
+    p.add_argument("-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides", help="override a value")
+    p.add_argument("--workers", type=int, metavar="N", help="worker processes")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _registry(args: argparse.Namespace):
+    from ges_core.synthesis.pipeline import RegistrySpec
+
+    return RegistrySpec(args.registry, tuple(args.registry_overrides), tuple(args.no_plugin))
+
+
+def run_demo_cmd(args: argparse.Namespace) -> int:
+    """Run the demo and print its summary table."""
+    from ges_core.synthesis.run_demo import default_demo_config, run_demo
+
+    overrides = list(args.overrides)
+    overrides += [f"out={args.out}"] if args.out else []
+    overrides += [f"workers={args.workers}"] if args.workers else []
+    config = default_demo_config(args.config, tuple(overrides))
+    _check_objects(config.synthesis, config.object_ids())
+    print(run_demo(config, registry=_registry(args), progress=not args.no_progress))
+    return 0
+
+
+def run_synth_cmd(args: argparse.Namespace) -> int:
+    """Generate a dataset and print its table."""
+    from ges_core.config import load_config
+    from ges_core.synthesis.pipeline import SynthesisConfig, run_synthesis
+
+    overrides = list(args.overrides)
+    overrides += [f"refine_sim={args.sim}", f"validate_sims=[{args.sim}]"] if args.sim else []
+    config = load_config(SynthesisConfig, args.config, overrides)
+    ids = args.objects or [o.object_id for o in config.library.build().list()]
+    ids = ids[: args.limit] if args.limit else ids
+    _check_objects(config, ids)
+    run_synthesis(
+        ids, args.hands, config, args.out, workers=args.workers or 1, progress=not args.no_progress,
+        registry=_registry(args), pictures=args.pictures,
+    )  # fmt: skip
+    _print_table(args.out, {(o, h) for o in ids for h in args.hands})
+    return 0
+
+
+def run_retarget_cmd(args: argparse.Namespace) -> int:
+    """Retarget stored contacts of --from to --to; print a per-hand success table."""
+    from ges_core.config import parse_model
+    from ges_core.dataset import open_dataset
+    from ges_core.synthesis.pipeline import SynthesisConfig, run_synthesis
+
+    dataset = open_dataset(args.dataset)
+    if args.source_hand == args.target_hand:
+        raise ConfigError(f"ges retarget: --from and --to are both '{args.source_hand}'; name two different hands")
+    ids = [e["object_id"] for e in dataset.entries if e["hand"] == args.source_hand]
+    if not ids:
+        hands = sorted({e["hand"] for e in dataset.entries})
+        raise ConfigError(
+            f"dataset {args.dataset} holds no record of hand '{args.source_hand}' "
+            f"(it holds: {', '.join(hands) or 'none'})"
+        )
+    config = parse_model(SynthesisConfig, dataset.run_config, where=f"{args.dataset} run_config")
+    out = args.out or args.dataset
+    run_synthesis(
+        ids, [args.target_hand], config, out, workers=args.workers, progress=not args.no_progress,
+        registry=_registry(args), source=(str(args.dataset), args.source_hand),
+    )  # fmt: skip
+    wanted = {(o, h) for o in ids for h in (args.source_hand, args.target_hand)}
+    _print_table(args.dataset, wanted, extra=out if Path(out) != Path(args.dataset) else None)
+    return 0
+
+
+def _check_objects(config, ids: list[str]) -> None:
+    """UnknownObjectError (with close matches) for an id the configured library does not hold."""
+    library = config.library.build()
+    for oid in ids:
+        library.entry(oid)
+
+
+def _print_table(root: Path, wanted: set[tuple[str, str]], extra: Path | None = None) -> None:
+    from ges_core.dataset import open_dataset
+    from ges_core.synthesis.run_table import format_table, table_rows
+
+    records = [r for r in open_dataset(root) if r.key in wanted]
+    if extra is not None:
+        records += [r for r in open_dataset(extra) if r.key in wanted]
+    print(format_table(table_rows(records)))

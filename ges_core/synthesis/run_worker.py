@@ -1,0 +1,238 @@
+"""One pipeline task (a chunk of objects) in one process: the Stage 1 steps, in order, per object and hand.
+
+Used by :func:`ges_core.synthesis.pipeline.run_synthesis`, in the parent (``workers=1``) or in spawned
+worker processes. Hands, retargeters and the object library are built once per process; simulators
+once per task (one per hand and simulator; the hand is loaded once, each object replaces the last).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+from ges_core.dataset import GraspRecord, StepOutcome, software_versions
+from ges_core.errors import AssetError, SimulationError, SynthesisError
+from ges_core.synthesis.contacts import generate_contacts
+from ges_core.synthesis.pipeline import Task, object_seed
+from ges_core.synthesis.pregrasp import pregrasp
+from ges_core.synthesis.refine import refine_grasp, refine_verdict
+from ges_core.synthesis.retarget import GraspRetargeter
+from ges_core.synthesis.run_records import ObjectWork, build_record, contacts_from_record
+from ges_core.synthesis.sim_scene import stage_scene
+from ges_core.synthesis.types import Grasp
+from ges_core.synthesis.validate import validate_grasp
+
+__all__ = ["run_task"]
+
+_STATES: dict[int, _State] = {}
+"""Per-process cache: id of the run context -> built hands, retargeters and library."""
+
+
+def run_task(task: Task, context) -> list[GraspRecord]:
+    """Records of every (object, hand) pair of ``task``, object order then hand order."""
+    state = _state(context)
+    works = {oid: _contacts(state, oid) for oid, _ in task.pairs}
+    sims = _Sims(state)
+    records: dict[tuple[str, str], GraspRecord] = {}
+    try:
+        for hand in _hands_in_order(task):
+            todo = [works[oid] for oid, hands in task.pairs if hand in hands]
+            for work, result in zip(todo, _retarget(state, hand, todo), strict=True):
+                records[(work.object_id, hand)] = _finish(state, sims, hand, work, result)
+    finally:
+        sims.close()
+    return [_with_picture(state, records[(oid, h)]) for oid, hands in task.pairs for h in hands]
+
+
+@dataclass
+class _State:
+    """What a process builds once per run context."""
+
+    context: object
+    registry: object
+    library: object
+    hands: dict = field(default_factory=dict)
+    retargeters: dict = field(default_factory=dict)
+    renderer: object | None = None
+    source: object | None = None
+    versions: dict = field(default_factory=dict)
+
+    def hand(self, name: str):
+        if name not in self.hands:
+            self.hands[name] = self.registry.build_hand(name)
+        return self.hands[name]
+
+    def retargeter(self, name: str) -> GraspRetargeter:
+        if name not in self.retargeters:
+            self.retargeters[name] = GraspRetargeter(self.hand(name), self.context.config.retarget)
+        return self.retargeters[name]
+
+
+def _state(context) -> _State:
+    key = hash((context.config.model_dump_json(), context.registry, context.pictures, context.source))
+    if key not in _STATES:
+        cfg = context.config
+        state = _State(context, context.registry.load(), cfg.library.build())
+        state.versions = software_versions(*dict.fromkeys((cfg.refine_sim, *cfg.validate_sims)))
+        if context.source is not None:
+            from ges_core.dataset import open_dataset
+
+            state.source = open_dataset(context.source[0])
+        _STATES.clear()  # one run context at a time per process
+        _STATES[key] = state
+    return _STATES[key]
+
+
+def _hands_in_order(task: Task) -> list[str]:
+    return list(dict.fromkeys(h for _, hands in task.pairs for h in hands))
+
+
+# -- step 1: contacts (shared by every hand) ---------------------------------------------------
+def _contacts(state: _State, object_id: str) -> ObjectWork:
+    lib, cfg = state.library, state.context.config
+    entry = lib.entry(object_id)
+    seed = object_seed(cfg.seed, object_id)
+    work = ObjectWork(object_id, entry.category, lib.splits[object_id], seed)
+    if state.source is not None:
+        return contacts_from_record(work, state.source.get(object_id, state.context.source[1]))
+    start = time.perf_counter()
+    try:
+        points, normals = lib.point_cloud(object_id, cfg.points, seed=seed)
+        result = generate_contacts(points, normals, cfg.contacts, object_id=object_id, seed=seed)
+    except SynthesisError as error:
+        return work.failed_contacts(error.reason, str(error), time.perf_counter() - start)
+    except AssetError as error:
+        return work.failed_contacts("bad_mesh", str(error), time.perf_counter() - start)
+    return work.with_contacts(result, time.perf_counter() - start)
+
+
+# -- step 2: retargeting (one batch per hand and chunk) ----------------------------------------
+def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[Grasp | SynthesisError | None]:
+    """One result per work: a Grasp, a SynthesisError, or None (no contacts to retarget)."""
+    ready = [i for i, w in enumerate(works) if w.result is not None]
+    out: list = [None] * len(works)
+    if ready:
+        solved = state.retargeter(hand).retarget_many([works[i].result.contacts for i in ready])
+        for i, result in zip(ready, solved, strict=True):
+            out[i] = result
+    return out
+
+
+# -- steps 3-5: refinement, pre-grasp, validation ---------------------------------------------
+def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> GraspRecord:
+    cfg = state.context.config
+    steps, extra = {"contacts": work.step}, dict(work.extra)
+    if result is None:
+        steps.update(dict.fromkeys(("retargeting", "refinement", "validation"), StepOutcome.skipped()))
+        return build_record(state, hand, work, steps, extra)
+    if isinstance(result, SynthesisError):
+        steps["retargeting"] = StepOutcome.failed(result.reason)
+        extra["errors"] = {"retargeting": str(result)}
+        steps.update(dict.fromkeys(("refinement", "validation"), StepOutcome.skipped()))
+        return build_record(state, hand, work, steps, extra)
+    seconds = float(result.meta.get("seconds", 0.0))
+    reached = bool(result.meta.get("reached", True))
+    steps["retargeting"] = (
+        StepOutcome(ok=True, seconds=seconds) if reached else StepOutcome.failed("unreachable", seconds)
+    )
+    if not reached:
+        steps.update(dict.fromkeys(("refinement", "validation"), StepOutcome.skipped()))
+        return build_record(state, hand, work, steps, extra, grasp=result, stage="retargeting")
+    refined, steps["refinement"] = _refine(state, sims, hand, work, result, extra)
+    grasp = refined.grasp if refined is not None else result
+    stage = "refinement" if refined is not None else "retargeting"
+    pre = pregrasp(state.hand(hand), grasp, work.result.approach, cfg.pregrasp)
+    steps["validation"] = (
+        _validate(state, sims, hand, work, grasp, pre, extra) if steps["refinement"].ok else (StepOutcome.skipped())
+    )
+    return build_record(state, hand, work, steps, extra, grasp=grasp, stage=stage, pre=pre, refined=refined)
+
+
+def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, extra: dict):
+    """(RefinedGrasp or None, the refinement step's outcome)."""
+    cfg, model = state.context.config, state.hand(hand)
+    start = time.perf_counter()
+    try:
+        asset = state.library.get(work.object_id)
+        sim = sims.get(hand, cfg.refine_sim, asset, extra)
+        refined = refine_grasp(sim, model, asset, grasp, cfg.refine)
+    except AssetError as error:
+        extra.setdefault("errors", {})["refinement"] = str(error)
+        return None, StepOutcome.failed("no_collision_model", time.perf_counter() - start)
+    except (SynthesisError, SimulationError) as error:
+        extra.setdefault("errors", {})["refinement"] = str(error)
+        return None, StepOutcome.failed(getattr(error, "reason", "unstable"), time.perf_counter() - start)
+    verdict = refine_verdict(refined, model, cfg.refine)
+    extra.update(frozen=list(refined.frozen), touching_fingers=list(refined.grasp.meta.get("touching_fingers", ())))
+    seconds = float(refined.seconds)
+    return refined, StepOutcome(ok=True, seconds=seconds) if verdict == "ok" else StepOutcome.failed(verdict, seconds)
+
+
+def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, pre: Grasp, extra: dict):
+    """Validate in every configured simulator; the primary one's verdict is the step's outcome."""
+    cfg, model = state.context.config, state.hand(hand)
+    if not cfg.validate_sims:
+        return StepOutcome(ok=False, reason="not_run")
+    asset = state.library.get(work.object_id)
+    verdicts = {}
+    for name in cfg.validate_sims:
+        try:
+            result = validate_grasp(sims.get(hand, name, asset, extra), model, asset, grasp, pre, cfg.validate_)
+        except SimulationError as error:  # a backend that fails to build or load counts as a blow-up
+            extra.setdefault("errors", {})[f"validation_{name}"] = str(error)
+            verdicts[name] = {"success": False, "reason": "unstable", "seconds": 0.0, "flags": {}}
+            continue
+        verdicts[name] = {"success": result.success, "reason": result.reason, "seconds": result.seconds,
+                          "flags": dict(result.flags)}  # fmt: skip
+    extra["validations"] = verdicts
+    main = verdicts[cfg.primary_sim]
+    if main["success"]:
+        return StepOutcome(ok=True, seconds=main["seconds"])
+    return StepOutcome.failed(main["reason"], main["seconds"])
+
+
+class _Sims:
+    """The task's simulators, one per (hand, simulator), built on first use with the hand loaded."""
+
+    def __init__(self, state: _State) -> None:
+        self.state, self.sims = state, {}
+
+    def get(self, hand: str, name: str, asset, extra: dict):
+        key = (hand, name)
+        if key not in self.sims:
+            start = time.perf_counter()
+            sim = self.state.registry.build_sim(name, self.state.context.config.scene)
+            self.sims[key] = sim
+            stage_scene(sim, self.state.hand(hand), asset)  # load the hand now: one-time cost, not the object's
+            extra.setdefault("setup_seconds", {})[name] = time.perf_counter() - start
+        return self.sims[key]
+
+    def close(self) -> None:
+        for sim in self.sims.values():
+            sim.close()
+        self.sims.clear()
+
+
+def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
+    """``record`` with ``extra["picture"]`` set after drawing it (no picture folder: unchanged)."""
+    root = state.context.pictures
+    if root is None:
+        return record
+    from ges_core.render import GraspRenderer, render_record
+
+    if state.renderer is None:
+        state.renderer = GraspRenderer()
+    path = picture_path(root, record.object_id, record.hand)
+    try:
+        asset = state.library.get(record.object_id)
+    except AssetError:
+        asset = None  # no collision model: the picture shows the contacts and the hand only
+    render_record(record, state.hand(record.hand), asset, path, renderer=state.renderer)
+    return replace(record, extra={**record.extra, "picture": path.as_posix()})
+
+
+def picture_path(root: str | Path, object_id: str, hand: str) -> Path:
+    """Where the picture of ``(object_id, hand)`` goes under ``root``."""
+    return Path(root) / hand / (object_id.replace("/", "__") + ".png")

@@ -1,0 +1,74 @@
+"""``ges demo``, ``ges synth`` and ``ges retarget`` end to end (tiny real runs: SAPIEN, 2 objects)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import ges_core.cli as cli
+from ges_core.dataset import open_dataset, validate_dataset
+
+FAST = ["-o", "synthesis.validate.hold_steps=60"]
+
+
+@pytest.fixture(scope="module")
+def demo_dir(tmp_path_factory):
+    return tmp_path_factory.mktemp("demo")
+
+
+def _demo(out, capsys) -> str:
+    argv = ["demo", "--out", str(out), "--no-progress", "-o", "objects=2", "-o", "hands=[allegro]", *FAST]
+    assert cli.main(argv) == 0
+    return capsys.readouterr().out
+
+
+@pytest.mark.sim
+def test_demo_runs_end_to_end_then_resumes(demo_dir, capsys):
+    text = _demo(demo_dir, capsys)
+    assert "| hand | sim | objects | contacts | retargeting | refinement | validated |" in text
+    assert "| allegro | sapien | 2 |" in text
+    assert "2 grasps synthesized, 0 already in" in text
+    assert validate_dataset(demo_dir / "dataset") == []
+    assert (demo_dir / "contact_sheet.png").is_file() and (demo_dir / "table.md").read_text().startswith("| hand")
+    pictures = sorted((demo_dir / "pictures" / "allegro").glob("*.png"))
+    assert [p.name for p in pictures] == ["procedural__box__000.png", "procedural__can__000.png"]
+    again = _demo(demo_dir, capsys)
+    assert "0 grasps synthesized, 2 already in" in again
+
+
+@pytest.mark.sim
+def test_retarget_reuses_stored_contacts(demo_dir, capsys, tmp_path):
+    if not (demo_dir / "dataset").is_dir():
+        _demo(demo_dir, capsys)
+    out = tmp_path / "shadow"
+    argv = ["retarget", "--from", "allegro", "--to", "shadow", str(demo_dir / "dataset"), "--out", str(out)]
+    assert cli.main([*argv, "--no-progress"]) == 0
+    table = capsys.readouterr().out
+    assert "| allegro | sapien | 2 |" in table and "| shadow | sapien | 2 |" in table
+    source, target = open_dataset(demo_dir / "dataset"), open_dataset(out)
+    assert validate_dataset(out) == [] and len(target) == 2
+    for record in target:
+        stored = source.get(record.object_id, "allegro")
+        assert record.hand == "shadow" and record.extra["contacts_from"] == "allegro"
+        np.testing.assert_array_equal(record.contacts.positions, stored.contacts.positions)
+        assert record.steps["contacts"] == stored.steps["contacts"]
+        assert record.joint_names != stored.joint_names  # a Shadow grasp, not a copy
+
+
+def test_retarget_errors(tmp_path, capsys):
+    from ges_core.dataset import DatasetWriter
+    from ges_core.synthesis.pipeline import SynthesisConfig
+
+    DatasetWriter(tmp_path / "empty", SynthesisConfig().dump()).close()
+    assert cli.main(["retarget", "--from", "shadow", "--to", "allegro", str(tmp_path / "empty")]) == 1
+    assert "holds no record of hand 'shadow' (it holds: none)" in capsys.readouterr().err
+    assert cli.main(["retarget", "--from", "shadow", "--to", "shadow", str(tmp_path / "empty")]) == 1
+    assert "--from and --to are both 'shadow'" in capsys.readouterr().err
+
+
+def test_unknown_object_and_bad_override(tmp_path, capsys):
+    argv = ["synth", "--hands", "allegro", "--objects", "procedural/can/0000", "--out", str(tmp_path / "x")]
+    assert cli.main(argv) == 1
+    assert "unknown object 'procedural/can/0000'. Did you mean" in capsys.readouterr().err
+    assert cli.main(["demo", "--out", str(tmp_path / "d"), "-o", "synthesis.pointz=5"]) == 1
+    assert "synthesis.pointz" in capsys.readouterr().err

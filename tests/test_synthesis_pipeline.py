@@ -1,0 +1,178 @@
+"""The Stage 1 pipeline: real runs on a few objects (Allegro, SAPIEN), bad objects, resume, workers, config."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import trimesh
+
+from ges_core.dataset import open_dataset, validate_dataset
+from ges_core.errors import ConfigError
+from ges_core.registry import load_registry
+from ges_core.synthesis.contacts import generate_contacts
+from ges_core.synthesis.pipeline import LibrarySettings, SynthesisConfig, object_seed, plan_tasks, run_synthesis
+from ges_core.synthesis.retarget import GraspRetargeter
+from ges_core.synthesis.run_table import format_table, table_rows
+
+GOOD = ["procedural/cube/000", "procedural/can/000"]
+FLAT, HUGE = "user/flat/sheet", "user/big/crate"
+
+
+@pytest.fixture(scope="module")
+def user_dir(tmp_path_factory):
+    """A flat sheet (degenerate: zero volume) and a 30 cm crate (wider than any hand's grasp)."""
+    root = tmp_path_factory.mktemp("user_objects")
+    (root / "flat").mkdir()
+    (root / "flat" / "sheet.obj").write_text("v 0 0 0\nv 0.1 0 0\nv 0.1 0.1 0\nv 0 0.1 0\nf 1 2 3\nf 1 3 4\n")
+    (root / "big").mkdir()
+    trimesh.creation.box((0.3, 0.3, 0.3)).export(root / "big" / "crate.obj")
+    return root
+
+
+def small_config(user_dir, **kw) -> SynthesisConfig:
+    """Short validation (fewer hold steps) to keep the tests quick; otherwise the defaults."""
+    library = LibrarySettings(sources=("procedural", "user"), user_dir=str(user_dir), procedural_count=1)
+    data = {"library": library, "validate": {"hold_steps": 60}, "chunk_size": 2, **kw}
+    return SynthesisConfig.model_validate(data)
+
+
+@pytest.fixture(scope="module")
+def first_run(user_dir, tmp_path_factory):
+    out = tmp_path_factory.mktemp("ds") / "dataset"
+    config = small_config(user_dir)
+    report = run_synthesis([*GOOD, FLAT, HUGE], ["allegro"], config, out)
+    return out, config, report
+
+
+@pytest.mark.sim
+def test_run_writes_valid_records_and_records_bad_objects(first_run):
+    out, _, report = first_run
+    assert validate_dataset(out) == []
+    records = {r.object_id: r for r in open_dataset(out)}
+    assert sorted(report.written) == sorted((o, "allegro") for o in records)
+    assert records[FLAT].steps["contacts"].reason == "bad_mesh"
+    assert "zero volume" in records[FLAT].extra["errors"]["contacts"]
+    assert records[HUGE].steps["contacts"].reason == "no_graspable_width"
+    for bad in (FLAT, HUGE):
+        assert all(records[bad].steps[s].reason == "skipped" for s in ("retargeting", "refinement", "validation"))
+    for oid in GOOD:  # the good objects went through every step that their predecessors passed
+        r = records[oid]
+        assert r.steps["contacts"].ok and r.steps["retargeting"].ok and r.grasp is not None
+        assert r.steps["refinement"].attempted and r.grasp_stage == "refinement"
+        assert r.contacts.object_id == oid and r.seed == object_seed(0, oid)
+        assert r.pregrasp is not None and r.simulator == "sapien"
+
+
+@pytest.mark.sim
+def test_stored_contacts_are_those_of_the_contact_step(first_run, user_dir):
+    """Cross-check: rerun contact generation by hand with the object's seed; same contacts."""
+    out, config, _ = first_run
+    lib = config.library.build()
+    record = open_dataset(out).get("procedural/can/000", "allegro")
+    seed = object_seed(config.seed, record.object_id)
+    pts, nrm = lib.point_cloud(record.object_id, config.points, seed=seed)
+    again = generate_contacts(pts, nrm, config.contacts, object_id=record.object_id, seed=seed)
+    np.testing.assert_array_equal(record.contacts.positions, again.contacts.positions)
+    assert record.quality.force_closure == pytest.approx(again.quality)
+
+
+@pytest.mark.sim
+def test_resume_skips_stored_pairs_and_redoes_a_lost_one(first_run):
+    out, config, _ = first_run
+    lost = open_dataset(out).get("procedural/cube/000", "allegro")
+    (out / next(e["file"] for e in open_dataset(out).entries if e["object_id"] == lost.object_id)).unlink()
+    report = run_synthesis([*GOOD, FLAT, HUGE], ["allegro"], config, out)
+    assert report.written == [("procedural/cube/000", "allegro")]
+    assert len(report.skipped) == 3
+    again = open_dataset(out).get("procedural/cube/000", "allegro")
+    np.testing.assert_array_equal(again.grasp.q, lost.grasp.q)  # same seed, same chunk: same grasp
+
+
+@pytest.mark.sim
+def test_workers_give_identical_records(first_run, tmp_path):
+    out, config, _ = first_run
+    run_synthesis([*GOOD, FLAT, HUGE], ["allegro"], config, tmp_path / "two", workers=2)
+    one, two = open_dataset(out), open_dataset(tmp_path / "two")
+    assert len(one) == len(two) == 4
+    for a in one:
+        b = two.get(a.object_id, a.hand)
+        assert {k: (s.ok, s.reason) for k, s in a.steps.items()} == {k: (s.ok, s.reason) for k, s in b.steps.items()}
+        for name in ("grasp", "pregrasp"):
+            pa, pb = getattr(a, name), getattr(b, name)
+            assert (pa is None) == (pb is None)
+            if pa is not None:
+                np.testing.assert_array_equal(pa.wrist_pose, pb.wrist_pose)
+                np.testing.assert_array_equal(pa.q, pb.q)
+
+
+def test_retargeting_does_not_depend_on_batch_mates():
+    """The pipeline batches a chunk's grasps: each grasp must come out as if solved alone."""
+    from ges_core.objects.library import ObjectLibrary
+
+    lib = ObjectLibrary(sources=("procedural",), procedural_count=1)
+    sets = []
+    for oid in ("procedural/cube/000", "procedural/can/000", "procedural/box/000"):
+        pts, nrm = lib.point_cloud(oid, 512, seed=1)
+        sets.append(generate_contacts(pts, nrm, object_id=oid).contacts)
+    retargeter = GraspRetargeter(load_registry().build_hand("allegro"))
+    batch = retargeter.retarget_many(sets)
+    for alone, together in zip((retargeter.retarget(s) for s in sets), batch, strict=True):
+        np.testing.assert_array_equal(alone.q, together.q)
+        np.testing.assert_array_equal(alone.wrist_pose, together.wrist_pose)
+
+
+def test_object_seed_depends_on_seed_and_id_only():
+    assert object_seed(0, "a") == object_seed(0, "a")
+    assert len({object_seed(0, "a"), object_seed(1, "a"), object_seed(0, "b")}) == 3
+
+
+def test_plan_tasks_chunks_independently_of_what_is_done():
+    done = {("b", "shadow")}
+    tasks, skipped = plan_tasks(["a", "b", "c"], ["shadow", "allegro"], 2, lambda o, h: (o, h) in done)
+    assert [t.index for t in tasks] == [0, 1]
+    assert tasks[0].pairs == (("a", ("shadow", "allegro")), ("b", ("allegro",)))
+    assert skipped == [("b", "shadow")] and tasks[0].size == 3
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"validate_sims": ["sapien", "sapien"]}, "validate_sims lists a simulator twice"),
+        ({"scene": {"num_envs": 2}}, "scene.num_envs must be 1"),
+        ({"points": 3}, "points"),
+        ({"refine": {"gama": 1}}, "refine.gama"),
+    ],
+)
+def test_bad_config_is_rejected(data, message):
+    from ges_core.config import parse_model
+
+    with pytest.raises(ConfigError, match=message.replace(".", r"\.")):
+        parse_model(SynthesisConfig, data)
+
+
+def test_bad_run_arguments(tmp_path):
+    with pytest.raises(ConfigError, match="no objects given; workers must be >= 1"):
+        run_synthesis([], ["allegro"], SynthesisConfig(), tmp_path / "x", workers=0)
+    with pytest.raises(ConfigError, match="an object is listed twice"):
+        run_synthesis(["a", "a"], ["allegro"], SynthesisConfig(), tmp_path / "x")
+
+
+@pytest.mark.sim
+def test_table_counts_attempted_steps(first_run):
+    out, _, _ = first_run
+    (row,) = table_rows(open_dataset(out))
+    assert row.objects == 4 and row.steps["contacts"].attempted == 4 and row.steps["contacts"].ok == 2
+    assert row.steps["retargeting"].attempted == 2  # the two bad objects never reached it
+    assert "| allegro | sapien | 4 | 50.0 % (2/4)" in format_table([row])
+
+
+@pytest.mark.sim
+def test_concave_object_without_decomposition_fails_refinement_with_reason(tmp_path, monkeypatch):
+    monkeypatch.setenv("GES_CACHE_DIR", str(tmp_path / "cache"))  # no cached CoACD parts
+    config = SynthesisConfig.model_validate({"library": {"sources": ["procedural"], "procedural_count": 1}})
+    run_synthesis(["procedural/mug/000"], ["allegro"], config, tmp_path / "ds")
+    (record,) = open_dataset(tmp_path / "ds")
+    assert record.steps["contacts"].ok and record.steps["retargeting"].ok
+    assert record.steps["refinement"].reason == "no_collision_model"
+    assert "ges objects prepare" in record.extra["errors"]["refinement"]
+    assert record.steps["validation"].reason == "skipped"
