@@ -13,9 +13,9 @@ simulator, one :class:`~ges_core.dataset.GraspRecord`. A ``SynthesisError``, ``S
 ``AssetError`` of one object becomes that record's failed step with its reason and the run goes on.
 
 Objects are cut into fixed chunks of ``chunk_size`` (in the order given) whatever the number of
-workers; each chunk builds fresh simulators (one per hand and simulator, reused by the chunk's
-objects), so a chunk computes the same records whether it runs alone or beside others: results are
-identical for any ``workers``. The parent process alone writes the dataset (atomic, resumable:
+workers; each (object, hand) gets fresh simulators (a reused scene carries the previous object's
+history, see ``run_worker``), so a record does not depend on its chunk mates, on resuming or on
+``workers``. The parent process alone writes the dataset (atomic, resumable:
 stored (object, hand) pairs are skipped).
 """
 

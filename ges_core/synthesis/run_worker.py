@@ -2,7 +2,14 @@
 
 Used by :func:`ges_core.synthesis.pipeline.run_synthesis`, in the parent (``workers=1``) or in spawned
 worker processes. Hands, retargeters and the object library are built once per process; simulators
-once per task (one per hand and simulator; the hand is loaded once, each object replaces the last).
+once per (object, hand): one per simulator, shared by that object's refinement and validation.
+
+Why not once per task: a SAPIEN scene reused across objects gives an object a result that depends on
+the objects before it (measured: ``procedural/can/001`` after ``pybullet/random_urdfs/002`` ended
+15-24 mm of wrist position away from the same grasp refined first, though every input was equal, even
+with PhysX's enhanced determinism on and one step with the hand far from everything before each new
+object). A record then depended on which objects shared its chunk: a resumed run, another object list
+or another chunk size changed it. A fresh Allegro scene costs about 30-60 ms (``extra["setup_seconds"]``).
 """
 
 from __future__ import annotations
@@ -41,6 +48,7 @@ def run_task(task: Task, context) -> list[GraspRecord]:
             todo = [works[oid] for oid, hands in task.pairs if hand in hands]
             for work, result in zip(todo, _retarget(state, hand, todo), strict=True):
                 records[(work.object_id, hand)] = _finish(state, sims, hand, work, result)
+                sims.close()  # fresh simulators per object: a reused one carries the last object's history
     finally:
         sims.close()
     return [_with_picture(state, records[(oid, h)]) for oid, hands in task.pairs for h in hands]
