@@ -19,7 +19,7 @@ from ges_core.errors import AssetError, SynthesisError
 from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
 from ges_core.registry import load_registry
-from ges_core.synthesis.retarget import GraspRetargeter, RetargetConfig, retarget_contacts
+from ges_core.synthesis.retarget import GraspRetargeter, RetargetConfig, raise_contacts, retarget_contacts
 from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
 from ges_core.synthesis.retarget_wrist import (
     check_contact_array,
@@ -342,3 +342,37 @@ def test_knuckles_fall_back_to_one_finger_length_behind_the_tips(hands, kins, re
     estimated = GraspRetargeter(_NoKeypointsHand(hands["allegro"]), kinematics=kins["allegro"]).frame.knuckle_center
     declared = retargeters["allegro"].frame.knuckle_center
     assert np.linalg.norm(estimated - declared) < 0.02, (estimated, declared)
+
+
+# -- table clearance -------------------------------------------------------------------------------
+def test_raise_contacts_lifts_only_low_contacts():
+    pos = np.array([[[0.0, 0.0, 0.005], [0.01, 0.0, 0.04], [0.02, 0.0, 0.025], [0.03, 0.0, -0.01], [0.0, 0.0, 0.1]]])
+    before = pos.copy()
+    out = raise_contacts(pos, 0.025)
+    np.testing.assert_array_equal(pos, before)  # input untouched
+    np.testing.assert_allclose(out[0, :, 2], [0.025, 0.04, 0.025, 0.025, 0.1])
+    np.testing.assert_array_equal(out[..., :2], pos[..., :2])
+    np.testing.assert_array_equal(raise_contacts(np.abs(pos), 0.0), np.abs(pos))  # 0: nothing above the table moves
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_low_contacts_put_the_fingertips_at_the_clearance_height(hands, kins, name):
+    """A top-down grasp of a 1 cm-high slab: with the clearance the fingertips (by FK, an independent
+    check of the solve) sit near 25 mm, without it near the 10 mm contacts."""
+    d = hands[name].description
+    contacts = ContactSet(top_grasp(0.03, 0.025, height=0.01), np.array([[-1.0, 0, 0]] + [[1.0, 0, 0]] * 4), "slab")
+    heights = {}
+    for floor in (0.0, 0.025):
+        g = GraspRetargeter(hands[name], RetargetConfig(min_contact_height=floor), kinematics=kins[name]).retarget(
+            contacts
+        )
+        np.testing.assert_allclose(np.asarray(g.meta["aimed_contacts"])[:, 2], max(floor, 0.01))
+        base = pose_to_matrix(g.wrist_pose)
+        tips = kins[name].points(torch.as_tensor(g.q)[None], list(d.tip_links), [f.tip_offset for f in d.fingers])
+        heights[floor] = np.median(tips[0].numpy() @ base[2, :3] + base[2, 3])
+    assert abs(heights[0.0] - 0.01) < 0.005 and abs(heights[0.025] - 0.025) < 0.005, heights
+
+
+def test_negative_clearance_is_refused():
+    with pytest.raises(ValidationError, match="min_contact_height"):
+        RetargetConfig(min_contact_height=-0.01)

@@ -38,7 +38,14 @@ from ges_core.synthesis.retarget_wrist import (
 from ges_core.synthesis.types import Grasp
 from ges_core.transforms import matrix_to_pose
 
-__all__ = ["GraspRetargeter", "RetargetConfig", "VectorRetargetConfig", "VectorRetargeter", "retarget_contacts"]
+__all__ = [
+    "GraspRetargeter",
+    "RetargetConfig",
+    "VectorRetargetConfig",
+    "VectorRetargeter",
+    "raise_contacts",
+    "retarget_contacts",
+]
 
 
 class RetargetConfig(BaseModel):
@@ -53,6 +60,14 @@ class RetargetConfig(BaseModel):
     )
     y_d: float = Field(
         0.0, description="metres along the hand's finger direction from the placed knuckle centre (paper's y_d)"
+    )
+    # Table clearance. Contacts come from slices at 10-35 mm on the demo objects; a fingertip whose pad sits
+    # that low presses the table with its lower side (Allegro: 12 mm tip hemisphere). Measured on the 20
+    # demo objects (SAPIEN; docs/synthesis/retargeting.md) for 0 / 20 / 25 / 30 mm: refinement ok Allegro
+    # 7 / 11 / 11 / 9 of 19, Shadow 10 / 15 / 16 / - of 19; validated Allegro 5 / 6 / 8 / 5. 25 mm is the best
+    # of those for both hands; 0 turns it off.
+    min_contact_height: float = Field(
+        0.025, ge=0, description="metres: a contact lower than this above the table (z = 0) is raised to it first"
     )
     init_closure: float = Field(
         0.0, ge=0, le=1, description="start of the joint solve: this fraction of the way open -> closed_pose()"
@@ -137,6 +152,7 @@ class GraspRetargeter:
             "residual": float(residual),
             "tip_errors": dict(zip(FINGER_SLOTS, map(float, tip_err), strict=True)),
             "reached": bool(residual <= self.config.max_residual),
+            "aimed_contacts": topo.contacts[j].tolist(),  # (5, 3) after raise_contacts
             "palm_normal": topo.palm_normal[j].tolist(),
             "grasp_axis": topo.grasp_axis[j].tolist(),
             "lateral_axis": topo.lateral_axis[j].tolist(),
@@ -149,7 +165,7 @@ class GraspRetargeter:
             raise TypeError("retarget_many takes a sequence of ContactSet objects (object frame, five slots)")
         if len(contacts) == 0:
             raise ValueError("retarget_many got no contact sets")
-        return np.stack([c.positions for c in contacts])
+        return raise_contacts(np.stack([c.positions for c in contacts]), self.config.min_contact_height)
 
     def _wrist_points(self, q: torch.Tensor) -> dict[str, np.ndarray]:
         """Open-pose knuckles and middle/little-slot fingertips in the wrist-link frame."""
@@ -175,6 +191,16 @@ class GraspRetargeter:
 def retarget_contacts(hand: HandModel, contacts: ContactSet, config: RetargetConfig | None = None) -> Grasp:
     """One-off convenience: build a :class:`GraspRetargeter` and retarget one contact set."""
     return GraspRetargeter(hand, config).retarget(contacts)
+
+
+def raise_contacts(positions: np.ndarray, min_height: float) -> np.ndarray:
+    """(B, 5, 3) copy of ``positions`` (object frame, table at z = 0) with every z below ``min_height`` set to it.
+
+    A contact on a side wall moves up the wall, so a fingertip aimed at it keeps its pad off the table.
+    """
+    out = np.array(positions, dtype=np.float64, copy=True)
+    out[..., 2] = np.maximum(out[..., 2], min_height)
+    return out
 
 
 def _degenerate(index: int, problem: str) -> SynthesisError:
