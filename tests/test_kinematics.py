@@ -69,7 +69,10 @@ def test_link_poses_match_pybullet(hand, kin):
     client = pybullet.connect(pybullet.DIRECT)
     try:
         body = pybullet.loadURDF(str(hand.urdf_path()), useFixedBase=True, physicsClientId=client)
-        infos = [pybullet.getJointInfo(body, j, physicsClientId=client) for j in range(pybullet.getNumJoints(body))]
+        infos = [
+            pybullet.getJointInfo(body, j, physicsClientId=client)
+            for j in range(pybullet.getNumJoints(body, physicsClientId=client))
+        ]
         joint_id = {i[1].decode(): i[0] for i in infos}
         link_id = {i[12].decode(): i[0] for i in infos}
         links = sorted(link_id)  # every link but the base, which is the frame of both

@@ -197,6 +197,20 @@ def test_object_replacement_and_env_ids():
         assert {p.link_a for p in sim.contact_pairs(sim._envs.index(env))} == {name}
 
 
+def test_contacts_read_right_after_replacing_the_object_are_empty_not_a_crash(hand):
+    """PhysX still lists the removed body's contacts until the next step; touching them segfaulted."""
+    sim = make_sim(hand)
+    sim.set_hand_state(np.asarray(hand.description.open_pose)[None], np.array([[0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0]]))
+    sim.load_object(box_asset(object_id="t/first"))
+    sim.step(30)
+    assert len(sim.contact_pairs(0)) > 0
+    sim.load_object(box_asset((0.04, 0.04, 0.04), object_id="t/second"))
+    assert np.all(sim.contact_forces(list(hand.description.tip_links), "any") == 0)
+    assert sim.contact_pairs(0) == []
+    sim.step(30)
+    assert {p.link_a for p in sim.contact_pairs(0) if p.body_a == "object"} == {"t/second"}
+
+
 def test_contact_pairs_report_the_weight_of_a_resting_box():
     sim = make_sim()
     box = box_asset()

@@ -186,12 +186,14 @@ class SapienBackend(SimBackend):
         for _ in range(n):
             for e, env in enumerate(self._envs):
                 env.scene.step()
+                env.contacts.after_step()
                 self._check_state(e, env)
 
     def engine_step(self) -> None:
         """One raw ``scene.step()`` per scene: no state check, no bookkeeping (for benchmarks)."""
         for env in self._envs:
             env.scene.step()
+            env.contacts.after_step()
 
     # -- reading --------------------------------------------------------------------------
     def joint_state(self) -> tuple[np.ndarray, np.ndarray]:

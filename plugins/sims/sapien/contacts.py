@@ -41,22 +41,31 @@ class ContactReader:
         self._object: Body | None = None
         self._object_name = ""
         self._queries: dict[tuple[tuple[str, ...], str], _Query] = {}
+        self._stale = False
+        """True between replacing a body and the next step: PhysX's contact list still names the
+        removed body, and touching it from Python segfaults, so reads see no contacts until then."""
+
+    def after_step(self) -> None:
+        """The scene stepped: the contact list is current again."""
+        self._stale = False
 
     def set_hand(self, links: dict[str, Body]) -> None:
         """Register the hand's link bodies by name."""
         self._links = {body: name for name, body in links.items()}
         self._queries.clear()
+        self._stale = True
 
     def set_object(self, body: Body | None, name: str = "") -> None:
         """Register the current object body (None: no object)."""
         self._object, self._object_name = body, name
         self._queries.clear()
+        self._stale = True
 
     def forces(self, links: Sequence[str], partner: ContactPartner) -> np.ndarray:
         """Net contact force on each named link from ``partner`` over the last step, (L, 3), world frame, N."""
         slots, partners, rows = self._query(tuple(links), partner)
         out = np.zeros((len(slots), 3))
-        for contact in self._system.get_contacts():
+        for contact in () if self._stale else self._system.get_contacts():
             body0, body1 = contact.bodies
             slot0, slot1 = slots.get(body0), slots.get(body1)
             if slot0 is not None and (partners is None or body1 in partners):
@@ -90,7 +99,7 @@ class ContactReader:
     def pairs(self) -> list[ContactPair]:
         """Every pair closer than :data:`TOUCH_DISTANCE` or pushing, with names (slow: reads every point)."""
         out = []
-        for contact in self._system.get_contacts():
+        for contact in () if self._stale else self._system.get_contacts():
             points = contact.points
             if not points:
                 continue
