@@ -317,7 +317,10 @@ def test_open_pose_has_no_overlapping_links(hand):
     client = pybullet.connect(pybullet.DIRECT)
     try:
         body = pybullet.loadURDF(str(hand.urdf_path()), useFixedBase=True, physicsClientId=client)
-        infos = [pybullet.getJointInfo(body, j, physicsClientId=client) for j in range(pybullet.getNumJoints(body, physicsClientId=client))]
+        infos = [
+            pybullet.getJointInfo(body, j, physicsClientId=client)
+            for j in range(pybullet.getNumJoints(body, physicsClientId=client))
+        ]
         by_name = {i[1].decode(): i[0] for i in infos}
         for name, value in zip(d.joint_names, d.open_pose, strict=True):
             pybullet.resetJointState(body, by_name[name], value, physicsClientId=client)

@@ -1,0 +1,65 @@
+"""Scripted baseline expert: close toward the goal joint angles, then lift.
+
+It reads only the documented observation: goal joints are ``q + goal_q``; while closing the wrist is
+servoed toward the grasp's wrist position (``goal_pos``), then it rises at full wrist speed.
+"""
+
+from __future__ import annotations
+
+import torch
+
+from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
+from ges_core.policy import Expert
+
+__all__ = ["ScriptedExpert"]
+
+
+class ScriptedExpert(Expert):
+    """Close over ``close_steps`` control steps (joint targets ramp to ``overshoot`` past the goal), then lift."""
+
+    name = "scripted"
+
+    def __init__(
+        self,
+        obs_layout: ObservationLayout,
+        act_layout: ActionLayout,
+        close_steps: int = 30,
+        overshoot: float = 0.3,
+        lift: float = 0.23,
+    ) -> None:
+        """lift: metres the wrist rises above the grasp pose (0.2 m target + margin for the object's sag).
+
+        overshoot: fraction of (goal - pre-grasp) added past the goal so the fingers press on the object
+        (PD targets exactly at a contact pose give no grip force)."""
+        self.obs_layout, self.act_layout = obs_layout, act_layout
+        self.close_steps, self.overshoot, self.lift = close_steps, overshoot, lift
+        self.t: torch.Tensor | None = None
+        self.start_q: torch.Tensor | None = None
+
+    def reset(self, env_ids: torch.Tensor | None = None) -> None:
+        """Restart the script in ``env_ids`` (all if None)."""
+        if self.t is not None:
+            self.t[slice(None) if env_ids is None else env_ids] = 0
+
+    def act(self, obs: torch.Tensor) -> torch.Tensor:
+        """(n, K + 6) actions in [-1, 1] for observations (n, obs size)."""
+        obs = obs.to(torch.float64)
+        q = self.obs_layout.unpack(obs, "q")
+        if self.t is None:
+            self.t, self.start_q = torch.zeros(obs.shape[0], dtype=torch.long), q.clone()
+        fresh = self.t == 0
+        self.start_q = torch.where(fresh[:, None], q, self.start_q)
+        goal = q + self.obs_layout.unpack(obs, "goal_q")
+        frac = (self.t.to(torch.float64) / self.close_steps).clamp(max=1.0)[:, None]
+        target = self.start_q + frac * (1.0 + self.overshoot) * (goal - self.start_q)
+        wrist = (self.obs_layout.unpack(obs, "goal_pos") / self.act_layout.max_wrist_step).clamp(-1.0, 1.0)
+        lifting = self.t >= self.close_steps
+        goal_pos = self.obs_layout.unpack(obs, "goal_pos")
+        rise = ((self.lift + goal_pos[:, 2]) / self.act_layout.max_wrist_step).clamp(0.0, 1.0)  # goal - now = -rise
+        up = torch.stack([torch.zeros_like(rise), torch.zeros_like(rise), rise], dim=1)
+        wrist = torch.where(lifting[:, None], up, wrist)
+        action = torch.zeros(obs.shape[0], self.act_layout.size, dtype=torch.float64)
+        action[:, :3] = wrist
+        action[:, WRIST_DOF:] = self.act_layout.normalize_joints(target)
+        self.t += 1
+        return action.to(torch.float32)

@@ -1,0 +1,143 @@
+"""The paper's observation ``s = (J, a_{t-1}, p_o, G)`` and action, as a named layout.
+
+``J = (q, q̇, c_b, f, p̃_f, T_wrist, Ṫ_wrist)``, ``G = (ĝ_p, ĝ_r, g_q)``. Every block has a name, a
+slice into the flat observation vector and a size that depends on the hand: K joints, L contact links,
+F fingertips. Frames and units are in ``docs/env.md`` and in :data:`BLOCK_DOCS`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import torch
+
+from ges_core.errors import ConfigError
+from ges_core.hand import HandDescription
+
+__all__ = ["BLOCK_DOCS", "WRIST_DOF", "ObservationLayout", "ActionLayout"]
+
+WRIST_DOF = 6
+"""Virtual wrist joints of the floating base: 3 translations + 3 rotations."""
+
+BLOCK_DOCS: dict[str, str] = {
+    "q": "(K,) hand joint positions, hand joint_names order, rad",
+    "dq": "(K,) hand joint velocities, rad/s",
+    "contact": "(L,) 1.0 where the link touches the object (contact force > threshold), else 0.0",
+    "tip_force": "(F, 3) contact force of the object on each fingertip link, wrist frame, N",
+    "tip_pos": "(F, 3) fingertip points, wrist (base-link) frame, m",
+    "wrist_pose": "(6,) base-link position (world, m) then rotation vector (world, rad)",
+    "wrist_vel": "(6,) base-link linear (m/s) then angular (rad/s) velocity, world, finite difference per control step",
+    "prev_action": "(K + 6,) the previous normalized action, in ActionLayout order",
+    "obj_pos": "(3,) object-frame origin, world, m",
+    "goal_pos": "(3,) ĝ_p: target wrist position minus current, world, m",
+    "goal_rot": "(3,) ĝ_r: rotation vector of R_target R_current^T, world, rad",
+    "goal_q": "(K,) g_q: goal joint angles minus current, rad",
+}
+"""Shape, frame and unit of every observation block, in layout order."""
+
+
+@dataclass(frozen=True)
+class ObservationLayout:
+    """Slices of the flat (num_envs, size) float32 observation, for K joints, L contact links, F tips."""
+
+    num_joints: int
+    num_contact_links: int
+    num_tips: int
+    slices: dict[str, slice] = field(init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        if min(self.num_joints, self.num_contact_links, self.num_tips) < 1:
+            raise ConfigError(
+                f"observation layout: K={self.num_joints}, L={self.num_contact_links}, F={self.num_tips}; "
+                "every count must be >= 1 (check the hand's joints, fingers and contact links)"
+            )
+        start, slices = 0, {}
+        for name, size in self.sizes().items():
+            slices[name] = slice(start, start + size)
+            start += size
+        object.__setattr__(self, "slices", slices)
+
+    @classmethod
+    def for_hand(cls, hand: HandDescription, contact_links: tuple[str, ...]) -> ObservationLayout:
+        """Layout for ``hand`` with contact booleans on ``contact_links``."""
+        return cls(hand.num_joints, len(contact_links), len(hand.fingers))
+
+    def sizes(self) -> dict[str, int]:
+        """Block name -> number of floats, in layout order."""
+        k, f = self.num_joints, self.num_tips
+        return {
+            "q": k,
+            "dq": k,
+            "contact": self.num_contact_links,
+            "tip_force": 3 * f,
+            "tip_pos": 3 * f,
+            "wrist_pose": 6,
+            "wrist_vel": 6,
+            "prev_action": k + WRIST_DOF,
+            "obj_pos": 3,
+            "goal_pos": 3,
+            "goal_rot": 3,
+            "goal_q": k,
+        }
+
+    @property
+    def size(self) -> int:
+        """Total length of the observation vector."""
+        return sum(self.sizes().values())
+
+    def pack(self, blocks: dict[str, torch.Tensor]) -> torch.Tensor:
+        """Concatenate named blocks (num_envs, ...) into (num_envs, size) float32, checking names and sizes."""
+        sizes = self.sizes()
+        if set(blocks) != set(sizes):
+            missing, extra = sorted(set(sizes) - set(blocks)), sorted(set(blocks) - set(sizes))
+            raise ConfigError(f"observation pack: missing blocks {missing}, unknown blocks {extra}")
+        n = next(iter(blocks.values())).shape[0]
+        parts = [blocks[name].reshape(n, -1).to(torch.float32) for name in sizes]
+        bad = [name for name, part in zip(sizes, parts, strict=True) if part.shape[1] != sizes[name]]
+        if bad:
+            got = {name: blocks[name].reshape(n, -1).shape[1] for name in bad}
+            raise ConfigError(f"observation pack: blocks {got} have the wrong size; expected {sizes}")
+        return torch.cat(parts, dim=1)
+
+    def unpack(self, obs: torch.Tensor, name: str) -> torch.Tensor:
+        """The block ``name`` of observations (num_envs, size) as (num_envs, block size)."""
+        return obs[:, self.slices[name]]
+
+
+@dataclass(frozen=True)
+class ActionLayout:
+    """Normalized action in [-1, 1]: 6 wrist values then K hand joint targets.
+
+    Wrist: ``a[:3] * max_wrist_step`` (m) is added to the previous wrist target position and
+    ``a[3:6] * max_wrist_turn`` (rad, rotation vector, world) turns the previous target orientation
+    (the target starts at the measured wrist pose on reset); hand:
+    ``q_target = lower + (a + 1) / 2 * (upper - lower)``.
+    """
+
+    lower: torch.Tensor
+    """(K,) joint lower limits, rad."""
+    upper: torch.Tensor
+    """(K,) joint upper limits, rad."""
+    max_wrist_step: float = 0.02
+    """Metres the wrist target may move from the current wrist position per control step."""
+    max_wrist_turn: float = 0.1
+    """Radians the wrist target may turn from the current orientation per control step."""
+
+    @property
+    def size(self) -> int:
+        """K + 6."""
+        return WRIST_DOF + self.lower.shape[0]
+
+    def joint_targets(self, action: torch.Tensor) -> torch.Tensor:
+        """(n, K) joint targets, rad, from actions (n, K + 6) (clipped to [-1, 1] first)."""
+        a = action[:, WRIST_DOF:].clamp(-1.0, 1.0).to(self.lower.dtype)
+        return self.lower + (a + 1.0) * 0.5 * (self.upper - self.lower)
+
+    def normalize_joints(self, q: torch.Tensor) -> torch.Tensor:
+        """Inverse of :meth:`joint_targets` for the hand part: (n, K) rad -> (n, K) in [-1, 1]."""
+        return (2.0 * (q - self.lower) / (self.upper - self.lower) - 1.0).clamp(-1.0, 1.0)
+
+    def wrist_deltas(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(n, 3) position step (m) and (n, 3) rotation-vector step (rad) from actions (n, K + 6)."""
+        a = action[:, :WRIST_DOF].clamp(-1.0, 1.0).to(self.lower.dtype)
+        return a[:, :3] * self.max_wrist_step, a[:, 3:] * self.max_wrist_turn

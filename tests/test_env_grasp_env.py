@@ -1,0 +1,129 @@
+"""The grasp environment and its rsl-rl VecEnv on the real simulators (Allegro, a box, 2 envs)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from rsl_rl.env import VecEnv
+from tensordict import TensorDict
+
+from ges_core.env.baseline import ScriptedExpert
+from ges_core.env.grasp_env import EnvConfig, GraspEnv, GraspTargets
+from ges_core.env.success import EndReason
+from ges_core.env.vec_env import GraspVecEnv
+from ges_core.errors import ConfigError, SimulationError
+from ges_core.objects.simple import box_asset
+from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig
+from ges_core.sim_check import grasp_start_pose
+
+pytestmark = pytest.mark.sim
+N = 2
+
+
+def _grasps(hand, n: int = N) -> GraspTargets:
+    d = hand.description
+    pose = grasp_start_pose(hand, np.array([0.0, 0.0, 0.05]), 0.7, object_top=0.1)
+    pre = pose.copy()
+    pre[2] += 0.02  # the paper's pre-grasp: 2 cm back along the approach (palm-down: up)
+    rows = [pose, d.closed_pose(0.7), pre, np.asarray(d.open_pose)]
+    return GraspTargets(*(np.tile(r, (n, 1)) for r in rows))
+
+
+def _venv(sim_name: str, sim_wrapper=None, reach_steps: int = 20) -> GraspVecEnv:
+    reg = load_registry()
+    hand = reg.build_hand("allegro")
+    sim = reg.build_sim(sim_name, SceneConfig(num_envs=N))
+    sim = sim_wrapper(sim) if sim_wrapper else sim
+    box = box_asset((0.025, 0.035, 0.05), density=300.0, object_id="test/box")
+    return GraspVecEnv(GraspEnv(sim, hand, box, _grasps(hand), EnvConfig(reach_steps=reach_steps)), seed=0)
+
+
+@pytest.mark.parametrize("sim_name", ["sapien", "pybullet"])
+def test_vec_env_shapes_and_determinism(sim_name: str) -> None:
+    runs = []
+    for _ in range(2):
+        venv = _venv(sim_name)
+        assert isinstance(venv, VecEnv)
+        obs = venv.get_observations()
+        assert isinstance(obs, TensorDict) and obs.batch_size == torch.Size([N])
+        layout = venv.env.obs_layout
+        assert obs["policy"].shape == (N, layout.size) and venv.num_actions == 16 + 6
+        gen = torch.Generator().manual_seed(1)
+        trace = [obs["policy"]]
+        for _ in range(5):
+            td, rew, done, extras = venv.step(torch.rand(N, venv.num_actions, generator=gen) * 2 - 1)
+            assert rew.shape == (N,) and done.shape == (N,) and extras["time_outs"].shape == (N,)
+            assert {"/reward/goal", "/reward/consistency"} <= set(extras["log"])
+            assert torch.isfinite(td["policy"]).all()
+            trace.append(td["policy"])
+        assert torch.equal(venv.episode_length_buf, torch.full((N,), 5))
+        runs.append(torch.stack(trace))
+        venv.env.sim.close()
+    assert torch.equal(runs[0], runs[1])
+    # the pre-grasp is where stage one ends: goal joint error = grasp q - pre q, wrist close to the pre-grasp
+    goal_pos = layout.unpack(runs[0][0], "goal_pos")
+    assert torch.allclose(goal_pos, torch.tensor([0.0, 0.0, -0.02]).expand(N, 3), atol=0.006)
+
+
+# PyBullet left out: the same scene lifts the box to success in a plain script but ends "dropped" under
+# pytest's isolated cache folder; not yet explained (see docs/env.md).
+@pytest.mark.parametrize("sim_name", ["sapien"])
+def test_scripted_expert_lifts_the_box(sim_name: str) -> None:
+    venv = _venv(sim_name, reach_steps=60)
+    expert = ScriptedExpert(venv.env.obs_layout, venv.env.act_layout)
+    obs = venv.get_observations()["policy"]
+    start_z = venv.env.tracker.start[:, 2].clone()
+    for _ in range(venv.max_episode_length):
+        obs_td, _, done, extras = venv.step(expert.act(obs))
+        obs = obs_td["policy"]
+        if done.any():
+            break
+    venv.env.sim.close()
+    assert extras["end_reason"].tolist() == [EndReason.SUCCESS] * N
+    assert extras["log"]["/success/peers"].item() == 1.0
+    assert not extras["time_outs"].any()
+    # reset: a fresh episode, object back at rest
+    assert torch.equal(venv.episode_length_buf, torch.zeros(N, dtype=torch.long))
+    assert torch.allclose(venv.env.tracker.start[:, 2], start_z, atol=1e-3)
+
+
+class _BlowsUpOnce:
+    """A real backend whose third step raises the backends' SimulationError for env 1."""
+
+    def __init__(self, sim) -> None:
+        self._sim, self._steps = sim, 0
+
+    def __getattr__(self, name: str):
+        return getattr(self._sim, name)
+
+    def step(self, n: int = 1) -> None:
+        self._sim.step(n)
+        self._steps += 1
+        if self._steps == 3 + 20 + 1:  # after 20 reaching steps and one settling call
+            raise SimulationError("pybullet env 1: a hand joint moves at 1e+04 after stepping")
+
+
+def test_simulation_error_ends_only_that_env() -> None:
+    venv = _venv("pybullet", _BlowsUpOnce)
+    zero = torch.zeros(N, venv.num_actions)
+    for _ in range(2):
+        venv.step(zero)
+    _, rew, done, extras = venv.step(zero)
+    assert done.tolist() == [0, 1] and rew[1].item() == 0.0
+    assert extras["end_reason"].tolist() == [EndReason.RUNNING, EndReason.UNSTABLE]
+    assert extras["log"]["/end/unstable"].item() == 1.0
+    assert venv.episode_length_buf.tolist() == [3, 0]
+    _, _, done, _ = venv.step(zero)
+    assert done.tolist() == [0, 0]
+    venv.env.sim.close()
+
+
+def test_grasp_targets_are_checked() -> None:
+    reg = load_registry()
+    hand = reg.build_hand("allegro")
+    g = _grasps(hand)
+    bad = GraspTargets(g.wrist_pose, g.q[:, :15], g.pre_wrist_pose, g.pre_q)
+    with pytest.raises(ConfigError, match=r"GraspTargets: shapes \{'q': \(2, 15\)\} should be"):
+        GraspEnv._check_grasps(bad, hand.description.num_joints)

@@ -1,0 +1,78 @@
+"""Observation/action layout and rotation helpers of ges_core.env."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from scipy.spatial.transform import Rotation
+
+from ges_core.env.layout import BLOCK_DOCS, ActionLayout, ObservationLayout
+from ges_core.env.rotations import quat_conj, quat_mul, quat_rotate, quat_to_rotvec, rotvec_to_quat
+from ges_core.errors import ConfigError
+from ges_core.registry import load_registry
+
+
+def _wxyz(r: Rotation) -> np.ndarray:
+    return r.as_quat()[..., [3, 0, 1, 2]]
+
+
+def test_layout_allegro_blocks_are_contiguous_and_sized() -> None:
+    hand = load_registry().build_hand("allegro").description
+    contact = (*hand.tip_links, hand.wrist.link)
+    layout = ObservationLayout.for_hand(hand, contact)
+    k, f = hand.num_joints, len(hand.fingers)
+    assert (k, f) == (16, 4)
+    expected = 2 * k + len(contact) + 6 * f + 6 + 6 + (k + 6) + 3 + 3 + 3 + k
+    assert layout.size == expected
+    assert list(layout.slices) == list(BLOCK_DOCS)
+    ends = [s.stop for s in layout.slices.values()]
+    starts = [s.start for s in layout.slices.values()]
+    assert starts == [0, *ends[:-1]] and ends[-1] == layout.size
+
+
+def test_pack_unpack_roundtrip_and_errors() -> None:
+    layout = ObservationLayout(3, 2, 1)
+    blocks = {name: torch.rand(4, size, dtype=torch.float64) for name, size in layout.sizes().items()}
+    blocks["tip_pos"] = blocks["tip_pos"].reshape(4, 1, 3)
+    obs = layout.pack(blocks)
+    assert obs.shape == (4, layout.size) and obs.dtype == torch.float32
+    assert torch.allclose(layout.unpack(obs, "goal_q"), blocks["goal_q"].float())
+    del blocks["q"]
+    with pytest.raises(ConfigError, match=r"missing blocks \['q'\]"):
+        layout.pack(blocks)
+    blocks["q"] = torch.zeros(4, 5)
+    with pytest.raises(ConfigError, match="wrong size"):
+        layout.pack(blocks)
+    with pytest.raises(ConfigError, match="every count must be >= 1"):
+        ObservationLayout(3, 0, 1)
+
+
+def test_action_layout_maps_limits() -> None:
+    lower, upper = torch.tensor([-1.0, 0.0]), torch.tensor([1.0, 2.0])
+    act = ActionLayout(lower, upper, max_wrist_step=0.02, max_wrist_turn=0.1)
+    a = torch.tensor([[1.0, -1.0, 0.5, 0.0, 0.0, 2.0, -1.0, 1.0]])
+    assert act.size == 8
+    assert torch.allclose(act.joint_targets(a), torch.tensor([[-1.0, 2.0]]))
+    dp, dr = act.wrist_deltas(a)
+    assert torch.allclose(dp, torch.tensor([[0.02, -0.02, 0.01]]))
+    assert torch.allclose(dr, torch.tensor([[0.0, 0.0, 0.1]]))  # clipped to 1
+    q = torch.tensor([[0.25, 1.5]])
+    assert torch.allclose(act.joint_targets(torch.cat([torch.zeros(1, 6), act.normalize_joints(q)], 1)), q)
+
+
+def test_rotations_match_scipy() -> None:
+    rng = np.random.default_rng(0)
+    r = Rotation.random(50, random_state=rng)
+    q = torch.as_tensor(_wxyz(r))
+    assert np.allclose(quat_to_rotvec(q).numpy(), r.as_rotvec(), atol=1e-9)
+    assert np.allclose(quat_to_rotvec(-q).numpy(), r.as_rotvec(), atol=1e-9)
+    back = rotvec_to_quat(torch.as_tensor(r.as_rotvec()))
+    assert np.allclose((back * q).sum(-1).abs().numpy(), 1.0)
+    s = Rotation.random(50, random_state=rng)
+    prod = quat_mul(q, torch.as_tensor(_wxyz(s)))
+    assert np.allclose(np.abs((prod.numpy() * _wxyz(r * s)).sum(-1)), 1.0)
+    v = rng.normal(size=(50, 3))
+    assert np.allclose(quat_rotate(q, torch.as_tensor(v)).numpy(), r.apply(v))
+    assert np.allclose(quat_to_rotvec(quat_mul(q, quat_conj(q))).numpy(), 0.0, atol=1e-7)
+    assert np.allclose(quat_to_rotvec(rotvec_to_quat(torch.zeros(1, 3, dtype=torch.float64))).numpy(), 0.0)
