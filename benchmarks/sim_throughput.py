@@ -41,11 +41,14 @@ def time_raw(sim, steps: int) -> float:
     return (time.perf_counter() - start) / steps
 
 
-def time_interface(sim, hand, steps: int) -> float:
-    """Seconds per step with targets, step and the reads a controller makes."""
+def time_interface(sim, hand, steps: int, closure: float) -> float:
+    """Seconds per step with targets, step and the reads a controller makes.
+
+    The targets equal the ones the grasp scene left set, so both loops simulate the same physics.
+    """
     d = hand.description
     tips = list(d.tip_links)
-    q_target = np.tile(d.closed_pose(0.9), (sim.num_envs, 1))
+    q_target = np.tile(d.closed_pose(closure), (sim.num_envs, 1))
     start = time.perf_counter()
     for _ in range(steps):
         sim.set_joint_targets(q_target)
@@ -84,7 +87,7 @@ def bench_pair(registry, hand_name: str, sim_name: str, steps: int, repeats: int
         raw, iface = [], []
         for _ in range(repeats):  # interleave so drift in machine load hits both alike
             raw.append(time_raw(sim, steps))
-            iface.append(time_interface(sim, hand, steps))
+            iface.append(time_interface(sim, hand, steps, config.closure))
     raw_s, iface_s = statistics.median(raw), statistics.median(iface)
     return {
         "hand": hand_name,
