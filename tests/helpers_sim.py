@@ -17,7 +17,8 @@ from pathlib import Path
 from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.hand_yaml import description_from_yaml
-from ges_core.objects.asset import ObjectAsset, PrimitiveShape
+from ges_core.objects.asset import ObjectAsset
+from ges_core.objects.simple import box_asset as simple_box
 from ges_core.paths import atomic_write_text, cache_dir
 from ges_core.urdf import absolutize_mesh_paths, strip_render_data
 
@@ -112,25 +113,5 @@ def box_asset(
     density: float = 500.0,
     friction: float = 1.0,
 ) -> ObjectAsset:
-    """A box centred on its object frame, collision = one exact box primitive, mesh = its OBJ."""
-    hx, hy, hz = half_extents
-    return ObjectAsset(
-        object_id=object_id,
-        category="box",
-        mesh_path=_box_mesh(half_extents),
-        collision=(PrimitiveShape(kind="box", size=half_extents),),
-        density=density,
-        mass=density * 8 * hx * hy * hz,
-        friction=friction,
-    )
-
-
-def _box_mesh(half_extents: tuple[float, float, float]) -> Path:
-    """OBJ surface of the box, cached by size."""
-    import trimesh
-
-    path = cache_dir("test_objects") / ("box_" + "_".join(f"{h:.5f}" for h in half_extents) + ".obj")
-    if not path.is_file():
-        mesh = trimesh.creation.box(extents=[2 * h for h in half_extents])
-        atomic_write_text(path, mesh.export(file_type="obj"))
-    return path
+    """A box centred on its object frame (the simulator tests' convention), one exact box primitive."""
+    return simple_box(half_extents, object_id=object_id, density=density, friction=friction, resting=False)
