@@ -6,23 +6,30 @@ absolute) with an inline YAML, so simulator tests do not depend on the Allegro h
 
 from __future__ import annotations
 
-import hashlib
 import importlib.util
 import os
 import subprocess
 import sys
+from contextlib import contextmanager
 from functools import cache
 from pathlib import Path
+
+import numpy as np
 
 from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.hand_yaml import description_from_yaml
 from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.simple import box_asset as simple_box
-from ges_core.paths import atomic_write_text, cache_dir
+from ges_core.paths import cached_text_file
+from ges_core.sim import SceneConfig, SimBackend
 from ges_core.urdf import absolutize_mesh_paths, strip_render_data
 
 __all__ = [
+    "UP",
+    "loaded_sim",
+    "open_q",
+    "pybullet_body",
     "ALLEGRO_TIPS",
     "TestHand",
     "allegro_test_hand",
@@ -99,11 +106,9 @@ def allegro_test_hand() -> TestHand:
     """The right Allegro hand (16 joints), URDF cleaned and cached under the GES cache dir."""
     source = allegro_urdf_source()
     text = absolutize_mesh_paths(strip_render_data(source.read_text()), source.parent)
-    key = hashlib.sha256(text.encode()).hexdigest()[:16]
-    path = cache_dir("test_hands") / f"allegro_right_{key}.urdf"
-    if not path.is_file():
-        atomic_write_text(path, text)
-    return TestHand(description_from_yaml(ALLEGRO_YAML, text), path)
+    return TestHand(
+        description_from_yaml(ALLEGRO_YAML, text), cached_text_file(text, "test_hands", stem="allegro_right")
+    )
 
 
 def box_asset(
@@ -115,3 +120,37 @@ def box_asset(
 ) -> ObjectAsset:
     """A box centred on its object frame (the simulator tests' convention), one exact box primitive."""
     return simple_box(half_extents, object_id=object_id, density=density, friction=friction, resting=False)
+
+
+UP = np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0])
+"""A base pose well above the table."""
+
+
+def loaded_sim(backend_cls: type[SimBackend], hand: HandModel | None = None, *, floating: bool = True, **scene):
+    """A backend of ``backend_cls`` with ``SceneConfig(**scene)``, the hand loaded if given."""
+    sim = backend_cls(SceneConfig(**scene))
+    if hand is not None:
+        sim.load_hand(hand, floating=floating)
+    return sim
+
+
+def open_q(hand: HandModel, n: int = 1) -> np.ndarray:
+    """(n, K) open poses."""
+    return np.tile(np.asarray(hand.description.open_pose), (n, 1))
+
+
+@contextmanager
+def pybullet_body(urdf: Path):
+    """A private PyBullet DIRECT client with ``urdf`` loaded fixed: yields (pybullet, client, body, joint infos).
+
+    Every call names the client, so a client left open elsewhere in the process cannot interfere.
+    """
+    import pybullet
+
+    client = pybullet.connect(pybullet.DIRECT)
+    try:
+        body = pybullet.loadURDF(str(urdf), useFixedBase=True, physicsClientId=client)
+        count = pybullet.getNumJoints(body, physicsClientId=client)
+        yield pybullet, client, body, [pybullet.getJointInfo(body, j, physicsClientId=client) for j in range(count)]
+    finally:
+        pybullet.disconnect(client)

@@ -19,6 +19,8 @@ from ges_core.registry import load_registry
 from ges_core.urdf import absolutize_mesh_paths
 from plugins.hands.allegro import hand as allegro
 
+from helpers_sim import pybullet_body
+
 SOURCE = allegro.source_urdf_path()
 
 
@@ -312,15 +314,9 @@ def test_loads_in_sapien_headless_with_matching_kinematics(hand, kin):
 
 @pytest.mark.sim
 def test_open_pose_has_no_overlapping_links(hand):
-    pybullet = pytest.importorskip("pybullet")
+    pytest.importorskip("pybullet")
     d = hand.description
-    client = pybullet.connect(pybullet.DIRECT)
-    try:
-        body = pybullet.loadURDF(str(hand.urdf_path()), useFixedBase=True, physicsClientId=client)
-        infos = [
-            pybullet.getJointInfo(body, j, physicsClientId=client)
-            for j in range(pybullet.getNumJoints(body, physicsClientId=client))
-        ]
+    with pybullet_body(hand.urdf_path()) as (pybullet, client, body, infos):
         by_name = {i[1].decode(): i[0] for i in infos}
         for name, value in zip(d.joint_names, d.open_pose, strict=True):
             pybullet.resetJointState(body, by_name[name], value, physicsClientId=client)
@@ -333,5 +329,3 @@ def test_open_pose_has_no_overlapping_links(hand):
                 points = pybullet.getClosestPoints(body, body, 0.0, a, b, physicsClientId=client)
                 overlaps += [(a, b, p[8]) for p in points if p[8] < -1e-4]
         assert overlaps == []
-    finally:
-        pybullet.disconnect(client)

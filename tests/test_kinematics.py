@@ -10,6 +10,8 @@ from ges_core.errors import AssetError, UnknownNameError
 from ges_core.kinematics import HandKinematics
 from ges_core.registry import load_registry
 
+from helpers_sim import pybullet_body
+
 TIPS = ["link_3.0_tip", "link_7.0_tip", "link_11.0_tip", "link_15.0_tip"]
 PAD = [[0.012, 0.0, 0.0]] * 4  # fingertip pad points, tip-link frames
 
@@ -65,14 +67,8 @@ def finite_difference(kin: HandKinematics, q: torch.Tensor, links, offsets, eps:
 # -- forward kinematics against PyBullet ---------------------------------------------------
 @pytest.mark.sim
 def test_link_poses_match_pybullet(hand, kin):
-    pybullet = pytest.importorskip("pybullet")
-    client = pybullet.connect(pybullet.DIRECT)
-    try:
-        body = pybullet.loadURDF(str(hand.urdf_path()), useFixedBase=True, physicsClientId=client)
-        infos = [
-            pybullet.getJointInfo(body, j, physicsClientId=client)
-            for j in range(pybullet.getNumJoints(body, physicsClientId=client))
-        ]
+    pytest.importorskip("pybullet")
+    with pybullet_body(hand.urdf_path()) as (pybullet, client, body, infos):
         joint_id = {i[1].decode(): i[0] for i in infos}
         link_id = {i[12].decode(): i[0] for i in infos}
         links = sorted(link_id)  # every link but the base, which is the frame of both
@@ -88,8 +84,6 @@ def test_link_poses_match_pybullet(hand, kin):
                 rot = np.array(pybullet.getMatrixFromQuaternion(state[5])).reshape(3, 3)
                 assert np.linalg.norm(ours[b, li, :3, 3] - state[4]) < 1e-3, name
                 assert np.abs(ours[b, li, :3, :3] - rot).max() < 1e-3, name
-    finally:
-        pybullet.disconnect(client)
 
 
 def test_joint_order_is_by_name(hand, kin):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from functools import partial
 
 import numpy as np
 import pybullet as p
@@ -22,12 +23,9 @@ from plugins.sims.pybullet.bench import GRASP_BASE_POSE, grasp_scene
 from plugins.sims.pybullet.drive import ImplicitPD, product_friction
 from plugins.sims.pybullet.hand_urdf import principal_moments, pybullet_hand_urdf, sanitize_inertias
 
-from helpers_sim import TestHand, allegro_test_hand, box_asset, run_python
+from helpers_sim import UP, TestHand, allegro_test_hand, box_asset, loaded_sim, open_q, run_python
 
 pytestmark = pytest.mark.sim
-
-UP = np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0])
-"""A base pose well above the table."""
 
 
 @pytest.fixture(scope="module")
@@ -35,15 +33,8 @@ def hand():
     return allegro_test_hand()
 
 
-def make_sim(hand=None, *, floating: bool = True, **scene) -> PybulletBackend:
-    sim = PybulletBackend(SceneConfig(**scene))
-    if hand is not None:
-        sim.load_hand(hand, floating=floating)
-    return sim
-
-
-def open_q(hand, n: int = 1) -> np.ndarray:
-    return np.tile(np.asarray(hand.description.open_pose), (n, 1))
+make_sim = partial(loaded_sim, PybulletBackend)
+"""A PybulletBackend with ``SceneConfig(**scene)``, the hand loaded if given."""
 
 
 def reordered(hand, order: list[int]) -> TestHand:

@@ -4,6 +4,7 @@ API, gravity, and physical sense of contact forces."""
 from __future__ import annotations
 
 import xml.etree.ElementTree as ET
+from functools import partial
 from itertools import combinations
 
 import numpy as np
@@ -18,12 +19,9 @@ from plugins.sims.sapien.backend import SapienBackend, euler_xyz
 from plugins.sims.sapien.bench import allegro_top_down
 from plugins.sims.sapien.loading import PAIR_BITS, REST_MARGIN, pair_exclusion_bits
 
-from helpers_sim import ALLEGRO_TIPS, allegro_test_hand, box_asset, run_python
+from helpers_sim import ALLEGRO_TIPS, UP, allegro_test_hand, box_asset, loaded_sim, open_q, run_python
 
 pytestmark = pytest.mark.sim
-
-UP = np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0])
-"""A base pose well above the table."""
 
 
 @pytest.fixture(scope="module")
@@ -31,15 +29,8 @@ def hand():
     return allegro_test_hand()
 
 
-def make_sim(hand=None, *, floating: bool = True, **scene) -> SapienBackend:
-    sim = SapienBackend(SceneConfig(**scene))
-    if hand is not None:
-        sim.load_hand(hand, floating=floating)
-    return sim
-
-
-def open_q(hand, n: int = 1) -> np.ndarray:
-    return np.tile(np.asarray(hand.description.open_pose), (n, 1))
+make_sim = partial(loaded_sim, SapienBackend)
+"""A SapienBackend with ``SceneConfig(**scene)``, the hand loaded if given."""
 
 
 # -- registry and joint order -------------------------------------------------------------------
@@ -200,7 +191,7 @@ def test_object_replacement_and_env_ids():
 def test_contacts_read_right_after_replacing_the_object_are_empty_not_a_crash(hand):
     """PhysX still lists the removed body's contacts until the next step; touching them segfaulted."""
     sim = make_sim(hand)
-    sim.set_hand_state(np.asarray(hand.description.open_pose)[None], np.array([[0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0]]))
+    sim.set_hand_state(open_q(hand), UP[None])
     sim.load_object(box_asset(object_id="t/first"))
     sim.step(30)
     assert len(sim.contact_pairs(0)) > 0
