@@ -8,6 +8,9 @@ Targets: reachable by construction, the fingertip points of seeded random joint 
 uniformly within the joint limits, base-link frame. Cold start for every solve: the open pose
 (= zeros clipped to the limits, what dex-retargeting does with a zero start).
 
+Needs the optional extra: ``pip install -e '.[bench]'`` (dex-retargeting and the ``six`` it imports
+without declaring it).
+
 Objective compared: fingertip position error, ``||f_i(q) - target_i||`` in mm, measured for both
 solvers with our FK. dex-retargeting minimizes a Huber loss (delta 2 cm) on the vectors from the
 origin link (base_link) to each task link (the pads) plus ``norm_delta ||q - q_last||^2``; with the
@@ -127,7 +130,10 @@ def dex_urdf(hand, folder: Path) -> tuple[Path, list[str]]:
 
 def build_dex(hand, folder: Path, norm_delta: float):
     """dex-retargeting's SeqRetargeting with a vector optimizer: base_link -> each pad, scale 1, no filter."""
-    from dex_retargeting.retargeting_config import RetargetingConfig
+    try:
+        from dex_retargeting.retargeting_config import RetargetingConfig
+    except ImportError as exc:  # an optional, benchmark-only dependency
+        raise SystemExit(f"this benchmark needs dex-retargeting: pip install -e '.[bench]' ({exc})") from exc
 
     urdf, pads = dex_urdf(hand, folder)
     config = RetargetingConfig.from_dict(

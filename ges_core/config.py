@@ -15,9 +15,15 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ges_core.errors import ConfigError
 
-__all__ = ["Defaults", "RegistryConfig", "apply_overrides", "load_config", "parse_model", "read_yaml"]
+__all__ = ["ConfigModel", "Defaults", "RegistryConfig", "apply_overrides", "load_config", "parse_model", "read_yaml"]
 
 M = TypeVar("M", bound=BaseModel)
+
+
+class ConfigModel(BaseModel):
+    """Base of our settings models: unknown keys rejected, immutable, no NaN or infinite numbers."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
 class Defaults(BaseModel):

@@ -16,8 +16,9 @@ from dataclasses import dataclass
 from typing import Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 
@@ -27,7 +28,7 @@ ContactPartner = Literal["object", "table", "any"]
 """Whose contacts :meth:`SimBackend.contact_forces` sums: the object's, the table's or all."""
 
 
-class SceneConfig(BaseModel):
+class SceneConfig(ConfigModel):
     """Physics settings shared by every backend.
 
     ``self_collision=True`` collides every pair of hand links except the pairs of
@@ -35,8 +36,6 @@ class SceneConfig(BaseModel):
     zero-length links (the Shadow hand's palm and ffproximal, through ``ffknuckle``). Every backend
     excludes exactly those, so a hand touches itself in the same places in every engine.
     """
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     num_envs: int = Field(1, ge=1, description="independent scenes stepped together")
     timestep: float = Field(1 / 120, gt=0, le=0.05, description="physics step, seconds")

@@ -19,8 +19,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.env.layout import ActionLayout, ObservationLayout
 from ges_core.env.reward import RewardConfig, compute_reward, consistency_groups
 from ges_core.env.rotations import quat_conj, quat_mul, quat_rotate, quat_to_rotvec, rotvec_to_quat
@@ -35,10 +36,8 @@ __all__ = ["EnvConfig", "GraspEnv", "GraspTargets"]
 _ENV_IN_MESSAGE = re.compile(r"\benv (\d+)\b")
 
 
-class EnvConfig(BaseModel):
+class EnvConfig(ConfigModel):
     """Settings of the grasp-execution environment."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     sim_steps: int = Field(2, ge=1, description="physics steps per control step")
     episode_length: int = Field(200, ge=1, description="control steps per episode (the peers' 200)")

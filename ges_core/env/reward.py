@@ -13,8 +13,9 @@ Every term is returned on its own for logging. Forms (our reading of the paper, 
 from __future__ import annotations
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription
 
@@ -23,10 +24,8 @@ __all__ = ["RewardConfig", "REWARD_PRESETS", "compute_reward", "consistency_grou
 TERMS = ("goal", "reach", "lift", "move", "smooth", "consistency")
 
 
-class RewardConfig(BaseModel):
+class RewardConfig(ConfigModel):
     """Weights and decay rates of the reward."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     w_goal: float = Field(1.0, description="ω_g, weight of the goal-pose term r_g")
     w_reach: float = Field(1.0, description="ω_r, weight of the reach term r_r")

@@ -13,7 +13,9 @@ from __future__ import annotations
 from enum import IntEnum
 
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
+
+from ges_core.config import ConfigModel
 
 __all__ = ["EndReason", "SuccessConfig", "SuccessTracker"]
 
@@ -29,10 +31,8 @@ class EndReason(IntEnum):
     UNSTABLE = 5
 
 
-class SuccessConfig(BaseModel):
+class SuccessConfig(ConfigModel):
     """The success protocol."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     lift_height: float = Field(0.2, gt=0, description="metres above the object's start (the paper's 0.2 m)")
     hold_steps: int = Field(200, ge=1, description="simulation steps the lift must be held (the paper's 200)")

@@ -18,8 +18,9 @@ A pure function: no simulator.
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.synthesis.sim_scene import check_grasp
@@ -28,10 +29,8 @@ from ges_core.synthesis.types import Grasp
 __all__ = ["PregraspConfig", "open_joint_mask", "pregrasp"]
 
 
-class PregraspConfig(BaseModel):
+class PregraspConfig(ConfigModel):
     """How far to back off and which joints to open."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     backoff: float = Field(0.02, ge=0, description="metres moved back against the approach direction (paper: 0.02)")
     thumb_keep: int = Field(1, ge=0, description="proximal thumb joints that keep the grasp's values")

@@ -30,8 +30,9 @@ from __future__ import annotations
 import time
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.errors import SimulationError, SynthesisError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
@@ -52,10 +53,8 @@ from ges_core.synthesis.types import Grasp, RefinedGrasp
 __all__ = ["RefineConfig", "refine_grasp", "refine_verdict"]
 
 
-class RefineConfig(BaseModel):
+class RefineConfig(ConfigModel):
     """Settings of collision-aware refinement (steps are physics steps of the backend's timestep)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     # gamma: the paper gives no value. 0.5 N is ten times the 'touching' bar of the sim check (0.05 N) and
     # about half the test box's weight. On the Allegro test grasp gamma = 0.2 and 0.5 give identical

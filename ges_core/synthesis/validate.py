@@ -35,8 +35,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
@@ -58,10 +59,8 @@ REASONS = ("success", "no_contact", "palm_only", "dropped", "not_lifted", "unsta
 """Every reason :func:`validate_grasp` can give."""
 
 
-class ValidateConfig(BaseModel):
+class ValidateConfig(ConfigModel):
     """The lift-and-hold protocol and its pass marks (steps are physics steps of the backend)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
     approach_steps: int = Field(30, ge=1, description="steps moving the base from the pre-grasp to the grasp")
     close_steps: int = Field(60, ge=1, description="steps ramping the fingers to the squeezed grasp joints")
