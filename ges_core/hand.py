@@ -55,6 +55,10 @@ class FingerSpec:
     """Link whose origin (plus ``tip_offset``) is the fingertip contact point."""
     tip_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
     """Fingertip point in ``tip_link``'s frame, metres."""
+    pad_normal: tuple[float, float, float] | None = None
+    """Unit direction the fingertip pad faces (out of the finger, toward what it presses), ``tip_link`` frame.
+
+    None: unknown; retargeting then aims only the fingertip point, not the pad's orientation."""
     keypoint_links: tuple[str, ...] = ()
     """Links used as retargeting keypoints, proximal to distal (``tip_link`` last)."""
 

@@ -26,7 +26,7 @@ import xml.etree.ElementTree as ET
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
 
 from ges_core.contact import FINGER_SLOTS
 from ges_core.errors import AssetError
@@ -45,7 +45,18 @@ class _Finger(BaseModel):
     joints: list[str]
     tip_link: str
     tip_offset: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    pad_normal: tuple[float, float, float] | None = None
     keypoint_links: list[str] = Field(default_factory=list)
+
+    @field_validator("pad_normal")
+    @classmethod
+    def _unit_pad_normal(cls, v: tuple[float, float, float] | None) -> tuple[float, float, float] | None:
+        if v is None:
+            return None
+        norm = sum(x * x for x in v) ** 0.5
+        if not norm > 1e-6 or norm != norm:
+            raise ValueError(f"must be a non-zero direction in the tip link's frame, got {list(v)}")
+        return (v[0] / norm, v[1] / norm, v[2] / norm)
 
 
 class _Wrist(BaseModel):

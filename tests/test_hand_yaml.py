@@ -218,3 +218,11 @@ def test_references_to_unknown_names_fail_when_parsed(overrides, message):
 
 def test_description_is_hashable():
     assert hash(describe()) == hash(describe())
+
+
+def test_pad_normal_is_normalized_and_a_zero_one_is_refused():
+    d = describe(YAML.replace("tip_offset: [0.01, 0, 0]}", "tip_offset: [0.01, 0, 0], pad_normal: [2, 0, 0]}"))
+    assert d.finger("ff").pad_normal == (1.0, 0.0, 0.0)
+    assert d.finger("th").pad_normal is None  # not declared: retargeting aims the tip point only
+    with pytest.raises(AssetError, match=r"fingers\.0\.pad_normal: .*must be a non-zero direction"):
+        describe(YAML.replace("tip_offset: [0.01, 0, 0]}", "tip_offset: [0.01, 0, 0], pad_normal: [0, 0, 0]}"))

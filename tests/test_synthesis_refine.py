@@ -121,7 +121,7 @@ def test_pregrasp_backs_off_along_the_approach_and_keeps_the_rotation(allegro):
 
 
 @pytest.mark.parametrize("hand_name", HANDS)
-def test_pregrasp_opens_the_fingers_but_keeps_thumb_rotation_and_wrist(hand_name):
+def test_pregrasp_opens_the_fingers_but_keeps_thumb_opposition_and_wrist(hand_name):
     hand = REGISTRY.build_hand(hand_name)
     d = hand.description
     grasp = top_grasp(hand, closure=0.7)
@@ -129,7 +129,8 @@ def test_pregrasp_opens_the_fingers_but_keeps_thumb_rotation_and_wrist(hand_name
     thumb = d.finger_for_slot("thumb")
     finger_joints = {j for f in d.fingers for j in f.joints}
     for k, name in enumerate(d.joint_names):
-        kept = name == thumb.joints[0] or name not in finger_joints  # thumb rotation; Shadow's wrist joints
+        # the thumb's first two joints (rotation, abduction: its opposition); Shadow's wrist joints
+        kept = name in thumb.joints[: PregraspConfig().thumb_keep] or name not in finger_joints
         assert pre.q[k] == pytest.approx(grasp.q[k] if kept else d.open_pose[k]), name
     # independent check with forward kinematics: the opened fingertips spread away from the thumb tip
     kin = HandKinematics.from_hand(hand)

@@ -150,6 +150,39 @@ def test_finger_serving_two_slots_aims_at_their_mean(hands, solvers):
     torch.testing.assert_close(residual, torch.full((4,), 0.2 * 0.02, dtype=residual.dtype), atol=1e-4, rtol=0)
 
 
+def pad_normals(kin: HandKinematics, hand: HandModel, q: torch.Tensor) -> torch.Tensor:
+    """(B, S, 3) pad normal of the finger serving each slot at q, base frame (independent of the solver)."""
+    d = hand.description
+    rot = kin.link_poses(q, [d.finger_for_slot(s).tip_link for s in FINGER_SLOTS])[..., :3, :3]
+    pads = torch.tensor([d.finger_for_slot(s).pad_normal for s in FINGER_SLOTS], dtype=rot.dtype)
+    return torch.einsum("bsij,sj->bsi", rot, pads)
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_pad_term_turns_each_pad_to_face_its_surface(hands, kins, name):
+    """Targets and surfaces of reachable poses: with normals the pads face them, without they need not."""
+    hand, kin = hands[name], kins[name]
+    solver = VectorRetargeter(hand, VectorRetargetConfig(iterations=15), kinematics=kin)
+    q_true = random_finger_q(hand, 32, seed=11)
+    targets, normals = solver.fingertips(q_true), -pad_normals(kin, hand, q_true)  # surface faces the pad
+    alignment = {}
+    for with_normals in (False, True):
+        q, residual = solver.solve(targets, normals=normals if with_normals else None)
+        cos = (pad_normals(kin, hand, q) * -normals).sum(-1)
+        alignment[with_normals] = float(cos.mean())
+        assert residual.mean() < 3e-3, f"{name}: fingertip error {residual.mean() * 1e3:.2f} mm"
+    # misalignment 1 - cos: Allegro's 4-joint fingers have little freedom (0.04 -> 0.002), Shadow's thumb much
+    assert alignment[True] > 0.95 and 1 - alignment[True] < 0.5 * (1 - alignment[False]), alignment
+
+
+def test_objective_is_the_squared_fingertip_distance_without_normals(hands, solvers):
+    hand, solver = hands["shadow"], solvers["shadow"]  # one finger per slot: no slot averaging
+    q = random_finger_q(hand, 5, seed=12)
+    targets = solver.fingertips(random_finger_q(hand, 5, seed=13))
+    expected = ((solver.fingertips(q) - targets) ** 2).sum(dim=(1, 2))
+    torch.testing.assert_close(solver.objective(q, targets), expected, atol=1e-12, rtol=0)
+
+
 # -- topology descriptors ------------------------------------------------------------------------
 def rotation(seed: int) -> np.ndarray:
     from scipy.spatial.transform import Rotation
@@ -230,6 +263,42 @@ def test_box_grasp_puts_fingertips_on_the_contacts(hands, kins, retargeters, nam
     mean_mm, max_mm = np.mean(errors) * 1e3, np.max(errors) * 1e3
     print(f"{name}: box grasp, fingertip to its contact(s) mean {mean_mm:.2f} mm, max {max_mm:.2f} mm")
     assert mean_mm < 5.0, f"mean {mean_mm:.2f} mm"
+
+
+def grasp_objective(retargeter: GraspRetargeter, grasp: Grasp, contacts: ContactSet) -> float:
+    """The solver objective of a returned grasp, recomputed from its base pose (object -> base frame)."""
+    base = pose_to_matrix(grasp.wrist_pose)
+    rot, trans = base[:3, :3], base[:3, 3]
+    positions = raise_contacts(contacts.positions[None], retargeter.config.min_contact_height)[0]
+    targets = torch.as_tensor(((positions - trans) @ rot)[None])
+    normals = torch.as_tensor((contacts.normals @ rot)[None])
+    return float(retargeter.solver.objective(torch.as_tensor(grasp.q)[None], targets, normals)[0])
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_wrist_search_fits_at_least_as_well_as_the_papers_placement(hands, kins, retargeters, name):
+    paper = GraspRetargeter(hands[name], RetargetConfig(wrist_search={"enabled": False}), kinematics=kins[name])
+    assert len(paper.search_offsets) == 1 and not paper.search_offsets.any()
+    searched = retargeters[name]
+    assert not searched.search_offsets[0].any() and len(searched.search_offsets) == 96  # row 0: the paper's
+    better = 0
+    for contacts in box_contact_sets():
+        a, b = (
+            grasp_objective(paper, paper.retarget(contacts), contacts),
+            grasp_objective(searched, searched.retarget(contacts), contacts),
+        )
+        assert b <= a + 1e-12
+        better += b < 0.5 * a
+    assert better >= 1, f"{name}: the search never halved the objective"
+
+
+def test_wrist_search_result_does_not_depend_on_batch_mates(retargeters):
+    contacts = box_contact_sets()
+    together = retargeters["shadow"].retarget_many(contacts[:3])
+    for c, g in zip(contacts[:3], together, strict=True):
+        alone = retargeters["shadow"].retarget(c)
+        np.testing.assert_allclose(alone.wrist_pose, g.wrist_pose, atol=1e-12)
+        np.testing.assert_allclose(alone.q, g.q, atol=1e-9)
 
 
 def test_shadow_base_is_the_forearm_below_the_palm(hands, kins, retargeters):

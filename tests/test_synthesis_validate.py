@@ -8,15 +8,18 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import torch
 from test_synthesis_refine import DOWN, REGISTRY, SIMS, ExplodingBackend, box_object, top_grasp
 
 from ges_core.errors import ConfigError
+from ges_core.kinematics import HandKinematics
 from ges_core.sim import SceneConfig
 from ges_core.synthesis.pregrasp import pregrasp
 from ges_core.synthesis.refine import refine_grasp, refine_verdict
 from ges_core.synthesis.sim_scene import tip_rule
+from ges_core.synthesis.squeeze import press_directions, squeeze_targets
 from ges_core.synthesis.types import Grasp, ValidationResult
-from ges_core.synthesis.validate import HoldRecord, ValidateConfig, agreement, classify, squeeze_targets, validate_grasp
+from ges_core.synthesis.validate import HoldRecord, ValidateConfig, agreement, classify, validate_grasp
 
 CONFIG = ValidateConfig()
 
@@ -59,22 +62,51 @@ def test_tip_rule_needs_two_tips_with_the_thumb():
     assert not tip_rule(forces, thumb=3, min_force=0.05, min_tips=4, require_thumb=True)
 
 
-def test_squeeze_goes_past_the_grasp_by_a_torque_bounded_angle(allegro):
-    d = allegro.description
-    q_grasp = d.closed_pose(0.5)
-    q_pre = pregrasp(allegro, top_grasp(allegro), DOWN).q
-    close = squeeze_targets(d, q_pre, q_grasp, CONFIG)
-    moved = np.abs(q_grasp - q_pre) > 1e-3
-    # Allegro's Kp = 400 N·m/rad: 1 N·m would be 2.5 mrad, so the 0.05 rad floor applies
-    np.testing.assert_allclose((close - q_grasp)[moved], 0.05 * np.sign(q_grasp - q_pre)[moved])
-    np.testing.assert_allclose(close[~moved], q_grasp[~moved])  # thumb rotation: not pushed
+@pytest.mark.parametrize("name", ["allegro", "shadow"])
+def test_squeeze_presses_each_fingertip_toward_what_it_opposes(name):
+    """First-order tip motion of the squeeze, through an independent numeric FK difference, points along the press."""
+    hand = REGISTRY.build_hand(name)
+    d = hand.description
+    q_grasp = d.apply_couplings(d.closed_pose(0.5))
+    close = squeeze_targets(hand, q_grasp, force=5.0, min_squeeze=0.0, max_squeeze=10.0)
+    kin = HandKinematics.from_hand(hand)
+    offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
+    tips = kin.points(
+        torch.as_tensor(np.stack([q_grasp, q_grasp + 1e-4 * (close - q_grasp)])), list(d.tip_links), offsets
+    )
+    motion = (tips[1] - tips[0]).numpy()
+    press = press_directions(d, tips[0].numpy())
+    cos = np.sum(motion * press, axis=1) / np.linalg.norm(motion, axis=1)
+    assert np.all(cos > 0.0), f"{name}: a fingertip moves away from what it opposes: cos {cos}"
+    no_finger = [i for i, j in enumerate(d.joint_names) if all(j not in f.joints for f in d.fingers)]
+    np.testing.assert_array_equal(close[no_finger], q_grasp[no_finger])  # Shadow's wrist joints: not pushed
 
-    shadow = REGISTRY.build_hand("shadow").description
-    q_grasp = shadow.closed_pose(0.5)
-    close = squeeze_targets(shadow, np.asarray(shadow.open_pose), q_grasp, CONFIG)
-    ffj1, ffj2 = shadow.joint_index(["FFJ1", "FFJ2"])
-    assert close[ffj2] - q_grasp[ffj2] == pytest.approx(0.6)  # Kp = 1: 1 rad, capped at max_squeeze
-    assert close[ffj1 + 1] == pytest.approx(min(1.141844 * close[ffj1], 1.571))  # FFJ0 follows FFJ1
+
+def test_squeeze_floor_and_cap(allegro):
+    d = allegro.description
+    q_grasp = d.apply_couplings(d.closed_pose(0.5))
+    # Allegro's Kp = 400 N·m/rad: 5 N is ~1 mrad, so the largest angle is raised to the 0.05 rad floor
+    close = squeeze_targets(allegro, q_grasp, force=5.0, min_squeeze=0.05, max_squeeze=0.6)
+    assert np.abs(close - q_grasp).max() == pytest.approx(0.05)
+    shadow = REGISTRY.build_hand("shadow")
+    sd = shadow.description
+    q_grasp = sd.apply_couplings(sd.closed_pose(0.5))
+    close = squeeze_targets(shadow, q_grasp, force=500.0, min_squeeze=0.0, max_squeeze=0.3)
+    leaders = [i for i, j in enumerate(sd.joint_names) if j not in {c.follower for c in sd.couplings}]
+    assert np.abs(close - q_grasp)[leaders].max() == pytest.approx(0.3)  # Kp = 1: 500 N asks for far more
+    ffj1 = sd.joint_index(["FFJ1"])[0]
+    assert close[ffj1 + 1] == pytest.approx(min(1.141844 * close[ffj1], 1.571), abs=1e-4)  # FFJ0 follows FFJ1
+
+
+def test_press_directions_oppose_the_thumb():
+    d = REGISTRY.build_hand("allegro").description
+    tips = np.zeros((4, 3))
+    thumb = [f.name for f in d.fingers].index(d.finger_for_slot("thumb").name)
+    tips[:, 0] = 0.05
+    tips[thumb] = [-0.05, 0.0, 0.0]
+    u = press_directions(d, tips)
+    np.testing.assert_allclose(u[thumb], [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(np.delete(u, thumb, axis=0), np.tile([-1.0, 0.0, 0.0], (3, 1)))
 
 
 def test_agreement():

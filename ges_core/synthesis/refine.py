@@ -74,7 +74,10 @@ class RefineConfig(ConfigModel):
     max_penetration: float = Field(0.004, ge=0, description="refine_verdict: deepest penetration accepted, m")
     min_touching: int = Field(2, ge=0, description="refine_verdict: fingertips that must touch, thumb included")
     table_force: float = Field(0.05, ge=0, description="a hand-table pair pushing harder than this touches, N")
-    thumb_keep: int = Field(1, ge=0, description="proximal thumb joints that start at the grasp, not open")
+    # 2: rotation and abduction (both built-in hands), so the opened thumb stays opposed and closes by
+    # flexion toward its contact. With 1 the Shadow thumb swung in from the index side and landed on the
+    # box's side face (validated grasps on the 20 demo objects, SAPIEN: Shadow 5 with 2, 0 with 1; Allegro 8, 7).
+    thumb_keep: int = Field(2, ge=0, description="proximal thumb joints that start at the grasp, not open")
     # overshoot: retargeting puts fingertips *on* their contacts, give or take a few mm, so a tip often
     # stops 1-3 mm short and never touches (0-2 of 4 Allegro fingers frozen on the procedural objects).
     # Creeping 0.1 rad further (~1 cm at the tip) after the ramp lets them reach the surface and freeze;

@@ -26,6 +26,7 @@ from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
+from ges_core.synthesis.retarget_search import WristSearchConfig, candidate_offsets, candidate_wrists, table_penalty
 from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
 from ges_core.synthesis.retarget_wrist import (
     HandFrame,
@@ -76,6 +77,7 @@ class RetargetConfig(BaseModel):
         0.01, gt=0, description="metres: mean fingertip-to-contact distance up to which meta['reached'] is True"
     )
     solver: VectorRetargetConfig = Field(default_factory=VectorRetargetConfig)
+    wrist_search: WristSearchConfig = Field(default_factory=WristSearchConfig)
 
 
 class GraspRetargeter:
@@ -97,6 +99,10 @@ class GraspRetargeter:
         self.base_to_wrist = self.kinematics.link_poses(q_open, [d.wrist.link])[0, 0].numpy()
         """(4, 4) wrist-link pose in the base-link frame at ``q_init``."""
         self.frame: HandFrame = hand_frame(d, self._wrist_points(q_open))
+        self.search_offsets = candidate_offsets(self.config.wrist_search)
+        self.hull_links = list(dict.fromkeys([d.wrist.link, *(k for f in d.fingers for k in f.keypoint_links)]))
+        """Links whose origins the wrist search keeps off the table."""
+        """(M, 5) wrist placements tried per grasp (row 0: the paper's), see :mod:`.retarget_search`."""
 
     def retarget(self, contacts: ContactSet) -> Grasp:
         """One grasp; raises SynthesisError(reason="degenerate_contacts") for contacts spanning no plane."""
@@ -114,7 +120,8 @@ class GraspRetargeter:
         out: list = [None if p is None else _degenerate(i, p) for i, p in enumerate(problems)]
         if good:
             topo = topology_descriptors(pos[good], self.frame.chirality)
-            base, q, residual, tip_err = self._solve(topo)
+            normals = np.stack([contacts[i].normals for i in good])
+            base, q, residual, tip_err = self._solve(topo, normals)
             seconds = (time.perf_counter() - start) / len(contacts)
             for j, i in enumerate(good):
                 out[i] = self._grasp(base[j], q[j], residual[j], tip_err[j], topo, j, seconds)
@@ -128,15 +135,47 @@ class GraspRetargeter:
         )
 
     # -- internals ------------------------------------------------------------------------
-    def _solve(self, topo: TopologyDescriptors) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Base poses (B, 4, 4), joints (B, K), residual (B,) and per-slot errors (B, 5), all numpy."""
-        base = self.wrist_link_poses(topo) @ np.linalg.inv(self.base_to_wrist)
+    def _solve(
+        self, topo: TopologyDescriptors, normals: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Base poses (B, 4, 4), joints (B, K), residual (B,) and per-slot errors (B, 5), all numpy.
+
+        normals: (B, 5, 3) outward contact normals, object frame (the solver's pad term). Every
+        candidate wrist placement (:mod:`.retarget_search`) of every grasp is solved in one batch; each
+        grasp keeps the candidate with the lowest objective (the paper's placement on ties)."""
+        c = self.config
+        wrists = candidate_wrists(
+            topo,
+            self.frame,
+            self.search_offsets,
+            roll_deg=c.roll_deg,
+            pitch_deg=c.pitch_deg,
+            palm_distance=c.palm_distance,
+            y_d=c.y_d,
+        )
+        b, m = wrists.shape[:2]
+        base = wrists.reshape(b * m, 4, 4) @ np.linalg.inv(self.base_to_wrist)
         rot, trans = base[:, :3, :3], base[:, :3, 3]
-        targets = np.einsum("bji,bsj->bsi", rot, topo.contacts - trans[:, None])  # R^T (p - t), base frame
-        q0 = torch.as_tensor(self.q_init).expand(len(base), -1)
-        q, residual = self.solver.solve(torch.as_tensor(targets), q0)
-        tip_err = (self.solver.fingertips(q) - torch.as_tensor(targets)).norm(dim=-1)
-        return base, q.numpy(), residual.numpy(), tip_err.numpy()
+        contacts, normals = np.repeat(topo.contacts, m, axis=0), np.repeat(normals, m, axis=0)
+        targets = torch.as_tensor(np.einsum("bji,bsj->bsi", rot, contacts - trans[:, None]))  # R^T (p - t)
+        normals_base = torch.as_tensor(np.einsum("bji,bsj->bsi", rot, normals))
+        q0 = torch.as_tensor(self.q_init).expand(b * m, -1)
+        q, residual = self.solver.solve(targets, q0, normals=normals_base)
+        cost = self.solver.objective(q, targets, normals_base).numpy() + self._table_penalty(q, base)
+        best = torch.as_tensor(cost.reshape(b, m).argmin(axis=1))  # first minimum: the paper's on ties
+        pick = torch.arange(b) * m + best
+        q, residual, targets = q[pick], residual[pick], targets[pick]
+        tip_err = (self.solver.fingertips(q) - targets).norm(dim=-1)
+        return base[pick.numpy()], q.numpy(), residual.numpy(), tip_err.numpy()
+
+    def _table_penalty(self, q: torch.Tensor, base: np.ndarray) -> np.ndarray:
+        """(B,) search penalty of hand link origins near or under the table, for joints q (B, K) at base (B, 4, 4)."""
+        c = self.config.wrist_search
+        if not c.enabled or c.table_weight == 0:
+            return np.zeros(len(base))
+        origins = self.kinematics.link_poses(q, self.hull_links)[..., :3, 3].numpy()  # (B, L, 3), base frame
+        z = np.einsum("bj,blj->bl", base[:, 2, :3], origins) + base[:, 2, 3][:, None]
+        return table_penalty(z, c)
 
     def _grasp(
         self,

@@ -72,6 +72,16 @@ class VectorRetargetConfig(BaseModel):
         0.1, gt=0, description="initial Levenberg-Marquardt damping lambda (A = J^T J + lambda (diag(J^T J) + floor))"
     )
     seeds: int = Field(512, ge=0, description="random configurations in the start table (0: start from q_init only)")
+    # Pad term: with contact normals given, a second point per finger, pad_depth behind the pad along its
+    # pad_normal, is aimed pad_depth outside the contact along the surface normal, so the pad faces the
+    # surface. Without it the Shadow thumb reached its contacts with its side and pushed the box sideways
+    # (thumb force ~90 degrees off the contact normal, 0 of 19 demo grasps held; docs/synthesis/retargeting.md).
+    pad_weight: float = Field(
+        0.5, ge=0, description="weight of the pad-orientation point against the fingertip point (0: tips only)"
+    )
+    pad_depth: float = Field(
+        0.015, gt=0, description="metres between the fingertip point and the pad-orientation point"
+    )
     seed: int = Field(0, description="random seed of the start table")
 
 
@@ -83,6 +93,8 @@ class _FingerLayout:
     """(F,) tip link of each used finger."""
     offsets: torch.Tensor
     """(F, 3) fingertip point in each tip link's frame, metres."""
+    pads: torch.Tensor
+    """(F, 3) unit pad normal in each tip link's frame (zero: none declared)."""
     slot_finger: torch.Tensor
     """(S,) index of the used finger serving each slot."""
     weights: torch.Tensor
@@ -93,6 +105,18 @@ class _FingerLayout:
     """(F, n) True where ``cols`` is a real joint."""
     joint_finger: torch.Tensor
     """(K,) used finger of each joint, F for joints of no used finger."""
+
+
+@dataclass(frozen=True)
+class _Problem:
+    """What the solver aims for a batch: P points per finger (P = 1 fingertip; 2 with the pad term)."""
+
+    targets: torch.Tensor
+    """(B, F, P, 3) target of each aimed point, base-link frame, metres."""
+    weights: torch.Tensor
+    """(F, P) weight of each aimed point (fingertip 1)."""
+    offsets: torch.Tensor
+    """(F, P, 3) each aimed point in its finger's tip-link frame."""
 
 
 class VectorRetargeter:
@@ -117,7 +141,7 @@ class VectorRetargeter:
         self.limits = torch.as_tensor(d.limits_array, dtype=self.dtype)
         self.open_pose = torch.as_tensor(np.asarray(d.open_pose, dtype=np.float64), dtype=self.dtype)
         self._couplings = _coupling_tensors(d, self.dtype)
-        self._seed_q, self._seed_tips = self._seed_table()
+        self._seed_q, self._seed_points = self._seed_table()
 
     # -- public API -----------------------------------------------------------------------
     @property
@@ -135,6 +159,7 @@ class VectorRetargeter:
         targets: torch.Tensor | np.ndarray,
         q_init: torch.Tensor | np.ndarray | None = None,
         q_prev: torch.Tensor | np.ndarray | None = None,
+        normals: torch.Tensor | np.ndarray | None = None,
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """Joint angles whose fingertips reach ``targets``.
 
@@ -142,31 +167,49 @@ class VectorRetargeter:
             (multiplied by ``config.alpha``).
         q_init: (B, K) start, hand joint order; joints of no finger keep these values. Default: open pose.
         q_prev: (B, K) the ``beta`` term's anchor. Default: ``q_init``.
+        normals: (B, S, 3) outward surface normals at the targets, base-link frame, or None. Given (and
+            ``config.pad_weight`` > 0), fingers with a declared ``pad_normal`` also turn their pad to
+            face the surface (the pad term, see :class:`VectorRetargetConfig`).
         Returns ``q`` (B, K) within limits, couplings applied, and the residual (B,): the mean over
-        slots of the fingertip-to-target distance, metres.
+            slots of the fingertip-to-target distance, metres.
         """
         tgt = self._check_targets(targets) * self.config.alpha
         batch = tgt.shape[0]
         q0 = self._check_q(q_init, batch, "q_init")
         prev = q0 if q_prev is None else self._check_q(q_prev, batch, "q_prev")
-        finger_tgt = self._finger_targets(tgt)
-        q = self._start(self._couple(q0)[0], finger_tgt, prev)
-        q, tips = self._levenberg_marquardt(q, finger_tgt, prev)
-        residual = (tips[:, self.layout.slot_finger] - tgt).norm(dim=-1).mean(dim=1)
+        problem = self._problem(tgt, normals)
+        q = self._start(self._couple(q0)[0], problem, prev)
+        q, points = self._levenberg_marquardt(q, problem, prev)
+        residual = (points[:, self.layout.slot_finger, 0] - tgt).norm(dim=-1).mean(dim=1)
         return q, residual
 
+    def objective(
+        self,
+        q: torch.Tensor,
+        targets: torch.Tensor | np.ndarray,
+        normals: torch.Tensor | np.ndarray | None = None,
+    ) -> torch.Tensor:
+        """(B,) the fit part of the objective at ``q`` (B, K): weighted squared distances of the aimed points, m^2.
+
+        targets, normals: as for :meth:`solve`. Lets a caller compare solutions of different problems
+        (e.g. wrist placements) on one scale."""
+        problem = self._problem(self._check_targets(targets) * self.config.alpha, normals)
+        points = self._points(torch.as_tensor(q).to(self.dtype), problem.offsets)
+        fit = problem.weights * ((points - problem.targets) ** 2).sum(-1)
+        return (self.layout.weights * fit.sum(-1)).sum(-1)
+
     # -- input checks -----------------------------------------------------------------------
-    def _check_targets(self, targets: torch.Tensor | np.ndarray) -> torch.Tensor:
+    def _check_targets(self, targets: torch.Tensor | np.ndarray, what: str = "targets") -> torch.Tensor:
         t = torch.as_tensor(targets).to(self.dtype)
         n = len(FINGER_SLOTS)
         if t.ndim != 3 or t.shape[1:] != (n, 3) or t.shape[0] == 0:
             raise ValueError(
-                f"retargeting targets must have shape (B, {n}, 3): one point per slot "
+                f"retargeting {what} must have shape (B, {n}, 3): one per slot "
                 f"({', '.join(FINGER_SLOTS)}), base-link frame; got {tuple(t.shape)}"
             )
         if not torch.isfinite(t).all():
             bad = sorted({int(b) for b in torch.nonzero(~torch.isfinite(t))[:, 0]})[:5]
-            raise ValueError(f"retargeting targets contain NaN or inf (grasps {bad}); check the contact generator")
+            raise ValueError(f"retargeting {what} contain NaN or inf (grasps {bad}); check the contact generator")
         return t
 
     def _check_q(self, q: torch.Tensor | np.ndarray | None, batch: int, what: str) -> torch.Tensor:
@@ -182,6 +225,26 @@ class VectorRetargeter:
         return q.clamp(self.limits[:, 0], self.limits[:, 1])
 
     # -- problem pieces ---------------------------------------------------------------------
+    def _problem(self, tgt: torch.Tensor, normals: torch.Tensor | np.ndarray | None) -> _Problem:
+        """Per-finger points to aim: the fingertip, plus the pad-orientation point when normals are given."""
+        lay, cfg = self.layout, self.config
+        finger_tgt = self._finger_targets(tgt)
+        has_pad = lay.pads.norm(dim=-1) > 0
+        if normals is None or cfg.pad_weight == 0 or not bool(has_pad.any()):
+            ones = torch.ones(self.num_fingers, 1, dtype=self.dtype)
+            return _Problem(finger_tgt[:, :, None], ones, lay.offsets[:, None])
+        n = self._check_targets(normals, "normals")
+        n = self._finger_targets(n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12))
+        n = n / n.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+        points = torch.stack([finger_tgt, finger_tgt + cfg.pad_depth * n], dim=2)
+        weights = torch.stack([torch.ones_like(has_pad, dtype=self.dtype), cfg.pad_weight * has_pad.to(self.dtype)], 1)
+        return _Problem(points, weights, self._pad_offsets())
+
+    def _pad_offsets(self) -> torch.Tensor:
+        """(F, 2, 3) fingertip point and pad-orientation point (pad_depth behind the pad) in each tip link's frame."""
+        lay = self.layout
+        return torch.stack([lay.offsets, lay.offsets - self.config.pad_depth * lay.pads], dim=1)
+
     def _finger_targets(self, targets: torch.Tensor) -> torch.Tensor:
         """(B, F, 3) mean target of each used finger's slots."""
         lay = self.layout
@@ -200,34 +263,37 @@ class VectorRetargeter:
         q[:, fol] = torch.maximum(torch.minimum(value, hi), lo)
         return q, (value >= lo) & (value <= hi)
 
-    def _cost(self, tips: torch.Tensor, q: torch.Tensor, tgt: torch.Tensor, prev: torch.Tensor) -> torch.Tensor:
-        """(B, F) each finger's share of the objective."""
+    def _cost(self, points: torch.Tensor, q: torch.Tensor, problem: _Problem, prev: torch.Tensor) -> torch.Tensor:
+        """(B, F) each finger's share of the objective; points (B, F, P, 3) as ``problem`` aims them."""
         lay = self.layout
-        fit = lay.weights * ((tips - tgt) ** 2).sum(-1)
+        fit = lay.weights * (problem.weights * ((points - problem.targets) ** 2).sum(-1)).sum(-1)
         dq2 = torch.zeros(q.shape[0], self.num_fingers + 1, dtype=self.dtype)
         dq2.index_add_(1, lay.joint_finger, (q - prev) ** 2)
         return fit + self.config.beta * dq2[:, :-1]
 
     def _seed_table(self) -> tuple[torch.Tensor, torch.Tensor]:
-        """(M, K) random joint values (other joints open, couplings applied) and (M, F, 3) their fingertips."""
+        """(M, K) random joint values (other joints open, couplings applied) and (M, F, 2, 3) their aimed points."""
         m = self.config.seeds
         if m == 0:
-            return torch.zeros(0, self.description.num_joints, dtype=self.dtype), torch.zeros(0, self.num_fingers, 3)
+            return torch.zeros(0, self.description.num_joints, dtype=self.dtype), torch.zeros(0, self.num_fingers, 2, 3)
         lim = self.limits.numpy()
         rng = np.random.default_rng(self.config.seed)
         q = torch.as_tensor(rng.uniform(lim[:, 0], lim[:, 1], size=(m, len(lim))), dtype=self.dtype)
         moved = self.layout.joint_finger < self.num_fingers
         q = self._couple(torch.where(moved, q, self.open_pose))[0]
-        return q, self.kinematics.points(q, self.layout.tip_links, self.layout.offsets)
+        return q, self._points(q, self._pad_offsets())
 
-    def _start(self, q0: torch.Tensor, tgt: torch.Tensor, prev: torch.Tensor) -> torch.Tensor:
-        """Per finger, ``q0`` or the table sample with the lower objective (fingertip error + beta term)."""
+    def _start(self, q0: torch.Tensor, problem: _Problem, prev: torch.Tensor) -> torch.Tensor:
+        """Per finger, ``q0`` or the table sample with the lower objective (aimed points + beta term)."""
         if self.config.seeds == 0:
             return q0
         lay, seeds = self.layout, self._seed_q
         rows, row_of = torch.unique(q0, dim=0, return_inverse=True)  # usually one start for all: one FK
-        cost0 = self._cost(self.kinematics.points(rows, lay.tip_links, lay.offsets)[row_of], q0, tgt, prev)
-        fit = lay.weights[:, None, None] * torch.cdist(tgt.transpose(0, 1), self._seed_tips.transpose(0, 1)) ** 2
+        cost0 = self._cost(self._points(rows, problem.offsets)[row_of], q0, problem, prev)
+        fit = 0.0
+        for p in range(problem.targets.shape[2]):
+            dist = torch.cdist(problem.targets[:, :, p].transpose(0, 1), self._seed_points[:, :, p].transpose(0, 1))
+            fit = fit + (lay.weights * problem.weights[:, p])[:, None, None] * dist**2  # (F, B, M)
         best_cost, best = (fit + self.config.beta * self._seed_joint_cost(prev)).min(dim=-1)  # (F, B)
         finger = lay.joint_finger.clamp(max=self.num_fingers - 1)  # joints of no finger: masked below
         use = (best_cost.transpose(0, 1) < cost0)[:, finger] & (lay.joint_finger < self.num_fingers)
@@ -246,50 +312,68 @@ class VectorRetargeter:
 
     # -- Levenberg-Marquardt ----------------------------------------------------------------
     def _levenberg_marquardt(
-        self, q: torch.Tensor, tgt: torch.Tensor, prev: torch.Tensor
+        self, q: torch.Tensor, problem: _Problem, prev: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B, K) joints after ``config.iterations`` steps from ``q``, and their (B, F, 3) fingertips.
+        """(B, K) joints after ``config.iterations`` steps from ``q``, and their (B, F, P, 3) aimed points.
 
-        Every finger keeps its best iterate; a finger within ``config.tolerance`` stops moving.
+        Every finger keeps its best iterate; a finger within ``config.tolerance`` of a tip-only target
+        stops moving (with the pad term there is no exact solution to stop at).
         """
         cfg, lay = self.config, self.layout
         q, live = self._couple(q)
-        tips, jac = self._tips_and_jacobians(q)
-        cost = self._cost(tips, q, tgt, prev)
+        points, jac = self._points_and_jacobians(q, problem.offsets)
+        cost = self._cost(points, q, problem, prev)
         lam = torch.full(cost.shape, cfg.damping, dtype=self.dtype)
         coupling_finger = lay.joint_finger[self._couplings[0]]
-        done = (tips - tgt).norm(dim=-1) <= cfg.tolerance  # (B, F): converged fingers change no more
+        tips_only = problem.targets.shape[2] == 1
+        done = self._converged(points, problem, tips_only)  # (B, F): converged fingers change no more
         for _ in range(cfg.iterations):
             if bool(done.all()):
                 break
-            step = self._step(q, tips - tgt, self._fold_couplings(jac, live), prev, lam)
+            step = self._step(q, points - problem.targets, self._fold_couplings(jac, live), prev, lam, problem)
             trial, trial_live = self._couple(
                 torch.maximum(torch.minimum(q + step, self.limits[:, 1]), self.limits[:, 0])
             )
-            trial_tips, trial_jac = self._tips_and_jacobians(trial)
-            trial_cost = self._cost(trial_tips, trial, tgt, prev)
+            trial_points, trial_jac = self._points_and_jacobians(trial, problem.offsets)
+            trial_cost = self._cost(trial_points, trial, problem, prev)
             ok = (trial_cost < cost) & ~done  # (B, F)
             ok_pad = torch.cat([ok, torch.zeros_like(ok[:, :1])], dim=1)
             q = torch.where(ok_pad[:, lay.joint_finger], trial, q)
             live = torch.where(ok_pad[:, coupling_finger], trial_live, live)
-            tips = torch.where(ok[..., None], trial_tips, tips)
-            jac = torch.where(ok[..., None, None], trial_jac, jac)
+            points = torch.where(ok[..., None, None], trial_points, points)
+            jac = torch.where(ok[..., None, None, None], trial_jac, jac)
             cost = torch.where(ok, trial_cost, cost)
             lam = torch.where(ok, lam / 3.0, lam * 4.0).clamp(1e-9, 1e9)  # usual LM schedule: shrink on success
-            done = done | ((tips - tgt).norm(dim=-1) <= cfg.tolerance)
-        return q, tips
+            done = done | self._converged(points, problem, tips_only)
+        return q, points
+
+    def _converged(self, points: torch.Tensor, problem: _Problem, tips_only: bool) -> torch.Tensor:
+        """(B, F) fingers whose tip is within tolerance of a tips-only target."""
+        if not tips_only:
+            return torch.zeros(points.shape[:2], dtype=torch.bool)
+        return (points[:, :, 0] - problem.targets[:, :, 0]).norm(dim=-1) <= self.config.tolerance
 
     def _step(
-        self, q: torch.Tensor, residual: torch.Tensor, jac: torch.Tensor, prev: torch.Tensor, lam: torch.Tensor
+        self,
+        q: torch.Tensor,
+        residual: torch.Tensor,
+        jac: torch.Tensor,
+        prev: torch.Tensor,
+        lam: torch.Tensor,
+        problem: _Problem,
     ) -> torch.Tensor:
-        """(B, K) damped Gauss-Newton step of the leader joints; joints on a limit pushing outward drop out."""
+        """(B, K) damped Gauss-Newton step of the leader joints; joints on a limit pushing outward drop out.
+
+        residual: (B, F, P, 3) aimed points minus targets; jac: (B, F, P, 3, K).
+        """
         lay = self.layout
-        jg = jac.permute(0, 1, 3, 2)[:, torch.arange(self.num_fingers)[:, None], lay.cols]  # (B, F, n, 3)
+        fingers = torch.arange(self.num_fingers)[:, None]
+        jg = jac.permute(0, 1, 4, 2, 3)[:, fingers, lay.cols]  # (B, F, n, P, 3)
         qf, pf = q[:, lay.cols], prev[:, lay.cols]
         lo, hi = self.limits[lay.cols, 0], self.limits[lay.cols, 1]
         free = lay.mask.expand(qf.shape)
         for _ in range(2):  # second pass without the joints the first one pushed past a limit
-            dx = self._damped_solve(jg, residual, qf - pf, free, lam)
+            dx = self._damped_solve(jg, residual, qf - pf, free, lam, problem.weights)
             blocked = ((qf <= lo + _BOUND_EPS) & (dx < 0)) | ((qf >= hi - _BOUND_EPS) & (dx > 0))
             if not blocked.any():
                 break
@@ -299,28 +383,50 @@ class VectorRetargeter:
         return step
 
     def _damped_solve(
-        self, jg: torch.Tensor, residual: torch.Tensor, dq: torch.Tensor, free: torch.Tensor, lam: torch.Tensor
+        self,
+        jg: torch.Tensor,
+        residual: torch.Tensor,
+        dq: torch.Tensor,
+        free: torch.Tensor,
+        lam: torch.Tensor,
+        point_weights: torch.Tensor,
     ) -> torch.Tensor:
-        """(B, F, n) solution of (w J^T J + beta I + lam D) dx = -(w J^T r + beta dq) over the free joints."""
-        w, beta = self.layout.weights[None, :, None], self.config.beta
-        jm = jg * free[..., None]
-        hess = w[..., None] * (jm @ jm.transpose(-1, -2))
-        grad = w * (jm @ residual.unsqueeze(-1)).squeeze(-1) + beta * dq * free
+        """(B, F, n) solution of (J^T W J + beta I + lam D) dx = -(J^T W r + beta dq) over the free joints.
+
+        jg: (B, F, n, P, 3); residual: (B, F, P, 3); point_weights: (F, P); W = slot count x point weight.
+        """
+        w, beta = self.layout.weights[:, None] * point_weights, self.config.beta  # (F, P)
+        jm = (jg * free[..., None, None]).flatten(-2)  # (B, F, n, P*3)
+        wm = w[:, :, None].expand(*w.shape, 3).flatten(-2)  # (F, P*3)
+        hess = (jm * wm[None, :, None]) @ jm.transpose(-1, -2)
+        grad = (jm @ (wm * residual.flatten(-2)).unsqueeze(-1)).squeeze(-1) + beta * dq * free
         diag = (
             lam[..., None] * (torch.diagonal(hess, dim1=-2, dim2=-1) + _DAMPING_FLOOR) + beta + (~free).to(self.dtype)
         )
         return -torch.linalg.solve(hess + torch.diag_embed(diag), grad.unsqueeze(-1)).squeeze(-1) * free
 
     def _fold_couplings(self, jac: torch.Tensor, live: torch.Tensor) -> torch.Tensor:
-        """(B, F, 3, K) Jacobian with each follower's column added to its leader's (times ratio, if not clipped)."""
+        """(B, F, P, 3, K) Jacobian with each follower's column added to its leader's (times ratio, if not clipped)."""
         fol, lead, ratio = self._couplings
         if len(fol) == 0:
             return jac
-        return jac.index_add(-1, lead, jac[..., fol] * (ratio * live)[:, None, None, :])
+        scale = (ratio * live).reshape(live.shape[0], *([1] * (jac.dim() - 2)), -1)
+        return jac.index_add(-1, lead, jac[..., fol] * scale)
 
-    def _tips_and_jacobians(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """(B, F, 3) fingertips and (B, F, 3, K) their Jacobians from one FK pass."""
-        return self.kinematics.points_and_jacobians(q, self.layout.tip_links, self.layout.offsets)
+    def _points(self, q: torch.Tensor, offsets: torch.Tensor) -> torch.Tensor:
+        """(B, F, P, 3) the aimed points (``offsets`` (F, P, 3) in each tip link's frame) for ``q`` (B, K)."""
+        f, p = offsets.shape[:2]
+        links = list(self.layout.tip_links) * p
+        flat = self.kinematics.points(q, links, offsets.transpose(0, 1).reshape(f * p, 3))
+        return flat.reshape(q.shape[0], p, f, 3).transpose(1, 2)
+
+    def _points_and_jacobians(self, q: torch.Tensor, offsets: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(B, F, P, 3) aimed points and (B, F, P, 3, K) their Jacobians from one FK pass."""
+        f, p = offsets.shape[:2]
+        links = list(self.layout.tip_links) * p
+        pts, jac = self.kinematics.points_and_jacobians(q, links, offsets.transpose(0, 1).reshape(f * p, 3))
+        b, k = q.shape[0], jac.shape[-1]
+        return pts.reshape(b, p, f, 3).transpose(1, 2), jac.reshape(b, p, f, 3, k).transpose(1, 2)
 
 
 def _finger_layout(d: HandDescription, dtype: torch.dtype) -> _FingerLayout:
@@ -349,6 +455,7 @@ def _finger_layout(d: HandDescription, dtype: torch.dtype) -> _FingerLayout:
     return _FingerLayout(
         tip_links=tuple(f.tip_link for f in used),
         offsets=torch.tensor([f.tip_offset for f in used], dtype=dtype),
+        pads=torch.tensor([f.pad_normal or (0.0, 0.0, 0.0) for f in used], dtype=dtype),
         slot_finger=torch.tensor(slot_finger),
         weights=torch.bincount(torch.tensor(slot_finger), minlength=len(used)).to(dtype),
         cols=torch.as_tensor(cols),

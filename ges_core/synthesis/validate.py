@@ -7,8 +7,8 @@ also requires a *fingertip* grasp through the hold. Phases, all through
 
 1. approach: the hand starts at the pre-grasp (teleported, fingers as the pre-grasp says) and the
    wrist drive moves the base to the grasp pose over ``approach_steps``;
-2. close: finger targets ramp from the pre-grasp joints to the grasp joints pushed ``squeeze`` further
-   (see :func:`squeeze_targets`) over ``close_steps``;
+2. close: finger targets ramp from the pre-grasp joints to the grasp joints pushed further so each
+   fingertip presses toward the opposing fingers (:mod:`ges_core.synthesis.squeeze`) over ``close_steps``;
 3. lift: the wrist target rises ``lift_height`` (world +z) over ``lift_steps``;
 4. hold: ``hold_steps`` at the lifted pose.
 
@@ -44,16 +44,16 @@ from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
 from ges_core.synthesis.sim_scene import (
     check_grasp,
-    closing_direction,
     compose,
     interpolate_pose,
     stage_scene,
     tip_forces,
     tip_rule,
 )
+from ges_core.synthesis.squeeze import squeeze_targets
 from ges_core.synthesis.types import Grasp, ValidationResult
 
-__all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "squeeze_targets", "validate_grasp"]
+__all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "validate_grasp"]
 
 REASONS = ("success", "no_contact", "palm_only", "dropped", "not_lifted", "unstable")
 """Every reason :func:`validate_grasp` can give."""
@@ -70,12 +70,14 @@ class ValidateConfig(ConfigModel):
     # 0.03 m: a grasp that lets the object slip 3 cm within the hand over the lift still counts as
     # lifted; a dropped object falls far below (to the table, 0.2 m down).
     lift_tolerance: float = Field(0.03, ge=0, description="how far below lift_height the object may stay, m")
-    # 1 N·m past the refined contact: with a ~0.1 m lever about 10 N more per finger, plenty for the
-    # 0.1 kg test box with mu = 1. The Shadow hand (Kp = 1 N·m/rad) then gets the 0.6 rad cap (0.3 rad let
-    # the box slip 3.3 cm in the lift in PyBullet); the Allegro (Kp = 400) gets the 0.05 rad floor (1 N·m
-    # would be 2.5 mrad, lost in the refined pose's own error: 0.02 rad left PyBullet's fingertips off the box).
-    squeeze_torque: float = Field(1.0, ge=0, description="extra drive torque past the grasp joints, N·m")
-    min_squeeze: float = Field(0.05, ge=0, description="floor on the extra target angle per joint, rad")
+    # Squeeze (ges_core.synthesis.squeeze): each fingertip driven to press about squeeze_force N toward the
+    # opposing fingers. 5 N per tip holds the 0.1-0.3 kg demo objects with mu = 1 and two tips. The Shadow
+    # hand (Kp = 1 N·m/rad) then gets 0.1-0.5 rad past the grasp; the Allegro (Kp = 400) gets the 0.05 rad
+    # floor (5 N would be ~1 mrad, lost in the refined pose's own error: 0.02 rad left PyBullet's fingertips
+    # off the box).
+    squeeze_force: float = Field(5.0, ge=0, description="fingertip force the closing targets ask for, N")
+    min_squeeze: float = Field(0.05, ge=0, description="floor on the largest extra target angle, rad")
+    # 0.6 rad: keeps a weak hand's targets within reach of the grasp (a 1.5 rad cap did not hold better).
     max_squeeze: float = Field(0.6, ge=0, description="cap on the extra target angle per joint, rad")
     # 0.05 N: the foundation sim check's 'touching with force' bar (ges_core.sim_check.MIN_TIP_FORCE_N).
     min_tip_force: float = Field(0.05, ge=0, description="a fingertip pushing harder than this touches, N")
@@ -139,18 +141,6 @@ def classify(record: HoldRecord, config: ValidateConfig) -> str:
     return "not_lifted" if record.touched else "no_contact"
 
 
-def squeeze_targets(d: HandDescription, q_pre: np.ndarray, q_grasp: np.ndarray, config: ValidateConfig) -> np.ndarray:
-    """(K,) closing targets: ``q_grasp`` pushed further along the closing direction ``sign(q_grasp - q_pre)``.
-
-    Each moving joint gets ``clip(squeeze_torque / Kp, min_squeeze, max_squeeze)`` rad more, so at the
-    contact its drive presses with about ``squeeze_torque`` N·m whatever the hand's gains (within the
-    clip); limits and couplings applied. Joints the pre-grasp did not move (thumb rotation, wrist) are not pushed.
-    """
-    direction = closing_direction(q_pre, q_grasp)
-    extra = np.clip(config.squeeze_torque / np.asarray(d.pd_stiffness), config.min_squeeze, config.max_squeeze)
-    return d.apply_couplings(q_grasp + direction * extra)
-
-
 def agreement(results_a: Sequence[ValidationResult], results_b: Sequence[ValidationResult]) -> float:
     """Share of grasps, in [0, 1], that two validations (e.g. two simulators) judge alike (success or not)."""
     if len(results_a) != len(results_b) or not results_a:
@@ -182,7 +172,9 @@ def _run(
     for i in range(1, config.approach_steps + 1):
         sim.set_wrist_targets(interpolate_pose(start, goal, i / config.approach_steps)[None])
         probe.step()
-    q_close = squeeze_targets(d, q_pre, d.apply_couplings(grasp.q), config)
+    q_close = squeeze_targets(
+        hand, grasp.q, force=config.squeeze_force, min_squeeze=config.min_squeeze, max_squeeze=config.max_squeeze
+    )
     for i in range(1, config.close_steps + 1):
         sim.set_joint_targets((q_pre + (q_close - q_pre) * i / config.close_steps)[None])
         probe.step()

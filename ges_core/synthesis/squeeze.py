@@ -1,0 +1,68 @@
+"""Closing targets that make each fingertip press toward the grasp's opposing fingers.
+
+A refined grasp is the pose where the tips *just* touch: PD targets exactly there give no grip. The
+validator therefore drives the fingers to targets past the grasp. Which way past matters: pushing every
+joint further along its own closing direction made the Shadow thumb (5 joints, rotation and abduction
+among them) press *across* its contact, about 90 degrees off the surface normal, and the box slid away.
+
+Here the extra angles come from the fingertip force wanted, through the Jacobian transpose:
+``dq_f = Kp^-1 J_f(q)^T (force * u_f)`` for each finger f, where ``u_f`` is the unit direction from the
+fingertip toward what it opposes (the thumb toward the mean of the other fingertips; every other finger
+toward the thumb tip), all at the grasp pose in the hand's base frame. Quasi-statically a PD drive held
+``dq`` short of its target then pushes the tip with ``force`` along ``u_f``. The whole vector is scaled
+up so its largest angle is at least ``min_squeeze`` (stiff hands: the refined pose's own error is
+larger than ``force / Kp``) and each angle is clipped to ``max_squeeze``; limits and couplings applied.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+import torch
+
+from ges_core.hand import HandDescription, HandModel
+from ges_core.kinematics import HandKinematics
+
+__all__ = ["press_directions", "squeeze_targets"]
+
+
+def squeeze_targets(
+    hand: HandModel, q_grasp: np.ndarray, *, force: float, min_squeeze: float, max_squeeze: float
+) -> np.ndarray:
+    """(K,) closing targets past ``q_grasp`` (K,) so each fingertip presses with about ``force`` N (module docs)."""
+    d = hand.description
+    q = d.apply_couplings(np.asarray(q_grasp, dtype=np.float64))
+    kin = _kinematics(hand.urdf_text(), d.joint_names)
+    offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
+    tips, jac = kin.points_and_jacobians(torch.as_tensor(q)[None], list(d.tip_links), offsets)
+    tips, jac = tips[0].numpy(), jac[0].numpy()  # (F, 3), (F, 3, K)
+    directions = press_directions(d, tips)
+    torque = np.zeros(d.num_joints)
+    for f, finger in enumerate(d.fingers):
+        idx = d.joint_index(finger.joints)
+        torque[idx] = jac[f][:, idx].T @ (force * directions[f])
+    extra = torque / np.asarray(d.pd_stiffness, dtype=np.float64)
+    largest = float(np.abs(extra).max())
+    if 0.0 < largest < min_squeeze:
+        extra *= min_squeeze / largest
+    return d.apply_couplings(q + np.clip(extra, -max_squeeze, max_squeeze))
+
+
+def press_directions(d: HandDescription, tips: np.ndarray) -> np.ndarray:
+    """(F, 3) unit directions each fingertip presses: thumb -> mean of the other tips, others -> thumb tip.
+
+    tips: (F, 3) fingertip points in one frame, ``d.fingers`` order. A finger at its target's spot gets 0.
+    """
+    thumb = [f.name for f in d.fingers].index(d.finger_for_slot("thumb").name)
+    others = np.delete(np.arange(len(tips)), thumb)
+    aims = np.repeat(tips[thumb][None], len(tips), axis=0)
+    aims[thumb] = tips[others].mean(axis=0)
+    u = aims - tips
+    norm = np.linalg.norm(u, axis=1, keepdims=True)
+    return np.divide(u, norm, out=np.zeros_like(u), where=norm > 1e-9)
+
+
+@lru_cache(maxsize=8)
+def _kinematics(urdf_text: str, joint_names: tuple[str, ...]) -> HandKinematics:
+    return HandKinematics(urdf_text, joint_names)
