@@ -71,7 +71,16 @@ class BackendUnavailable(GesError):
 
 
 class SimulationError(GesError):
-    """The simulator produced non-finite or exploding state."""
+    """The simulator produced non-finite or exploding state (or a backend rejected a command).
+
+    ``env_ids``: the envs whose state blew up, ascending; the message names each as ``env N``.
+    Empty when the error concerns no env in particular (a bad command, a closed backend) or the
+    backend cannot tell which: treat that as every env.
+    """
+
+    def __init__(self, message: str, *, env_ids: Iterable[int] = ()) -> None:
+        super().__init__(message)
+        self.env_ids: tuple[int, ...] = tuple(sorted({int(e) for e in env_ids}))
 
 
 class SynthesisError(GesError):

@@ -5,6 +5,13 @@ quaternion **w, x, y, z**, world frame. Joint vectors follow the loaded hand's
 ``HandDescription.joint_names``; links are addressed by name. Each backend maps its engine's
 own orders once at load time (``idx_sim_to_hand`` / ``idx_hand_to_sim``).
 
+Per-env operations: :meth:`SimBackend.set_hand_state`, :meth:`SimBackend.set_object_pose`,
+:meth:`SimBackend.reset` and :meth:`SimBackend.load_object` take ``env_ids``, a sequence of distinct
+env indices (list, tuple, numpy or torch integer array; None = every env). Their arrays then hold
+one row per listed env, in the order listed, and only those envs change: every other env keeps its
+exact state, velocities and PD targets included. Backends check ``env_ids`` with
+:func:`env_id_list` and :func:`check_env_rows`.
+
 The world: a table plane at z = 0 (the top of the table), gravity along -z.
 """
 
@@ -19,10 +26,11 @@ import numpy as np
 from pydantic import Field
 
 from ges_core.config import ConfigModel
+from ges_core.errors import ConfigError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 
-__all__ = ["ContactPair", "SceneConfig", "SimBackend", "ContactPartner"]
+__all__ = ["ContactPair", "ContactPartner", "SceneConfig", "SimBackend", "check_env_rows", "env_id_list"]
 
 ContactPartner = Literal["object", "table", "any"]
 """Whose contacts :meth:`SimBackend.contact_forces` sums: the object's, the table's or all."""
@@ -108,16 +116,35 @@ class SimBackend(ABC):
         """PD targets of the floating wrist, (num_envs, 7) base-link pose, world frame."""
 
     @abstractmethod
-    def set_hand_state(self, q: np.ndarray, wrist_pose: np.ndarray | None = None) -> None:
-        """Teleport: joints (num_envs, K) and optionally base pose (num_envs, 7); zero velocity; targets follow."""
+    def set_hand_state(
+        self, q: np.ndarray, wrist_pose: np.ndarray | None = None, *, env_ids: Sequence[int] | None = None
+    ) -> None:
+        """Teleport the hand of envs ``env_ids`` (all if None); every joint's velocity zero, targets follow.
+
+        q: (M, K) hand joint order, radians; wrist_pose: (M, 7) base-link pose, world frame, or None
+        to keep each env's base where it is. M = num_envs, or len(env_ids) when given (rows in the
+        order of env_ids). A given base pose becomes that env's :meth:`reset` pose. Other envs keep
+        their exact state, velocities and targets. An env that blew up is restored first (see :meth:`step`).
+        """
 
     @abstractmethod
-    def set_object_pose(self, pose: np.ndarray) -> None:
-        """Teleport the object, (num_envs, 7), zero velocity."""
+    def set_object_pose(self, pose: np.ndarray, *, env_ids: Sequence[int] | None = None) -> None:
+        """Teleport the object of envs ``env_ids`` (all if None), zero velocity; other envs untouched.
+
+        pose: (M, 7) world frame, M = num_envs or len(env_ids). An env that blew up is restored first.
+        """
 
     @abstractmethod
     def step(self, n: int = 1) -> None:
-        """Advance every scene ``n`` physics steps; raises SimulationError on non-finite state."""
+        """Advance every scene ``n`` physics steps, then check every env's state.
+
+        Every env whose state went non-finite or exploding is listed in one SimulationError
+        (message ``... env N: ...`` per env, attribute ``env_ids``); every other env has taken all
+        ``n`` steps. (A backend may check after each physics step and stop stepping an env found
+        blown.) A blown env stays blown, and is reported again by later steps, until :meth:`reset`,
+        :meth:`set_hand_state`, :meth:`set_object_pose` or :meth:`load_object` names it: that call
+        first restores it as :meth:`reset` would, then does its own work.
+        """
 
     def engine_step(self) -> None:
         """One raw engine step in every scene, skipping our checks and bookkeeping (for benchmarks)."""
@@ -150,14 +177,14 @@ class SimBackend(ABC):
 
     # -- lifetime -------------------------------------------------------------------------
     @abstractmethod
-    def reset(self) -> None:
-        """Put every scene back at its start, each env on its own.
+    def reset(self, *, env_ids: Sequence[int] | None = None) -> None:
+        """Put the scenes ``env_ids`` (all if None) back at their start, each env on its own; others untouched.
 
         The hand: joints at the open pose, base at the pose last given to :meth:`set_hand_state` in
         that env (the world origin if none was given; poses the wrist reached under
         :meth:`set_wrist_targets` do not count), joint and wrist targets equal to that state, every
         velocity zero. The object: back at its load pose (the one :meth:`load_object` used), at rest.
-        Nothing is rebuilt; settings and loaded bodies stay.
+        Settings and loaded bodies stay (a backend may rebuild the scene of an env that blew up).
         """
 
     @abstractmethod
@@ -169,3 +196,47 @@ class SimBackend(ABC):
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def env_id_list(env_ids: Sequence[int] | None, num_envs: int, who: str) -> list[int]:
+    """``env_ids`` as a list of distinct ints in [0, num_envs); None gives every env, ``[]`` none.
+
+    env_ids: a 1-D sequence of integers (list, tuple, numpy or torch integer array). who: the
+    method, for messages ("sapien.reset"). Raises ConfigError naming the problem.
+    """
+    if env_ids is None:
+        return list(range(num_envs))
+    ids = np.asarray(env_ids)
+    if ids.ndim != 1 or (ids.size and ids.dtype.kind not in "iu"):
+        raise ConfigError(
+            f"{who}: env_ids must be a 1-D sequence of integer env indices, got {_show(env_ids)} "
+            f"(shape {ids.shape}, dtype {ids.dtype}); a boolean mask m gives indices with m.nonzero()[0]"
+        )
+    out = [int(i) for i in ids]
+    bad = [i for i in out if not 0 <= i < num_envs]
+    if bad:
+        raise ConfigError(f"{who}: env ids {bad} out of range for num_envs={num_envs} (valid: 0..{num_envs - 1})")
+    repeated = sorted({i for i in out if out.count(i) > 1})
+    if repeated:
+        raise ConfigError(f"{who}: env_ids {out} repeat {repeated}; name each env once")
+    return out
+
+
+def check_env_rows(value: object, env_ids: Sequence[int] | None, ids: list[int], who: str, what: str) -> None:
+    """ConfigError when ``env_ids`` was given and ``value`` (M, ...) has M != len(ids) rows.
+
+    A 2-D ``value`` only: other shapes are left to the backend's own shape check.
+    """
+    if env_ids is None or value is None or np.ndim(value) != 2:
+        return
+    rows = np.shape(value)[0]
+    if rows != len(ids):
+        raise ConfigError(
+            f"{who}: {what} has {rows} rows but env_ids names {len(ids)} env(s) {ids}; "
+            "give one row per listed env, in the order of env_ids"
+        )
+
+
+def _show(value: object) -> str:
+    text = repr(value)
+    return text if len(text) <= 60 else text[:57] + "..."

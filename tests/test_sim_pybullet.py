@@ -349,9 +349,13 @@ def test_object_replacement_and_env_ids():
     np.testing.assert_allclose(sim.object_pose()[:, 2], [0.03, 0.05], atol=1e-3)
     for scene in sim._scenes:
         assert p.getNumBodies(physicsClientId=scene.cid) == 2  # the table and one object
-    with pytest.raises(SimulationError, match=r"env ids \[2\] out of range 0..1"):
+    with pytest.raises(
+        ConfigError, match=r"pybullet.load_object: env ids \[2\] out of range for num_envs=2 \(valid: 0..1\)"
+    ):
         sim.load_object(box_asset(), env_ids=[2])
-    with pytest.raises(SimulationError, match=r"env ids \[5\] out of range 0..1"):
+    with pytest.raises(
+        ConfigError, match=r"pybullet.contact_pairs: env ids \[5\] out of range for num_envs=2 \(valid: 0..1\)"
+    ):
         sim.contact_pairs(5)
 
 
@@ -483,10 +487,13 @@ def test_exploding_state_names_the_env(hand):
     with pytest.raises(SimulationError, match=r"pybullet env 1: the object moves at [\d.]+ m/s"):
         sim.step()
     sim.set_object_pose(np.tile([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0], (2, 1)))
+    assert sim._scenes[1] is not scene  # the blown env got a new client
+    scene = sim._scenes[1]
     p.resetBaseVelocity(scene.obj, [math.nan, 0.0, 0.0], [0.0, 0.0, 0.0], physicsClientId=scene.cid)
     with pytest.raises(SimulationError, match="pybullet env 1: the object's pose or velocity is NaN or inf"):
         sim.step()
     sim.reset()
+    scene = sim._scenes[1]
     joint = int(sim._layout.drive_ids[-1])
     p.resetJointState(scene.hand, joint, 0.0, 5 * MAX_JOINT_SPEED, physicsClientId=scene.cid)
     sim._state = None  # the joint was changed behind the backend's back

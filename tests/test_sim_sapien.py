@@ -438,7 +438,7 @@ def test_lifecycle_errors(hand):
         sim.joint_state()
     with pytest.raises(SimulationError, match=r"sapien.object_pose: no object in env\(s\) \[0\]"):
         sim.object_pose()
-    with pytest.raises(SimulationError, match=r"env ids \[3\] out of range for num_envs=1"):
+    with pytest.raises(ConfigError, match=r"sapien.load_object: env ids \[3\] out of range for num_envs=1"):
         sim.load_object(box_asset(), env_ids=[3])
     sim.load_hand(hand, floating=False)
     with pytest.raises(SimulationError, match="already loaded"):

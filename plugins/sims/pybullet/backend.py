@@ -21,6 +21,12 @@ it. PyBullet's PGS converges more slowly than PhysX's TGS on light finger links 
 finger pressed on the table chatters at 20 iterations and balances its drive within 1 % at 100.
 
 Quaternions are wxyz at this class's boundary and xyzw inside PyBullet (:mod:`.poses`).
+
+An env that blew up gets a new client on its next reset (or teleport naming it): after a NaN object
+velocity PyBullet's collision detection in that world stays broken (measured, 3.2.7: after teleporting
+the object back, it and the hand fell through the table; reloading the object did not help). The new
+scene then evolves bit for bit like the same env of a backend that never blew up
+(``tests/test_sim_env_ids.py``). Rebuilding one Allegro scene takes 30-45 ms here.
 """
 
 from __future__ import annotations
@@ -30,12 +36,21 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from ges_core.errors import ConfigError, SimulationError, UnknownNameError
+from ges_core.errors import SimulationError, UnknownNameError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
-from ges_core.sim import ContactPair, ContactPartner, SceneConfig, SimBackend
+from ges_core.sim import ContactPair, ContactPartner, SceneConfig, SimBackend, check_env_rows, env_id_list
 from ges_core.urdf import quat_to_euler_xyz
 
+from .checks import (
+    MAX_JOINT_SPEED,
+    blown_message,
+    checked_array,
+    checked_poses,
+    drive_problems,
+    object_problem,
+    solver_iterations_setting,
+)
 from .contacts import contact_pairs, link_forces
 from .drive import product_friction
 from .engine import p
@@ -44,16 +59,8 @@ from .poses import IDENTITY_POSE, from_pybullet, to_pybullet
 from .scene import HandLayout, Scene, create_object, hand_layout, load_hand_body, new_scene, set_hand_friction
 from .shapes import lowest_point
 
-__all__ = ["PybulletBackend"]
+__all__ = ["MAX_JOINT_SPEED", "PybulletBackend"]
 
-MAX_JOINT_SPEED = 1e3
-"""rad/s (m/s for the wrist's slides): faster is an explosion (the SAPIEN backend's value). Allegro's
-drives at Kp = 400, Kd = 10 close a 3 rad error at about 90 rad/s. PyBullet clamps hand joints at
-100 rad/s after each step, so here this catches NaN/inf and states set between steps."""
-MAX_OBJECT_SPEED = 1e2
-"""m/s; a box flung by a bad grasp leaves at a few m/s, an exploding solver at thousands."""
-MAX_OBJECT_SPIN = 1e3
-"""rad/s, the same for rotation."""
 REST_MARGIN = 2e-4
 """m left between the table and an object put down by ``load_object(pose=None)``: it starts
 out of contact and settles without a bounce (the SAPIEN backend's value, so both start alike)."""
@@ -76,7 +83,7 @@ class PybulletBackend(SimBackend):
         """
         super().__init__(config)
         self.solver_iterations = (
-            config.solver_iterations if solver_iterations is None else _iterations(solver_iterations)
+            config.solver_iterations if solver_iterations is None else solver_iterations_setting(solver_iterations)
         )
         """Solver iterations in use: the setting if given, else ``config.solver_iterations``."""
         self._scenes: list[Scene] = [new_scene(config, self.solver_iterations) for _ in range(config.num_envs)]
@@ -92,6 +99,9 @@ class PybulletBackend(SimBackend):
         self._link_ids: dict[tuple[str, ...], list[int]] = {}
         self._motor_args: tuple[list[int], list[float], list[float], list[float]] = ([], [], [], [])
         """PyBullet motor call arguments fixed at load time: joint ids, position and velocity gains, zeros."""
+        self._hand: HandModel | None = None
+        self._blown: set[int] = set()
+        """Envs reported by step() as blown up and not restored since (see :meth:`_restore`)."""
         self._closed = False
 
     # -- index maps ----------------------------------------------------------------------------
@@ -113,7 +123,7 @@ class PybulletBackend(SimBackend):
             load_hand_body(scene, hand, self.config, floating)
         layout = hand_layout(scenes[0], hand, self.config, floating)
         open_pose = np.asarray(hand.description.open_pose, dtype=np.float64)
-        self._layout, self._link_ids = layout, {}
+        self._layout, self._link_ids, self._hand = layout, {}, hand
         d = len(layout.drive_ids)
         pd = layout.pd
         self._motor_args = (
@@ -123,9 +133,10 @@ class PybulletBackend(SimBackend):
             [0.0] * d,
         )
         self._start = np.concatenate([np.zeros(layout.num_wrist), open_pose])
+        self._targets = np.tile(self._start, (self.num_envs, 1))
         for scene in scenes:
             self._apply_friction(scene)
-        self._reset_hand(np.tile(self._start, (self.num_envs, 1)))
+        self._reset_hand(np.tile(self._start, (self.num_envs, 1)), list(range(self.num_envs)))
 
     def load_object(
         self, obj: ObjectAsset, pose: np.ndarray | None = None, env_ids: Sequence[int] | None = None
@@ -134,13 +145,16 @@ class PybulletBackend(SimBackend):
 
         pose: (7,) or (len(env_ids), 7), object frame in the world, position m + quaternion wxyz.
         """
-        ids = self._env_ids(env_ids)
+        self._live()
+        ids = env_id_list(env_ids, self.num_envs, "pybullet.load_object")
+        check_env_rows(pose, env_ids, ids, "pybullet.load_object", "pose")
         if pose is None:
             pose = np.array([0.0, 0.0, REST_MARGIN - lowest_point(obj), 1.0, 0.0, 0.0, 0.0])
         if np.ndim(pose) == 1:
-            poses = np.tile(_pose_array(pose, None, "load_object pose"), (len(ids), 1))
+            poses = np.tile(checked_poses(pose, None, "load_object pose"), (len(ids), 1))
         else:
-            poses = _pose_array(pose, (len(ids), 7), "load_object pose")
+            poses = checked_poses(pose, (len(ids), 7), "load_object pose")
+        self._restore(ids)
         for e, row in zip(ids, poses, strict=True):
             scene = self._scenes[e]
             create_object(scene, obj)
@@ -153,48 +167,76 @@ class PybulletBackend(SimBackend):
     def set_joint_targets(self, q: np.ndarray) -> None:
         """PD position targets, (num_envs, K), hand joint order, radians."""
         layout = self._hand_layout()
-        self._targets[:, layout.num_wrist :] = _array(q, (self.num_envs, self._num_joints()), "joint targets q")
+        self._targets[:, layout.num_wrist :] = checked_array(q, (self.num_envs, self._num_joints()), "joint targets q")
 
     def set_wrist_targets(self, pose: np.ndarray) -> None:
         """PD targets of the floating wrist, (num_envs, 7) base-link pose, world frame, wxyz."""
         self._require_floating("set_wrist_targets")
-        pose = _pose_array(pose, (self.num_envs, 7), "wrist target pose")
+        pose = checked_poses(pose, (self.num_envs, 7), "wrist target pose")
         self._targets[:, :3] = pose[:, :3]
         self._targets[:, 3:6] = _unwrap(quat_to_euler_xyz(pose[:, 3:]), self._targets[:, 3:6])
 
-    def set_hand_state(self, q: np.ndarray, wrist_pose: np.ndarray | None = None) -> None:
-        """Teleport joints (num_envs, K) and optionally the base pose (num_envs, 7); zero velocity; targets follow."""
+    def set_hand_state(
+        self, q: np.ndarray, wrist_pose: np.ndarray | None = None, *, env_ids: Sequence[int] | None = None
+    ) -> None:
+        """Teleport the hand of envs ``env_ids`` (all if None): joints (M, K) rad, optionally base poses
+        (M, 7) world wxyz, M = len(env_ids) or num_envs; zero velocity; targets follow. Others untouched."""
         layout = self._hand_layout()
-        q = _array(q, (self.num_envs, self._num_joints()), "hand state q")
-        drives = np.array(self._drive_state()[0])
+        ids = env_id_list(env_ids, self.num_envs, "pybullet.set_hand_state")
+        check_env_rows(q, env_ids, ids, "pybullet.set_hand_state", "q")
+        check_env_rows(wrist_pose, env_ids, ids, "pybullet.set_hand_state", "wrist_pose")
+        q = checked_array(q, (len(ids), self._num_joints()), "hand state q")
+        base = None if wrist_pose is None else checked_poses(wrist_pose, (len(ids), 7), "hand state wrist_pose")
+        self._restore(ids)
+        drives = self._drive_state()[0][ids]  # a copy (fancy indexing)
         drives[:, layout.num_wrist :] = q
-        if wrist_pose is not None:
-            self._reset_base = _pose_array(wrist_pose, (self.num_envs, 7), "hand state wrist_pose")
-            self._place_base(drives, self._reset_base)
-        self._reset_hand(drives)
+        if base is not None:
+            self._reset_base[ids] = base
+            self._place_base(drives, base, ids)
+        self._reset_hand(drives, ids)
 
-    def set_object_pose(self, pose: np.ndarray) -> None:
-        """Teleport the object, (num_envs, 7) world frame wxyz, zero velocity."""
-        pose = _pose_array(pose, (self.num_envs, 7), "object pose")
-        for scene, row in zip(self._scenes_with_object(), pose, strict=True):
-            _teleport_object(scene, row)
+    def set_object_pose(self, pose: np.ndarray, *, env_ids: Sequence[int] | None = None) -> None:
+        """Teleport the object of envs ``env_ids`` (all if None), (M, 7) world frame wxyz, zero velocity."""
+        ids = env_id_list(env_ids, self.num_envs, "pybullet.set_object_pose")
+        check_env_rows(pose, env_ids, ids, "pybullet.set_object_pose", "pose")
+        pose = checked_poses(pose, (len(ids), 7), "object pose")
+        scenes = self._scenes_with_object(ids)
+        self._restore(ids)
+        for e, row in zip(ids, pose, strict=True):
+            _teleport_object(scenes[e], row)
 
     def step(self, n: int = 1) -> None:
-        """Advance every scene ``n`` physics steps; SimulationError names the first env whose state blew up."""
+        """Advance every scene ``n`` physics steps; one SimulationError at the end lists every env that blew up.
+
+        Hand joints are checked after every physics step (their state is read for the drives anyway) and
+        an env whose hand blew up is not stepped further; objects are checked once, at the end (a check
+        costs about 6 µs per env, 6 % of a step).
+        """
         scenes = self._live()
         if not isinstance(n, int | np.integer) or n < 0:
             raise SimulationError(f"pybullet backend: step(n) needs a whole number n >= 0, got {n!r}")
         weight = 0.0 if self.config.hand_gravity else self.config.gravity
+        blown: dict[int, str] = {}
         for _ in range(int(n)):
-            commands = self._drive_commands()
+            commands = self._drive_commands(blown)
             for e, scene in enumerate(scenes):
+                if e in blown:
+                    continue
                 if commands is not None:
                     self._send_drives(scene, *(c[e] for c in commands))
                 if weight and scene.obj >= 0:
                     _apply_weight(scene, weight)
                 p.stepSimulation(physicsClientId=scene.cid)
             self._state = None
-        self._check_state()
+        if self._layout is not None:
+            blown = {**drive_problems(*self._drive_state()), **blown}
+        for e, scene in enumerate(scenes):
+            problem = object_problem(e, scene) if scene.obj >= 0 and e not in blown else None
+            if problem is not None:
+                blown[e] = problem
+        if blown:
+            self._blown.update(blown)
+            raise SimulationError(blown_message(blown), env_ids=blown)
 
     def engine_step(self) -> None:
         """One bare ``stepSimulation`` per scene: no PD update, no weight force, no checks (benchmarks)."""
@@ -248,23 +290,52 @@ class PybulletBackend(SimBackend):
 
     def contact_pairs(self, env_id: int = 0) -> list[ContactPair]:
         """Every touching pair (separation <= 0.5 mm) in scene ``env_id``; slow, for diagnostics."""
-        scene = self._live()[self._env_ids([env_id])[0]]
+        scene = self._live()[env_id_list([env_id], self.num_envs, "pybullet.contact_pairs")[0]]
         names = {scene.hand: "hand", scene.obj: "object", scene.table: "table"}
         names.pop(-1, None)
         links = {scene.hand: {-1: WORLD_LINK, **self._layout.link_names}} if self._layout else {}
         return contact_pairs(scene.cid, names, links)
 
     # -- lifetime ------------------------------------------------------------------------------
-    def reset(self) -> None:
-        """Open hand at the base pose last given to set_hand_state (else the origin), targets there, at rest;
-        objects at their load poses."""
-        for scene in self._live():
+    def reset(self, *, env_ids: Sequence[int] | None = None) -> None:
+        """Envs ``env_ids`` (all if None): open hand at the base pose last given to set_hand_state (else the
+        origin), targets there, at rest; objects at their load poses. Blown envs get a new scene first."""
+        self._live()
+        ids = env_id_list(env_ids, self.num_envs, "pybullet.reset")
+        self._restore(ids)
+        self._reset_envs(ids)
+
+    def _reset_envs(self, ids: list[int]) -> None:
+        for e in ids:
+            scene = self._scenes[e]
             if scene.obj >= 0:
                 _teleport_object(scene, scene.obj_load_pose)
         if self._layout is not None:
-            drives = np.tile(self._start, (self.num_envs, 1))
-            self._place_base(drives, self._reset_base)
-            self._reset_hand(drives)
+            drives = np.tile(self._start, (len(ids), 1))
+            self._place_base(drives, self._reset_base[ids], ids)
+            self._reset_hand(drives, ids)
+
+    def _restore(self, ids: list[int]) -> None:
+        """Give every blown env among ``ids`` a new client holding the same hand and object, reset.
+
+        A NaN leaves PyBullet's collision detection in that world broken (module docs), so teleports alone
+        cannot bring it back.
+        """
+        bad = sorted(self._blown.intersection(ids))
+        for e in bad:
+            old = self._scenes[e]
+            scene = self._scenes[e] = new_scene(self.config, self.solver_iterations)
+            old.client.disconnect()
+            if self._hand is not None:
+                load_hand_body(scene, self._hand, self.config, self._layout.floating)
+            if old.asset is not None:
+                create_object(scene, old.asset)
+                scene.obj_friction, scene.obj_load_pose = old.obj_friction, old.obj_load_pose
+            self._apply_friction(scene)
+            self._blown.discard(e)
+        if bad:
+            self._state = None
+            self._reset_envs(bad)
 
     def close(self) -> None:
         """Disconnect every client; calling twice is harmless."""
@@ -296,16 +367,10 @@ class PybulletBackend(SimBackend):
                 "load it with load_hand(hand, floating=True) or move it with set_hand_state(q, wrist_pose)"
             )
 
-    def _env_ids(self, env_ids: Sequence[int] | None) -> list[int]:
-        ids = list(range(self.num_envs)) if env_ids is None else [int(e) for e in env_ids]
-        bad = [e for e in ids if not 0 <= e < self.num_envs]
-        if bad or not ids:
-            raise SimulationError(f"pybullet backend: env ids {bad or ids} out of range 0..{self.num_envs - 1}")
-        return ids
-
-    def _scenes_with_object(self) -> list[Scene]:
+    def _scenes_with_object(self, ids: Sequence[int] | None = None) -> list[Scene]:
+        """Every scene, once the scenes ``ids`` (all if None) are checked to hold an object."""
         scenes = self._live()
-        missing = [e for e, s in enumerate(scenes) if s.obj < 0]
+        missing = [e for e in (range(self.num_envs) if ids is None else ids) if scenes[e].obj < 0]
         if missing:
             raise SimulationError(f"pybullet backend: no object in envs {missing}; call load_object(obj) first")
         return scenes
@@ -332,23 +397,24 @@ class PybulletBackend(SimBackend):
         if self._layout is not None:
             set_hand_friction(scene, self._layout, k_hand)
 
-    def _place_base(self, drives: np.ndarray, base: np.ndarray) -> None:
-        """Put the hand's base at ``base`` (E, 7): the wrist coordinates of ``drives`` (E, D) if floating,
-        else the fixed root, moved now."""
+    def _place_base(self, drives: np.ndarray, base: np.ndarray, env_ids: list[int]) -> None:
+        """Put the hand's base of envs ``env_ids`` (M) at ``base`` (M, 7): the wrist coordinates of
+        ``drives`` (M, D) if floating, else the fixed root, moved now."""
         if self._hand_layout().floating:
             drives[:, :3], drives[:, 3:6] = base[:, :3], quat_to_euler_xyz(base[:, 3:])
             return
-        for scene, pose in zip(self._scenes, base, strict=True):
+        for e, pose in zip(env_ids, base, strict=True):
+            scene = self._scenes[e]
             p.resetBasePositionAndOrientation(scene.hand, *to_pybullet(pose), physicsClientId=scene.cid)
 
-    def _reset_hand(self, drives: np.ndarray) -> None:
-        """Teleport every drive joint to ``drives`` (E, D), zero velocity, targets = positions."""
+    def _reset_hand(self, drives: np.ndarray, env_ids: list[int]) -> None:
+        """Teleport the drive joints of envs ``env_ids`` (M) to ``drives`` (M, D), zero velocity, targets there."""
         ids = self._hand_layout().drive_ids.tolist()
         zeros = [[0.0]] * len(ids)
-        for scene, row in zip(self._scenes, drives, strict=True):
+        for e, row in zip(env_ids, drives, strict=True):
             values = [[x] for x in row.tolist()]
-            p.resetJointStatesMultiDof(scene.hand, ids, values, zeros, physicsClientId=scene.cid)
-        self._targets = np.array(drives, dtype=np.float64)
+            p.resetJointStatesMultiDof(self._scenes[e].hand, ids, values, zeros, physicsClientId=self._scenes[e].cid)
+        self._targets[env_ids] = drives
         self._state = None
 
     def _drive_state(self) -> tuple[np.ndarray, np.ndarray]:
@@ -361,15 +427,17 @@ class PybulletBackend(SimBackend):
             self._state = (qv[:, 0], qv[:, 1])
         return self._state
 
-    def _drive_commands(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """(E, D) targets and force limits for this physics step (None without a hand)."""
+    def _drive_commands(self, blown: dict[int, str]) -> tuple[np.ndarray, np.ndarray] | None:
+        """(E, D) targets and force limits for this physics step (None without a hand); envs whose drive
+        state blew up are added to ``blown`` (env -> description) unless already there."""
         layout = self._layout
         if layout is None:
             return None
         fresh = self._state is None
         q, v = self._drive_state()
         if fresh:  # a cached state was checked when it was read at the end of the last step
-            _check_drives(q, v, layout)
+            for e, problem in drive_problems(q, v).items():
+                blown.setdefault(e, problem)
         return self._targets, layout.pd.force_limits(q, v, self._targets)
 
     def _send_drives(self, scene: Scene, targets: np.ndarray, forces: np.ndarray) -> None:
@@ -386,71 +454,8 @@ class PybulletBackend(SimBackend):
             physicsClientId=scene.cid,
         )
 
-    def _check_state(self) -> None:
-        if self._layout is not None:
-            _check_drives(*self._drive_state(), self._layout)
-        for e, scene in enumerate(self._scenes):
-            if scene.obj >= 0:
-                _check_object(e, scene)
-
 
 # -- helpers ---------------------------------------------------------------------------------------
-def _check_drives(q: np.ndarray, v: np.ndarray, layout: HandLayout) -> None:
-    """SimulationError naming the first env with non-finite or exploding joint state."""
-    if np.abs(v).max(initial=0.0) <= MAX_JOINT_SPEED and np.isfinite(q).all():
-        return  # the common case in two numpy calls (a NaN speed fails the comparison)
-    finite = np.isfinite(q).all(axis=1) & np.isfinite(v).all(axis=1)
-    e = int(np.flatnonzero(~finite | (np.abs(np.nan_to_num(v)).max(axis=1) > MAX_JOINT_SPEED))[0])
-    what = "hand joint state is NaN or inf" if not finite[e] else f"a hand joint moves at {np.abs(v[e]).max():.3g}"
-    raise SimulationError(_blown(e, what))
-
-
-def _check_object(env: int, scene: Scene) -> None:
-    """SimulationError when the object's state is non-finite or exploding (plain floats: this runs every step)."""
-    lin, ang = p.getBaseVelocity(scene.obj, physicsClientId=scene.cid)
-    pos, _ = p.getBasePositionAndOrientation(scene.obj, physicsClientId=scene.cid)
-    speed = math.sqrt(lin[0] ** 2 + lin[1] ** 2 + lin[2] ** 2)
-    spin = math.sqrt(ang[0] ** 2 + ang[1] ** 2 + ang[2] ** 2)
-    if speed <= MAX_OBJECT_SPEED and spin <= MAX_OBJECT_SPIN and math.isfinite(pos[0] + pos[1] + pos[2]):
-        return
-    if not (math.isfinite(speed + spin) and math.isfinite(pos[0] + pos[1] + pos[2])):
-        raise SimulationError(_blown(env, "the object's pose or velocity is NaN or inf"))
-    raise SimulationError(_blown(env, f"the object moves at {speed:.3g} m/s, {spin:.3g} rad/s"))
-
-
-def _blown(env: int, what: str) -> str:
-    return (
-        f"pybullet env {env}: {what} after stepping; likely causes: a start pose deep inside the object "
-        "or table, a time step too large for the gains, or a target far outside the joint limits. "
-        "reset() or reload the scene"
-    )
-
-
-def _iterations(value: object) -> int:
-    """The ``solver_iterations`` setting as an int >= 1, else a ConfigError."""
-    if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
-        raise ConfigError(f"pybullet: solver_iterations={value!r}; give a whole number >= 1 or leave it unset")
-    return int(value)
-
-
-def _array(value: np.ndarray, shape: tuple[int, ...], what: str) -> np.ndarray:
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != shape:
-        raise SimulationError(f"pybullet backend: {what} must have shape {shape} (num_envs, ...), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise SimulationError(f"pybullet backend: {what} contains NaN or inf; check the policy or planner output")
-    return a
-
-
-def _pose_array(value: np.ndarray, shape: tuple[int, ...] | None, what: str) -> np.ndarray:
-    """Checked (..., 7) poses with unit wxyz quaternions (shape None: one (7,) pose)."""
-    a = _array(value, shape or (7,), what)
-    norm = np.linalg.norm(a[..., 3:], axis=-1, keepdims=True)
-    if np.any(norm < 1e-9):
-        raise SimulationError(f"pybullet backend: {what} has a zero quaternion; poses are xyz + wxyz")
-    return np.concatenate([a[..., :3], a[..., 3:] / norm], axis=-1)
-
-
 def _unwrap(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """``angles`` shifted by whole turns to lie nearest ``reference`` (within the wrist's +-2 pi)."""
     turn = 2 * np.pi

@@ -66,6 +66,8 @@ class Scene:
     """(7,) object pose right after loading, world frame (what reset() returns to)."""
     obj_friction: float | None = None
     """The object's own (PhysX-style) friction coefficient."""
+    asset: ObjectAsset | None = None
+    """The object's asset (kept to rebuild the scene of an env that blew up)."""
 
 
 @dataclass(frozen=True)
@@ -259,7 +261,7 @@ def create_object(scene: Scene, obj: ObjectAsset) -> MassProperties:
         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,  # the object's weight is an external force
         physicsClientId=scene.cid,
     )
-    scene.obj_mass = props.mass
+    scene.obj_mass, scene.asset = props.mass, obj
     scene.base_in_obj = (tuple(props.inertial_pose[:3]), tuple(wxyz_to_xyzw(props.inertial_pose[3:])))
     scene.obj_in_base = p.invertTransform(*scene.base_in_obj)
     return props

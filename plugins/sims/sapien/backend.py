@@ -5,6 +5,11 @@ own convention, so poses pass through unchanged). Joint vectors are in the hand'
 ``joint_names`` order; SAPIEN's breadth-first order is mapped once in :meth:`SapienBackend.load_hand`.
 With self-collision on, hand links collide except the pairs of :func:`ges_core.urdf.neighbour_link_pairs`
 (PhysX skips parent-child pairs itself; the others get collision-group bits, :func:`.loading.pair_exclusion_bits`).
+
+An env that blew up is restored by teleports alone (:meth:`SapienBackend.reset` of that env): after a
+NaN or 500 m/s object velocity or a NaN joint velocity it then evolves bit for bit like the same env of
+a backend that never blew up (``tests/test_sim_env_ids.py``). Bodies are never removed for it (reading
+contacts of a removed body segfaults).
 """
 
 from __future__ import annotations
@@ -18,24 +23,15 @@ import numpy as np
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
-from ges_core.sim import ContactPair, ContactPartner, SceneConfig, SimBackend
+from ges_core.sim import ContactPair, ContactPartner, SceneConfig, SimBackend, check_env_rows, env_id_list
 from ges_core.urdf import quat_to_euler_xyz
 from plugins.sims.sapien import loading
+from plugins.sims.sapien.checks import MAX_JOINT_SPEED, MAX_OBJECT_SPEED, blown_message, state_problem
 from plugins.sims.sapien.contacts import PARTNERS, ContactReader
 from plugins.sims.sapien.engine import sapien
 from plugins.sims.sapien.poses import PoseTable, sapien_pose
 
 __all__ = ["MAX_JOINT_SPEED", "MAX_OBJECT_SPEED", "SapienBackend"]
-
-MAX_JOINT_SPEED = 1.0e3
-"""rad/s or m/s. Above this a joint velocity counts as exploding. PhysX caps joint speed at 100
-(``joint.max_velocity``; a wrist target jumped by 0.3 m reaches it), so only a broken state passes
-1e3: overflowing drive forces showed 1e25, and NaN fails the check too."""
-
-MAX_OBJECT_SPEED = 1.0e2
-"""m/s. Above this the object counts as exploding: a box dropped from 30 cm and struck by a
-snapping hand peaked at 2.2 m/s; 100 leaves room for throws and still catches blow-ups."""
-
 
 _IDENTITY = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
 """(7,) the identity pose: x, y, z, qw, qx, qy, qz."""
@@ -91,6 +87,8 @@ class SapienBackend(SimBackend):
         after the six wrist joints."""
         self.idx_hand_to_sim = np.zeros(0, dtype=np.int64)
         """(K,) ``q_fingers = q_hand[idx_hand_to_sim]``."""
+        self._blown: set[int] = set()
+        """Envs reported by step() as blown up and not restored since."""
         self._closed = False
         self._all_have_objects = False
 
@@ -119,14 +117,16 @@ class SapienBackend(SimBackend):
         base = env.wrist_joints[-1].child_link if floating else env.hand.get_links()[0]
         self._description, self._floating, self._base_link = description, floating, base.name
         self._start_qpos = self._sim_qpos(np.asarray(description.open_pose, dtype=np.float64))
-        self._reset_hand()
+        self._reset_hand(list(range(self.num_envs)))
 
     def load_object(
         self, obj: ObjectAsset, pose: np.ndarray | None = None, env_ids: Sequence[int] | None = None
     ) -> None:
         self._live()
-        ids = self._env_ids(env_ids)
+        ids = env_id_list(env_ids, self.num_envs, "sapien.load_object")
+        check_env_rows(pose, env_ids, ids, "sapien.load_object", "pose")
         poses = None if pose is None else self._poses(pose, len(ids), "load_object pose")
+        self._restore(ids)
         for row, env_id in enumerate(ids):
             env = self._envs[env_id]
             if env.obj is not None:
@@ -145,7 +145,7 @@ class SapienBackend(SimBackend):
 
     # -- commands -------------------------------------------------------------------------
     def set_joint_targets(self, q: np.ndarray) -> None:
-        q = self._joint_array(q, "set_joint_targets q")
+        q = self._joint_array(q, self.num_envs, "set_joint_targets q")
         for env, row in zip(self._envs, q.tolist(), strict=True):
             for joint, target in zip(env.hand_joints, row, strict=True):
                 joint.set_drive_target(target)
@@ -159,35 +159,61 @@ class SapienBackend(SimBackend):
             for joint, target in zip(env.wrist_joints, targets, strict=True):
                 joint.set_drive_target(target)
 
-    def set_hand_state(self, q: np.ndarray, wrist_pose: np.ndarray | None = None) -> None:
-        q = self._joint_array(q, "set_hand_state q")
-        wrist = None if wrist_pose is None else self._poses(wrist_pose, self.num_envs, "set_hand_state wrist_pose")
+    def set_hand_state(
+        self, q: np.ndarray, wrist_pose: np.ndarray | None = None, *, env_ids: Sequence[int] | None = None
+    ) -> None:
+        """Teleport the hand of envs ``env_ids`` (all if None): q (M, K) rad, wrist_pose (M, 7) or None;
+        M = len(env_ids) or num_envs. Zero velocity, drive targets at the new state; other envs untouched."""
+        self._need_hand("set_hand_state")
+        ids = env_id_list(env_ids, self.num_envs, "sapien.set_hand_state")
+        check_env_rows(q, env_ids, ids, "sapien.set_hand_state", "q")
+        check_env_rows(wrist_pose, env_ids, ids, "sapien.set_hand_state", "wrist_pose")
+        q = self._joint_array(q, len(ids), "set_hand_state q")
+        wrist = None if wrist_pose is None else self._poses(wrist_pose, len(ids), "set_hand_state wrist_pose")
         coords = None if wrist is None or not self._floating else self._wrist_coordinates(wrist)
-        for e, env in enumerate(self._envs):
+        self._restore(ids)
+        for row, e in enumerate(ids):
+            env = self._envs[e]
             qpos = env.hand.get_qpos()
-            qpos[len(env.wrist_joints) :] = q[e][self.idx_hand_to_sim]
+            qpos[len(env.wrist_joints) :] = q[row][self.idx_hand_to_sim]
             if coords is not None:
-                qpos[:6] = coords[e]
+                qpos[:6] = coords[row]
             elif wrist is not None:
-                env.hand.set_root_pose(sapien_pose(wrist[e]))
+                env.hand.set_root_pose(sapien_pose(wrist[row]))
             self._teleport_hand(env, qpos)
         if wrist is not None:
-            self._reset_base = wrist.copy()
+            self._reset_base[ids] = wrist
 
-    def set_object_pose(self, pose: np.ndarray) -> None:
-        pose = self._poses(pose, self.num_envs, "set_object_pose pose")
-        for env, row in zip(self._objects("set_object_pose"), pose, strict=True):
-            self._teleport_object(env, row)
+    def set_object_pose(self, pose: np.ndarray, *, env_ids: Sequence[int] | None = None) -> None:
+        """Teleport the object of envs ``env_ids`` (all if None), pose (M, 7) world frame, zero velocity."""
+        self._live()
+        ids = env_id_list(env_ids, self.num_envs, "sapien.set_object_pose")
+        check_env_rows(pose, env_ids, ids, "sapien.set_object_pose", "pose")
+        pose = self._poses(pose, len(ids), "set_object_pose pose")
+        envs = self._objects("set_object_pose", ids)
+        self._restore(ids)
+        for e, row in zip(ids, pose, strict=True):
+            self._teleport_object(envs[e], row)
 
     def step(self, n: int = 1) -> None:
+        """Advance every scene ``n`` steps, checking each after every step; a scene that blew up is not stepped
+        further, and one SimulationError at the end lists every such env (``env_ids``)."""
         self._live()
         if n < 0:
             raise SimulationError(f"sapien.step: n={n}; give a number of steps >= 0")
+        blown: dict[int, str] = {}
         for _ in range(n):
             for e, env in enumerate(self._envs):
+                if e in blown:
+                    continue
                 env.scene.step()
                 env.contacts.after_step()
-                self._check_state(e, env)
+                problem = state_problem(e, env.hand, env.obj_body)
+                if problem is not None:
+                    blown[e] = problem
+        if blown:
+            self._blown.update(blown)
+            raise SimulationError(blown_message(blown), env_ids=blown)
 
     def engine_step(self) -> None:
         """One raw ``scene.step()`` per scene: no state check, no bookkeeping (for benchmarks)."""
@@ -234,26 +260,40 @@ class SapienBackend(SimBackend):
 
     def contact_pairs(self, env_id: int = 0) -> list[ContactPair]:
         self._live()
-        return self._envs[self._env_ids([env_id])[0]].contacts.pairs()
+        return self._envs[env_id_list([env_id], self.num_envs, "sapien.contact_pairs")[0]].contacts.pairs()
 
     # -- lifetime -------------------------------------------------------------------------
-    def reset(self) -> None:
-        """Open hand at the base pose last given to set_hand_state (else the origin), targets there, at rest;
-        objects at their load poses."""
+    def reset(self, *, env_ids: Sequence[int] | None = None) -> None:
+        """Envs ``env_ids`` (all if None): open hand at the base pose last given to set_hand_state (else the
+        origin), targets there, at rest; objects at their load poses. Other envs untouched."""
         self._live()
+        ids = env_id_list(env_ids, self.num_envs, "sapien.reset")
+        self._reset_envs(ids)
+        self._blown.difference_update(ids)
+
+    def _restore(self, ids: list[int]) -> None:
+        """Reset every env among ``ids`` that blew up (module docs: teleports bring it back)."""
+        bad = sorted(self._blown.intersection(ids))
+        if bad:
+            self._reset_envs(bad)
+            self._blown.difference_update(bad)
+
+    def _reset_envs(self, ids: list[int]) -> None:
         if self._description is not None:
-            self._reset_hand()
-        for env in self._envs:
+            self._reset_hand(ids)
+        for e in ids:
+            env = self._envs[e]
             if env.obj is not None:
                 self._teleport_object(env, env.obj_load_pose)
 
-    def _reset_hand(self) -> None:
-        """Hand open with its base at ``_reset_base``, every drive target at that state, zero velocity."""
-        coords = self._wrist_coordinates(self._reset_base) if self._floating else None
-        for e, env in enumerate(self._envs):
+    def _reset_hand(self, ids: list[int]) -> None:
+        """Hands of envs ``ids`` open with their base at ``_reset_base``, every drive target there, at rest."""
+        coords = self._wrist_coordinates(self._reset_base[ids]) if self._floating else None
+        for row, e in enumerate(ids):
+            env = self._envs[e]
             qpos = self._start_qpos.copy()
             if coords is not None:
-                qpos[:6] = coords[e]
+                qpos[:6] = coords[row]
             else:
                 env.hand.set_root_pose(sapien_pose(self._reset_base[e]))
             self._teleport_hand(env, qpos)
@@ -290,19 +330,6 @@ class SapienBackend(SimBackend):
             env.poses = PoseTable(env.scene, env.hand, env.obj)
         return env.poses
 
-    def _check_state(self, env_id: int, env: _Env) -> None:
-        """Raise SimulationError when env ``env_id`` holds non-finite or exploding velocities."""
-        if env.hand is not None:
-            qvel = env.hand.get_qvel()
-            if not -MAX_JOINT_SPEED < qvel.min() <= qvel.max() < MAX_JOINT_SPEED:  # NaN fails every comparison
-                worst = int(np.argmax(np.where(np.isfinite(qvel), np.abs(qvel), np.inf)))
-                joint = env.hand.get_active_joints()[worst].name
-                raise SimulationError(_explosion(env_id, f"hand joint '{joint}'", qvel[worst], MAX_JOINT_SPEED))
-        if env.obj_body is not None:
-            vel = env.obj_body.get_linear_velocity()
-            if not -MAX_OBJECT_SPEED < vel.min() <= vel.max() < MAX_OBJECT_SPEED:
-                raise SimulationError(_explosion(env_id, "object", float(np.linalg.norm(vel)), MAX_OBJECT_SPEED))
-
     # -- argument checks ------------------------------------------------------------------
     def _live(self) -> None:
         if self._closed:
@@ -320,26 +347,21 @@ class SapienBackend(SimBackend):
                 f"sapien.{what}: the hand was loaded with floating=False; move it with set_hand_state(q, wrist_pose)"
             )
 
-    def _objects(self, what: str) -> list[_Env]:
+    def _objects(self, what: str, ids: Sequence[int] | None = None) -> list[_Env]:
+        """Every env, once the envs ``ids`` (all if None) are checked to hold an object."""
         self._live()
         if self._all_have_objects:
             return self._envs
-        empty = [e for e, env in enumerate(self._envs) if env.obj is None]
-        self._all_have_objects = not empty
+        empty = [e for e in (range(self.num_envs) if ids is None else ids) if self._envs[e].obj is None]
+        self._all_have_objects = ids is None and not empty
         if empty:
             raise SimulationError(f"sapien.{what}: no object in env(s) {empty}; call load_object(obj) first")
         return self._envs
 
-    def _env_ids(self, env_ids: Sequence[int] | None) -> list[int]:
-        ids = list(range(self.num_envs)) if env_ids is None else [int(i) for i in env_ids]
-        bad = [i for i in ids if not 0 <= i < self.num_envs]
-        if bad:
-            raise SimulationError(f"sapien: env ids {bad} out of range for num_envs={self.num_envs}")
-        return ids
-
-    def _joint_array(self, q: np.ndarray, what: str) -> np.ndarray:
+    def _joint_array(self, q: np.ndarray, rows: int, what: str) -> np.ndarray:
+        """``q`` checked as (rows, K) finite values, hand joint order."""
         self._need_hand(what.split()[0])
-        return _checked(q, (self.num_envs, self._description.num_joints), what, "hand joint_names order")
+        return _checked(q, (rows, self._description.num_joints), what, "hand joint_names order")
 
     @staticmethod
     def _poses(pose: np.ndarray, rows: int, what: str) -> np.ndarray:
@@ -379,12 +401,3 @@ def euler_xyz(w: float, x: float, y: float, z: float) -> tuple[float, float, flo
     rx = math.atan2(-2 * (y * z - w * x), 1 - 2 * (x * x + y * y))
     rz = math.atan2(-2 * (x * y - w * z), 1 - 2 * (y * y + z * z))
     return rx, ry, rz
-
-
-def _explosion(env_id: int, who: str, speed: float, limit: float) -> str:
-    kind = "non-finite" if not np.isfinite(speed) else "exploding"
-    return (
-        f"sapien env {env_id}: {kind} {who} velocity ({abs(speed):.3g}, limit {limit:g} in SI units); the state "
-        "blew up. Likely causes: absurd or huge PD targets, gains too stiff for the timestep, or deep "
-        "interpenetration after a teleport; fix the command, lower the gains or the timestep, or start collision-free"
-    )
