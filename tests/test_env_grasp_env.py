@@ -102,7 +102,7 @@ class _BlowsUpOnce:
         self._sim.step(n)
         self._steps += 1
         if self._steps == 3 + 20 + 1:  # after 20 reaching steps and one settling call
-            raise SimulationError("pybullet env 1: a hand joint moves at 1e+04 after stepping")
+            raise SimulationError("pybullet env 1: a hand joint moves at 1e+04 after stepping", env_ids=(1,))
 
 
 def test_simulation_error_ends_only_that_env() -> None:

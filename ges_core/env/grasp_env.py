@@ -7,14 +7,17 @@ upward) to the pre-grasp, fingers held at the pre-grasp joints; (2) grasp execut
 backend steps ``sim_steps`` physics steps. The wrist target is integrated: each action moves the
 previous wrist *target* (not the measured pose, which would let a loaded wrist sag under zero action).
 
-Per-env resets (:meth:`GraspEnv.reset_envs`) teleport that env's hand straight to its pre-grasp and
-its object to its rest pose; the interface offers no per-env teleport, so the other envs' hands and
-objects are re-teleported to their current state (their velocities become zero). See ``docs/env.md``.
+Prior ablation (the paper's Init/NoInit x Goal/NoGoal, :data:`PRIOR_PRESETS`): ``init_prior=False``
+starts every episode with the open hand at a fixed pose above the object and no reaching;
+``goal_prior=False`` leaves the goal blocks G out of the observation (the reward still uses the goal).
+
+Per-env resets (:meth:`GraspEnv.reset_envs`) teleport that env's hand straight to its episode start and
+its object to its rest pose, through the backend's per-env teleports: the other envs are untouched. See
+``docs/env.md``.
 """
 
 from __future__ import annotations
 
-import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -30,10 +33,9 @@ from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
+from ges_core.transforms import matrix_to_pose, rotation_between_frames
 
-__all__ = ["EnvConfig", "GraspEnv", "GraspTargets"]
-
-_ENV_IN_MESSAGE = re.compile(r"\benv (\d+)\b")
+__all__ = ["PRIOR_PRESETS", "EnvConfig", "GraspEnv", "GraspTargets", "open_hand_start_pose", "prior_preset"]
 
 
 class EnvConfig(ConfigModel):
@@ -51,8 +53,31 @@ class EnvConfig(ConfigModel):
         0.005, gt=0, description="m per control step the wrist target may move (0.3 m/s at 60 Hz control)"
     )
     max_wrist_turn: float = Field(0.1, gt=0, description="rad per control step the wrist target may turn")
+    init_prior: bool = Field(
+        True, description="Init: stage one reaches the pre-grasp; False (NoInit): open hand above the object"
+    )
+    goal_prior: bool = Field(True, description="Goal: observation holds G (goal_pos, goal_rot, goal_q); False: not")
+    noinit_height: float = Field(
+        0.25, gt=0, description="NoInit: metres of the wrist-link origin above the object's origin at the start"
+    )
     reward: RewardConfig = Field(default_factory=RewardConfig)
     success: SuccessConfig = Field(default_factory=SuccessConfig)
+
+
+PRIOR_PRESETS: dict[str, dict[str, bool]] = {
+    "init_goal": {"init_prior": True, "goal_prior": True},
+    "init_nogoal": {"init_prior": True, "goal_prior": False},
+    "noinit_goal": {"init_prior": False, "goal_prior": True},
+    "noinit_nogoal": {"init_prior": False, "goal_prior": False},
+}
+"""The paper's prior ablation: EnvConfig overrides per preset (``cfg.model_copy(update=prior_preset(name))``)."""
+
+
+def prior_preset(name: str) -> dict[str, bool]:
+    """The EnvConfig overrides of the prior-ablation preset ``name`` (a fresh dict)."""
+    if name not in PRIOR_PRESETS:
+        raise ConfigError(f"unknown prior preset '{name}'; choose one of {', '.join(PRIOR_PRESETS)}")
+    return dict(PRIOR_PRESETS[name])
 
 
 @dataclass(frozen=True)
@@ -83,7 +108,7 @@ class GraspEnv:
         self.tip_links = list(d.tip_links)
         self.tip_offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
         self.contact_links = list(dict.fromkeys([*d.tip_links, d.wrist.link]))
-        self.obs_layout = ObservationLayout.for_hand(d, tuple(self.contact_links))
+        self.obs_layout = ObservationLayout.for_hand(d, tuple(self.contact_links), goal=cfg.goal_prior)
         lim = torch.as_tensor(d.limits_array)
         self.act_layout = ActionLayout(lim[:, 0], lim[:, 1], cfg.max_wrist_step, cfg.max_wrist_turn)
         self.finger_joints = [torch.as_tensor(d.joint_index(f.joints)) for f in d.fingers]
@@ -105,31 +130,58 @@ class GraspEnv:
 
     # -- resets ----------------------------------------------------------------------------
     def reset_all(self) -> None:
-        """Every env: object at rest, hand at the reach start, stage one (PD reaching) to the pre-grasp."""
-        sim, g = self.sim, self.grasps
+        """Every env: object at rest, hand at its episode start (:meth:`start_state`), ``settle_steps`` holding.
+
+        Init: the hand starts ``reach_offset`` above the pre-grasp and stage one (PD reaching) takes it
+        there. NoInit: the open hand is teleported to its fixed start above the object; no reaching.
+        """
+        sim, cfg = self.sim, self.cfg
         sim.reset()
         self.rest_pose = sim.object_pose()
-        start = g["pre_wrist_pose"].clone()
-        start[:, 2] += self.cfg.reach_offset
-        sim.set_hand_state(g["pre_q"].numpy(), start.numpy())
-        sim.set_joint_targets(g["pre_q"].numpy())
-        for t in range(1, self.cfg.reach_steps + 1):
-            sim.set_wrist_targets(interpolate_pose(start, g["pre_wrist_pose"], t / self.cfg.reach_steps).numpy())
-            sim.step(self.cfg.sim_steps)
-        sim.step(self.cfg.sim_steps * self.cfg.settle_steps)
+        if not cfg.init_prior:
+            start = open_hand_start_pose(self.hand, self.rest_pose[:, :3], cfg.noinit_height)
+            self.noinit_start = torch.as_tensor(start)  # (n, 7) base poses, world
+        q, pose = self.start_state(torch.arange(self.n))
+        if cfg.init_prior:
+            self._reach(q, pose)
+        else:
+            sim.set_hand_state(q.numpy(), pose.numpy())
+        sim.step(cfg.sim_steps * cfg.settle_steps)
         self._begin(torch.arange(self.n))
 
+    def _reach(self, q: torch.Tensor, pose: torch.Tensor) -> None:
+        """Stage one: from ``reach_offset`` above ``pose`` (n, 7), PD-drive the wrist there, fingers held at q."""
+        start = pose.clone()
+        start[:, 2] += self.cfg.reach_offset
+        self.sim.set_hand_state(q.numpy(), start.numpy())
+        self.sim.set_joint_targets(q.numpy())
+        for t in range(1, self.cfg.reach_steps + 1):
+            self.sim.set_wrist_targets(interpolate_pose(start, pose, t / self.cfg.reach_steps).numpy())
+            self.sim.step(self.cfg.sim_steps)
+
+    def start_state(self, env_ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Where episodes of ``env_ids`` hand over to the policy: joints (m, K) rad, base pose (m, 7) world.
+
+        Init: the pre-grasp (``pre_q``, ``pre_wrist_pose``). NoInit: the open pose at ``noinit_start``
+        (set by :meth:`reset_all`).
+        """
+        if self.cfg.init_prior:
+            return self.grasps["pre_q"][env_ids], self.grasps["pre_wrist_pose"][env_ids]
+        q_open = torch.as_tensor(self.hand.description.open_pose, dtype=torch.float64)
+        return q_open.expand(len(env_ids), -1).clone(), self.noinit_start[env_ids]
+
     def reset_envs(self, env_ids: torch.Tensor) -> None:
-        """Envs ``env_ids``: object back at rest, hand at its pre-grasp (others: same pose, velocities zeroed)."""
+        """Envs ``env_ids``: object back at rest, hand at its episode start (:meth:`start_state`); others untouched.
+
+        No stage one here: the hand is teleported straight to where the policy takes over.
+        """
         ids = env_ids.tolist()
-        q, _ = self.sim.joint_state()
-        wrist = self.sim.wrist_pose()
-        q[ids], wrist[ids] = self.grasps["pre_q"][ids].numpy(), self.grasps["pre_wrist_pose"][ids].numpy()
-        self.sim.set_hand_state(q, wrist)
-        obj = self.sim.object_pose()
-        obj[ids] = self.rest_pose[ids]
-        self.sim.set_object_pose(obj)  # not load_object: SAPIEN segfaults reading contacts of a removed body
-        self._begin(env_ids)
+        if not ids:
+            return
+        q, pose = self.start_state(env_ids)
+        self.sim.set_hand_state(q.numpy(), pose.numpy(), env_ids=ids)  # also restores a blown-up env
+        self.sim.set_object_pose(self.rest_pose[ids], env_ids=ids)  # not load_object: SAPIEN segfaults reading
+        self._begin(env_ids)  # contacts of a removed body
 
     def _begin(self, env_ids: torch.Tensor) -> None:
         wrist = torch.as_tensor(self.sim.wrist_pose())
@@ -154,16 +206,14 @@ class GraspEnv:
         return self._step_physics()
 
     def _step_physics(self) -> torch.Tensor:
-        """Step ``sim_steps``; on SimulationError mark the env it names (else every env) unstable."""
+        """Step ``sim_steps``; on SimulationError mark its ``env_ids`` (every env if it names none) unstable.
+
+        The backend finishes the step in every healthy env before raising."""
         unstable = torch.zeros(self.n, dtype=torch.bool)
         try:
             self.sim.step(self.cfg.sim_steps)
         except SimulationError as err:
-            match = _ENV_IN_MESSAGE.search(str(err))
-            if match is None:
-                unstable[:] = True
-            else:
-                unstable[int(match.group(1))] = True
+            unstable[list(err.env_ids) if err.env_ids else slice(None)] = True
         return unstable
 
     def observe(self) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
@@ -188,10 +238,11 @@ class GraspEnv:
             "wrist_vel": vel,
             "prev_action": self.prev_action,
             "obj_pos": obj,
-            "goal_pos": g["wrist_pose"][:, :3] - wrist[:, :3],
-            "goal_rot": quat_to_rotvec(quat_mul(g["wrist_pose"][:, 3:], quat_conj(wrist[:, 3:]))),
-            "goal_q": g["q"] - q,
         }
+        if self.obs_layout.goal:
+            blocks["goal_pos"] = g["wrist_pose"][:, :3] - wrist[:, :3]
+            blocks["goal_rot"] = quat_to_rotvec(quat_mul(g["wrist_pose"][:, 3:], quat_conj(wrist[:, 3:])))
+            blocks["goal_q"] = g["q"] - q
         state = {"q": q, "dq": dq, "tip_world": tip_world, "obj": obj, "wrist_vel": vel}
         return self.obs_layout.pack(blocks), state
 
@@ -226,3 +277,26 @@ def interpolate_pose(a: torch.Tensor, b: torch.Tensor, s: float) -> torch.Tensor
     """(n, 7) poses a fraction ``s`` in [0, 1] from ``a`` to ``b``: linear position, slerp rotation."""
     rel = quat_to_rotvec(quat_mul(b[:, 3:], quat_conj(a[:, 3:])))
     return torch.cat([a[:, :3] + s * (b[:, :3] - a[:, :3]), quat_mul(rotvec_to_quat(s * rel), a[:, 3:])], dim=1)
+
+
+def open_hand_start_pose(hand: HandModel, obj_pos: np.ndarray, height: float) -> np.ndarray:
+    """(n, 7) base-link poses of the NoInit start: open hand, palm down, wrist link ``height`` m above ``obj_pos``.
+
+    obj_pos: (n, 3) object origins, world, m. Palm down per the hand's wrist convention: ``palm_normal``
+    along world -z, ``finger_direction`` toward world +x (as :func:`ges_core.sim_check.grasp_start_pose`).
+    """
+    from ges_core.kinematics import HandKinematics
+
+    d = hand.description
+    q_open = torch.as_tensor(d.open_pose, dtype=torch.float64)[None]
+    base_to_wrist = HandKinematics.from_hand(hand).link_poses(q_open, [d.wrist.link])[0, 0].numpy()
+    rot = rotation_between_frames(
+        np.array(d.wrist.palm_normal),
+        np.array(d.wrist.finger_direction),
+        np.array([0.0, 0.0, -1.0]),
+        np.array([1.0, 0.0, 0.0]),
+    )
+    world_wrist = np.tile(np.eye(4), (len(obj_pos), 1, 1))
+    world_wrist[:, :3, :3] = rot
+    world_wrist[:, :3, 3] = np.asarray(obj_pos) + np.array([0.0, 0.0, height])
+    return matrix_to_pose(world_wrist @ np.linalg.inv(base_to_wrist))

@@ -14,7 +14,7 @@ import torch
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription
 
-__all__ = ["BLOCK_DOCS", "WRIST_DOF", "ObservationLayout", "ActionLayout"]
+__all__ = ["BLOCK_DOCS", "GOAL_BLOCKS", "WRIST_DOF", "ObservationLayout", "ActionLayout"]
 
 WRIST_DOF = 6
 """Virtual wrist joints of the floating base: 3 translations + 3 rotations."""
@@ -35,14 +35,21 @@ BLOCK_DOCS: dict[str, str] = {
 }
 """Shape, frame and unit of every observation block, in layout order."""
 
+GOAL_BLOCKS = ("goal_pos", "goal_rot", "goal_q")
+"""The goal prior G = (ĝ_p, ĝ_r, g_q): left out of layouts with ``goal=False`` (the NoGoal ablation)."""
+
 
 @dataclass(frozen=True)
 class ObservationLayout:
-    """Slices of the flat (num_envs, size) float32 observation, for K joints, L contact links, F tips."""
+    """Slices of the flat (num_envs, size) float32 observation, for K joints, L contact links, F tips.
+
+    goal: False leaves out the goal blocks :data:`GOAL_BLOCKS` (6 + K floats; the NoGoal ablation).
+    """
 
     num_joints: int
     num_contact_links: int
     num_tips: int
+    goal: bool = True
     slices: dict[str, slice] = field(init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -58,14 +65,14 @@ class ObservationLayout:
         object.__setattr__(self, "slices", slices)
 
     @classmethod
-    def for_hand(cls, hand: HandDescription, contact_links: tuple[str, ...]) -> ObservationLayout:
-        """Layout for ``hand`` with contact booleans on ``contact_links``."""
-        return cls(hand.num_joints, len(contact_links), len(hand.fingers))
+    def for_hand(cls, hand: HandDescription, contact_links: tuple[str, ...], goal: bool = True) -> ObservationLayout:
+        """Layout for ``hand`` with contact booleans on ``contact_links``, goal blocks if ``goal``."""
+        return cls(hand.num_joints, len(contact_links), len(hand.fingers), goal)
 
     def sizes(self) -> dict[str, int]:
         """Block name -> number of floats, in layout order."""
         k, f = self.num_joints, self.num_tips
-        return {
+        sizes = {
             "q": k,
             "dq": k,
             "contact": self.num_contact_links,
@@ -79,6 +86,7 @@ class ObservationLayout:
             "goal_rot": 3,
             "goal_q": k,
         }
+        return sizes if self.goal else {name: n for name, n in sizes.items() if name not in GOAL_BLOCKS}
 
     @property
     def size(self) -> int:
@@ -101,6 +109,9 @@ class ObservationLayout:
 
     def unpack(self, obs: torch.Tensor, name: str) -> torch.Tensor:
         """The block ``name`` of observations (num_envs, size) as (num_envs, block size)."""
+        if name not in self.slices:
+            hint = " (a NoGoal layout: goal=False leaves out the goal blocks)" if name in GOAL_BLOCKS else ""
+            raise ConfigError(f"observation block '{name}' is not in this layout{hint}; blocks: {list(self.slices)}")
         return obs[:, self.slices[name]]
 
 
