@@ -67,9 +67,7 @@ def test_vec_env_shapes_and_determinism(sim_name: str) -> None:
     assert torch.allclose(goal_pos, torch.tensor([0.0, 0.0, -0.02]).expand(N, 3), atol=0.006)
 
 
-# PyBullet left out: the same scene lifts the box to success in a plain script but ends "dropped" under
-# pytest's isolated cache folder; not yet explained (see docs/env.md).
-@pytest.mark.parametrize("sim_name", ["sapien"])
+@pytest.mark.parametrize("sim_name", ["sapien", "pybullet"])
 def test_scripted_expert_lifts_the_box(sim_name: str) -> None:
     venv = _venv(sim_name, reach_steps=60)
     expert = ScriptedExpert(venv.env.obs_layout, venv.env.act_layout)
