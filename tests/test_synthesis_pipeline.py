@@ -14,7 +14,7 @@ from ges_core.synthesis.pipeline import LibrarySettings, SynthesisConfig, object
 from ges_core.synthesis.retarget import GraspRetargeter
 from ges_core.synthesis.run_table import format_table, table_rows
 
-GOOD = ["procedural/cube/000", "procedural/can/000"]
+GOOD = ["procedural/cube/000", "procedural/box/000"]
 FLAT, HUGE = "user/flat/sheet", "user/big/crate"
 
 
@@ -68,7 +68,7 @@ def test_stored_contacts_are_those_of_the_contact_step(first_run, user_dir):
     """Cross-check: rerun contact generation by hand with the object's seed; same contacts."""
     out, config, _ = first_run
     lib = config.library.build()
-    record = open_dataset(out).get("procedural/can/000", "allegro")
+    record = open_dataset(out).get("procedural/box/000", "allegro")
     seed = object_seed(config.seed, record.object_id)
     pts, nrm = lib.point_cloud(record.object_id, config.points, seed=seed)
     again = generate_contacts(pts, nrm, config.contacts, object_id=record.object_id, seed=seed)
@@ -170,7 +170,7 @@ def test_table_counts_attempted_steps(first_run):
 def test_concave_object_without_decomposition_fails_refinement_with_reason(tmp_path, monkeypatch):
     monkeypatch.setenv("GES_CACHE_DIR", str(tmp_path / "cache"))  # no cached CoACD parts
     config = SynthesisConfig.model_validate({"library": {"sources": ["procedural"], "procedural_count": 1}})
-    run_synthesis(["procedural/mug/000"], ["allegro"], config, tmp_path / "ds")
+    run_synthesis(["procedural/bottle/000"], ["allegro"], config, tmp_path / "ds")
     (record,) = open_dataset(tmp_path / "ds")
     assert record.steps["contacts"].ok and record.steps["retargeting"].ok
     assert record.steps["refinement"].reason == "no_collision_model"

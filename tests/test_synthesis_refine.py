@@ -19,7 +19,7 @@ from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig, SimBackend
 from ges_core.sim_check import grasp_start_pose
 from ges_core.synthesis.pregrasp import PregraspConfig, open_joint_mask, pregrasp
-from ges_core.synthesis.refine import RefineConfig, refine_grasp, refine_verdict
+from ges_core.synthesis.refine import RefineConfig, creep_direction, refine_grasp, refine_verdict
 from ges_core.synthesis.sim_scene import closing_direction, compose, interpolate_pose, relative, stage_scene
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 
@@ -267,8 +267,7 @@ def test_refinement_freezes_fingers_on_contact(allegro, sim_name):
     assert {"thumb", "index"} <= set(refined.frozen) <= set(refined.grasp.meta["touching_fingers"])
     assert refined.max_penetration < 0.002 and not refined.table_contact
     assert refined.grasp.meta["refine_steps"] < config.max_steps  # stopped: every finger frozen or settled
-    q_open = np.where(open_joint_mask(d, config.thumb_keep), np.asarray(d.open_pose), grasp.q)
-    goal = grasp.q + config.overshoot * closing_direction(q_open, grasp.q)
+    goal = d.apply_couplings(grasp.q + creep_direction(allegro, grasp.q, config.overshoot))
     for finger in d.fingers:  # frozen fingers stopped short of the goal, free ones reached it
         idx = d.joint_index(finger.joints)
         gap = np.abs(refined.grasp.q[idx] - goal[idx]).max()
@@ -319,8 +318,7 @@ def test_hand_beside_the_object_freezes_nothing(allegro, sim_name):
     assert refine_verdict(refined, allegro) == "few_contacts"
     assert refined.max_penetration == 0.0 and not refined.table_contact
     config, d = RefineConfig(), allegro.description
-    q_open = np.where(open_joint_mask(d, config.thumb_keep), np.asarray(d.open_pose), grasp.q)
-    goal = grasp.q + config.overshoot * closing_direction(q_open, grasp.q)  # every finger free: all reach it
+    goal = d.apply_couplings(grasp.q + creep_direction(allegro, grasp.q, config.overshoot))  # all free: all reach it
     np.testing.assert_allclose(refined.grasp.q, goal, atol=2 * config.settle_tolerance)
 
 

@@ -14,6 +14,7 @@ import pytest
 import torch
 from pydantic import ValidationError
 
+from ges_core.collision_points import collision_points
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import AssetError, SynthesisError
 from ges_core.hand import HandModel
@@ -279,7 +280,8 @@ def grasp_objective(retargeter: GraspRetargeter, grasp: Grasp, contacts: Contact
 def test_wrist_search_fits_at_least_as_well_as_the_papers_placement(hands, kins, retargeters, name):
     paper = GraspRetargeter(hands[name], RetargetConfig(wrist_search={"enabled": False}), kinematics=kins[name])
     assert len(paper.search_offsets) == 1 and not paper.search_offsets.any()
-    searched = retargeters[name]
+    # fit only: with the table penalty on, a placement may fit worse to keep the hand off the table
+    searched = GraspRetargeter(hands[name], RetargetConfig(wrist_search={"table_weight": 0.0}), kinematics=kins[name])
     assert not searched.search_offsets[0].any() and len(searched.search_offsets) == 96  # row 0: the paper's
     better = 0
     for contacts in box_contact_sets():
@@ -427,14 +429,14 @@ def test_raise_contacts_lifts_only_low_contacts():
 @pytest.mark.parametrize("name", HANDS)
 def test_low_contacts_put_the_fingertips_at_the_clearance_height(hands, kins, name):
     """A top-down grasp of a 1 cm-high slab: with the clearance the fingertips (by FK, an independent
-    check of the solve) sit near 25 mm, without it near the 10 mm contacts."""
+    check of the solve) sit near 25 mm, without it near the 10 mm contacts (the wrist search's table
+    penalty off: it would lift the 12 mm Allegro fingertip spheres off the table, the job of the clearance)."""
     d = hands[name].description
     contacts = ContactSet(top_grasp(0.03, 0.025, height=0.01), np.array([[-1.0, 0, 0]] + [[1.0, 0, 0]] * 4), "slab")
     heights = {}
     for floor in (0.0, 0.025):
-        g = GraspRetargeter(hands[name], RetargetConfig(min_contact_height=floor), kinematics=kins[name]).retarget(
-            contacts
-        )
+        config = RetargetConfig(min_contact_height=floor, wrist_search={"table_weight": 0.0})
+        g = GraspRetargeter(hands[name], config, kinematics=kins[name]).retarget(contacts)
         np.testing.assert_allclose(np.asarray(g.meta["aimed_contacts"])[:, 2], max(floor, 0.01))
         base = pose_to_matrix(g.wrist_pose)
         tips = kins[name].points(torch.as_tensor(g.q)[None], list(d.tip_links), [f.tip_offset for f in d.fingers])
@@ -445,3 +447,24 @@ def test_low_contacts_put_the_fingertips_at_the_clearance_height(hands, kins, na
 def test_negative_clearance_is_refused():
     with pytest.raises(ValidationError, match="min_contact_height"):
         RetargetConfig(min_contact_height=-0.01)
+
+
+def lowest_hand_point(hand: HandModel, kin: HandKinematics, grasp: Grasp) -> float:
+    """Lowest collision-geometry point of the hand at the grasp, object frame, m (independent FK composition)."""
+    points = collision_points(hand.urdf_text())
+    poses = pose_to_matrix(grasp.wrist_pose) @ kin.link_poses(torch.as_tensor(grasp.q)[None], list(points))[0].numpy()
+    return min(
+        float((pose[:3, :3] @ p.T + pose[:3, 3:])[2].min()) for pose, p in zip(poses, points.values(), strict=True)
+    )
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_table_penalty_steers_the_wrist_search_away_from_the_table(hands, kins, name):
+    """Asking for a 10 cm clearance must raise the hand's lowest point above where the fit alone puts it."""
+    contacts = box_contact_sets()[0]
+    lowest = {}
+    for clearance, weight in ((0.0, 0.0), (0.1, 10.0)):
+        search = {"table_clearance": clearance, "table_weight": weight}
+        r = GraspRetargeter(hands[name], RetargetConfig(wrist_search=search), kinematics=kins[name])
+        lowest[clearance] = lowest_hand_point(hands[name], kins[name], r.retarget(contacts))
+    assert lowest[0.1] > lowest[0.0] + 0.005, lowest

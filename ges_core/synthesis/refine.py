@@ -28,6 +28,7 @@ read from the backend's contact pairs at the end.
 from __future__ import annotations
 
 import time
+from typing import Literal
 
 import numpy as np
 from pydantic import Field
@@ -48,6 +49,7 @@ from ges_core.synthesis.sim_scene import (
     stage_scene,
     tip_forces,
 )
+from ges_core.synthesis.squeeze import press_torques
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 
 __all__ = ["RefineConfig", "refine_grasp", "refine_verdict"]
@@ -85,6 +87,10 @@ class RefineConfig(ConfigModel):
     # within the ramp tilted the test box 8-17 degrees).
     overshoot: float = Field(0.1, ge=0, description="free fingers creep this far past the grasp joints, rad")
     creep_steps: int = Field(30, ge=1, description="steps of that creep, after the ramp")
+    # press: the creep moves each fingertip toward what it opposes (Jacobian transpose, as the validator's
+    # squeeze). joint: every joint further along its own closing direction, which slid some Allegro
+    # fingertips along the surface instead of onto it.
+    creep: Literal["press", "joint"] = Field("press", description="direction of the creep past the grasp")
 
 
 def refine_grasp(
@@ -106,8 +112,9 @@ def refine_grasp(
     q_open = np.where(open_joint_mask(d, config.thumb_keep), np.asarray(d.open_pose), q_grasp)
     sim.set_hand_state(q_open[None], wrist[None])
     sim.set_wrist_targets(wrist[None])
+    push = creep_direction(hand, q_grasp, config.overshoot) if config.creep == "press" else None
     try:
-        frozen, steps = _close(sim, d, q_open, q_grasp, config)
+        frozen, steps = _close(sim, d, q_open, q_grasp, config, push)
     except SimulationError as error:
         raise SynthesisError(
             f"refine_grasp: {sim.name} blew up closing hand '{hand.name}' on object '{obj.object_id}': {error}",
@@ -136,15 +143,35 @@ def refine_verdict(refined: RefinedGrasp, hand: HandModel, config: RefineConfig 
     return "ok"
 
 
+def creep_direction(hand: HandModel, q_grasp: np.ndarray, overshoot: float) -> np.ndarray:
+    """(K,) creep past ``q_grasp``: per finger, ``J^T u`` (its tip toward what it opposes) scaled so the
+    finger's largest joint change is ``overshoot`` rad (:func:`ges_core.synthesis.squeeze.press_torques`)."""
+    d = hand.description
+    torque = press_torques(hand, d.apply_couplings(q_grasp))
+    push = np.zeros_like(torque)
+    for idx in finger_joint_indices(d):
+        largest = np.abs(torque[idx]).max()
+        if largest > 0:
+            push[idx] = overshoot * torque[idx] / largest
+    return push
+
+
 def _close(
-    sim: SimBackend, d: HandDescription, q_open: np.ndarray, q_grasp: np.ndarray, config: RefineConfig
+    sim: SimBackend,
+    d: HandDescription,
+    q_open: np.ndarray,
+    q_grasp: np.ndarray,
+    config: RefineConfig,
+    push: np.ndarray | None = None,
 ) -> tuple[np.ndarray, int]:
-    """Ramp (and creep) the targets, freeze fingers on contact; returns ((F,) frozen flags, steps taken)."""
+    """Ramp (and creep by ``push``, default along each joint's closing direction) the targets, freezing
+    fingers on contact; returns ((F,) frozen flags, steps taken)."""
     fingers, tips = finger_joint_indices(d), list(d.tip_links)
     frozen = np.zeros(len(fingers), dtype=bool)
     held = np.zeros(d.num_joints, dtype=bool)  # joints whose targets are frozen
     history = np.empty((config.max_steps + 1, d.num_joints))  # measured q per step
-    push = config.overshoot * closing_direction(q_open, q_grasp)
+    if push is None:
+        push = config.overshoot * closing_direction(q_open, q_grasp)
     q_goal = d.apply_couplings(q_grasp + push)
     targets, settled_at = q_open.copy(), None
     for step in range(1, config.max_steps + 1):

@@ -22,10 +22,12 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
+from ges_core.collision_points import collision_points
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
+from ges_core.synthesis.pregrasp import open_joint_mask
 from ges_core.synthesis.retarget_search import WristSearchConfig, candidate_offsets, candidate_wrists, table_penalty
 from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
 from ges_core.synthesis.retarget_wrist import (
@@ -100,8 +102,13 @@ class GraspRetargeter:
         """(4, 4) wrist-link pose in the base-link frame at ``q_init``."""
         self.frame: HandFrame = hand_frame(d, self._wrist_points(q_open))
         self.search_offsets = candidate_offsets(self.config.wrist_search)
-        self.hull_links = list(dict.fromkeys([d.wrist.link, *(k for f in d.fingers for k in f.keypoint_links)]))
-        """Links whose origins the wrist search keeps off the table."""
+        self._opened = torch.as_tensor(open_joint_mask(d, self.config.wrist_search.thumb_keep))
+        """(K,) joints the pre-grasp and refinement open (their table clearance is checked too)."""
+        hull = collision_points(hand.urdf_text())
+        self.hull_links = list(hull)
+        """Links whose collision geometry the wrist search keeps off the table."""
+        self._hull_link_of = torch.as_tensor(np.repeat(np.arange(len(hull)), [len(v) for v in hull.values()]))
+        self._hull_points = torch.as_tensor(np.concatenate(list(hull.values())))  # (N, 3), link frames
         """(M, 5) wrist placements tried per grasp (row 0: the paper's), see :mod:`.retarget_search`."""
 
     def retarget(self, contacts: ContactSet) -> Grasp:
@@ -161,7 +168,12 @@ class GraspRetargeter:
         normals_base = torch.as_tensor(np.einsum("bji,bsj->bsi", rot, normals))
         q0 = torch.as_tensor(self.q_init).expand(b * m, -1)
         q, residual = self.solver.solve(targets, q0, normals=normals_base)
-        cost = self.solver.objective(q, targets, normals_base).numpy() + self._table_penalty(q, base)
+        q_open = torch.where(self._opened, self.solver.open_pose, q)  # how refinement and the pre-grasp start
+        cost = (
+            self.solver.objective(q, targets, normals_base).numpy()
+            + self._table_penalty(q, base)
+            + self._table_penalty(q_open, base)
+        )
         best = torch.as_tensor(cost.reshape(b, m).argmin(axis=1))  # first minimum: the paper's on ties
         pick = torch.arange(b) * m + best
         q, residual, targets = q[pick], residual[pick], targets[pick]
@@ -169,12 +181,13 @@ class GraspRetargeter:
         return base[pick.numpy()], q.numpy(), residual.numpy(), tip_err.numpy()
 
     def _table_penalty(self, q: torch.Tensor, base: np.ndarray) -> np.ndarray:
-        """(B,) search penalty of hand link origins near or under the table, for joints q (B, K) at base (B, 4, 4)."""
+        """(B,) search penalty of collision points near or under the table; q (B, K), base (B, 4, 4)."""
         c = self.config.wrist_search
-        if not c.enabled or c.table_weight == 0:
+        if not c.enabled or c.table_weight == 0 or not self.hull_links:
             return np.zeros(len(base))
-        origins = self.kinematics.link_poses(q, self.hull_links)[..., :3, 3].numpy()  # (B, L, 3), base frame
-        z = np.einsum("bj,blj->bl", base[:, 2, :3], origins) + base[:, 2, 3][:, None]
+        poses = self.kinematics.link_poses(q, self.hull_links)[:, self._hull_link_of]  # (B, N, 4, 4), base frame
+        points = (poses[..., :3, :3] @ self._hull_points[..., None])[..., 0] + poses[..., :3, 3]
+        z = np.einsum("bj,bnj->bn", base[:, 2, :3], points.numpy()) + base[:, 2, 3][:, None]
         return table_penalty(z, c)
 
     def _grasp(

@@ -43,11 +43,18 @@ class WristSearchConfig(BaseModel):
         96, ge=1, description="placements tried per grasp: the paper's plus a seeded sample of the grid"
     )
     seed: int = Field(0, description="seed of the grid sample")
-    # Table: link origins sit on the joint axes, inside links ~10 mm thick (Allegro 14 mm, Shadow 9-11 mm
-    # capsules); 15 mm keeps their surfaces off the table. Without it the search traded table contact
-    # for fingertip fit (Allegro refinement table_contact 2 -> 5 of 19 demo objects).
-    table_clearance: float = Field(0.015, ge=0, description="metres every hand link origin should stay above z = 0")
+    # Table: points on every link's collision geometry (ges_core.collision_points) should stay 5 mm above
+    # the table (closing fingers move a few mm). Without it the search traded table contact for fingertip
+    # fit (Allegro refinement table_contact 2 -> 5 of 19 demo objects).
+    table_clearance: float = Field(
+        0.005, ge=0, description="metres the hand's collision points should stay above z = 0"
+    )
     table_weight: float = Field(10.0, ge=0, description="weight of the squared clearance shortfall, per m^2 of fit")
+    # The opened hand (pre-grasp, start of refinement) is checked too: the Allegro's opened thumb reached
+    # 2 cm lower than at the grasp and pressed the table at 80-200 N on flat objects (jenga, random_urdfs/000).
+    thumb_keep: int = Field(
+        2, ge=0, description="thumb joints the opened hand keeps at the grasp: PregraspConfig/RefineConfig.thumb_keep"
+    )
 
 
 def candidate_offsets(config: WristSearchConfig) -> np.ndarray:
@@ -105,6 +112,6 @@ def _turn_about_normal(poses: np.ndarray, topo: TopologyDescriptors, angle: floa
 
 
 def table_penalty(link_z: np.ndarray, config: WristSearchConfig) -> np.ndarray:
-    """(B,) ``table_weight * sum(max(0, clearance - z)^2)`` over link origins ``link_z`` (B, L), object frame, m."""
+    """(B,) ``table_weight * sum(max(0, clearance - z)^2)`` over hand points' heights ``link_z`` (B, N), m."""
     short = np.clip(config.table_clearance - link_z, 0.0, None)
     return config.table_weight * (short**2).sum(axis=1)

@@ -24,7 +24,7 @@ import torch
 from ges_core.hand import HandDescription, HandModel
 from ges_core.kinematics import HandKinematics
 
-__all__ = ["press_directions", "squeeze_targets"]
+__all__ = ["press_directions", "press_torques", "squeeze_targets"]
 
 
 def squeeze_targets(
@@ -33,20 +33,30 @@ def squeeze_targets(
     """(K,) closing targets past ``q_grasp`` (K,) so each fingertip presses with about ``force`` N (module docs)."""
     d = hand.description
     q = d.apply_couplings(np.asarray(q_grasp, dtype=np.float64))
+    extra = force * press_torques(hand, q) / np.asarray(d.pd_stiffness, dtype=np.float64)
+    largest = float(np.abs(extra).max())
+    if 0.0 < largest < min_squeeze:
+        extra *= min_squeeze / largest
+    return d.apply_couplings(q + np.clip(extra, -max_squeeze, max_squeeze))
+
+
+def press_torques(hand: HandModel, q: np.ndarray) -> np.ndarray:
+    """(K,) joint torques ``J_f(q)^T u_f`` per finger: each fingertip pushing 1 N along :func:`press_directions`.
+
+    q: (K,) joints, couplings applied. Joints of no finger get 0. Also the joint-space direction that
+    moves each fingertip toward what it opposes (``J J^T u`` has a positive component along ``u``).
+    """
+    d = hand.description
     kin = _kinematics(hand.urdf_text(), d.joint_names)
     offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
-    tips, jac = kin.points_and_jacobians(torch.as_tensor(q)[None], list(d.tip_links), offsets)
+    tips, jac = kin.points_and_jacobians(torch.as_tensor(q, dtype=torch.float64)[None], list(d.tip_links), offsets)
     tips, jac = tips[0].numpy(), jac[0].numpy()  # (F, 3), (F, 3, K)
     directions = press_directions(d, tips)
     torque = np.zeros(d.num_joints)
     for f, finger in enumerate(d.fingers):
         idx = d.joint_index(finger.joints)
-        torque[idx] = jac[f][:, idx].T @ (force * directions[f])
-    extra = torque / np.asarray(d.pd_stiffness, dtype=np.float64)
-    largest = float(np.abs(extra).max())
-    if 0.0 < largest < min_squeeze:
-        extra *= min_squeeze / largest
-    return d.apply_couplings(q + np.clip(extra, -max_squeeze, max_squeeze))
+        torque[idx] = jac[f][:, idx].T @ directions[f]
+    return torque
 
 
 def press_directions(d: HandDescription, tips: np.ndarray) -> np.ndarray:
