@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
+from helpers_env import build_grasp_env
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
@@ -17,6 +18,7 @@ from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import grasp_start_pose
+from ges_core.synthesis.squeeze import squeeze_targets
 
 pytestmark = pytest.mark.sim
 N = 2
@@ -125,3 +127,23 @@ def test_grasp_targets_are_checked() -> None:
     bad = GraspTargets(g.wrist_pose, g.q[:, :15], g.pre_wrist_pose, g.pre_q)
     with pytest.raises(ConfigError, match=r"GraspTargets: shapes \{'q': \(2, 15\)\} should be"):
         GraspEnv._check_grasps(bad, hand.description.num_joints)
+
+
+def test_scripted_expert_with_a_hand_closes_to_the_stage1_squeeze() -> None:
+    """With the hand, the fingers' final targets are the validator's squeeze of the goal joints (per env)."""
+    env = build_grasp_env("sapien", N)
+    try:
+        env.reset_all()
+        obs, _ = env.observe()
+        expert = ScriptedExpert(env.obs_layout, env.act_layout, close_steps=1, hand=env.hand, squeeze_force=5.0)
+        expert.act(obs)
+        action = expert.act(obs)  # t = 1 = close_steps: the targets have reached their end
+        goal = env.obs_layout.unpack(obs.to(torch.float64), "q") + env.obs_layout.unpack(
+            obs.to(torch.float64), "goal_q"
+        )
+        for i in range(N):
+            want = squeeze_targets(env.hand, goal[i].numpy(), force=5.0, min_squeeze=0.05, max_squeeze=0.6)
+            got = env.act_layout.joint_targets(action.to(torch.float64))[i].numpy()
+            np.testing.assert_allclose(got, np.clip(want, *env.hand.description.limits_array.T), atol=1e-5)
+    finally:
+        env.sim.close()

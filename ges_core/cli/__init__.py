@@ -23,6 +23,7 @@ _COMMAND_MODULES = (
     "ges_core.cli.cmd_sim",
     "ges_core.cli.cmd_dataset",
     "ges_core.cli.cmd_synth",
+    "ges_core.cli.cmd_env",
 )
 """Modules that add sub-commands, in ``--help`` order."""
 

@@ -13,7 +13,9 @@ from __future__ import annotations
 import torch
 
 from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
+from ges_core.hand import HandModel
 from ges_core.policy import Expert
+from ges_core.synthesis.squeeze import squeeze_targets
 
 __all__ = ["ScriptedExpert"]
 
@@ -30,17 +32,39 @@ class ScriptedExpert(Expert):
         close_steps: int = 30,
         overshoot: float = 0.3,
         lift: float = 0.225,
+        hand: HandModel | None = None,
+        squeeze_force: float = 5.0,
     ) -> None:
         """lift: metres above its start the object is carried to: the 0.2 m bar + 2.5 cm for slip in the hand
         (1 cm let a slipping box dip to 0.195 m in PyBullet), still within the peers' 5 cm.
 
         overshoot: fraction of (goal - pre-grasp) added past the goal so the fingers press on the object
-        (PD targets exactly at a contact pose give no grip force)."""
+        (PD targets exactly at a contact pose give no grip force). Used without ``hand``.
+
+        hand: the env's hand; given, the closing targets are Stage 1 validation's squeeze instead
+        (:func:`ges_core.synthesis.squeeze.squeeze_targets`: each fingertip pressing ``squeeze_force`` N
+        toward what it opposes). The overshoot rule pushed the Shadow thumb across its contact (0 of 21
+        objects lifted, benchmarks/scripted_baseline.py)."""
         self.obs_layout, self.act_layout = obs_layout, act_layout
+        self.hand, self.squeeze_force = hand, squeeze_force
+        self.close_q: torch.Tensor | None = None
         self.close_steps, self.overshoot, self.lift = close_steps, overshoot, lift
         self.t: torch.Tensor | None = None
         self.start_q: torch.Tensor | None = None
         self.start_obj: torch.Tensor | None = None
+
+    def _closing_targets(self, goal: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
+        """(n, K) where the finger targets end: past the goal joints (overshoot rule, or the squeeze with a hand)."""
+        if self.hand is None:
+            return self.start_q + (1.0 + self.overshoot) * (goal - self.start_q)
+        if self.close_q is None or self.close_q.shape != goal.shape:
+            self.close_q, fresh = goal.clone(), torch.ones_like(fresh)
+        for i in fresh.nonzero().flatten().tolist():
+            press = squeeze_targets(
+                self.hand, goal[i].numpy(), force=self.squeeze_force, min_squeeze=0.05, max_squeeze=0.6
+            )
+            self.close_q[i] = torch.as_tensor(press)
+        return self.close_q
 
     def reset(self, env_ids: torch.Tensor | None = None) -> None:
         """Restart the script in ``env_ids`` (all if None)."""
@@ -58,8 +82,9 @@ class ScriptedExpert(Expert):
         self.start_q = torch.where(fresh[:, None], q, self.start_q)
         self.start_obj = torch.where(fresh[:, None], obj, self.start_obj)
         goal = q + self.obs_layout.unpack(obs, "goal_q")
+        close = self._closing_targets(goal, fresh)
         frac = (self.t.to(torch.float64) / self.close_steps).clamp(max=1.0)[:, None]
-        target = self.start_q + frac * (1.0 + self.overshoot) * (goal - self.start_q)
+        target = self.start_q + frac * (close - self.start_q)
         wrist = (self.obs_layout.unpack(obs, "goal_pos") / self.act_layout.max_wrist_step).clamp(-1.0, 1.0)
         lifting = self.t >= self.close_steps
         aim = self.start_obj + torch.tensor([0.0, 0.0, self.lift], dtype=obj.dtype)

@@ -1,0 +1,173 @@
+"""Stage 1 records into the Stage 2 environment: selection, frames, joint order by name, error messages.
+
+A tiny dataset from the real pipeline (Allegro, SAPIEN): a cube, a can, and a flat sheet whose
+contact step fails (no grasp stored).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import torch
+
+from ges_core.dataset import open_dataset
+from ges_core.env.grasp_env import EnvConfig, GraspEnv
+from ges_core.env.grasp_source import (
+    SELECTIONS,
+    grasp_targets,
+    library_for,
+    load_grasp,
+    object_rest_pose,
+    open_grasp_dataset,
+    rejection,
+    select_records,
+)
+from ges_core.env.vec_env import GraspVecEnv
+from ges_core.errors import AssetError, ConfigError
+from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig
+from ges_core.synthesis.pipeline import LibrarySettings, SynthesisConfig, run_synthesis
+from ges_core.synthesis.sim_scene import compose
+
+pytestmark = pytest.mark.sim
+FLAT = "user/flat/sheet"
+CANDIDATES = ("procedural/cube/000", "procedural/sphere/000", "procedural/box/000", "procedural/ellipsoid/000")
+"""Primitives tried in order until Stage 1 stores a grasp for one (its verdicts change as Stage 1 evolves)."""
+
+
+@pytest.fixture(scope="module")
+def dataset(tmp_path_factory):
+    """A flat sheet (its contact step fails) and the first candidate that gets a grasp."""
+    root = tmp_path_factory.mktemp("grasp_source")
+    (root / "objects" / "flat").mkdir(parents=True)
+    sheet = "v 0 0 0\nv 0.1 0 0\nv 0.1 0.1 0\nv 0 0.1 0\nf 1 2 3\nf 1 3 4\n"  # zero volume
+    (root / "objects" / "flat" / "sheet.obj").write_text(sheet)
+    library = LibrarySettings(sources=("procedural", "user"), user_dir=str(root / "objects"), procedural_count=1)
+    config = SynthesisConfig.model_validate({"library": library, "validate": {"hold_steps": 60}})
+    run_synthesis([FLAT], ["allegro"], config, root / "ds")
+    for oid in CANDIDATES:
+        run_synthesis([oid], ["allegro"], config, root / "ds")
+        if open_dataset(root / "ds").get(oid, "allegro").pregrasp is not None:
+            return open_dataset(root / "ds")
+    raise AssertionError(f"Stage 1 stored no grasp for any of {CANDIDATES}")
+
+
+@pytest.fixture(scope="module")
+def grasped(dataset) -> str:
+    """Id of the object whose record holds a grasp."""
+    return next(r.object_id for r in dataset if r.pregrasp is not None)
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return load_registry()
+
+
+@pytest.fixture(scope="module")
+def allegro(registry):
+    return registry.build_hand("allegro")
+
+
+def test_selection_rules_follow_the_records_flags(dataset, grasped):
+    records = {r.object_id: r for r in dataset}
+    chosen = {rule: select_records(dataset, "allegro", selection=rule) for rule in SELECTIONS}
+    for sel in chosen.values():
+        assert len(sel.records) + len(sel.rejected) == len(records)
+        assert set(sel.splits) == set(records)
+        assert sum(k for k, _ in sel.counts().values()) == len(sel.records)
+    ids = {rule: {r.object_id for r in sel.records} for rule, sel in chosen.items()}
+    assert ids["validated"] <= ids["refined"] <= ids["any"]
+    assert ids["validated"] == {oid for oid, r in records.items() if r.success}
+    assert ids["refined"] == {oid for oid, r in records.items() if r.steps["refinement"].ok}
+    assert FLAT not in ids["any"]
+    assert chosen["any"].rejected[FLAT] == "no grasp stored (failed at contacts: bad_mesh)"
+    assert ids["any"] == {grasped}  # the one whose retargeting reached: a grasp and a pre-grasp stored
+
+
+def test_targets_are_the_record_in_the_world_with_joints_by_name(dataset, grasped, registry, allegro):
+    record = dataset.get(grasped, "allegro")
+    asset = library_for(dataset).get(grasped)
+    pose = object_rest_pose(registry, "sapien", asset)
+    targets = grasp_targets(record, allegro.description, 3, pose)
+    assert targets.q.shape == (3, 16) and targets.wrist_pose.shape == (3, 7)
+    # cross-check with Stage 1's own frame mapping (synthesis.sim_scene.compose) and a fresh scene
+    with registry.build_sim("sapien", SceneConfig()) as sim:
+        sim.load_object(asset)
+        world = sim.object_pose()[0]
+    np.testing.assert_allclose(targets.wrist_pose[1], compose(world, record.grasp.wrist_pose), atol=1e-9)
+    np.testing.assert_allclose(targets.pre_wrist_pose[2], compose(world, record.pregrasp.wrist_pose), atol=1e-9)
+    np.testing.assert_allclose(targets.q[0], allegro.description.apply_couplings(record.grasp.q))
+    # a record whose joints are stored in another order gives the same targets
+    perm = np.random.default_rng(0).permutation(16)
+    shuffled = dataclasses.replace(
+        record,
+        joint_names=tuple(np.array(record.joint_names)[perm]),
+        grasp=dataclasses.replace(record.grasp, q=record.grasp.q[perm]),
+        pregrasp=dataclasses.replace(record.pregrasp, q=record.pregrasp.q[perm]),
+    )
+    again = grasp_targets(shuffled, allegro.description, 3, pose)
+    np.testing.assert_array_equal(again.q, targets.q)
+    np.testing.assert_array_equal(again.pre_q, targets.pre_q)
+
+
+def test_env_starts_at_the_pregrasp_two_cm_from_the_grasp(dataset, grasped, registry, allegro):
+    """End to end in SAPIEN: after stage one the wrist is at the pre-grasp, 2 cm back along the approach."""
+    asset, targets = load_grasp(
+        dataset, grasped, allegro.description, 2, selection="any", registry=registry, sim_name="sapien"
+    )
+    sim = registry.build_sim("sapien", SceneConfig(num_envs=2))
+    venv = GraspVecEnv(GraspEnv(sim, allegro, asset, targets, EnvConfig(reach_steps=30)))
+    goal_pos = venv.env.obs_layout.unpack(venv.get_observations()["policy"], "goal_pos")
+    sim.close()
+    record = dataset.get(grasped, "allegro")
+    expected = record.grasp.wrist_pose[:3] - record.pregrasp.wrist_pose[:3]  # rotation-free: rest pose is upright
+    assert np.linalg.norm(expected) == pytest.approx(0.02, abs=1e-6)
+    assert torch.allclose(goal_pos, torch.as_tensor(expected, dtype=torch.float32).expand(2, 3), atol=0.006)
+
+
+def test_dataset_errors_say_what_is_missing(tmp_path, dataset, allegro):
+    with pytest.raises(AssetError, match=r"no grasp dataset at .*nowhere: the folder does not exist.*ges synth"):
+        open_grasp_dataset(tmp_path / "nowhere")
+    (tmp_path / "empty").mkdir()
+    with pytest.raises(AssetError, match="is not a grasp dataset: it has no manifest.json"):
+        open_grasp_dataset(tmp_path / "empty")
+    with pytest.raises(AssetError, match=r"holds no record of hand 'shadow' \(it holds: allegro\)"):
+        select_records(dataset, "shadow")
+    with pytest.raises(AssetError, match=r"with simulator 'pybullet' \(its simulators for that hand: sapien\)"):
+        select_records(dataset, "allegro", simulator="pybullet")
+    with pytest.raises(ConfigError, match="unknown split 'test'; choose one of train, unseen_object"):
+        select_records(dataset, "allegro", split="test")
+    with pytest.raises(ConfigError, match="unknown grasp selection 'best'; choose one of validated, refined, any"):
+        select_records(dataset, "allegro", selection="best")
+    with pytest.raises(AssetError, match="holds no record of object 'procedural/plate/000' with hand 'allegro'"):
+        load_grasp(dataset, "procedural/plate/000", allegro.description, 1)
+
+
+def test_record_errors_say_why_it_gives_no_grasp(dataset, grasped, registry, allegro):
+    with pytest.raises(
+        AssetError, match=r"\(user/flat/sheet, allegro\).*selection 'any'.*failed at contacts: bad_mesh"
+    ):
+        load_grasp(dataset, FLAT, allegro.description, 1, selection="any")
+    flat = dataset.get(FLAT, "allegro")
+    assert rejection(flat, "validated").startswith("no grasp stored")
+    with pytest.raises(AssetError, match=r"holds no grasp to execute \(failed at contacts: bad_mesh\)"):
+        grasp_targets(flat, allegro.description, 1)
+    cube = dataset.get(grasped, "allegro")
+    shadow = registry.build_hand("shadow").description
+    with pytest.raises(ConfigError, match="is for hand 'allegro', not 'shadow'"):
+        grasp_targets(cube, shadow, 1)
+    renamed = dataclasses.replace(cube, joint_names=("joint_x", *cube.joint_names[1:]))
+    with pytest.raises(ConfigError, match=r"missing \['joint_0.0'\], unknown \['joint_x'\].*regenerate"):
+        grasp_targets(renamed, allegro.description, 1)
+    with pytest.raises(ConfigError, match="num_envs=0; give at least 1"):
+        grasp_targets(cube, allegro.description, 0)
+    with pytest.raises(ConfigError, match=r"object_pose must be a finite \(7,\) pose"):
+        grasp_targets(cube, allegro.description, 1, np.zeros(7))
+
+
+def test_library_needs_a_pipeline_run_config(dataset):
+    bare = dataclasses.replace(dataset, manifest={**dataset.manifest, "run_config": {"hands": ["allegro"]}})
+    with pytest.raises(ConfigError, match="run_config has no 'library' section"):
+        library_for(bare)
