@@ -12,6 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
+import trimesh
 from pydantic import ValidationError
 
 from ges_core.collision_points import collision_points
@@ -19,8 +20,10 @@ from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import AssetError, SynthesisError
 from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
+from ges_core.objects.pointcloud import sample_surface
 from ges_core.registry import load_registry
 from ges_core.synthesis.retarget import GraspRetargeter, RetargetConfig, raise_contacts, retarget_contacts
+from ges_core.synthesis.retarget_search import ObjectCloud, WristSearchConfig, object_penalty
 from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
 from ges_core.synthesis.retarget_wrist import (
     check_contact_array,
@@ -468,3 +471,56 @@ def test_table_penalty_steers_the_wrist_search_away_from_the_table(hands, kins, 
         r = GraspRetargeter(hands[name], RetargetConfig(wrist_search=search), kinematics=kins[name])
         lowest[clearance] = lowest_hand_point(hands[name], kins[name], r.retarget(contacts))
     assert lowest[0.1] > lowest[0.0] + 0.005, lowest
+
+
+def sphere_cloud(radius: float, n: int = 2000) -> ObjectCloud:
+    rng = np.random.default_rng(3)
+    normals = rng.normal(size=(n, 3))
+    normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+    return ObjectCloud(points=radius * normals, normals=normals)
+
+
+def test_object_penalty_counts_depth_inside_the_surface_only():
+    """Against a sphere's exact signed distance: points outside cost nothing, inside cost weight * depth^2."""
+    config = WristSearchConfig(object_clearance=0.0, object_weight=10.0, cloud_points=2000)
+    cloud = sphere_cloud(0.05)
+    directions = np.random.default_rng(4).normal(size=(3, 6, 3))
+    directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
+    radii = np.array([0.07, 0.045, 0.04])[:, None, None]  # outside, 5 mm deep, 10 mm deep
+    penalty = object_penalty(directions * radii, cloud, config)
+    exact = 10.0 * 6 * np.clip(0.05 - radii[:, 0, 0], 0, None) ** 2
+    assert penalty[0] == 0.0
+    np.testing.assert_allclose(penalty[1:], exact[1:], rtol=0.15)  # nearest-sample approximation
+
+
+def box_depth(points: np.ndarray, half: np.ndarray, center: np.ndarray) -> np.ndarray:
+    """Exact depth inside an axis-aligned box (0 outside), metres."""
+    inside = half - np.abs(points - center)
+    return np.clip(inside.min(axis=-1), 0.0, None)
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_object_cloud_keeps_the_hand_body_out_of_the_object(hands, kins, name):
+    """Contacts 2 cm below a box's top: with its surface samples the non-fingertip links go in less (exact box)."""
+    hand, d = hands[name], hands[name].description
+    half, center = np.array([0.03, 0.05, 0.035]), np.array([0.0, 0.0, 0.035])
+    mesh = trimesh.creation.box(extents=2 * half)
+    mesh.apply_translation(center)
+    cloud = ObjectCloud(*sample_surface(mesh, 1024, seed=0))
+    contacts = ContactSet(top_grasp(0.03, 0.025, height=0.05), np.array([[-1.0, 0, 0]] + [[1.0, 0, 0]] * 4), "box")
+    points = collision_points(hand.urdf_text())
+    body = [link for link in points if link not in set(d.tip_links)]
+    depth = {}
+    for with_cloud in (False, True):
+        r = GraspRetargeter(hand, kinematics=kins[name])
+        g = r.retarget_many([contacts], [cloud] if with_cloud else None)[0]
+        poses = pose_to_matrix(g.wrist_pose) @ kins[name].link_poses(torch.as_tensor(g.q)[None], body)[0].numpy()
+        inside = [
+            box_depth((pose[:3, :3] @ points[link].T + pose[:3, 3:]).T, half, center)
+            for pose, link in zip(poses, body, strict=True)
+        ]
+        depth[with_cloud] = float(sum((x**2).sum() for x in inside))
+    print(f"{name}: body depth^2 sum without cloud {depth[False]:.2e}, with {depth[True]:.2e}")
+    assert depth[True] <= depth[False] + 1e-12, depth
+    if depth[False] > 1e-5:  # a body going in (Shadow: its middle phalanges over the top edge) is pulled out
+        assert depth[True] < 0.5 * depth[False], depth

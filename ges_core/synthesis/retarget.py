@@ -28,7 +28,14 @@ from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
 from ges_core.synthesis.pregrasp import open_joint_mask
-from ges_core.synthesis.retarget_search import WristSearchConfig, candidate_offsets, candidate_wrists, table_penalty
+from ges_core.synthesis.retarget_search import (
+    ObjectCloud,
+    WristSearchConfig,
+    candidate_offsets,
+    candidate_wrists,
+    object_penalty,
+    table_penalty,
+)
 from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
 from ges_core.synthesis.retarget_wrist import (
     HandFrame,
@@ -102,6 +109,7 @@ class GraspRetargeter:
         """(4, 4) wrist-link pose in the base-link frame at ``q_init``."""
         self.frame: HandFrame = hand_frame(d, self._wrist_points(q_open))
         self.search_offsets = candidate_offsets(self.config.wrist_search)
+        """(M, 5) wrist placements tried per grasp (row 0: the paper's), see :mod:`.retarget_search`."""
         self._opened = torch.as_tensor(open_joint_mask(d, self.config.wrist_search.thumb_keep))
         """(K,) joints the pre-grasp and refinement open (their table clearance is checked too)."""
         hull = collision_points(hand.urdf_text())
@@ -109,7 +117,9 @@ class GraspRetargeter:
         """Links whose collision geometry the wrist search keeps off the table."""
         self._hull_link_of = torch.as_tensor(np.repeat(np.arange(len(hull)), [len(v) for v in hull.values()]))
         self._hull_points = torch.as_tensor(np.concatenate(list(hull.values())))  # (N, 3), link frames
-        """(M, 5) wrist placements tried per grasp (row 0: the paper's), see :mod:`.retarget_search`."""
+        tips = {f.tip_link for f in d.fingers}
+        self._body_point = torch.as_tensor([link not in tips for link in hull])[self._hull_link_of]
+        """(N,) True for collision points of links other than fingertips (kept out of the object)."""
 
     def retarget(self, contacts: ContactSet) -> Grasp:
         """One grasp; raises SynthesisError(reason="degenerate_contacts") for contacts spanning no plane."""
@@ -118,8 +128,13 @@ class GraspRetargeter:
             raise result
         return result
 
-    def retarget_many(self, contacts: Sequence[ContactSet]) -> list[Grasp | SynthesisError]:
-        """One grasp per contact set, solved as one batch; degenerate sets come back as SynthesisError."""
+    def retarget_many(
+        self, contacts: Sequence[ContactSet], clouds: Sequence[ObjectCloud | None] | None = None
+    ) -> list[Grasp | SynthesisError]:
+        """One grasp per contact set, solved as one batch; degenerate sets come back as SynthesisError.
+
+        clouds: per contact set, the object's surface samples (object frame) or None; given, the wrist
+        search also keeps the hand's links other than the fingertips out of the object."""
         start = time.perf_counter()
         pos = self._positions(contacts)
         problems = contact_problems(pos)
@@ -128,7 +143,8 @@ class GraspRetargeter:
         if good:
             topo = topology_descriptors(pos[good], self.frame.chirality)
             normals = np.stack([contacts[i].normals for i in good])
-            base, q, residual, tip_err = self._solve(topo, normals)
+            kept = [clouds[i] if clouds is not None else None for i in good]
+            base, q, residual, tip_err = self._solve(topo, normals, kept)
             seconds = (time.perf_counter() - start) / len(contacts)
             for j, i in enumerate(good):
                 out[i] = self._grasp(base[j], q[j], residual[j], tip_err[j], topo, j, seconds)
@@ -143,7 +159,7 @@ class GraspRetargeter:
 
     # -- internals ------------------------------------------------------------------------
     def _solve(
-        self, topo: TopologyDescriptors, normals: np.ndarray
+        self, topo: TopologyDescriptors, normals: np.ndarray, clouds: Sequence[ObjectCloud | None] = ()
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """Base poses (B, 4, 4), joints (B, K), residual (B,) and per-slot errors (B, 5), all numpy.
 
@@ -169,10 +185,12 @@ class GraspRetargeter:
         q0 = torch.as_tensor(self.q_init).expand(b * m, -1)
         q, residual = self.solver.solve(targets, q0, normals=normals_base)
         q_open = torch.where(self._opened, self.solver.open_pose, q)  # how refinement and the pre-grasp start
+        at_grasp = self._hand_points(q, base)
         cost = (
             self.solver.objective(q, targets, normals_base).numpy()
-            + self._table_penalty(q, base)
-            + self._table_penalty(q_open, base)
+            + table_penalty(at_grasp[..., 2], c.wrist_search)
+            + table_penalty(self._hand_points(q_open, base)[..., 2], c.wrist_search)
+            + self._object_penalty(at_grasp, clouds, m)
         )
         best = torch.as_tensor(cost.reshape(b, m).argmin(axis=1))  # first minimum: the paper's on ties
         pick = torch.arange(b) * m + best
@@ -180,15 +198,21 @@ class GraspRetargeter:
         tip_err = (self.solver.fingertips(q) - targets).norm(dim=-1)
         return base[pick.numpy()], q.numpy(), residual.numpy(), tip_err.numpy()
 
-    def _table_penalty(self, q: torch.Tensor, base: np.ndarray) -> np.ndarray:
-        """(B,) search penalty of collision points near or under the table; q (B, K), base (B, 4, 4)."""
-        c = self.config.wrist_search
-        if not c.enabled or c.table_weight == 0 or not self.hull_links:
-            return np.zeros(len(base))
+    def _hand_points(self, q: torch.Tensor, base: np.ndarray) -> np.ndarray:
+        """(B, N, 3) the hand's collision points (:mod:`ges_core.collision_points`), object frame, for q (B, K)."""
         poses = self.kinematics.link_poses(q, self.hull_links)[:, self._hull_link_of]  # (B, N, 4, 4), base frame
-        points = (poses[..., :3, :3] @ self._hull_points[..., None])[..., 0] + poses[..., :3, 3]
-        z = np.einsum("bj,bnj->bn", base[:, 2, :3], points.numpy()) + base[:, 2, 3][:, None]
-        return table_penalty(z, c)
+        points = ((poses[..., :3, :3] @ self._hull_points[..., None])[..., 0] + poses[..., :3, 3]).numpy()
+        return np.einsum("bij,bnj->bni", base[:, :3, :3], points) + base[:, None, :3, 3]
+
+    def _object_penalty(self, points: np.ndarray, clouds: Sequence[ObjectCloud | None], m: int) -> np.ndarray:
+        """(B * m,) penalty of non-fingertip hand points inside the object, candidates of grasp b at rows b*m..."""
+        out = np.zeros(len(points))
+        c = self.config.wrist_search
+        for b, cloud in enumerate(clouds):
+            if cloud is not None and c.object_weight > 0:
+                rows = slice(b * m, (b + 1) * m)
+                out[rows] = object_penalty(points[rows][:, self._body_point.numpy()], cloud, c)
+        return out
 
     def _grasp(
         self,

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ges_core.dataset import GraspRecord, HandPose, Quality, StepOutcome
+from ges_core.synthesis.retarget_search import ObjectCloud
 from ges_core.synthesis.types import ContactResult, Grasp, RefinedGrasp
 
 __all__ = ["ObjectWork", "build_record", "contacts_from_record"]
@@ -27,15 +28,21 @@ class ObjectWork:
     """The contacts, strategy, approach and epsilon; None when the step failed."""
     extra: dict = field(default_factory=dict)
     """JSON-ready notes copied into every record of this object."""
+    cloud: ObjectCloud | None = None
+    """The object's surface samples (retargeting keeps the hand's body out of them); None if unavailable."""
 
     def failed_contacts(self, reason: str, message: str, seconds: float) -> ObjectWork:
         """This object with a failed contact step."""
         return replace(self, step=StepOutcome.failed(reason, seconds), extra={"errors": {"contacts": message}})
 
-    def with_contacts(self, result: ContactResult, seconds: float) -> ObjectWork:
-        """This object with its contacts (``seconds``: point cloud + contact generation)."""
+    def with_contacts(self, result: ContactResult, seconds: float, cloud: ObjectCloud | None = None) -> ObjectWork:
+        """This object with its contacts (``seconds``: point cloud + contact generation) and its cloud."""
         return replace(
-            self, step=StepOutcome(ok=True, seconds=seconds), result=result, extra={"symmetric": result.symmetric}
+            self,
+            step=StepOutcome(ok=True, seconds=seconds),
+            result=result,
+            extra={"symmetric": result.symmetric},
+            cloud=cloud,
         )
 
 

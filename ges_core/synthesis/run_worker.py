@@ -26,6 +26,7 @@ from ges_core.synthesis.pipeline import Task, object_seed
 from ges_core.synthesis.pregrasp import pregrasp
 from ges_core.synthesis.refine import refine_grasp, refine_verdict
 from ges_core.synthesis.retarget import GraspRetargeter
+from ges_core.synthesis.retarget_search import ObjectCloud
 from ges_core.synthesis.run_records import ObjectWork, build_record, contacts_from_record
 from ges_core.synthesis.sim_scene import stage_scene
 from ges_core.synthesis.types import Grasp
@@ -104,7 +105,11 @@ def _contacts(state: _State, object_id: str) -> ObjectWork:
     seed = object_seed(cfg.seed, object_id)
     work = ObjectWork(object_id, entry.category, lib.splits[object_id], seed)
     if state.source is not None:
-        return contacts_from_record(work, state.source.get(object_id, state.context.source[1]))
+        work = contacts_from_record(work, state.source.get(object_id, state.context.source[1]))
+        try:  # the stored contacts are reused; the cloud only guides the wrist search
+            return replace(work, cloud=ObjectCloud(*lib.point_cloud(object_id, cfg.points, seed=seed)))
+        except (AssetError, SynthesisError):
+            return work
     start = time.perf_counter()
     try:
         points, normals = lib.point_cloud(object_id, cfg.points, seed=seed)
@@ -113,7 +118,7 @@ def _contacts(state: _State, object_id: str) -> ObjectWork:
         return work.failed_contacts(error.reason, str(error), time.perf_counter() - start)
     except AssetError as error:
         return work.failed_contacts("bad_mesh", str(error), time.perf_counter() - start)
-    return work.with_contacts(result, time.perf_counter() - start)
+    return work.with_contacts(result, time.perf_counter() - start, ObjectCloud(points, normals))
 
 
 # -- step 2: retargeting (one batch per hand and chunk) ----------------------------------------
@@ -122,7 +127,9 @@ def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[Gra
     ready = [i for i, w in enumerate(works) if w.result is not None]
     out: list = [None] * len(works)
     if ready:
-        solved = state.retargeter(hand).retarget_many([works[i].result.contacts for i in ready])
+        solved = state.retargeter(hand).retarget_many(
+            [works[i].result.contacts for i in ready], [works[i].cloud for i in ready]
+        )
         for i, result in zip(ready, solved, strict=True):
             out[i] = result
     return out
