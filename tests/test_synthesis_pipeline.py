@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import trimesh
+from pydantic import ValidationError
 
 from ges_core.dataset import open_dataset, validate_dataset
 from ges_core.errors import ConfigError
@@ -176,3 +177,12 @@ def test_concave_object_without_decomposition_fails_refinement_with_reason(tmp_p
     assert record.steps["refinement"].reason == "no_collision_model"
     assert "ges objects prepare" in record.extra["errors"]["refinement"]
     assert record.steps["validation"].reason == "skipped"
+
+
+def test_thumb_keep_must_agree_across_steps():
+    with pytest.raises(ValidationError, match=r"opened hand must be the same in every step.*refine.thumb_keep': 1"):
+        SynthesisConfig.model_validate({"refine": {"thumb_keep": 1}})
+    config = SynthesisConfig.model_validate(
+        {"refine": {"thumb_keep": 1}, "pregrasp": {"thumb_keep": 1}, "retarget": {"wrist_search": {"thumb_keep": 1}}}
+    )
+    assert config.refine.thumb_keep == 1

@@ -114,6 +114,20 @@ class SynthesisConfig(BaseModel):
             raise ValueError("scene.num_envs must be 1: refinement and validation run one grasp per scene")
         return self
 
+    @model_validator(mode="after")
+    def _same_opened_hand(self) -> SynthesisConfig:
+        keeps = {
+            "pregrasp.thumb_keep": self.pregrasp.thumb_keep,
+            "refine.thumb_keep": self.refine.thumb_keep,
+            "retarget.wrist_search.thumb_keep": self.retarget.wrist_search.thumb_keep,
+        }
+        if len(set(keeps.values())) > 1:
+            raise ValueError(
+                f"the opened hand must be the same in every step, but {keeps}: set all three to one value "
+                "(retargeting checks the table clearance of the hand refinement and the pre-grasp open)"
+            )
+        return self
+
     @property
     def primary_sim(self) -> str | None:
         """The simulator whose validation verdict goes into the record's validation step."""
