@@ -11,7 +11,11 @@ both alike:
 * env: ``steps`` calls of ``GraspVecEnv.step`` with seeded uniform random actions in [-1, 1]: targets,
   ``sim_steps`` physics steps with checks, observation, reward, success bookkeeping and the resets of
   finished envs. The window is one episode long (``episode_length`` control steps), so every env
-  resets once per window (timeout at the latest).
+  resets once per window (timeout at the latest); every window (raw, sim calls, env) starts with every
+  env at its episode start (:func:`restart_episodes`);
+* sim calls: only the ``SimBackend`` calls one env step makes (wrist and joint targets, ``step(sim_steps)``
+  with its checks, the five state reads), no environment maths: the floor below which no environment
+  on this backend interface can go (its ratio is reported as ``calls_ratio``).
 
 Per core: one process, one torch thread, so every figure is per core. ``env-steps/s`` counts each env's
 control step (``n x`` vec steps per second); ``physics steps/s`` counts scene steps (``n x`` engine
@@ -43,6 +47,7 @@ from ges_core.dataset import software_versions
 from ges_core.env.grasp_env import EnvConfig, GraspEnv, GraspTargets
 from ges_core.env.rotations import quat_mul, rotvec_to_quat
 from ges_core.env.vec_env import GraspVecEnv
+from ges_core.errors import SimulationError
 from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
@@ -74,6 +79,18 @@ def build(registry, sim_name: str, hand_name: str, n: int, cfg: EnvConfig) -> tu
     return venv, time.perf_counter() - start
 
 
+def restart_episodes(venv: GraspVecEnv) -> None:
+    """Every env back at its episode start (hand at the pre-grasp, box at rest), counters and metrics cleared.
+
+    Each timed window starts here, so the raw, sim-call and env loops start from one state rather than from
+    wherever the previous window's random walk left the hand.
+    """
+    every = torch.arange(venv.num_envs)
+    venv.env.reset_envs(every)
+    venv.episode_length_buf.zero_()
+    venv.metrics.reset(every)
+
+
 def time_raw(venv: GraspVecEnv, steps: int, gen: torch.Generator) -> float:
     """Seconds per raw engine step (every scene) under the same kind of motion as the env loop.
 
@@ -81,6 +98,7 @@ def time_raw(venv: GraspVecEnv, steps: int, gen: torch.Generator) -> float:
     ``GraspEnv.apply_action`` does) *untimed*, then times ``sim_steps`` raw engine steps. Without the
     moving targets the hand settles and the engine steps a quieter scene than the env loop does.
     """
+    restart_episodes(venv)
     env, sim = venv.env, venv.env.sim
     layout, n_sub = env.act_layout, env.cfg.sim_steps
     wrist = torch.as_tensor(sim.wrist_pose())
@@ -98,8 +116,48 @@ def time_raw(venv: GraspVecEnv, steps: int, gen: torch.Generator) -> float:
     return total / (steps * n_sub)
 
 
+def time_calls(venv: GraspVecEnv, steps: int, gen: torch.Generator) -> float:
+    """Seconds per control step of only the backend calls ``GraspVecEnv.step`` makes, targets set as in
+    :func:`time_raw` (untimed): wrist and joint targets, the checked ``step(sim_steps)``, the five reads."""
+    restart_episodes(venv)
+    env, sim = venv.env, venv.env.sim
+    layout = env.act_layout
+    wrist = torch.as_tensor(sim.wrist_pose())
+    total = 0.0
+    for _ in range(steps):
+        action = torch.rand(venv.num_envs, venv.num_actions, generator=gen, dtype=torch.float64) * 2 - 1
+        dp, dr = layout.wrist_deltas(action)
+        wrist = torch.cat([wrist[:, :3] + dp, quat_mul(rotvec_to_quat(dr), wrist[:, 3:])], dim=1)
+        wrist_np, joints = wrist.numpy(), layout.joint_targets(action).numpy()
+        start = time.perf_counter()
+        sim.set_wrist_targets(wrist_np)
+        sim.set_joint_targets(joints)
+        blown = _checked_step(sim, env.cfg.sim_steps)
+        sim.joint_state()
+        sim.wrist_pose()
+        sim.contact_forces(env.contact_links, "object")
+        sim.link_poses(env.tip_links)
+        sim.object_pose()
+        total += time.perf_counter() - start
+        if blown:  # as GraspVecEnv does, untimed: those envs restart their episode
+            ids = torch.as_tensor(blown)
+            env.reset_envs(ids)
+            wrist[ids] = torch.as_tensor(sim.wrist_pose()[blown])
+    return total / steps
+
+
+def _checked_step(sim, n: int) -> list[int]:
+    """``sim.step(n)``; the envs a SimulationError names (every env if none): the step ran in the others."""
+    try:
+        sim.step(n)
+    except SimulationError as err:
+        return sorted(err.env_ids) if err.env_ids else list(range(sim.num_envs))
+    return []
+
+
 def time_env(venv: GraspVecEnv, steps: int, gen: torch.Generator) -> tuple[float, int]:
     """Seconds per ``GraspVecEnv.step`` (random actions) and the number of env resets in the window."""
+    restart_episodes(venv)
     n, k = venv.num_envs, venv.num_actions
     actions = [torch.rand(n, k, generator=gen) * 2 - 1 for _ in range(steps)]
     resets = 0
@@ -115,22 +173,26 @@ def bench_row(registry, sim_name: str, hand_name: str, n: int, args, cfg: EnvCon
     load_before = os.getloadavg()
     venv, reset_s = build(registry, sim_name, hand_name, n, cfg)
     gen = torch.Generator().manual_seed(0)
-    raw, env, resets = [], [], []
+    raw, env, calls, resets = [], [], [], []
     try:
         for _ in range(args.repeats):
             raw.append(time_raw(venv, args.steps, gen))
+            calls.append(time_calls(venv, args.steps, gen))
             t, r = time_env(venv, args.steps, gen)
             env.append(t)
             resets.append(r)
     finally:
         venv.env.sim.close()
-    raw_s, env_s = statistics.median(raw), statistics.median(env)
+    raw_s, env_s, calls_s = statistics.median(raw), statistics.median(env), statistics.median(calls)
     return {
         "sim": sim_name, "hand": hand_name, "envs": n, "sim_steps": cfg.sim_steps,
         "raw_physics_steps_per_s": n / raw_s, "env_steps_per_s": n / env_s,
         "raw_us_per_engine_step": raw_s * 1e6, "env_us_per_vec_step": env_s * 1e6,
-        "ratio": env_s / cfg.sim_steps / raw_s, "resets_per_window": resets,
-        "full_reset_s": reset_s, "raw_us_repeats": [x * 1e6 for x in raw], "env_us_repeats": [x * 1e6 for x in env],
+        "calls_us_per_vec_step": calls_s * 1e6,
+        "ratio": env_s / cfg.sim_steps / raw_s, "calls_ratio": calls_s / cfg.sim_steps / raw_s,
+        "resets_per_window": resets, "full_reset_s": reset_s,
+        "raw_us_repeats": [x * 1e6 for x in raw], "env_us_repeats": [x * 1e6 for x in env],
+        "calls_us_repeats": [x * 1e6 for x in calls],
         "loadavg_before": load_before, "loadavg_after": os.getloadavg(),
     }  # fmt: skip
 
@@ -146,8 +208,10 @@ PARTS = {
     "    link_poses": ("backend.py", "link_poses"),
     "    contact_forces": ("backend.py", "contact_forces"),
     "    object_pose": ("backend.py", "object_pose"),
-    "    layout pack": ("layout.py", "pack"),
+    "    observation maths": ("grasp_env.py", "_blocks"),
+    "    layout pack": ("layout.py", "pack_np"),
     "  reward": ("grasp_env.py", "reward"),
+    "  metrics": ("metrics.py", "update"),
     "  end_reasons": ("grasp_env.py", "end_reasons"),
     "  extras (logging)": ("vec_env.py", "_extras"),
     "  reset_envs": ("grasp_env.py", "reset_envs"),
@@ -210,12 +274,13 @@ def print_row(r: dict) -> None:
     """One markdown line (the header first time)."""
     if not getattr(print_row, "done", False):
         print("| sim | hand | envs | raw physics steps/s | env steps/s | raw µs/engine step | env µs/vec step | "
-              f"ratio (goal <= {GOAL:g}) | full reset s | load avg (1 min) |")  # fmt: skip
-        print("|---" * 10 + "|")
+              f"ratio (goal <= {GOAL:g}) | sim calls only ratio | full reset s | load avg (1 min) |")  # fmt: skip
+        print("|---" * 11 + "|")
         print_row.done = True
     print(
         f"| {r['sim']} | {r['hand']} | {r['envs']} | {r['raw_physics_steps_per_s']:.0f} | {r['env_steps_per_s']:.0f} | "
         f"{r['raw_us_per_engine_step']:.0f} | {r['env_us_per_vec_step']:.0f} | {r['ratio']:.2f} | "
+        f"{r['calls_ratio']:.2f} | "
         f"{r['full_reset_s']:.2f} | {r['loadavg_before'][0]:.2f} -> {r['loadavg_after'][0]:.2f} |",
         flush=True,
     )

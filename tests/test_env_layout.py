@@ -48,6 +48,23 @@ def test_pack_unpack_roundtrip_and_errors() -> None:
         ObservationLayout(3, 0, 1)
 
 
+def test_pack_np_equals_pack_and_checks_the_total() -> None:
+    layout = ObservationLayout(3, 2, 1, goal=False)
+    gen = torch.Generator().manual_seed(0)
+    blocks = {name: torch.randn(4, size, generator=gen, dtype=torch.float64) for name, size in layout.sizes().items()}
+    blocks["contact"] = blocks["contact"] > 0  # bool blocks become 0.0 / 1.0 in both
+    packed = layout.pack_np({name: value.numpy() for name, value in blocks.items()})
+    assert packed.dtype == np.float32 and torch.equal(torch.from_numpy(packed), layout.pack(blocks))
+    blocks["goal_q"] = torch.zeros(4, 3)  # not in a NoGoal layout: ignored
+    assert torch.equal(
+        torch.from_numpy(layout.pack_np({k: v.numpy() for k, v in blocks.items()})),
+        layout.pack({k: v for k, v in blocks.items() if k != "goal_q"}),
+    )
+    blocks["q"] = torch.zeros(4, 5)
+    with pytest.raises(ConfigError, match=r"block sizes \{'q': 5, .* give \d+ floats; expected"):
+        layout.pack_np({name: value.numpy() for name, value in blocks.items()})
+
+
 def test_action_layout_maps_limits() -> None:
     lower, upper = torch.tensor([-1.0, 0.0]), torch.tensor([1.0, 2.0])
     act = ActionLayout(lower, upper, max_wrist_step=0.02, max_wrist_turn=0.1)

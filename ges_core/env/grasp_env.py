@@ -14,6 +14,10 @@ starts every episode with the open hand at a fixed pose above the object and no 
 Per-env resets (:meth:`GraspEnv.reset_envs`) teleport that env's hand straight to its episode start and
 its object to its rest pose, through the backend's per-env teleports: the other envs are untouched. See
 ``docs/env.md``.
+
+The per-control-step maths (wrist target, observation, reward, success) runs in numpy float64 over the
+batch and converts to torch once per result: on a few envs, torch's per-op dispatch cost several times the
+physics (benchmarks/env_throughput.py). tests/test_env_fast_path.py checks it against the torch helpers.
 """
 
 from __future__ import annotations
@@ -25,15 +29,28 @@ import torch
 from pydantic import Field
 
 from ges_core.config import ConfigModel
+from ges_core.env.arrays import as_numpy
 from ges_core.env.layout import ActionLayout, ObservationLayout
-from ges_core.env.reward import RewardConfig, compute_reward, consistency_groups
-from ges_core.env.rotations import quat_conj, quat_mul, quat_rotate, quat_to_rotvec, rotvec_to_quat
+from ges_core.env.reward import TERMS, RewardConfig, RewardFunction, consistency_groups
+from ges_core.env.rotations import (
+    quat_conj,
+    quat_conj_np,
+    quat_mul,
+    quat_mul_np,
+    quat_to_matrix_np,
+    quat_to_rotvec,
+    quat_to_rotvec_np,
+    rotvec_to_quat,
+    rotvec_to_quat_np,
+)
 from ges_core.env.success import EndReason, SuccessConfig, SuccessTracker
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
 from ges_core.transforms import matrix_to_pose, rotation_between_frames
+
+_UNSTABLE = int(EndReason.UNSTABLE)  # plain ints: numpy compares IntEnum members several times slower
 
 __all__ = ["PRIOR_PRESETS", "EnvConfig", "GraspEnv", "GraspTargets", "open_hand_start_pose", "prior_preset"]
 
@@ -105,17 +122,24 @@ class GraspEnv:
         d = hand.description
         self._check_grasps(grasps, d.num_joints)
         self.grasps = {k: torch.as_tensor(np.asarray(v, dtype=np.float64)) for k, v in vars(grasps).items()}
+        self._goal_pose, self._goal_q = self.grasps["wrist_pose"].numpy(), self.grasps["q"].numpy()
         self.tip_links = list(d.tip_links)
         self.tip_offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
+        self._tip_offsets = self.tip_offsets.numpy()[:, :, None]  # (F, 3, 1) for batched R @ offset
         self.contact_links = list(dict.fromkeys([*d.tip_links, d.wrist.link]))
         self.obs_layout = ObservationLayout.for_hand(d, tuple(self.contact_links), goal=cfg.goal_prior)
         lim = torch.as_tensor(d.limits_array)
         self.act_layout = ActionLayout(lim[:, 0], lim[:, 1], cfg.max_wrist_step, cfg.max_wrist_turn)
         self.finger_joints = [torch.as_tensor(d.joint_index(f.joints)) for f in d.fingers]
         self.groups = consistency_groups(d)
+        self._reward = RewardFunction(cfg.reward, self.finger_joints, self.groups, d.num_joints)
         self.tracker = SuccessTracker(cfg.success, self.n, cfg.sim_steps)
         self.control_dt = cfg.sim_steps * sim.config.timestep
-        self.prev_action = torch.zeros(self.n, self.act_layout.size, dtype=torch.float64)
+        self.prev_action = np.zeros((self.n, self.act_layout.size))
+        """(n, K + 6) float64, the last action clipped to [-1, 1] (zeros at an episode start)."""
+        self._last_terms: tuple[dict | None, np.ndarray | None] = (None, None)  # see terms_array
+        self._last_state: tuple = (None, None, None)  # see _state_arrays
+        self._quat_buf = (np.empty((2, self.n, 4)), np.empty((2, self.n, 4)), np.empty((3, self.n, 4)))
         sim.load_hand(hand, floating=True)
         sim.load_object(obj)
 
@@ -184,93 +208,135 @@ class GraspEnv:
         self._begin(env_ids)  # contacts of a removed body
 
     def _begin(self, env_ids: torch.Tensor) -> None:
-        wrist = torch.as_tensor(self.sim.wrist_pose())
-        if env_ids.numel() == self.n:
-            self.wrist_target = wrist.clone()
-        self.wrist_target[env_ids] = wrist[env_ids]
+        wrist = self.sim.wrist_pose()
+        ids = env_ids.numpy()
+        if len(ids) == self.n:
+            self.wrist_target = wrist.copy()
+            """(n, 7) float64 wrist (base-link) targets, world: integrated by :meth:`apply_action`."""
+        self.wrist_target[ids] = wrist[ids]
         self.wrist_prev = wrist
-        self.prev_action[env_ids] = 0.0
-        obj = torch.as_tensor(self.sim.object_pose()[:, :3])
-        self.tracker.reset(env_ids, obj[env_ids])
+        """(n, 7) the wrist pose at the last observation (for the finite-difference velocity)."""
+        self.prev_action[ids] = 0.0
+        self.tracker.reset(env_ids, self.sim.object_pose()[ids, :3])
 
     # -- stepping --------------------------------------------------------------------------
     def apply_action(self, action: torch.Tensor) -> torch.Tensor:
         """Set targets from ``action`` (n, K + 6) and step; returns (n,) bool, envs whose state blew up."""
-        action = action.to(torch.float64)
-        dp, dr = self.act_layout.wrist_deltas(action)
+        a = as_numpy(action).astype(np.float64)  # a copy: clipped in place
+        np.minimum(np.maximum(a, -1.0, out=a), 1.0, out=a)
+        delta = self.act_layout.wrist_deltas_np(a)  # (n, 6): metres, then a rotation vector (world, rad)
         wt = self.wrist_target
-        self.wrist_target = torch.cat([wt[:, :3] + dp, quat_mul(rotvec_to_quat(dr), wt[:, 3:])], dim=1)
-        self.sim.set_wrist_targets(self.wrist_target.numpy())
-        self.sim.set_joint_targets(self.act_layout.joint_targets(action).numpy())
-        self.prev_action = action.clamp(-1.0, 1.0)
+        target = np.empty_like(wt)
+        np.add(wt[:, :3], delta[:, :3], out=target[:, :3])
+        quat_mul_np(rotvec_to_quat_np(delta[:, 3:]), wt[:, 3:], out=target[:, 3:])
+        self.wrist_target = target
+        self.sim.set_wrist_targets(target)
+        self.sim.set_joint_targets(self.act_layout.joint_targets_np(a))
+        self.prev_action = a
         return self._step_physics()
 
     def _step_physics(self) -> torch.Tensor:
         """Step ``sim_steps``; on SimulationError mark its ``env_ids`` (every env if it names none) unstable.
 
         The backend finishes the step in every healthy env before raising."""
-        unstable = torch.zeros(self.n, dtype=torch.bool)
+        unstable = np.zeros(self.n, dtype=bool)
         try:
             self.sim.step(self.cfg.sim_steps)
         except SimulationError as err:
             unstable[list(err.env_ids) if err.env_ids else slice(None)] = True
-        return unstable
+        return torch.from_numpy(unstable)
 
     def observe(self) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """Flat observation (n, obs size) float32 and the raw state (float64) reused by rewards."""
+        """Flat observation (n, obs size) float32 and the raw state (float64) reused by rewards.
+
+        State: ``q``, ``dq`` (n, K); ``tip_world`` (n, F, 3) fingertip points, world, m; ``obj`` (n, 3)
+        object origin, world, m; ``wrist_vel`` (n, 6). Each call advances the wrist velocity's finite
+        difference (a second call without physics in between reads zero).
+        """
         sim = self.sim
-        q, dq = (torch.as_tensor(a) for a in sim.joint_state())
-        wrist = torch.as_tensor(sim.wrist_pose())
-        forces = torch.as_tensor(sim.contact_forces(self.contact_links, "object"))
-        tips = torch.as_tensor(sim.link_poses(self.tip_links))
-        tip_world = tips[..., :3] + quat_rotate(tips[..., 3:], self.tip_offsets.expand_as(tips[..., :3]))
-        inv = quat_conj(wrist[:, 3:])[:, None]
-        obj = torch.as_tensor(sim.object_pose()[:, :3])
-        vel = self._wrist_velocity(wrist)
-        g = self.grasps
+        q, dq = sim.joint_state()
+        wrist = sim.wrist_pose()
+        forces = sim.contact_forces(self.contact_links, "object")
+        tips = sim.link_poses(self.tip_links)
+        obj = sim.object_pose()[:, :3]
+        with np.errstate(all="ignore"):  # a blown-up env reads NaN or huge values; keep going like torch
+            blocks, tip_world, vel = self._blocks(q, dq, wrist, forces, tips, obj)
+        arrays = {"q": q, "dq": dq, "tip_world": tip_world, "obj": obj, "wrist_vel": vel}
+        state = {name: torch.from_numpy(value) for name, value in arrays.items()}
+        self._last_state = (state, arrays, blocks["goal_q"])
+        return torch.from_numpy(self.obs_layout.pack_np(blocks)), state
+
+    def _state_arrays(self, state: dict[str, torch.Tensor]) -> tuple[dict[str, np.ndarray], np.ndarray]:
+        """Numpy float64 views of a state dict of :meth:`observe` and its goal joint error (n, K) (grasp - q).
+
+        The latest observation's arrays are reused as they are (the tensors share their memory)."""
+        if state is self._last_state[0]:
+            return self._last_state[1], self._last_state[2]
+        arrays = {name: as_numpy(value, np.float64) for name, value in state.items()}
+        return arrays, self._goal_q - arrays["q"]
+
+    def _blocks(self, q, dq, wrist, forces, tips, obj) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+        """Observation blocks (n, size) float64, fingertip points (n, F, 3) and wrist velocity (n, 6) from reads.
+
+        One rotation-matrix batch for the wrist and the tips; one quaternion product for the goal rotation
+        and the wrist's turn since the last observation, one rotation-vector batch for those and the wrist.
+        """
+        n, f = len(q), len(self.tip_links)
+        ab, wv, rv = self._quat_buf  # (2, n, 4): goal, wrist; (2, n, 4): wrist, previous wrist; (3, n, 4)
+        rot = quat_to_matrix_np(np.concatenate([wrist[:, None, 3:], tips[..., 3:]], axis=1))  # (n, 1 + F, 3, 3)
+        tip_world = tips[..., :3] + (rot[:, 1:] @ self._tip_offsets)[..., 0]
+        wpos, wq, prev = wrist[:, :3], wrist[:, 3:], self.wrist_prev
+        local = np.concatenate([forces[:, :f], tip_world - wpos[:, None]], axis=1) @ rot[:, 0]  # v @ R = R^T v
+        ab[0], ab[1], wv[0], wv[1], rv[0] = self._goal_pose[:, 3:], wq, wq, prev[:, 3:], wq
+        quat_mul_np(ab, quat_conj_np(wv), out=rv[1:])  # goal * wrist^-1, wrist * previous^-1
+        rotvec = quat_to_rotvec_np(rv)  # (3, n, 3): wrist, goal rotation, turn since the last observation
+        vel = np.concatenate([wpos - prev[:, :3], rotvec[2]], axis=1) / self.control_dt
+        self.wrist_prev = wrist
         blocks = {
             "q": q,
             "dq": dq,
-            "contact": (forces.norm(dim=-1) > self.cfg.contact_threshold).to(torch.float64),
-            "tip_force": quat_rotate(inv, forces[:, : len(self.tip_links)]),
-            "tip_pos": quat_rotate(inv, tip_world - wrist[:, None, :3]),
-            "wrist_pose": torch.cat([wrist[:, :3], quat_to_rotvec(wrist[:, 3:])], dim=1),
+            "contact": np.sqrt(np.einsum("nli,nli->nl", forces, forces)) > self.cfg.contact_threshold,
+            "tip_force": local[:, :f].reshape(n, -1),
+            "tip_pos": local[:, f:].reshape(n, -1),
+            "wrist_pose": np.concatenate([wpos, rotvec[0]], axis=1),
             "wrist_vel": vel,
             "prev_action": self.prev_action,
             "obj_pos": obj,
+            "goal_pos": self._goal_pose[:, :3] - wpos,
+            "goal_rot": rotvec[1],
+            "goal_q": self._goal_q - q,
         }
-        if self.obs_layout.goal:
-            blocks["goal_pos"] = g["wrist_pose"][:, :3] - wrist[:, :3]
-            blocks["goal_rot"] = quat_to_rotvec(quat_mul(g["wrist_pose"][:, 3:], quat_conj(wrist[:, 3:])))
-            blocks["goal_q"] = g["q"] - q
-        state = {"q": q, "dq": dq, "tip_world": tip_world, "obj": obj, "wrist_vel": vel}
-        return self.obs_layout.pack(blocks), state
-
-    def _wrist_velocity(self, wrist: torch.Tensor) -> torch.Tensor:
-        """(n, 6) finite-difference wrist velocity since the last call, world, m/s and rad/s."""
-        lin = (wrist[:, :3] - self.wrist_prev[:, :3]) / self.control_dt
-        ang = quat_to_rotvec(quat_mul(wrist[:, 3:], quat_conj(self.wrist_prev[:, 3:]))) / self.control_dt
-        self.wrist_prev = wrist
-        return torch.cat([lin, ang], dim=1)
+        return blocks, tip_world, vel
 
     def reward(self, state: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        """Reward (n,) and its terms for the state returned by :meth:`observe`."""
-        return compute_reward(
-            self.cfg.reward,
-            q_error=self.grasps["q"] - state["q"],
-            finger_joints=self.finger_joints,
-            tip_pos=state["tip_world"],
-            obj_pos=state["obj"],
-            obj_start=self.tracker.start,
-            joint_vel=state["dq"],
-            wrist_vel=state["wrist_vel"],
-            groups=self.groups,
+        """Reward (n,) float64 and its terms (n,) before weighting, for the state returned by :meth:`observe`."""
+        arrays, q_error = self._state_arrays(state)
+        total, terms = self._reward(
+            q_error=q_error,
+            tip_pos=arrays["tip_world"],
+            obj_pos=arrays["obj"],
+            obj_start=self.tracker.start.numpy(),
+            joint_vel=arrays["dq"],
+            wrist_vel=arrays["wrist_vel"],
         )
+        out = dict(zip(TERMS, torch.from_numpy(terms).unbind(), strict=True))
+        self._last_terms = (out, terms)
+        return torch.from_numpy(total), out
+
+    def terms_array(self, terms: dict[str, torch.Tensor]) -> np.ndarray:
+        """(T, n) float64 reward terms in :data:`~ges_core.env.reward.TERMS` order, for a terms dict of :meth:`reward`.
+
+        The array behind the latest :meth:`reward` result without a copy; any other dict is stacked anew.
+        """
+        if terms is self._last_terms[0]:
+            return self._last_terms[1]
+        return torch.stack([terms[name] for name in TERMS]).numpy()
 
     def end_reasons(self, state: dict[str, torch.Tensor], timeout: torch.Tensor, unstable: torch.Tensor):
-        """(n,) int64 EndReason codes after a control step."""
-        reason = self.tracker.update(state["obj"], timeout)
-        return torch.where(unstable, EndReason.UNSTABLE, reason)
+        """(n,) int64 EndReason codes after a control step; timeout and unstable: (n,) bool, torch or numpy."""
+        reason = self.tracker.update(self._state_arrays(state)[0]["obj"], timeout)
+        bad = as_numpy(unstable)
+        return torch.from_numpy(np.where(bad, _UNSTABLE, reason.numpy())) if bad.any() else reason
 
 
 def interpolate_pose(a: torch.Tensor, b: torch.Tensor, s: float) -> torch.Tensor:

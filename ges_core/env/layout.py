@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 
 from ges_core.errors import ConfigError
@@ -51,6 +52,7 @@ class ObservationLayout:
     num_tips: int
     goal: bool = True
     slices: dict[str, slice] = field(init=False, repr=False)
+    _total: int = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if min(self.num_joints, self.num_contact_links, self.num_tips) < 1:
@@ -63,6 +65,7 @@ class ObservationLayout:
             slices[name] = slice(start, start + size)
             start += size
         object.__setattr__(self, "slices", slices)
+        object.__setattr__(self, "_total", start)
 
     @classmethod
     def for_hand(cls, hand: HandDescription, contact_links: tuple[str, ...], goal: bool = True) -> ObservationLayout:
@@ -107,6 +110,19 @@ class ObservationLayout:
             raise ConfigError(f"observation pack: blocks {got} have the wrong size; expected {sizes}")
         return torch.cat(parts, dim=1)
 
+    def pack_np(self, blocks: dict[str, np.ndarray]) -> np.ndarray:
+        """:meth:`pack` for numpy blocks (num_envs, block size) in any order: one concatenation, only the total checked.
+
+        The environment's per-step path: blocks must already be 2-D; a wrong block size shows as a wrong total.
+        """
+        obs = np.concatenate([blocks[name] for name in self.slices], axis=1, dtype=np.float32)
+        if obs.shape[1] != self._total:
+            got = {name: blocks[name].shape[1] for name in self.slices}
+            raise ConfigError(
+                f"observation pack: block sizes {got} give {obs.shape[1]} floats; expected {self.sizes()}"
+            )
+        return obs
+
     def unpack(self, obs: torch.Tensor, name: str) -> torch.Tensor:
         """The block ``name`` of observations (num_envs, size) as (num_envs, block size)."""
         if name not in self.slices:
@@ -133,6 +149,17 @@ class ActionLayout:
     """Metres the wrist target may move from the current wrist position per control step."""
     max_wrist_turn: float = 0.1
     """Radians the wrist target may turn from the current orientation per control step."""
+    _lower_np: np.ndarray = field(init=False, repr=False, compare=False)
+    _half_range_np: np.ndarray = field(init=False, repr=False, compare=False)
+    _wrist_scale_np: np.ndarray = field(init=False, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        """Cache the float64 numpy forms of the limits and the wrist scales for the ``*_np`` methods."""
+        lower, upper = (np.asarray(t.detach().cpu(), dtype=np.float64) for t in (self.lower, self.upper))
+        object.__setattr__(self, "_lower_np", lower)
+        object.__setattr__(self, "_half_range_np", 0.5 * (upper - lower))  # x 0.5 is exact: equals joint_targets
+        scale = np.array([self.max_wrist_step] * 3 + [self.max_wrist_turn] * 3)
+        object.__setattr__(self, "_wrist_scale_np", scale)
 
     @property
     def size(self) -> int:
@@ -147,6 +174,14 @@ class ActionLayout:
     def normalize_joints(self, q: torch.Tensor) -> torch.Tensor:
         """Inverse of :meth:`joint_targets` for the hand part: (n, K) rad -> (n, K) in [-1, 1]."""
         return (2.0 * (q - self.lower) / (self.upper - self.lower) - 1.0).clamp(-1.0, 1.0)
+
+    def joint_targets_np(self, action: np.ndarray) -> np.ndarray:
+        """:meth:`joint_targets` for numpy actions (n, K + 6) **already clipped** to [-1, 1]: (n, K) float64, rad."""
+        return self._lower_np + (action[:, WRIST_DOF:] + 1.0) * self._half_range_np
+
+    def wrist_deltas_np(self, action: np.ndarray) -> np.ndarray:
+        """(n, 6) position step (m) then rotation-vector step (rad), from numpy actions already clipped to [-1, 1]."""
+        return action[:, :WRIST_DOF] * self._wrist_scale_np
 
     def wrist_deltas(self, action: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """(n, 3) position step (m) and (n, 3) rotation-vector step (rad) from actions (n, K + 6)."""

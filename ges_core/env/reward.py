@@ -8,10 +8,15 @@ Every term is returned on its own for logging. Forms (our reading of the paper, 
 * ``r_m = clip(Δz / h, 0, 1)``: object rise above its start as a fraction of the lift height ``h``.
 * ``r_s = -Σ_i v_i²``: hand joint velocities (rad/s) and wrist linear + angular velocity.
 * ``r_c = -Σ_j Var_f(sign(v_{j,f}))``: same-position joints across the non-thumb fingers.
+
+:func:`compute_reward` is the plain torch statement of these formulas; :class:`RewardFunction` computes the
+same in numpy float64 with the hand's index structure prepared once, for the environment's per-step path
+(tests/test_env_fast_path.py checks that the two agree).
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 from pydantic import Field
 
@@ -19,7 +24,15 @@ from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription
 
-__all__ = ["RewardConfig", "REWARD_PRESETS", "compute_reward", "consistency_groups", "reward_preset"]
+__all__ = [
+    "REWARD_PRESETS",
+    "RewardConfig",
+    "RewardFunction",
+    "compute_reward",
+    "consistency_groups",
+    "direction_variance_np",
+    "reward_preset",
+]
 
 TERMS = ("goal", "reach", "lift", "move", "smooth", "consistency")
 
@@ -112,3 +125,59 @@ def compute_reward(
     weights = (cfg.w_goal, cfg.w_reach, cfg.w_lift, cfg.w_move, cfg.w_smooth, cfg.w_consistency)
     total = sum(w * terms[name] for w, name in zip(weights, TERMS, strict=True))
     return total, terms
+
+
+def direction_variance_np(v: np.ndarray, groups: np.ndarray) -> np.ndarray:
+    """Numpy :func:`direction_variance`: (n,) float64 from v (n, K) and groups (J, P); sign(NaN) = 0 as in torch."""
+    g = v[:, groups]
+    signs = (g > 0).view(np.int8) - (g < 0).view(np.int8)  # np.sign would give NaN for NaN
+    p = groups.shape[1]
+    deviation = signs - np.add.reduce(signs, axis=2, keepdims=True) / p
+    return np.add.reduce(np.add.reduce(deviation * deviation, axis=2) / p, axis=1)
+
+
+class RewardFunction:
+    """:func:`compute_reward` in numpy float64 for one hand: ``fn(...) -> (total (n,), terms (6, n))``.
+
+    finger_joints: per physical finger, its joint indices; groups: (J, P) from :func:`consistency_groups`;
+    num_joints: K. ``terms`` rows follow :data:`TERMS`. Sums may add in another order than torch's (the
+    results agree to ~1e-16 relative).
+    """
+
+    def __init__(self, cfg: RewardConfig, finger_joints: list, groups: torch.Tensor, num_joints: int) -> None:
+        self.cfg = cfg
+        self.finger_sum = np.zeros((num_joints, len(finger_joints)))
+        """(K, F) 0/1: ``|Δq| @ finger_sum`` is each finger's L1 joint error."""
+        for f, idx in enumerate(finger_joints):
+            np.add.at(self.finger_sum[:, f], np.asarray(idx, dtype=np.int64), 1.0)
+        self.groups = np.asarray(groups, dtype=np.int64)
+        self.weights = np.array([cfg.w_goal, cfg.w_reach, cfg.w_lift, cfg.w_move, cfg.w_smooth, cfg.w_consistency])
+        self.decay = -np.array([[cfg.lambda_goal], [cfg.lambda_reach], [cfg.lambda_lift]])
+        """(3, 1) the exponents' factors of r_g, r_r, r_l."""
+        self.lift = np.array([0.0, 0.0, cfg.lift_height])
+
+    def __call__(
+        self,
+        q_error: np.ndarray,
+        tip_pos: np.ndarray,
+        obj_pos: np.ndarray,
+        obj_start: np.ndarray,
+        joint_vel: np.ndarray,
+        wrist_vel: np.ndarray,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Arguments as :func:`compute_reward` (numpy float64); total (n,) and terms (6, n) in TERMS order."""
+        f = tip_pos.shape[1]
+        terms = np.empty((len(TERMS), len(q_error)))
+        # (n, F + 1) distances to the object centre: every fingertip, then the lift target
+        to_obj = np.concatenate([tip_pos, (obj_start + self.lift)[:, None]], axis=1) - obj_pos[:, None]
+        dist = np.sqrt(np.add.reduce(to_obj * to_obj, axis=2))
+        terms[0] = np.maximum.reduce(np.abs(q_error) @ self.finger_sum, axis=1)
+        terms[1] = np.add.reduce(dist[:, :f], axis=1) / f
+        terms[2] = dist[:, f]
+        np.exp(np.multiply(terms[:3], self.decay, out=terms[:3]), out=terms[:3])
+        rise = (obj_pos[:, 2] - obj_start[:, 2]) / self.cfg.lift_height
+        np.minimum(np.maximum(rise, 0.0), 1.0, out=terms[3])
+        vel = np.concatenate([joint_vel, wrist_vel], axis=1)
+        np.negative(np.add.reduce(vel * vel, axis=1), out=terms[4])
+        np.negative(direction_variance_np(joint_vel, self.groups), out=terms[5])
+        return self.weights @ terms, terms

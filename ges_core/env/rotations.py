@@ -1,10 +1,24 @@
-"""Batched torch rotation helpers. Quaternions are **w, x, y, z**; rotation vectors are axis * angle (rad)."""
+"""Batched rotation helpers, torch and (suffix ``_np``) numpy float64. Quaternions are **w, x, y, z**; rotation
+vectors are axis * angle (rad).
+"""
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 
-__all__ = ["quat_mul", "quat_conj", "quat_to_rotvec", "rotvec_to_quat", "quat_rotate"]
+__all__ = [
+    "quat_conj",
+    "quat_conj_np",
+    "quat_mul",
+    "quat_mul_np",
+    "quat_rotate",
+    "quat_to_matrix_np",
+    "quat_to_rotvec",
+    "quat_to_rotvec_np",
+    "rotvec_to_quat",
+    "rotvec_to_quat_np",
+]
 
 
 def quat_mul(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
@@ -51,3 +65,99 @@ def quat_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     qv = q[..., 1:]
     t = 2.0 * torch.cross(qv.expand_as(v), v, dim=-1)
     return v + q[..., :1] * t + torch.cross(qv.expand_as(v), t, dim=-1)
+
+
+# -- numpy float64 versions for the environment's per-step path -----------------------------------
+# The same maths as the torch helpers above on numpy arrays: on a handful of envs every torch op costs
+# several microseconds of dispatch, so the per-control-step code (observation, wrist targets) uses these
+# and converts to torch once. The bilinear forms below are written as one outer product times a constant
+# matrix (three numpy calls instead of ~30 elementwise ones).
+
+
+def _bilinear(terms: dict[tuple[int, int], dict[int, float]], out: int) -> np.ndarray:
+    """(16, out) matrix M with ``(a ⊗ b).reshape(16) @ M`` = Σ coef · a_i b_j per output, from (i, j) -> {k: coef}."""
+    m = np.zeros((16, out))
+    for (i, j), row in terms.items():
+        for k, coef in row.items():
+            m[4 * i + j, k] += coef
+    return m
+
+
+_W, _X, _Y, _Z = range(4)
+_HAMILTON = _bilinear(
+    {
+        (_W, _W): {0: 1.0}, (_X, _X): {0: -1.0}, (_Y, _Y): {0: -1.0}, (_Z, _Z): {0: -1.0},
+        (_W, _X): {1: 1.0}, (_X, _W): {1: 1.0}, (_Y, _Z): {1: 1.0}, (_Z, _Y): {1: -1.0},
+        (_W, _Y): {2: 1.0}, (_X, _Z): {2: -1.0}, (_Y, _W): {2: 1.0}, (_Z, _X): {2: 1.0},
+        (_W, _Z): {3: 1.0}, (_X, _Y): {3: 1.0}, (_Y, _X): {3: -1.0}, (_Z, _W): {3: 1.0},
+    },
+    4,
+)  # fmt: skip
+"""Hamilton product a * b as a bilinear form, as :func:`quat_mul`."""
+
+_ROTATION = _bilinear(
+    {
+        (_Y, _Y): {0: -2.0, 8: -2.0}, (_Z, _Z): {0: -2.0, 4: -2.0}, (_X, _X): {4: -2.0, 8: -2.0},
+        (_X, _Y): {1: 2.0, 3: 2.0}, (_W, _Z): {1: -2.0, 3: 2.0},
+        (_X, _Z): {2: 2.0, 6: 2.0}, (_W, _Y): {2: 2.0, 6: -2.0},
+        (_Y, _Z): {5: 2.0, 7: 2.0}, (_W, _X): {5: -2.0, 7: 2.0},
+    },
+    9,
+)  # fmt: skip
+"""Row-major R(q) - I as a quadratic form in q: ``R = I + 2 [[-(y²+z²), xy - wz, xz + wy], ...]``.
+
+This form (not the homogeneous ``w² + x² - y² - z²`` one) equals :func:`quat_rotate`'s
+``v + 2w (u × v) + 2u × (u × v)`` for any quaternion, unit or not."""
+
+_EYE9 = np.eye(3).reshape(9)
+_CONJ = np.array([1.0, -1.0, -1.0, -1.0])
+
+
+def _outer16(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """(..., 16) flattened outer products of (..., 4) and (..., 4)."""
+    outer = a[..., :, None] * b[..., None, :]
+    return outer.reshape(*outer.shape[:-2], 16)
+
+
+def quat_mul_np(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
+    """Hamilton product ``a * b``, (..., 4) wxyz float64 (numpy :func:`quat_mul`); ``out``: where to write it."""
+    return np.matmul(_outer16(a, b), _HAMILTON, out=out)
+
+
+def quat_conj_np(q: np.ndarray) -> np.ndarray:
+    """Conjugate, (..., 4) wxyz (numpy :func:`quat_conj`)."""
+    return q * _CONJ
+
+
+def quat_to_matrix_np(q: np.ndarray) -> np.ndarray:
+    """(..., 4) wxyz -> (..., 3, 3) rotation matrices R.
+
+    ``R @ v`` is :func:`quat_rotate` (q, v); ``v @ R`` (v as a row) rotates by the inverse.
+    """
+    flat = _outer16(q, q) @ _ROTATION + _EYE9
+    return flat.reshape(*q.shape[:-1], 3, 3)
+
+
+def quat_to_rotvec_np(q: np.ndarray) -> np.ndarray:
+    """(..., 4) unit wxyz -> (..., 3) rotation vector, angle in [0, pi] (numpy :func:`quat_to_rotvec`).
+
+    q and -q are one rotation: the angle comes from |w| and the sign of w flips the vector, as flipping q
+    does (``w + 0.0`` turns -0.0 into +0.0, which the torch helper does not flip either). ``angle / s`` tends
+    to ``2 / |w|`` as s -> 0 and atan2 keeps full precision there, so one formula serves every s (the torch
+    helper switches to ``2 / w`` below 1e-9; the two differ by ~1e-18 relative); s = 0 gives 0.
+    """
+    w, v = q[..., 0], q[..., 1:]
+    s = np.sqrt(np.add.reduce(v * v, axis=-1))
+    scale = 2.0 * np.arctan2(s, np.abs(w)) / np.maximum(s, 1e-300)
+    return v * np.copysign(scale, w + 0.0)[..., None]
+
+
+def rotvec_to_quat_np(r: np.ndarray) -> np.ndarray:
+    """(..., 3) rotation vector -> (..., 4) unit wxyz (numpy :func:`rotvec_to_quat`).
+
+    ``sin(x/2) / x`` keeps full precision for tiny x (the torch helper's series differs by ~1e-18 relative
+    below 1e-9); x = 0 gives the identity.
+    """
+    angle = np.sqrt(np.add.reduce(r * r, axis=-1, keepdims=True))
+    half = 0.5 * angle
+    return np.concatenate([np.cos(half), r * (np.sin(half) / np.maximum(angle, 1e-300))], axis=-1)

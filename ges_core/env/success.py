@@ -5,17 +5,20 @@
 * **peers** (UniDexGrasp, UniDexGrasp++, ResDex): the object's centre comes within ``peer_radius``
   (5 cm) of the point ``lift_height`` above its start at any step of the episode; no hold.
 
-Episodes end with one :class:`EndReason`.
+Episodes end with one :class:`EndReason`. The tracker keeps its state in torch tensors (its public
+attributes) and updates them in place through numpy views: a handful of numpy calls per control step.
 """
 
 from __future__ import annotations
 
 from enum import IntEnum
 
+import numpy as np
 import torch
 from pydantic import Field
 
 from ges_core.config import ConfigModel
+from ges_core.env.arrays import as_numpy
 
 __all__ = ["EndReason", "SuccessConfig", "SuccessTracker"]
 
@@ -46,6 +49,27 @@ class SuccessConfig(ConfigModel):
     )
 
 
+def _reason(timeout: bool, was_lifted: bool, dropped: bool, success: bool) -> EndReason:
+    """The end reason of one env, by priority: success, dropped, then the episode limit."""
+    if success:
+        return EndReason.SUCCESS
+    if dropped:
+        return EndReason.DROPPED
+    if timeout:
+        return EndReason.TIMEOUT if was_lifted else EndReason.NOT_LIFTED
+    return EndReason.RUNNING
+
+
+_REASONS = np.array([_reason(*(bool(code >> bit & 1) for bit in range(4))) for code in range(16)], dtype=np.int64)
+"""EndReason per code ``timeout + 2 was_lifted + 4 dropped + 8 success``: one look-up instead of a where-chain."""
+_BITS = np.array([1, 2, 4, 8])
+
+
+def _index(env_ids) -> np.ndarray | slice:
+    """Env indices or a bool mask (torch, numpy or a list) as a numpy index; a slice as it is."""
+    return env_ids if isinstance(env_ids, slice) else as_numpy(env_ids)
+
+
 class SuccessTracker:
     """Per-env success bookkeeping for ``num_envs`` episodes; ``sim_steps`` physics steps per update."""
 
@@ -59,34 +83,40 @@ class SuccessTracker:
         """(n,) highest rise of the episode so far, m."""
         self.peer_success = torch.zeros(num_envs, dtype=torch.bool)
         """(n,) the peers' protocol has succeeded at some step of this episode."""
+        # numpy views of the tensors above (same memory): every update is in place
+        self._start, self._held = self.start.numpy(), self.held.numpy()
+        self._max_rise, self._peer = self.max_rise.numpy(), self.peer_success.numpy()
+        self._lift = np.array([0.0, 0.0, cfg.lift_height])
+        self._flags = np.zeros((4, num_envs), dtype=bool)  # timeout, was lifted, dropped, success
 
     def reset(self, env_ids: torch.Tensor, start: torch.Tensor) -> None:
         """Start new episodes in ``env_ids`` with the object centre at ``start`` (len(env_ids), 3)."""
-        self.start[env_ids] = start.to(self.start.dtype)
-        self.held[env_ids] = 0
-        self.max_rise[env_ids] = 0.0
-        self.peer_success[env_ids] = False
+        ids = _index(env_ids)
+        self._start[ids] = as_numpy(start, np.float64)
+        self._held[ids] = 0
+        self._max_rise[ids] = 0.0
+        self._peer[ids] = False
 
     def update(self, obj_pos: torch.Tensor, timeout: torch.Tensor) -> torch.Tensor:
         """Advance one control step with the object centre ``obj_pos`` (n, 3); (n,) int64 EndReason codes.
 
-        timeout: (n,) bool, the episode has used its last step.
+        timeout: (n,) bool, the episode has used its last step. Numpy arrays are accepted too.
         """
         cfg = self.cfg
-        pos = obj_pos.to(self.start.dtype)
-        rise = pos[:, 2] - self.start[:, 2]
-        self.max_rise = torch.maximum(self.max_rise, rise)
-        self.held = torch.where(rise >= cfg.lift_height, self.held + self.sim_steps, torch.zeros_like(self.held))
-        target = self.start + torch.tensor([0.0, 0.0, cfg.lift_height], dtype=pos.dtype)
-        self.peer_success |= (pos - target).norm(dim=1) < cfg.peer_radius
+        pos = as_numpy(obj_pos, np.float64)
+        rise = pos[:, 2] - self._start[:, 2]
+        np.maximum(self._max_rise, rise, out=self._max_rise)
+        self._held += self.sim_steps
+        self._held *= rise >= cfg.lift_height  # the hold restarts when the object dips
+        to_target = pos - (self._start + self._lift)
+        self._peer |= np.sqrt(np.add.reduce(to_target * to_target, axis=1)) < cfg.peer_radius
         return self.reasons(rise, timeout)
 
     def reasons(self, rise: torch.Tensor, timeout: torch.Tensor) -> torch.Tensor:
         """(n,) EndReason codes from the current rise (n,) m and the timeout flags (n,)."""
-        cfg = self.cfg
-        was_lifted = self.max_rise >= cfg.lifted_rise
-        reason = torch.full_like(self.held, EndReason.RUNNING)
-        reason = torch.where(timeout & ~was_lifted, EndReason.NOT_LIFTED, reason)
-        reason = torch.where(timeout & was_lifted, EndReason.TIMEOUT, reason)
-        reason = torch.where(was_lifted & (rise < cfg.dropped_rise), EndReason.DROPPED, reason)
-        return torch.where(self.held >= cfg.hold_steps, EndReason.SUCCESS, reason)
+        cfg, flags = self.cfg, self._flags
+        flags[0] = as_numpy(timeout)
+        np.greater_equal(self._max_rise, cfg.lifted_rise, out=flags[1])  # was lifted
+        np.logical_and(flags[1], as_numpy(rise) < cfg.dropped_rise, out=flags[2])  # dropped
+        np.greater_equal(self._held, cfg.hold_steps, out=flags[3])  # success
+        return torch.from_numpy(_REASONS[_BITS @ flags])

@@ -11,6 +11,9 @@ the (n,) EndReason codes.
 
 from __future__ import annotations
 
+import math
+
+import numpy as np
 import torch
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
@@ -20,6 +23,9 @@ from ges_core.env.metrics import METRIC_NAMES, EpisodeMetrics
 from ges_core.env.success import EndReason
 
 __all__ = ["GraspVecEnv"]
+
+_RUNNING, _NOT_LIFTED, _TIMEOUT = (int(r) for r in (EndReason.RUNNING, EndReason.NOT_LIFTED, EndReason.TIMEOUT))
+"""Plain ints: numpy compares IntEnum members several times slower."""
 
 
 class GraspVecEnv(VecEnv):
@@ -44,41 +50,85 @@ class GraspVecEnv(VecEnv):
         return TensorDict({"policy": self._obs}, batch_size=[self.num_envs])
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
-        """Apply actions (num_envs, num_actions) in [-1, 1]; rewards (n,), dones (n,) long, extras."""
+        """Apply actions (num_envs, num_actions) in [-1, 1]; rewards (n,), dones (n,) long, extras.
+
+        The bookkeeping between the env's calls is numpy on views of the tensors (no torch op per step).
+        """
         env = self.env
-        unstable = env.apply_action(actions.detach().cpu())
-        self.episode_length_buf += 1
+        unstable = env.apply_action(actions)
+        bad = unstable.numpy()
+        any_bad = bool(bad.any())
+        steps = self.episode_length_buf.numpy()  # a view: rsl-rl may replace the tensor, never on another device
+        steps += 1
         obs, state = self._observe()
         reward, terms = env.reward(state)
-        self.metrics.update(state["dq"], state["wrist_vel"], mask=~unstable)
-        timeout = self.episode_length_buf >= self.max_episode_length
-        reason = env.end_reasons(state, timeout, unstable)
-        reward = torch.where(unstable, 0.0, torch.nan_to_num(reward)).to(torch.float32)
-        done = reason != EndReason.RUNNING
-        extras = self._extras(reason, done, terms, unstable)
-        if done.any():
-            ended = done.nonzero().flatten()
+        self.metrics.update(state["dq"], state["wrist_vel"], mask=~bad, consistency=terms["consistency"])
+        reason = env.end_reasons(state, steps >= self.max_episode_length, unstable)
+        code = reason.numpy()
+        done = code != _RUNNING
+        any_done = bool(done.any())
+        extras = self._extras(code, done if any_done else None, terms, bad if any_bad else None)
+        extras["end_reason"] = reason
+        if any_done:
+            ended = torch.from_numpy(done.nonzero()[0])
             env.reset_envs(ended)
             self.metrics.reset(ended)
-            self.episode_length_buf[done] = 0
-            fresh = self.env.observe()[0]  # reset envs: their first observation of the next episode
-            obs = torch.where(done[:, None], torch.nan_to_num(fresh, nan=0.0, posinf=0.0, neginf=0.0), obs)
+            steps[done] = 0
+            fresh = self._observe()[0]  # reset envs: their first observation of the next episode
+            obs = torch.where(torch.from_numpy(done)[:, None], fresh, obs)
         self._obs = obs  # the others keep this step's observation (a second read has zero wrist velocity)
-        return self.get_observations(), reward, done.long(), extras
+        rew = _clean_reward(reward.numpy(), bad if any_bad else None)
+        return self.get_observations(), torch.from_numpy(rew), torch.from_numpy(done.astype(np.int64)), extras
 
     def _observe(self) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         obs, state = self.env.observe()
-        return torch.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0), state
+        if not math.isfinite(np.add.reduce(obs.numpy(), axis=None)):  # a finite sum: every value is finite
+            obs = torch.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
+        return obs, state
 
-    def _extras(self, reason: torch.Tensor, done: torch.Tensor, terms: dict, unstable: torch.Tensor) -> dict:
-        cut = (reason == EndReason.NOT_LIFTED) | (reason == EndReason.TIMEOUT)
-        log = {f"/reward/{name}": torch.nan_to_num(value[~unstable]).mean() for name, value in terms.items()}
-        if done.any():
-            for r in EndReason:
-                if r is not EndReason.RUNNING:
-                    log[f"/end/{r.name.lower()}"] = (reason[done] == r).float().mean()
-            log["/success/paper"] = (reason[done] == EndReason.SUCCESS).float().mean()
-            log["/success/peers"] = self.env.tracker.peer_success[done].float().mean()
-            metrics = self.metrics.read(done.nonzero().flatten())
-            log.update({f"/metrics/{name}": metrics[name].mean() for name in METRIC_NAMES})
-        return {"time_outs": cut, "log": log, "end_reason": reason.clone()}
+    def _extras(self, code: np.ndarray, done: np.ndarray | None, terms: dict, unstable: np.ndarray | None) -> dict:
+        """``time_outs`` and ``log`` from the (n,) end-reason codes, the reward terms and the (n,) done and
+        unstable flags (None: no env done, no env unstable)."""
+        cut = (code == _NOT_LIFTED) | (code == _TIMEOUT)
+        means = _stable_means(self.env.terms_array(terms), unstable)
+        log = dict(zip([f"/reward/{name}" for name in terms], torch.from_numpy(means).unbind(), strict=True))
+        if done is not None:
+            log.update(self._episode_log(torch.from_numpy(code), torch.from_numpy(done)))
+        return {"time_outs": torch.from_numpy(cut), "log": log}
+
+    def _episode_log(self, reason: torch.Tensor, done: torch.Tensor) -> dict[str, torch.Tensor]:
+        """Rates of each end reason and both protocols, and the mean Table 3 metrics, over the episodes that ended."""
+        ended = reason[done]
+        log = {f"/end/{r.name.lower()}": (ended == r).float().mean() for r in EndReason if r is not EndReason.RUNNING}
+        log["/success/paper"] = (ended == EndReason.SUCCESS).float().mean()
+        log["/success/peers"] = self.env.tracker.peer_success[done].float().mean()
+        metrics = self.metrics.read(done.nonzero().flatten())
+        log.update({f"/metrics/{name}": metrics[name].mean() for name in METRIC_NAMES})
+        return log
+
+
+def _stable_means(terms: np.ndarray, unstable: np.ndarray | None) -> np.ndarray:
+    """(T,) float64: per term (rows of ``terms`` (T, n)), the mean over the envs that did not blow up.
+
+    Non-finite values count as 0 (NaN as 0, +-inf as the largest float, as torch.nan_to_num); NaN if every
+    env blew up. unstable: (n,) bool, or None when no env blew up.
+    """
+    if unstable is not None:
+        terms = terms[:, ~unstable]
+    n = terms.shape[1]
+    if n == 0:
+        return np.full(len(terms), np.nan)
+    means = np.add.reduce(terms, axis=1) / n
+    if not np.isfinite(means).all():  # a finite mean: every value was finite
+        means = np.add.reduce(np.nan_to_num(terms), axis=1) / n
+    return means
+
+
+def _clean_reward(reward: np.ndarray, unstable: np.ndarray | None) -> np.ndarray:
+    """(n,) float32 rewards: 0 where the env blew up (unstable: (n,) bool or None), non-finite values as
+    torch.nan_to_num makes them."""
+    if unstable is not None:
+        reward = np.where(unstable, 0.0, np.nan_to_num(reward))
+    elif not math.isfinite(np.add.reduce(reward)):
+        reward = np.nan_to_num(reward)
+    return reward.astype(np.float32)
