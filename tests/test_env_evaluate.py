@@ -97,7 +97,7 @@ def direct_episode(dataset, object_id: str, config: BaselineConfig) -> tuple[lis
         env = GraspEnv(sim, hand, asset, targets, config.env)
         torch.manual_seed(config.seed)
         env.reset_all()
-        expert = ScriptedExpert(env.obs_layout, env.act_layout)
+        expert = ScriptedExpert(env.obs_layout, env.act_layout, hand=hand)  # as evaluate.scripted_expert
         obs, _ = env.observe()
         reasons, peers, steps = [None] * config.envs, [False] * config.envs, [0] * config.envs
         for t in range(1, config.env.episode_length + 1):

@@ -135,7 +135,9 @@ def test_scripted_expert_with_a_hand_closes_to_the_stage1_squeeze() -> None:
     try:
         env.reset_all()
         obs, _ = env.observe()
-        expert = ScriptedExpert(env.obs_layout, env.act_layout, close_steps=1, hand=env.hand, squeeze_force=5.0)
+        expert = ScriptedExpert(
+            env.obs_layout, env.act_layout, close_steps=1, approach_steps=0, hand=env.hand, squeeze_force=5.0
+        )
         expert.act(obs)
         action = expert.act(obs)  # t = 1 = close_steps: the targets have reached their end
         goal = env.obs_layout.unpack(obs.to(torch.float64), "q") + env.obs_layout.unpack(

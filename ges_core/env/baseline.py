@@ -1,11 +1,32 @@
-"""Scripted baseline expert: close toward the goal joint angles, then lift.
+"""Scripted baseline expert: approach the grasp, close, carry the object up, as Stage 1 validation does.
 
-It reads only the documented observation: goal joints are ``q + goal_q``; while closing the wrist is
-servoed toward the grasp's wrist position (``goal_pos``); then the wrist moves the object (``obj_pos``)
-toward the point ``lift`` above where the object was when the episode began. Servoing on the object,
-not the wrist, matters for the peers' protocol (object within 5 cm of the point 0.2 m up): in PyBullet
-the squeezed test box slid ~9 cm up within the hand and was dragged 6-7 cm sideways during the close, so a
-fixed 0.23 m wrist rise carried it to 0.32 m, 7 cm off the target point.
+Phases per env, counted in control steps from the episode's start (the pre-grasp, where stage one ends):
+
+1. **approach** (``approach_steps``): the wrist target moves from the start pose toward the grasp pose
+   (linear position, slerp rotation) in equal steps, fingers at the start joints. A step in which the
+   wrist link touches the object (the ``contact`` block's last entry) does not advance: the palm is
+   not driven into the object (a test grasp with the palm 7 mm inside a box pressed it into the table
+   with 100 N, and the box shot out of the PyBullet hand when the fingers closed);
+2. **close** (``close_steps``): the finger targets ramp from the start joints to the closing targets
+   (Stage 1 validation's squeeze with ``hand``, else the overshoot rule); the wrist target stays;
+3. **pause** (``pause_steps``): everything held while the grip builds;
+4. **carry**: the wrist target rises straight up (world +z, ``max_wrist_step`` per step) while the
+   object (``obj_pos``) is below the point ``lift`` above where it began, at most ``lift + carry_margin``
+   above the grasp; it never descends. Orientation stays the grasp's. Sideways the wrist target moves
+   ``carry_gain`` per step of how far the lifted object has drifted past :data:`DRIFT_TOLERANCE` from
+   its start (at most ``max_wrist_step``), so the object ends within the peers' 5 cm.
+
+It reads only the documented observation: the grasp pose is ``wrist_pose`` + ``goal_pos`` / ``goal_rot``
+and the goal joints ``q + goal_q`` at the episode's first step.
+
+**Wrist targets are steered open loop.** The environment integrates the wrist target from the measured
+pose at reset (``docs/env.md``), so the expert keeps its own copy of that target (the same integration of
+its own clamped actions) and sends the difference between the target it wants and that copy. The first
+version servoed the *measured* wrist on the grasp position and the object on its aim at full gain: the
+PD lag (4-8 mm) was integrated into the target, which ran past the grasp and swung the wrist 5-7 mm
+about it while the fingers closed, and the object servo rocked the carried object +-1-2 cm sideways; the
+Shadow hand's weak fingers (Kp about 1 N m/rad) lost their grip (1 of 8 Shadow grasps that Stage 1
+validation holds were held in SAPIEN; ``docs/env_baseline.md``).
 """
 
 from __future__ import annotations
@@ -13,15 +34,25 @@ from __future__ import annotations
 import torch
 
 from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
+from ges_core.env.rotations import quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 from ges_core.hand import HandModel
 from ges_core.policy import Expert
 from ges_core.synthesis.squeeze import squeeze_targets
 
 __all__ = ["ScriptedExpert"]
 
+DRIFT_TOLERANCE = 0.025
+"""m: sideways drift of the carried object left alone: half the peers' 5 cm. Correcting every drift
+(the 1-2 cm a Shadow grasp shifts the object while closing) moved the hand sideways against its grip
+(4 more of 59 Shadow grasps dropped in SAPIEN, docs/env_baseline.md)."""
+LIFTED = 0.03
+"""m above its start from which the object counts as off the table (the success tracker's 'lifted' bar)."""
+DRIFT_SMOOTHING = 0.1
+"""Per-step weight of the newest offset in the averaged drift: a time constant of 10 control steps."""
+
 
 class ScriptedExpert(Expert):
-    """Close over ``close_steps`` control steps (joint targets ramp to ``overshoot`` past the goal), then lift."""
+    """Approach, close (targets past the goal joints), pause, then carry the object up (module docs)."""
 
     name = "scripted"
 
@@ -34,11 +65,37 @@ class ScriptedExpert(Expert):
         lift: float = 0.225,
         hand: HandModel | None = None,
         squeeze_force: float = 5.0,
+        approach_steps: int = 15,
+        pause_steps: int = 5,
+        carry_margin: float = 0.05,
+        carry_gain: float = 0.2,
     ) -> None:
-        """lift: metres above its start the object is carried to: the 0.2 m bar + 2.5 cm for slip in the hand
+        """close_steps: control steps of the finger ramp; 30 = Stage 1 validation's 60 physics steps at the
+        env's 2 physics steps per control step.
+
+        approach_steps: control steps from the start pose to the grasp pose before the fingers move; 15 =
+        validation's 30 physics steps (2 cm at 1.3 mm per step). At the full 5 mm per step a Shadow thumb
+        hit a plate with 14.5 N and the plate slid 6 mm and tilted 8 degrees before the fingers closed
+        (procedural/plate/000, SAPIEN). 0: the fingers close from the first step while the wrist goes
+        straight to the grasp.
+
+        pause_steps: control steps between the end of the close and the carry. Lifting on the step the
+        fingers reached their targets lost two-finger Allegro grasps in PyBullet (the grip was still
+        building); 5 held them (benchmarks/scripted_baseline.py grasps, docs/env_baseline.md).
+
+        lift: metres above its start the object is carried to: the 0.2 m bar + 2.5 cm for slip in the hand
         (1 cm let a slipping box dip to 0.195 m in PyBullet), still within the peers' 5 cm.
 
-        overshoot: fraction of (goal - pre-grasp) added past the goal so the fingers press on the object
+        carry_margin: how far past ``lift`` above the grasp the wrist target may rise to bring a slipping
+        object up, m (a dropped object does not send the hand away).
+
+        carry_gain: share of the lifted object's sideways drift (past :data:`DRIFT_TOLERANCE`) that the wrist
+        target takes back per carry step. Without it a squeezed test box dragged 8-9 cm sideways in a
+        PyBullet Allegro hand stayed out of the peers' 5 cm; gain 1 on every drift (the first version)
+        rocked the carried object and dropped Shadow grasps. 0.2: a time constant of 5 control steps, well
+        above the wrist's PD lag of 1-2 steps.
+
+        overshoot: fraction of (goal - start) added past the goal so the fingers press on the object
         (PD targets exactly at a contact pose give no grip force). Used without ``hand``.
 
         hand: the env's hand; given, the closing targets are Stage 1 validation's squeeze instead
@@ -46,25 +103,14 @@ class ScriptedExpert(Expert):
         toward what it opposes). The overshoot rule pushed the Shadow thumb across its contact (0 of 21
         objects lifted, benchmarks/scripted_baseline.py)."""
         self.obs_layout, self.act_layout = obs_layout, act_layout
-        self.hand, self.squeeze_force = hand, squeeze_force
-        self.close_q: torch.Tensor | None = None
-        self.close_steps, self.overshoot, self.lift = close_steps, overshoot, lift
+        self.hand, self.squeeze_force, self.overshoot = hand, squeeze_force, overshoot
+        self.approach_steps, self.close_steps, self.pause_steps = approach_steps, close_steps, pause_steps
+        self.lift, self.carry_margin, self.carry_gain = lift, carry_margin, carry_gain
         self.t: torch.Tensor | None = None
-        self.start_q: torch.Tensor | None = None
-        self.start_obj: torch.Tensor | None = None
-
-    def _closing_targets(self, goal: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
-        """(n, K) where the finger targets end: past the goal joints (overshoot rule, or the squeeze with a hand)."""
-        if self.hand is None:
-            return self.start_q + (1.0 + self.overshoot) * (goal - self.start_q)
-        if self.close_q is None or self.close_q.shape != goal.shape:
-            self.close_q, fresh = goal.clone(), torch.ones_like(fresh)
-        for i in fresh.nonzero().flatten().tolist():
-            press = squeeze_targets(
-                self.hand, goal[i].numpy(), force=self.squeeze_force, min_squeeze=0.05, max_squeeze=0.6
-            )
-            self.close_q[i] = torch.as_tensor(press)
-        return self.close_q
+        self.plan: dict[str, torch.Tensor] = {}
+        """Per env, set at its episode's first step (float64): start_q, close_q (n, K); start_obj, start_pos,
+        grasp_pos, target_pos (n, 3) m; start_rot, grasp_rot, target_rot (n, 4) wxyz; progress (n,) of the
+        approach in [0, 1]. target_* mirror the env's integrated wrist target (world frame)."""
 
     def reset(self, env_ids: torch.Tensor | None = None) -> None:
         """Restart the script in ``env_ids`` (all if None)."""
@@ -74,24 +120,116 @@ class ScriptedExpert(Expert):
     def act(self, obs: torch.Tensor) -> torch.Tensor:
         """(n, K + 6) actions in [-1, 1] for observations (n, obs size)."""
         obs = obs.to(torch.float64)
-        q = self.obs_layout.unpack(obs, "q")
-        obj = self.obs_layout.unpack(obs, "obj_pos")
-        if self.t is None:
-            self.t, self.start_q, self.start_obj = torch.zeros(obs.shape[0], dtype=torch.long), q.clone(), obj.clone()
+        if self.t is None or self.t.shape[0] != obs.shape[0]:
+            self.t = torch.zeros(obs.shape[0], dtype=torch.long)
         fresh = self.t == 0
-        self.start_q = torch.where(fresh[:, None], q, self.start_q)
-        self.start_obj = torch.where(fresh[:, None], obj, self.start_obj)
-        goal = q + self.obs_layout.unpack(obs, "goal_q")
-        close = self._closing_targets(goal, fresh)
-        frac = (self.t.to(torch.float64) / self.close_steps).clamp(max=1.0)[:, None]
-        target = self.start_q + frac * (close - self.start_q)
-        wrist = (self.obs_layout.unpack(obs, "goal_pos") / self.act_layout.max_wrist_step).clamp(-1.0, 1.0)
-        lifting = self.t >= self.close_steps
-        aim = self.start_obj + torch.tensor([0.0, 0.0, self.lift], dtype=obj.dtype)
-        carry = ((aim - obj) / self.act_layout.max_wrist_step).clamp(-1.0, 1.0)
-        wrist = torch.where(lifting[:, None], carry, wrist)
+        if fresh.any():
+            self._begin(obs, fresh)
+        self._advance(self.obs_layout.unpack(obs, "contact")[:, -1] > 0.5)
+        pos, rot = self._wrist_goal(self.obs_layout.unpack(obs, "obj_pos"))
         action = torch.zeros(obs.shape[0], self.act_layout.size, dtype=torch.float64)
-        action[:, :3] = wrist
-        action[:, WRIST_DOF:] = self.act_layout.normalize_joints(target)
+        action[:, :WRIST_DOF] = self._wrist_action(pos, rot)
+        action[:, WRIST_DOF:] = self.act_layout.normalize_joints(self._finger_targets())
+        self._follow(action)
         self.t += 1
         return action.to(torch.float32)
+
+    # -- the plan of an episode ---------------------------------------------------------------------
+    def _begin(self, obs: torch.Tensor, fresh: torch.Tensor) -> None:
+        """Latch each fresh env's start (joints, object, wrist) and grasp (pose, closing targets)."""
+        unpack = self.obs_layout.unpack
+        q, wrist = unpack(obs, "q"), unpack(obs, "wrist_pose")
+        goal_q = q + unpack(obs, "goal_q")
+        rot = rotvec_to_quat(wrist[:, 3:])
+        new = {
+            "start_q": q,
+            "close_q": self._closing_targets(q, goal_q, fresh),
+            "start_obj": unpack(obs, "obj_pos"),
+            "start_pos": wrist[:, :3],
+            "start_rot": rot,
+            "target_pos": wrist[:, :3],
+            "target_rot": rot,
+            "grasp_pos": wrist[:, :3] + unpack(obs, "goal_pos"),
+            "grasp_rot": quat_mul(rotvec_to_quat(unpack(obs, "goal_rot")), rot),
+            "progress": torch.full((q.shape[0],), 0.0 if self.approach_steps else 1.0, dtype=torch.float64),
+            "drift": torch.zeros(q.shape[0], 2, dtype=torch.float64),
+        }
+        for key, value in new.items():
+            old = self.plan.get(key)
+            self.plan[key] = value.clone() if old is None or old.shape != value.shape else old
+            self.plan[key][fresh] = value[fresh]
+
+    def _closing_targets(self, q: torch.Tensor, goal: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
+        """(n, K) where the finger targets end, past the goal joints (only the rows of ``fresh`` envs matter)."""
+        if self.hand is None:
+            return q + (1.0 + self.overshoot) * (goal - q)
+        close = goal.clone()
+        for i in fresh.nonzero().flatten().tolist():
+            press = squeeze_targets(
+                self.hand, goal[i].numpy(), force=self.squeeze_force, min_squeeze=0.05, max_squeeze=0.6
+            )
+            close[i] = torch.as_tensor(press)
+        return close
+
+    # -- per step -----------------------------------------------------------------------------------
+    def _advance(self, palm: torch.Tensor) -> None:
+        """One approach step for envs still approaching whose wrist link does not touch the object (palm (n,))."""
+        step = 1.0 / max(self.approach_steps, 1)
+        moving = (self.t < self.approach_steps) & ~palm
+        progress = self.plan["progress"]
+        self.plan["progress"] = torch.where(moving, (progress + step).clamp(max=1.0), progress)
+
+    def _finger_targets(self) -> torch.Tensor:
+        """(n, K) joint targets: the start joints, ramping to ``close_q`` over the close phase."""
+        p = self.plan
+        frac = ((self.t - self.approach_steps).to(torch.float64) / self.close_steps).clamp(0.0, 1.0)[:, None]
+        return p["start_q"] + frac * (p["close_q"] - p["start_q"])
+
+    def _wrist_goal(self, obj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """Where the wrist target should be after this step: (n, 3) position m, (n, 4) wxyz, world."""
+        p = self.plan
+        s = p["progress"][:, None]
+        turn = quat_to_rotvec(quat_mul(p["grasp_rot"], quat_conj(p["start_rot"])))
+        rot = quat_mul(rotvec_to_quat(s * turn), p["start_rot"])
+        pos = p["start_pos"] + s * (p["grasp_pos"] - p["start_pos"])
+        carrying = (self.t >= self.approach_steps + self.close_steps + self.pause_steps)[:, None]
+        return torch.where(carrying, self._carry(obj, pos), pos), rot
+
+    def _carry(self, obj: torch.Tensor, held: torch.Tensor) -> torch.Tensor:
+        """(n, 3) carry position from the held grasp position ``held`` (n, 3) and the object ``obj`` (n, 3)."""
+        p, step = self.plan, self.act_layout.max_wrist_step
+        pos = p["target_pos"].clone()
+        pos[:, :2] += (self.carry_gain * self._drift(obj)).clamp(-step, step)
+        below = (p["start_obj"][:, 2] + self.lift - obj[:, 2]).clamp(0.0, step)
+        top = held[:, 2] + self.lift + self.carry_margin
+        pos[:, 2] = torch.minimum(torch.maximum(pos[:, 2] + below, held[:, 2]), top)
+        return pos
+
+    def _drift(self, obj: torch.Tensor) -> torch.Tensor:
+        """(n, 2) how far the lifted object's smoothed sideways offset from its start goes past
+        :data:`DRIFT_TOLERANCE`, pointing back to the start, m.
+
+        The offset is averaged over the steps the object is more than :data:`LIFTED` above its start
+        (exponential, :data:`DRIFT_SMOOTHING` per step): on the table the hand would drag the object, and a
+        pinched plate swinging +-5 cm under the fingers (procedural/plate/004, Shadow) was rocked out of the
+        hand by a wrist chasing each swing."""
+        p = self.plan
+        offset = p["start_obj"][:, :2] - obj[:, :2]
+        lifted = (obj[:, 2] - p["start_obj"][:, 2] > LIFTED)[:, None]
+        p["drift"] = torch.where(lifted, p["drift"] + DRIFT_SMOOTHING * (offset - p["drift"]), p["drift"])
+        size = p["drift"].norm(dim=1, keepdim=True)
+        return p["drift"] * (1.0 - DRIFT_TOLERANCE / size.clamp(min=1e-9)).clamp(min=0.0)
+
+    def _wrist_action(self, pos: torch.Tensor, rot: torch.Tensor) -> torch.Tensor:
+        """(n, 6) normalized wrist action moving the mirrored target toward ``pos``, ``rot`` (clamped)."""
+        p, a = self.plan, self.act_layout
+        move = (pos - p["target_pos"]) / a.max_wrist_step
+        turn = quat_to_rotvec(quat_mul(rot, quat_conj(p["target_rot"]))) / a.max_wrist_turn
+        return torch.cat([move, turn], dim=1).clamp(-1.0, 1.0)
+
+    def _follow(self, action: torch.Tensor) -> None:
+        """Integrate the wrist target as the env does (``GraspEnv.apply_action``)."""
+        p = self.plan
+        dp, dr = self.act_layout.wrist_deltas(action)
+        p["target_pos"] = p["target_pos"] + dp.to(torch.float64)
+        p["target_rot"] = quat_mul(rotvec_to_quat(dr.to(torch.float64)), p["target_rot"])

@@ -77,9 +77,13 @@ REASONS: tuple[str, ...] = tuple(r.name.lower() for r in EndReason if r is not E
 class ScriptedSettings(ConfigModel):
     """Overrides of :class:`~ges_core.env.baseline.ScriptedExpert`'s parameters; None keeps the expert's default."""
 
+    approach_steps: int | None = Field(None, ge=0, description="control steps moving the wrist to the grasp first")
     close_steps: int | None = Field(None, ge=1, description="control steps ramping the fingers to the goal")
+    pause_steps: int | None = Field(None, ge=0, description="control steps held between closing and lifting")
     overshoot: float | None = Field(None, ge=0, description="fraction of (goal - start) pushed past the goal joints")
     lift: float | None = Field(None, gt=0, description="metres to lift (see ScriptedExpert)")
+    carry_margin: float | None = Field(None, ge=0, description="m the wrist may rise past lift for a slipping object")
+    carry_gain: float | None = Field(None, ge=0, le=1, description="share of the object's sideways drift corrected")
     squeeze_force: float | None = Field(None, ge=0, description="N each fingertip is driven to press with")
 
     def kwargs(self) -> dict:
