@@ -1,5 +1,6 @@
-"""The PyBullet backend against independent references: pytorch-kinematics FK, PyBullet's own joint
-and body API, trimesh volumes, gravity and the physics of a resting box and a squeezed one."""
+"""The PyBullet backend against independent references: PyBullet's own joint and body API, trimesh
+volumes, gravity and the physics of a resting box and a squeezed one. What every backend must do
+(FK against pytorch-kinematics, rest heights, wrist driving, reset) is in test_sim_contract.py."""
 
 from __future__ import annotations
 
@@ -18,7 +19,7 @@ from ges_core.sim import SceneConfig
 from ges_core.transforms import quat_to_matrix
 from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat
 from plugins.sims.pybullet import shapes
-from plugins.sims.pybullet.backend import MAX_JOINT_SPEED, REST_MARGIN, PybulletBackend
+from plugins.sims.pybullet.backend import MAX_JOINT_SPEED, PybulletBackend
 from plugins.sims.pybullet.bench import GRASP_BASE_POSE, grasp_scene
 from plugins.sims.pybullet.drive import ImplicitPD, product_friction
 from plugins.sims.pybullet.hand_urdf import principal_moments, pybullet_hand_urdf, sanitize_inertias
@@ -152,44 +153,7 @@ def test_missing_mesh_names_the_hand(hand, tmp_path):
         make_sim(TestHand(hand.description, urdf))
 
 
-# -- kinematics against pytorch-kinematics --------------------------------------------------------
-@pytest.mark.parametrize("floating", [True, False])
-def test_link_poses_match_pytorch_kinematics(hand, floating):
-    import pytorch_kinematics as pk
-    import torch
-
-    chain = pk.build_chain_from_urdf(hand.urdf_path().read_bytes()).to(dtype=torch.float64)
-    links = [n for n in chain.get_frame_names() if n != chain._root.name]
-    rng = np.random.default_rng(11)
-    lim = hand.description.limits_array
-    qs = rng.uniform(lim[:, 0], lim[:, 1], size=(3, len(lim)))
-    order = [hand.description.joint_names.index(n) for n in chain.get_joint_parameter_names()]
-    fk = chain.forward_kinematics(torch.as_tensor(qs[:, order]))
-    sim = make_sim(hand, floating=floating)
-    for i, q in enumerate(qs):
-        wrist = np.r_[rng.uniform(-0.3, 0.3, 3), euler_xyz_to_quat(rng.uniform(-2.5, 2.5, 3))]
-        sim.set_hand_state(q[None], wrist[None])
-        got = sim.link_poses(links)[0]
-        np.testing.assert_allclose(sim.wrist_pose()[0, :3], wrist[:3], atol=1e-6)
-        assert abs(float(np.dot(sim.wrist_pose()[0, 3:], wrist[3:]))) > 1 - 1e-6  # PyBullet's link frames are float32
-        rot = quat_to_matrix(wrist[3:])
-        for j, name in enumerate(links):
-            expected = fk[name].get_matrix()[i].numpy()
-            np.testing.assert_allclose(got[j, :3], wrist[:3] + rot @ expected[:3, 3], atol=1e-3, err_msg=name)
-            np.testing.assert_allclose(quat_to_matrix(got[j, 3:]), rot @ expected[:3, :3], atol=2e-3, err_msg=name)
-
-
-def test_wrist_targets_move_the_base(hand):
-    sim = make_sim(hand)
-    sim.set_hand_state(open_q(hand), UP[None])
-    goal = np.r_[0.1, -0.05, 0.4, euler_xyz_to_quat(np.array([0.3, -0.4, 2.9]))]
-    sim.set_wrist_targets(goal[None])
-    sim.step(240)
-    got = sim.wrist_pose()[0]
-    np.testing.assert_allclose(got[:3], goal[:3], atol=1e-3)
-    assert abs(float(np.dot(got[3:], goal[3:]))) > 0.9999
-
-
+# -- links --------------------------------------------------------------------------------------------
 def test_unknown_link_suggests_a_name(hand):
     sim = make_sim(hand)
     with pytest.raises(UnknownNameError, match=r"unknown hand link 'link_3.0_top'. Did you mean 'link_3.0_tip'"):
@@ -261,40 +225,6 @@ def test_floating_wrist_holds_the_hand_without_gravity_and_sags_with_it(hand):
 
 
 # -- objects on the table -----------------------------------------------------------------------
-def test_dropped_box_rests_at_half_height():
-    sim = make_sim()
-    sim.load_object(box_asset((0.04, 0.03, 0.02)), pose=np.array([0.1, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0]))
-    sim.step(180)
-    pose = sim.object_pose()[0]
-    assert abs(pose[2] - 0.02) < 2e-3
-    np.testing.assert_allclose(pose[:2], [0.1, 0.0], atol=2e-3)
-    np.testing.assert_allclose(np.abs(pose[3]), 1.0, atol=1e-4)
-
-
-def test_default_pose_rests_the_object_on_the_table():
-    sim = make_sim()
-    sim.load_object(box_asset((0.03, 0.03, 0.05)))
-    np.testing.assert_allclose(sim.object_pose()[0], [0, 0, 0.05 + REST_MARGIN, 1, 0, 0, 0], atol=1e-9)
-    sim.step(60)
-    assert abs(sim.object_pose()[0, 2] - 0.05) < 1e-3
-
-
-@pytest.mark.parametrize(
-    ("shape", "rest_z"),
-    [
-        (PrimitiveShape(kind="sphere", size=(0.03,)), 0.03),
-        (PrimitiveShape(kind="capsule", size=(0.02, 0.05)), 0.02),  # axis along local x: it lies down
-        (PrimitiveShape(kind="cylinder", size=(0.02, 0.05)), 0.02),  # standing on an end would be 0.05
-        (PrimitiveShape(kind="box", size=(0.02, 0.02, 0.02), pose=(0, 0, 0.03, 1, 0, 0, 0)), -0.01),
-    ],
-)
-def test_primitives_fall_to_their_physical_rest_height(shape, rest_z):
-    sim = make_sim()
-    sim.load_object(single_shape(shape), pose=np.array([0.0, 0.0, 0.3, 1.0, 0.0, 0.0, 0.0]))
-    sim.step(150)
-    assert abs(sim.object_pose()[0, 2] - rest_z) < 2e-3
-
-
 def test_capsule_axis_is_local_x():
     sim = make_sim()
     sim.load_object(single_shape(PrimitiveShape(kind="capsule", size=(0.02, 0.05))), pose=UP)
@@ -554,17 +484,6 @@ def test_reset_opens_the_hand_at_the_last_base_pose(hand, floating):
     sim.step(30)  # joint and wrist targets were reset too: nothing moves
     np.testing.assert_allclose(sim.joint_state()[0], open_q(hand, 2), atol=1e-4)
     np.testing.assert_allclose(sim.wrist_pose(), bases, atol=1e-5)
-
-
-def test_reset_without_a_base_pose_returns_to_the_origin(hand):
-    sim = make_sim(hand)
-    sim.set_wrist_targets(UP[None])
-    sim.set_joint_targets(open_q(hand) + 0.2)
-    sim.step(30)
-    assert sim.wrist_pose()[0, 2] > 0.1
-    sim.reset()
-    np.testing.assert_allclose(sim.wrist_pose()[0], [0, 0, 0, 1, 0, 0, 0], atol=1e-12)
-    np.testing.assert_array_equal(sim.joint_state()[0], open_q(hand))
 
 
 # -- helpers ------------------------------------------------------------------------------------

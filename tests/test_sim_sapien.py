@@ -1,5 +1,6 @@
-"""The SAPIEN backend against independent references: pytorch-kinematics FK, SAPIEN's own joint
-API, gravity, and physical sense of contact forces."""
+"""The SAPIEN backend against independent references: SAPIEN's own joint API, gravity, and physical
+sense of contact forces. What every backend must do (FK against pytorch-kinematics, rest heights,
+wrist driving, reset) is in test_sim_contract.py."""
 
 from __future__ import annotations
 
@@ -17,7 +18,7 @@ from ges_core.sim import SceneConfig
 from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat, neighbour_link_pairs, quat_to_euler_xyz
 from plugins.sims.sapien.backend import SapienBackend, euler_xyz
 from plugins.sims.sapien.bench import allegro_top_down
-from plugins.sims.sapien.loading import PAIR_BITS, REST_MARGIN, pair_exclusion_bits
+from plugins.sims.sapien.loading import PAIR_BITS, pair_exclusion_bits
 
 from helpers_sim import ALLEGRO_TIPS, UP, allegro_test_hand, box_asset, loaded_sim, open_q, run_python
 
@@ -69,99 +70,18 @@ def test_index_maps_are_inverse_permutations(hand):
     assert sim_names != list(hand.description.joint_names)  # SAPIEN's order differs: the map matters
 
 
-# -- kinematics against pytorch-kinematics --------------------------------------------------------
-def _matrix(quat: np.ndarray) -> np.ndarray:
-    w, x, y, z = quat / np.linalg.norm(quat)
-    return np.array(
-        [
-            [1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
-            [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
-            [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)],
-        ]
-    )
-
-
-@pytest.mark.parametrize("floating", [True, False])
-def test_link_poses_match_pytorch_kinematics(hand, floating):
-    pk = pytest.importorskip("pytorch_kinematics")
-    torch = pytest.importorskip("torch")
-    chain = pk.build_chain_from_urdf(hand.urdf_path().read_bytes()).to(dtype=torch.float64)
-    links = [n for n in chain.get_frame_names() if n != chain._root.name]
-    rng = np.random.default_rng(7)
-    lim = hand.description.limits_array
-    qs = rng.uniform(lim[:, 0], lim[:, 1], size=(3, len(lim)))
-    order = [hand.description.joint_names.index(n) for n in chain.get_joint_parameter_names()]
-    fk = chain.forward_kinematics(torch.as_tensor(qs[:, order]))
-    sim = make_sim(hand, floating=floating)
-    for i, q in enumerate(qs):
-        wrist = np.r_[rng.uniform(-0.3, 0.3, 3), euler_xyz_to_quat(rng.uniform(-2.5, 2.5, 3))]
-        sim.set_hand_state(q[None], wrist[None])
-        got = sim.link_poses(links)[0]
-        np.testing.assert_allclose(sim.wrist_pose()[0, :3], wrist[:3], atol=1e-5)
-        rot = _matrix(wrist[3:])
-        for j, name in enumerate(links):
-            expected = fk[name].get_matrix()[i].numpy()
-            np.testing.assert_allclose(got[j, :3], wrist[:3] + rot @ expected[:3, 3], atol=1e-3, err_msg=name)
-            np.testing.assert_allclose(_matrix(got[j, 3:]), rot @ expected[:3, :3], atol=2e-3, err_msg=name)
-
-
 def test_scalar_euler_matches_core_conversion():
     quats = np.random.default_rng(3).normal(size=(200, 4))
     expected = quat_to_euler_xyz(quats)
     np.testing.assert_allclose([euler_xyz(*q) for q in quats], expected, atol=1e-12)
 
 
-def test_wrist_targets_move_the_base(hand):
-    sim = make_sim(hand)
-    sim.set_hand_state(open_q(hand), UP[None])
-    goal = np.r_[0.1, -0.05, 0.4, euler_xyz_to_quat(np.array([0.3, -0.4, 2.9]))]
-    sim.set_wrist_targets(goal[None])
-    sim.step(240)
-    got = sim.wrist_pose()[0]
-    np.testing.assert_allclose(got[:3], goal[:3], atol=2e-3)
-    assert abs(float(np.dot(got[3:], goal[3:]))) > 0.9999
-
-
 # -- objects on the table -----------------------------------------------------------------------
-def test_dropped_box_rests_at_half_height():
-    sim = make_sim()
-    sim.load_object(box_asset((0.04, 0.03, 0.02)), pose=np.array([0.1, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0]))
-    sim.step(180)
-    pose = sim.object_pose()[0]
-    assert abs(pose[2] - 0.02) < 2e-3
-    np.testing.assert_allclose(pose[:2], [0.1, 0.0], atol=2e-3)
-
-
-def test_default_pose_rests_the_object_on_the_table():
-    sim = make_sim()
-    sim.load_object(box_asset((0.03, 0.03, 0.05)))
-    np.testing.assert_allclose(sim.object_pose()[0], [0, 0, 0.05 + REST_MARGIN, 1, 0, 0, 0], atol=1e-6)
-    sim.step(60)
-    assert abs(sim.object_pose()[0, 2] - 0.05) < 1e-3
-
-
 def test_zero_gravity_keeps_the_object_floating():
     sim = make_sim(gravity=0.0)
     sim.load_object(box_asset(), pose=UP)
     sim.step(60)
     np.testing.assert_allclose(sim.object_pose()[0], UP, atol=1e-6)
-
-
-@pytest.mark.parametrize(
-    ("shape", "rest_z"),
-    [
-        (PrimitiveShape(kind="sphere", size=(0.03,)), 0.03),
-        (PrimitiveShape(kind="capsule", size=(0.02, 0.05)), 0.02),  # axis along local x: lies down
-        (PrimitiveShape(kind="cylinder", size=(0.02, 0.05)), 0.02),
-        (PrimitiveShape(kind="box", size=(0.02, 0.02, 0.02), pose=(0, 0, 0.03, 1, 0, 0, 0)), -0.01),
-    ],
-)
-def test_primitives_fall_to_their_physical_rest_height(shape, rest_z):
-    sim = make_sim()
-    obj = ObjectAsset(object_id="t/p", category="p", mesh_path=box_asset().mesh_path, collision=(shape,))
-    sim.load_object(obj, pose=np.array([0.0, 0.0, 0.3, 1.0, 0.0, 0.0, 0.0]))
-    sim.step(150)
-    assert abs(sim.object_pose()[0, 2] - rest_z) < 2e-3
 
 
 def test_convex_part_loads_from_file(tmp_path):
@@ -369,17 +289,6 @@ def test_reset_opens_the_hand_at_the_last_base_pose(hand, floating):
     sim.step(30)  # joint and wrist targets were reset too: nothing moves
     np.testing.assert_allclose(sim.joint_state()[0], open_q(hand, 2), atol=1e-4)
     np.testing.assert_allclose(sim.wrist_pose(), bases, atol=1e-5)
-
-
-def test_reset_without_a_base_pose_returns_to_the_origin(hand):
-    sim = make_sim(hand)
-    sim.set_wrist_targets(UP[None])
-    sim.set_joint_targets(open_q(hand) + 0.2)
-    sim.step(30)
-    assert sim.wrist_pose()[0, 2] > 0.1
-    sim.reset()
-    np.testing.assert_allclose(sim.wrist_pose()[0], [0, 0, 0, 1, 0, 0, 0], atol=1e-6)
-    np.testing.assert_allclose(sim.joint_state()[0], open_q(hand), atol=1e-6)
 
 
 def test_huge_targets_raise_exploding_in_the_right_env(hand):
