@@ -15,12 +15,18 @@ if [ -f "$stamp" ] && [ "$(cat "$stamp")" = "$want" ]; then
   echo "setup: .venv is up to date"
   exit 0
 fi
-pip() { .venv/bin/python -m pip --disable-pip-version-check -q "$@" 2>&1 | grep -v "^WARNING: Location" || true; }
+# pip's own exit status decides (a failed install stops setup); only its "WARNING: Location" noise is dropped.
+pip() {
+  local status=0
+  .venv/bin/python -m pip --disable-pip-version-check -q "$@" > .venv/.pip-log 2>&1 || status=$?
+  grep -v "^WARNING: Location" .venv/.pip-log || true
+  return "$status"
+}
 echo "setup: installing torch==$TORCH_VERSION (CPU) and the project; this takes about a minute"
 pip install --upgrade pip setuptools wheel
 pip install "torch==$TORCH_VERSION"
 pip install -e ".[test]"
-.venv/bin/python -c "import torch, sapien, pybullet, pytorch_kinematics, ges_core" \
+.venv/bin/python -c "import torch, sapien, pybullet, pytorch_kinematics, rsl_rl, tensordict, gymnasium, ges_core" \
   || { echo "setup: import check failed; see the pip output above" >&2; exit 1; }
 echo "$want" > "$stamp"
 echo "setup: done"
