@@ -28,10 +28,12 @@ def grasp_targets(hand: HandModel, n: int) -> GraspTargets:
     return GraspTargets(*(np.tile(r, (n, 1)) for r in rows))
 
 
-def build_grasp_env(sim_name: str, n: int, **cfg) -> GraspEnv:
-    """A GraspEnv of ``n`` envs on the real backend ``sim_name`` with ``EnvConfig(**cfg)``."""
+def build_grasp_env(sim_name: str, n: int, *, sim_wrapper=None, **cfg) -> GraspEnv:
+    """A GraspEnv of ``n`` envs on the real backend ``sim_name`` (wrapped by ``sim_wrapper(sim)`` if given)
+    with ``EnvConfig(**cfg)``."""
     reg = load_registry()
     hand = reg.build_hand("allegro")
     sim = reg.build_sim(sim_name, SceneConfig(num_envs=n))
+    sim = sim_wrapper(sim) if sim_wrapper else sim
     box = box_asset((0.025, 0.035, 0.05), density=300.0, object_id="test/box")
     return GraspEnv(sim, hand, box, grasp_targets(hand, n), EnvConfig(**cfg))

@@ -5,41 +5,24 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from helpers_env import build_grasp_env
+from helpers_env import build_grasp_env, grasp_targets
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from ges_core.env.baseline import ScriptedExpert
-from ges_core.env.grasp_env import EnvConfig, GraspEnv, GraspTargets
+from ges_core.env.grasp_env import GraspEnv, GraspTargets
 from ges_core.env.success import EndReason
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import ConfigError, SimulationError
-from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
-from ges_core.sim import SceneConfig
-from ges_core.sim_check import grasp_start_pose
 from ges_core.synthesis.squeeze import squeeze_targets
 
 pytestmark = pytest.mark.sim
 N = 2
 
 
-def _grasps(hand, n: int = N) -> GraspTargets:
-    d = hand.description
-    pose = grasp_start_pose(hand, np.array([0.0, 0.0, 0.05]), 0.7, object_top=0.1)
-    pre = pose.copy()
-    pre[2] += 0.02  # the paper's pre-grasp: 2 cm back along the approach (palm-down: up)
-    rows = [pose, d.closed_pose(0.7), pre, np.asarray(d.open_pose)]
-    return GraspTargets(*(np.tile(r, (n, 1)) for r in rows))
-
-
 def _venv(sim_name: str, sim_wrapper=None, reach_steps: int = 20) -> GraspVecEnv:
-    reg = load_registry()
-    hand = reg.build_hand("allegro")
-    sim = reg.build_sim(sim_name, SceneConfig(num_envs=N))
-    sim = sim_wrapper(sim) if sim_wrapper else sim
-    box = box_asset((0.025, 0.035, 0.05), density=300.0, object_id="test/box")
-    return GraspVecEnv(GraspEnv(sim, hand, box, _grasps(hand), EnvConfig(reach_steps=reach_steps)), seed=0)
+    return GraspVecEnv(build_grasp_env(sim_name, N, sim_wrapper=sim_wrapper, reach_steps=reach_steps), seed=0)
 
 
 @pytest.mark.parametrize("sim_name", ["sapien", "pybullet"])
@@ -123,7 +106,7 @@ def test_simulation_error_ends_only_that_env() -> None:
 def test_grasp_targets_are_checked() -> None:
     reg = load_registry()
     hand = reg.build_hand("allegro")
-    g = _grasps(hand)
+    g = grasp_targets(hand, N)
     bad = GraspTargets(g.wrist_pose, g.q[:, :15], g.pre_wrist_pose, g.pre_q)
     with pytest.raises(ConfigError, match=r"GraspTargets: shapes \{'q': \(2, 15\)\} should be"):
         GraspEnv._check_grasps(bad, hand.description.num_joints)
