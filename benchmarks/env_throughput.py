@@ -32,7 +32,6 @@ from __future__ import annotations
 
 import argparse
 import cProfile
-import json
 import os
 import platform
 import pstats
@@ -52,6 +51,8 @@ from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import grasp_start_pose
+
+from _results import code_state, write_results
 
 RESULTS = Path(__file__).resolve().parent / "results" / "env_throughput.json"
 GOAL = 2.0
@@ -100,15 +101,13 @@ def time_raw(venv: GraspVecEnv, steps: int, gen: torch.Generator) -> float:
     """
     restart_episodes(venv)
     env, sim = venv.env, venv.env.sim
-    layout, n_sub = env.act_layout, env.cfg.sim_steps
+    n_sub = env.cfg.sim_steps
     wrist = torch.as_tensor(sim.wrist_pose())
     total = 0.0
     for _ in range(steps):
-        action = torch.rand(venv.num_envs, venv.num_actions, generator=gen, dtype=torch.float64) * 2 - 1
-        dp, dr = layout.wrist_deltas(action)
-        wrist = torch.cat([wrist[:, :3] + dp, quat_mul(rotvec_to_quat(dr), wrist[:, 3:])], dim=1)
+        wrist, joints = _next_targets(venv, wrist, gen)
         sim.set_wrist_targets(wrist.numpy())
-        sim.set_joint_targets(layout.joint_targets(action).numpy())
+        sim.set_joint_targets(joints)
         start = time.perf_counter()
         for _ in range(n_sub):
             sim.engine_step()
@@ -121,14 +120,11 @@ def time_calls(venv: GraspVecEnv, steps: int, gen: torch.Generator) -> float:
     :func:`time_raw` (untimed): wrist and joint targets, the checked ``step(sim_steps)``, the five reads."""
     restart_episodes(venv)
     env, sim = venv.env, venv.env.sim
-    layout = env.act_layout
     wrist = torch.as_tensor(sim.wrist_pose())
     total = 0.0
     for _ in range(steps):
-        action = torch.rand(venv.num_envs, venv.num_actions, generator=gen, dtype=torch.float64) * 2 - 1
-        dp, dr = layout.wrist_deltas(action)
-        wrist = torch.cat([wrist[:, :3] + dp, quat_mul(rotvec_to_quat(dr), wrist[:, 3:])], dim=1)
-        wrist_np, joints = wrist.numpy(), layout.joint_targets(action).numpy()
+        wrist, joints = _next_targets(venv, wrist, gen)
+        wrist_np = wrist.numpy()
         start = time.perf_counter()
         sim.set_wrist_targets(wrist_np)
         sim.set_joint_targets(joints)
@@ -144,6 +140,15 @@ def time_calls(venv: GraspVecEnv, steps: int, gen: torch.Generator) -> float:
             env.reset_envs(ids)
             wrist[ids] = torch.as_tensor(sim.wrist_pose()[blown])
     return total / steps
+
+
+def _next_targets(venv: GraspVecEnv, wrist: torch.Tensor, gen: torch.Generator) -> tuple[torch.Tensor, np.ndarray]:
+    """A random action's targets: wrist (n, 7) integrated as ``GraspEnv.apply_action`` does, joints (n, K)."""
+    layout = venv.env.act_layout
+    action = torch.rand(venv.num_envs, venv.num_actions, generator=gen, dtype=torch.float64) * 2 - 1
+    dp, dr = layout.wrist_deltas(action)
+    wrist = torch.cat([wrist[:, :3] + dp, quat_mul(rotvec_to_quat(dr), wrist[:, 3:])], dim=1)
+    return wrist, layout.joint_targets(action).numpy()
 
 
 def _checked_step(sim, n: int) -> list[int]:
@@ -305,21 +310,7 @@ def _write(args, cfg: EnvConfig, rows: list[dict], profile: dict | None) -> None
         "note": "one process, one thread: figures are per core; the 2-core machine was shared with other jobs "
         "(see loadavg_before/after per row)",
     }  # fmt: skip
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({"meta": meta, "goal_ratio": GOAL, "rows": rows, "profile": profile}, indent=1))
-    print(f"wrote {RESULTS}")
-
-
-def code_state() -> dict:
-    """The commit measured and the files that differed from it (read-only git queries)."""
-    import subprocess
-
-    def git(*args: str) -> str:
-        run = subprocess.run(["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True, text=True)
-        return run.stdout.strip()
-
-    modified = git("status", "--porcelain", "--untracked-files=no").splitlines()
-    return {"commit": git("rev-parse", "HEAD"), "modified": modified}
+    write_results(RESULTS, {"meta": meta, "goal_ratio": GOAL, "rows": rows, "profile": profile})
 
 
 if __name__ == "__main__":

@@ -37,6 +37,8 @@ from ges_core.errors import AssetError
 from ges_core.objects.splits import SPLITS
 from ges_core.synthesis.pipeline import SynthesisConfig, run_synthesis
 
+from _results import code_state, write_results
+
 ROOT = Path(__file__).resolve().parent
 RESULTS = ROOT / "results" / "scripted_baseline.json"
 DEFAULT_RUN = ROOT.parent / "runs" / "scripted_baseline"
@@ -151,22 +153,9 @@ def _write(args, objects, counts, runs, report, stage1_s, wall_s) -> None:
             f"{' '.join(args.hands)} --sims {' '.join(args.sims)} --select {' '.join(args.select)} --envs {args.envs}",
         },
     }  # fmt: skip
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps(data, indent=1) + "\n")
     print(f"\nStage 1 records per hand and split (records / validated / refined / any): {json.dumps(counts)}")
-    print(f"wrote {RESULTS} ({wall_s:.0f} s)")
-
-
-def code_state() -> dict:
-    """The commit measured and the files that differed from it (read-only git queries)."""
-    import subprocess
-
-    def git(*args: str) -> str:
-        run = subprocess.run(["git", *args], cwd=Path(__file__).resolve().parent, capture_output=True, text=True)
-        return run.stdout.strip()
-
-    modified = git("status", "--porcelain", "--untracked-files=no").splitlines()
-    return {"commit": git("rev-parse", "HEAD"), "modified": modified}
+    write_results(RESULTS, data)
+    print(f"({wall_s:.0f} s)")
 
 
 if __name__ == "__main__":
