@@ -4,7 +4,30 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["matrix_to_pose", "matrix_to_quat", "pose_to_matrix", "quat_to_matrix", "rotation_between_frames"]
+__all__ = [
+    "matrix_to_pose",
+    "matrix_to_quat",
+    "pose_to_matrix",
+    "quat_mul",
+    "quat_to_matrix",
+    "rotation_between_frames",
+]
+
+
+def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Hamilton product ``a * b`` of (..., 4) wxyz quaternions (rotation b first, then a)."""
+    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
+    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
+    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
+    return np.stack(
+        [
+            aw * bw - ax * bx - ay * by - az * bz,
+            aw * bx + ax * bw + ay * bz - az * by,
+            aw * by - ax * bz + ay * bw + az * bx,
+            aw * bz + ax * by - ay * bx + az * bw,
+        ],
+        axis=-1,
+    )
 
 
 def quat_to_matrix(quat: np.ndarray) -> np.ndarray:

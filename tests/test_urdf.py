@@ -8,7 +8,7 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from ges_core.errors import AssetError
-from ges_core.transforms import matrix_to_pose, pose_to_matrix
+from ges_core.transforms import matrix_to_pose, pose_to_matrix, quat_mul, quat_to_matrix
 from ges_core.urdf import (
     WRIST_JOINTS,
     add_floating_base,
@@ -37,6 +37,12 @@ def test_pose_matrix_round_trip():
     quat *= np.sign(quat[:, :1])
     pose = np.concatenate([rng.normal(size=(50, 3)), quat], axis=1)
     assert np.allclose(matrix_to_pose(pose_to_matrix(pose)), pose)
+
+
+def test_quat_mul_composes_rotations_like_scipy():
+    a, b = Rotation.random(20, random_state=3), Rotation.random(20, random_state=4)
+    wxyz = lambda r: r.as_quat()[:, [3, 0, 1, 2]]  # noqa: E731
+    np.testing.assert_allclose(quat_to_matrix(quat_mul(wxyz(a), wxyz(b))), (a * b).as_matrix(), atol=1e-12)
 
 
 def test_floating_base_moves_root_like_the_pose():

@@ -11,7 +11,6 @@ import numpy as np
 
 __all__ = [
     "IDENTITY_POSE",
-    "quat_mul",
     "to_pybullet",
     "from_pybullet",
     "wxyz_to_xyzw",
@@ -32,22 +31,6 @@ def xyzw_to_wxyz(quat: np.ndarray) -> np.ndarray:
     """(..., 4) x, y, z, w -> (..., 4) w, x, y, z."""
     q = np.asarray(quat, dtype=np.float64)
     return np.concatenate([q[..., 3:], q[..., :3]], axis=-1)
-
-
-def quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Hamilton product ``a * b`` of (..., 4) wxyz quaternions (rotation b first, then a)."""
-    a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
-    aw, ax, ay, az = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bw, bx, by, bz = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    return np.stack(
-        [
-            aw * bw - ax * bx - ay * by - az * bz,
-            aw * bx + ax * bw + ay * bz - az * by,
-            aw * by - ax * bz + ay * bw + az * bx,
-            aw * bz + ax * by - ay * bx + az * bw,
-        ],
-        axis=-1,
-    )
 
 
 def to_pybullet(pose: np.ndarray) -> tuple[list[float], list[float]]:

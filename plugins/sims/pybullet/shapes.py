@@ -19,9 +19,7 @@ import numpy as np
 
 from ges_core.errors import AssetError
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
-from ges_core.transforms import matrix_to_quat, quat_to_matrix
-
-from .poses import quat_mul
+from ges_core.transforms import matrix_to_quat, quat_mul, quat_to_matrix
 
 __all__ = ["MassProperties", "convex_hull", "lowest_point", "mass_properties", "shape_arrays"]
 
