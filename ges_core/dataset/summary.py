@@ -3,31 +3,45 @@
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
 
-from ges_core.dataset.record import NOT_RUN, SKIPPED, STEPS
+from ges_core.dataset.record import STEPS, StepOutcome
 from ges_core.dataset.store import Dataset
 
-__all__ = ["DatasetSummary", "GroupStats", "StepStats", "summarize"]
+__all__ = ["DatasetSummary", "GroupStats", "StepStats", "step_stats", "summarize"]
 
 COUNT_FIELDS = ("hand", "simulator", "split", "category")
 
 
 @dataclass(frozen=True)
 class StepStats:
-    """One step over a group of records: only attempted steps count (not SKIPPED, not NOT_RUN)."""
+    """One step over a group of records: only attempted steps count (:attr:`StepOutcome.attempted`)."""
 
-    attempted: int
     ok: int
-    median_seconds: float | None
-    """Median wall time of the attempted steps, seconds (None if none was attempted)."""
+    attempted: int
+    mean: float | None
+    """Mean wall time of the attempted steps, seconds (None if none was attempted)."""
+    std: float | None
+    median: float | None
 
     @property
     def rate(self) -> float | None:
         """ok / attempted, or None when nothing was attempted."""
         return self.ok / self.attempted if self.attempted else None
+
+
+def step_stats(outcomes: Iterable[StepOutcome]) -> StepStats:
+    """Successes, attempts and times (seconds) of the attempted ones among ``outcomes``."""
+    tried = [o for o in outcomes if o.attempted]
+    if not tried:
+        return StepStats(0, 0, None, None, None)
+    times = np.array([o.seconds for o in tried], dtype=np.float64)
+    return StepStats(
+        sum(o.ok for o in tried), len(tried), float(times.mean()), float(times.std()), float(np.median(times))
+    )
 
 
 @dataclass(frozen=True)
@@ -80,7 +94,7 @@ def _row(group: GroupStats) -> str:
 def _step_cell(stats: StepStats) -> str:
     if not stats.attempted:
         return "-"
-    return f"{stats.ok}/{stats.attempted} {100 * stats.rate:5.1f}% {stats.median_seconds:.3f} s"
+    return f"{stats.ok}/{stats.attempted} {100 * stats.rate:5.1f}% {stats.median:.3f} s"
 
 
 def summarize(dataset: Dataset) -> DatasetSummary:
@@ -106,6 +120,4 @@ def _group(label: str, entries: list[dict]) -> GroupStats:
 
 def _step_stats(outcomes: list[list]) -> StepStats:
     """``outcomes``: [ok, reason, seconds] triples as stored in the index."""
-    tried = [o for o in outcomes if o[0] or o[1] not in (SKIPPED, NOT_RUN)]
-    median = float(np.median([o[2] for o in tried])) if tried else None
-    return StepStats(len(tried), sum(bool(o[0]) for o in tried), median)
+    return step_stats(StepOutcome(ok=bool(ok), reason=reason, seconds=seconds) for ok, reason, seconds in outcomes)

@@ -13,25 +13,11 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from ges_core.dataset import GraspRecord
+from ges_core.dataset.summary import StepStats, step_stats
 
 __all__ = ["TableRow", "agreement_rates", "format_table", "table_rows"]
 
 TIMED_STEPS = ("contacts", "retargeting", "refinement")
-
-
-@dataclass(frozen=True)
-class StepCell:
-    """One step over one group: successes, attempts and times (seconds) of the attempted ones."""
-
-    ok: int
-    attempted: int
-    mean: float | None
-    std: float | None
-    median: float | None
-
-    @property
-    def rate(self) -> float | None:
-        return self.ok / self.attempted if self.attempted else None
 
 
 @dataclass(frozen=True)
@@ -41,7 +27,7 @@ class TableRow:
     hand: str
     simulator: str
     objects: int
-    steps: dict[str, StepCell]
+    steps: dict[str, StepStats]
     validated: int
     """Records whose grasp passed physics validation."""
     validation_median: float | None
@@ -63,7 +49,7 @@ def table_rows(records: Iterable[GraspRecord]) -> list[TableRow]:
 
 
 def _row(hand: str, sim: str, records: list[GraspRecord]) -> TableRow:
-    steps = {name: _cell([r.steps[name] for r in records]) for name in TIMED_STEPS}
+    steps = {name: step_stats(r.steps[name] for r in records) for name in TIMED_STEPS}
     validation = [r.steps["validation"] for r in records if r.steps["validation"].attempted]
     totals = [sum(r.steps[s].seconds for s in TIMED_STEPS) for r in records]
     failures: dict[str, int] = {}
@@ -80,16 +66,6 @@ def _row(hand: str, sim: str, records: list[GraspRecord]) -> TableRow:
         validation_median=float(np.median([v.seconds for v in validation])) if validation else None,
         total_median=float(np.median(totals)) if totals else None,
         failures=dict(sorted(failures.items())),
-    )
-
-
-def _cell(outcomes: list) -> StepCell:
-    tried = [o for o in outcomes if o.attempted]
-    times = np.array([o.seconds for o in tried], dtype=np.float64)
-    if not tried:
-        return StepCell(0, 0, None, None, None)
-    return StepCell(
-        sum(o.ok for o in tried), len(tried), float(times.mean()), float(times.std()), float(np.median(times))
     )
 
 
@@ -121,7 +97,7 @@ def format_table(rows: list[TableRow]) -> str:
     return "\n".join(lines)
 
 
-def _fmt_cell(cell: StepCell) -> str:
+def _fmt_cell(cell: StepStats) -> str:
     if not cell.attempted:
         return "-"
     return f"{_pct(cell.rate)} ({cell.ok}/{cell.attempted}), {cell.median:.3f} s"
