@@ -35,6 +35,7 @@ from __future__ import annotations
 import contextlib
 import io
 from collections.abc import Sequence
+from functools import lru_cache
 from typing import TYPE_CHECKING
 
 import torch
@@ -44,7 +45,7 @@ from ges_core.errors import AssetError, UnknownNameError
 if TYPE_CHECKING:
     from ges_core.hand import HandModel
 
-__all__ = ["HandKinematics"]
+__all__ = ["HandKinematics", "shared_kinematics"]
 
 _REVOLUTE = 1
 """Index of ``"revolute"`` in ``pytorch_kinematics.frame.Joint.TYPES`` (0 fixed, 2 prismatic)."""
@@ -242,3 +243,16 @@ class HandKinematics:
         cols_vals = torch.where(revolute[:, None], torch.cross(axes, lever, dim=-1), axes)
         jac[:, rows, :, cols] = cols_vals.transpose(0, 1)
         return jac
+
+
+def shared_kinematics(hand: HandModel) -> HandKinematics:
+    """A float64 CPU :class:`HandKinematics` of ``hand``, built once per (URDF, joint order) and then reused.
+
+    For code that needs the hand's kinematics now and then (a squeeze, a start pose) rather than keeping its
+    own: parsing the URDF takes 20 ms to 0.7 s. Callers must not change the object (it is shared)."""
+    return _cached_kinematics(hand.urdf_text(), tuple(hand.description.joint_names))
+
+
+@lru_cache(maxsize=8)
+def _cached_kinematics(urdf_text: str, joint_names: tuple[str, ...]) -> HandKinematics:
+    return HandKinematics(urdf_text, joint_names)

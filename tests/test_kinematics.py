@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from ges_core.errors import AssetError, UnknownNameError
-from ges_core.kinematics import HandKinematics
+from ges_core.kinematics import HandKinematics, shared_kinematics
 from ges_core.registry import load_registry
 
 from helpers_sim import pybullet_body
@@ -201,3 +201,14 @@ def test_joint_names_must_match_the_urdf():
 def test_malformed_urdf():
     with pytest.raises(AssetError, match="pytorch_kinematics cannot build a chain from this URDF"):
         HandKinematics("<robot name='x'><link", ["a"])
+
+
+def test_shared_kinematics_is_built_once_per_hand_and_agrees_with_a_fresh_one():
+    registry = load_registry()
+    allegro, again = registry.build_hand("allegro"), registry.build_hand("allegro")
+    shared = shared_kinematics(allegro)
+    assert shared_kinematics(again) is shared  # same URDF and joint order: the same object
+    assert shared_kinematics(registry.build_hand("shadow")) is not shared
+    q = torch.as_tensor(allegro.description.closed_pose(0.4))[None]
+    links = list(allegro.description.tip_links)
+    torch.testing.assert_close(shared.link_poses(q, links), HandKinematics.from_hand(allegro).link_poses(q, links))

@@ -351,11 +351,11 @@ def open_hand_start_pose(hand: HandModel, obj_pos: np.ndarray, height: float) ->
     obj_pos: (n, 3) object origins, world, m. Palm down per the hand's wrist convention: ``palm_normal``
     along world -z, ``finger_direction`` toward world +x (as :func:`ges_core.sim_check.grasp_start_pose`).
     """
-    from ges_core.kinematics import HandKinematics
+    from ges_core.kinematics import shared_kinematics
 
     d = hand.description
     q_open = torch.as_tensor(d.open_pose, dtype=torch.float64)[None]
-    base_to_wrist = HandKinematics.from_hand(hand).link_poses(q_open, [d.wrist.link])[0, 0].numpy()
+    base_to_wrist = shared_kinematics(hand).link_poses(q_open, [d.wrist.link])[0, 0].numpy()
     rot = rotation_between_frames(
         np.array(d.wrist.palm_normal),
         np.array(d.wrist.finger_direction),

@@ -16,13 +16,11 @@ larger than ``force / Kp``) and each angle is clipped to ``max_squeeze``; limits
 
 from __future__ import annotations
 
-from functools import lru_cache
-
 import numpy as np
 import torch
 
 from ges_core.hand import HandDescription, HandModel
-from ges_core.kinematics import HandKinematics
+from ges_core.kinematics import shared_kinematics
 
 __all__ = ["press_directions", "press_torques", "squeeze_targets"]
 
@@ -47,7 +45,7 @@ def press_torques(hand: HandModel, q: np.ndarray) -> np.ndarray:
     moves each fingertip toward what it opposes (``J J^T u`` has a positive component along ``u``).
     """
     d = hand.description
-    kin = _kinematics(hand.urdf_text(), d.joint_names)
+    kin = shared_kinematics(hand)
     offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
     tips, jac = kin.points_and_jacobians(torch.as_tensor(q, dtype=torch.float64)[None], list(d.tip_links), offsets)
     tips, jac = tips[0].numpy(), jac[0].numpy()  # (F, 3), (F, 3, K)
@@ -71,8 +69,3 @@ def press_directions(d: HandDescription, tips: np.ndarray) -> np.ndarray:
     u = aims - tips
     norm = np.linalg.norm(u, axis=1, keepdims=True)
     return np.divide(u, norm, out=np.zeros_like(u), where=norm > 1e-9)
-
-
-@lru_cache(maxsize=8)
-def _kinematics(urdf_text: str, joint_names: tuple[str, ...]) -> HandKinematics:
-    return HandKinematics(urdf_text, joint_names)
