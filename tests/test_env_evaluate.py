@@ -84,7 +84,7 @@ def short_config(**kw) -> BaselineConfig:
 
 
 def direct_episode(dataset, object_id: str, config: BaselineConfig) -> tuple[list[str], list[bool], list[int]]:
-    """Reference: the same episode driven through GraspEnv alone (no VecEnv, no auto-reset, no latch)."""
+    """Reference: the same episode driven through GraspEnv alone (no VecEnv, no auto-reset)."""
     registry = load_registry()
     hand = registry.build_hand(config.hand)
     asset, targets = load_grasp(

@@ -66,6 +66,9 @@ def test_scripted_expert_lifts_the_box(sim_name: str) -> None:
     venv.env.sim.close()
     assert extras["end_reason"].tolist() == [EndReason.SUCCESS] * N
     assert extras["log"]["/success/peers"].item() == 1.0
+    # per env, read before the reset that restarted the episodes (the tracker itself is cleared by now)
+    assert extras["peer_success"].all() and not venv.env.tracker.peer_success.any()
+    assert (extras["max_rise"] >= 0.2).all()
     assert not extras["time_outs"].any()
     # reset: a fresh episode, object back at rest
     assert torch.equal(venv.episode_length_buf, torch.zeros(N, dtype=torch.long))

@@ -60,7 +60,6 @@ __all__ = [
     "BaselineReport",
     "ScriptedSettings",
     "SplitRow",
-    "TrackerLatch",
     "evaluate_baseline",
     "format_table",
     "results_path",
@@ -138,26 +137,6 @@ def scripted_expert(env: GraspEnv, config: BaselineConfig) -> Expert:
 
 
 # -- one object ---------------------------------------------------------------------------------
-class TrackerLatch:
-    """Per-env copies of the success tracker's peers flag and highest rise after each update.
-
-    ``GraspVecEnv.step`` resets finished envs before returning, which clears these in the tracker;
-    the latch keeps the values of the step that ended the episode. Wraps ``tracker.update``.
-    """
-
-    def __init__(self, tracker) -> None:
-        self.peer = tracker.peer_success.clone()
-        self.max_rise = tracker.max_rise.clone()
-        update = tracker.update
-
-        def latched(obj_pos: torch.Tensor, timeout: torch.Tensor) -> torch.Tensor:
-            reason = update(obj_pos, timeout)
-            self.peer, self.max_rise = tracker.peer_success.clone(), tracker.max_rise.clone()
-            return reason
-
-        tracker.update = latched
-
-
 @dataclass(frozen=True)
 class EpisodeOutcome:
     """One episode per env: (n,) arrays."""
@@ -172,7 +151,7 @@ class EpisodeOutcome:
     """Control steps the episode lasted."""
 
 
-def run_episodes(venv: GraspVecEnv, expert: Expert, latch: TrackerLatch) -> EpisodeOutcome:
+def run_episodes(venv: GraspVecEnv, expert: Expert) -> EpisodeOutcome:
     """Act until every env has ended its first episode (envs that end early are reset and ignored)."""
     n = venv.num_envs
     reason = torch.zeros(n, dtype=torch.long)
@@ -184,8 +163,8 @@ def run_episodes(venv: GraspVecEnv, expert: Expert, latch: TrackerLatch) -> Epis
         obs_td, _, done, extras = venv.step(expert.act(obs))
         obs, done = obs_td["policy"], done.bool()
         new = done & ~finished
-        reason[new], peers[new] = extras["end_reason"][new], latch.peer[new]
-        rise[new], steps[new] = latch.max_rise[new], t
+        reason[new], peers[new] = extras["end_reason"][new], extras["peer_success"][new]
+        rise[new], steps[new] = extras["max_rise"][new], t
         finished |= new
         if finished.all():
             break
@@ -235,13 +214,12 @@ def evaluate_object(
 
 def _episodes(sim, hand, asset, targets, config: BaselineConfig, factory: ExpertFactory) -> EpisodeOutcome:
     env = GraspEnv(sim, hand, asset, targets, config.env)
-    latch = TrackerLatch(env.tracker)
     try:
         venv = GraspVecEnv(env, seed=config.seed)  # full reset: stage one reaching, every env together
     except SimulationError:  # blew up before the expert acted: no episode to run
         n = config.envs
         return EpisodeOutcome(["unstable"] * n, [False] * n, [0.0] * n, [0] * n)
-    return run_episodes(venv, factory(env, config), latch)
+    return run_episodes(venv, factory(env, config))
 
 
 def grasp_key(record: GraspRecord) -> str:

@@ -6,7 +6,9 @@ episode. ``extras["time_outs"]`` flags episodes cut by the length limit (not_lif
 ``extras["log"]`` holds the mean of every reward term and, for the episodes that ended, the rate of
 each end reason, of both success protocols and the mean Table 3 metrics (``/metrics/arm_oscillation``,
 ``/metrics/hand_oscillation``, ``/metrics/fdc``, :mod:`~ges_core.env.metrics`); ``extras["end_reason"]``
-the (n,) EndReason codes.
+the (n,) EndReason codes, ``extras["peer_success"]`` (n,) bool and ``extras["max_rise"]`` (n,) metres: the
+peers' protocol and the object's highest rise so far in each env's episode, read before finished envs
+restart (so an ended episode's values survive its reset).
 """
 
 from __future__ import annotations
@@ -69,6 +71,8 @@ class GraspVecEnv(VecEnv):
         any_done = bool(done.any())
         extras = self._extras(code, done if any_done else None, terms, bad if any_bad else None)
         extras["end_reason"] = reason
+        extras["peer_success"] = env.tracker.peer_success.clone()  # before the reset below clears them
+        extras["max_rise"] = env.tracker.max_rise.clone()
         if any_done:
             ended = torch.from_numpy(done.nonzero()[0])
             env.reset_envs(ended)
