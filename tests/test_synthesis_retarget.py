@@ -23,7 +23,7 @@ from ges_core.kinematics import HandKinematics
 from ges_core.objects.pointcloud import sample_surface
 from ges_core.registry import load_registry
 from ges_core.synthesis.retarget import GraspRetargeter, RetargetConfig, raise_contacts, retarget_contacts
-from ges_core.synthesis.retarget_search import ObjectCloud, WristSearchConfig, object_penalty
+from ges_core.synthesis.retarget_search import ObjectCloud, WristSearchConfig, distinct_ranking, object_penalty
 from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
 from ges_core.synthesis.retarget_wrist import (
     check_contact_array,
@@ -306,6 +306,54 @@ def test_wrist_search_result_does_not_depend_on_batch_mates(retargeters):
         np.testing.assert_allclose(alone.q, g.q, atol=1e-9)
 
 
+def rotation_angle_deg(a: np.ndarray, b: np.ndarray) -> float:
+    """Angle of the rotation between two (3, 3) rotation matrices, degrees (via scipy, independent of the code)."""
+    from scipy.spatial.transform import Rotation
+
+    return float(np.degrees((Rotation.from_matrix(a).inv() * Rotation.from_matrix(b)).magnitude()))
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_ranked_grasps_start_with_the_best_and_differ_in_placement(retargeters, name):
+    r, config = retargeters[name], retargeters[name].config.wrist_search
+    contacts = box_contact_sets()
+    ranked = r.retarget_ranked(contacts, keep=3)
+    best = r.retarget_many(contacts)
+    assert any(len(grasps) > 1 for grasps in ranked)  # the search found alternatives
+    for grasps, first in zip(ranked, best, strict=True):
+        assert 1 <= len(grasps) <= 3
+        np.testing.assert_allclose(grasps[0].wrist_pose, first.wrist_pose, atol=1e-12)
+        np.testing.assert_allclose(grasps[0].q, first.q, atol=1e-12)
+        wrists = [pose_to_matrix(g.wrist_pose) @ r.base_to_wrist for g in grasps]  # wrist links, object frame
+        for i, later in enumerate(grasps[1:], start=1):
+            assert later.meta["reached"]
+            for before in wrists[:i]:
+                apart = np.linalg.norm(wrists[i][:3, 3] - before[:3, 3]) >= config.distinct_distance - 1e-9
+                turned = rotation_angle_deg(before[:3, :3], wrists[i][:3, :3]) >= config.distinct_deg - 1e-6
+                assert apart or turned
+    assert all(len(g) == 1 for g in r.retarget_ranked(contacts, keep=1))
+    with pytest.raises(ValueError, match="keep must be at least 1"):
+        r.retarget_ranked(contacts, keep=0)
+
+
+def test_distinct_ranking_orders_by_cost_and_skips_near_and_ineligible_placements():
+    from scipy.spatial.transform import Rotation
+
+    config = WristSearchConfig(distinct_deg=15.0, distinct_distance=0.02)
+    wrists = np.tile(np.eye(4), (6, 1, 1))
+    wrists[1, :3, 3] = [0.01, 0, 0]  # 1 cm from 0, same rotation: too near
+    wrists[2, :3, :3] = Rotation.from_euler("z", 20, degrees=True).as_matrix()  # turned 20 deg: distinct
+    wrists[3, :3, 3] = [0.0, 0.03, 0.0]  # 3 cm away: distinct, but not eligible
+    wrists[4, :3, 3] = [0.0, 0.0, 0.025]  # 2.5 cm away: distinct
+    wrists[5, :3, :3] = Rotation.from_euler("z", 25, degrees=True).as_matrix()  # 5 deg from 2: too near it
+    cost = np.array([0.5, 0.1, 0.3, 0.2, 0.6, 0.4])
+    eligible = np.array([True, True, True, False, True, True])
+    assert distinct_ranking(cost, wrists, eligible, 10, config) == [1, 2, 4]  # 0 is 1 cm from 1; 5 near 2
+    assert distinct_ranking(cost, wrists, eligible, 2, config) == [1, 2]
+    assert distinct_ranking(cost, wrists, ~eligible, 10, config) == [1, 3]  # the best is kept even if ineligible
+    assert distinct_ranking(np.zeros(6), wrists, eligible, 1, config) == [0]  # ties: the lowest index
+
+
 def test_shadow_base_is_the_forearm_below_the_palm(hands, kins, retargeters):
     d = hands["shadow"].description
     g = retargeters["shadow"].retarget(box_contact_sets()[0])
@@ -491,6 +539,26 @@ def test_object_penalty_counts_depth_inside_the_surface_only():
     exact = 10.0 * 6 * np.clip(0.05 - radii[:, 0, 0], 0, None) ** 2
     assert penalty[0] == 0.0
     np.testing.assert_allclose(penalty[1:], exact[1:], rtol=0.15)  # nearest-sample approximation
+
+
+def test_object_penalty_ignores_points_beside_an_object_near_its_bottom():
+    """Points beside a box just above the table are outside it (exact depth 0): they must cost nothing.
+
+    Their nearest surface sample can be on the bottom face (outward normal -z), which reads a point
+    above the table as inside (the nearest-sample approximation's false positive)."""
+    config = WristSearchConfig(object_clearance=0.0, object_weight=10.0, cloud_points=1024)
+    half, center = np.array([0.03, 0.05, 0.035]), np.array([0.0, 0.0, 0.035])
+    mesh = trimesh.creation.box(extents=2 * half)
+    mesh.apply_translation(center)
+    cloud = ObjectCloud(*sample_surface(mesh, 1024, seed=0))
+    rng = np.random.default_rng(5)
+    beside = np.column_stack(
+        [rng.uniform(half[0] + 0.012, half[0] + 0.03, 200), rng.uniform(-0.04, 0.04, 200), rng.uniform(0, 0.002, 200)]
+    )
+    inside = center + rng.uniform(-0.6, 0.6, (200, 3)) * half
+    assert np.all(box_depth(beside, half, center) == 0.0) and np.all(box_depth(inside, half, center) > 0.0)
+    assert np.all(object_penalty(beside[:, None], cloud, config) == 0.0)
+    assert np.all(object_penalty(inside[:, None], cloud, config) > 0.0)
 
 
 def box_depth(points: np.ndarray, half: np.ndarray, center: np.ndarray) -> np.ndarray:

@@ -33,6 +33,7 @@ from ges_core.synthesis.retarget_search import (
     WristSearchConfig,
     candidate_offsets,
     candidate_wrists,
+    distinct_ranking,
     object_penalty,
     table_penalty,
 )
@@ -135,6 +136,21 @@ class GraspRetargeter:
 
         clouds: per contact set, the object's surface samples (object frame) or None; given, the wrist
         search also keeps the hand's links other than the fingertips out of the object."""
+        return [r if isinstance(r, SynthesisError) else r[0] for r in self.retarget_ranked(contacts, clouds)]
+
+    def retarget_ranked(
+        self, contacts: Sequence[ContactSet], clouds: Sequence[ObjectCloud | None] | None = None, keep: int = 1
+    ) -> list[list[Grasp] | SynthesisError]:
+        """Per contact set, up to ``keep`` grasps at distinct wrist placements, best first (one batch).
+
+        The first grasp is :meth:`retarget_many`'s. The others are the next-best placements of the
+        wrist search that differ from every one kept before by at least ``wrist_search.distinct_deg``
+        of rotation or ``wrist_search.distinct_distance`` of position and that reach their contacts
+        (``meta["reached"]``): the later attempts of collision-aware refinement. Degenerate contact
+        sets come back as SynthesisError.
+        """
+        if keep < 1:
+            raise ValueError(f"retarget_ranked: keep must be at least 1, got {keep}")
         start = time.perf_counter()
         pos = self._positions(contacts)
         problems = contact_problems(pos)
@@ -144,10 +160,10 @@ class GraspRetargeter:
             topo = topology_descriptors(pos[good], self.frame.chirality)
             normals = np.stack([contacts[i].normals for i in good])
             kept = [clouds[i] if clouds is not None else None for i in good]
-            base, q, residual, tip_err = self._solve(topo, normals, kept)
+            ranked = self._solve(topo, normals, kept, keep)
             seconds = (time.perf_counter() - start) / len(contacts)
             for j, i in enumerate(good):
-                out[i] = self._grasp(base[j], q[j], residual[j], tip_err[j], topo, j, seconds)
+                out[i] = [self._grasp(*solution, topo, j, seconds) for solution in ranked[j]]
         return out
 
     def wrist_link_poses(self, topo: TopologyDescriptors) -> np.ndarray:
@@ -159,13 +175,14 @@ class GraspRetargeter:
 
     # -- internals ------------------------------------------------------------------------
     def _solve(
-        self, topo: TopologyDescriptors, normals: np.ndarray, clouds: Sequence[ObjectCloud | None] = ()
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """Base poses (B, 4, 4), joints (B, K), residual (B,) and per-slot errors (B, 5), all numpy.
+        self, topo: TopologyDescriptors, normals: np.ndarray, clouds: Sequence[ObjectCloud | None] = (), keep: int = 1
+    ) -> list[list[tuple[np.ndarray, np.ndarray, float, np.ndarray]]]:
+        """Per grasp, up to ``keep`` solutions (base pose (4, 4), joints (K,), residual, per-slot errors (5,)).
 
         normals: (B, 5, 3) outward contact normals, object frame (the solver's pad term). Every
         candidate wrist placement (:mod:`.retarget_search`) of every grasp is solved in one batch; each
-        grasp keeps the candidate with the lowest objective (the paper's placement on ties)."""
+        grasp's solutions are its candidates in order of objective (the paper's placement first on
+        ties), each at a placement distinct from the ones before (:func:`distinct_ranking`)."""
         c = self.config
         wrists = candidate_wrists(
             topo,
@@ -191,12 +208,17 @@ class GraspRetargeter:
             + table_penalty(at_grasp[..., 2], c.wrist_search)
             + table_penalty(self._hand_points(q_open, base)[..., 2], c.wrist_search)
             + self._object_penalty(at_grasp, clouds, m)
-        )
-        best = torch.as_tensor(cost.reshape(b, m).argmin(axis=1))  # first minimum: the paper's on ties
-        pick = torch.arange(b) * m + best
-        q, residual, targets = q[pick], residual[pick], targets[pick]
-        tip_err = (self.solver.fingertips(q) - targets).norm(dim=-1)
-        return base[pick.numpy()], q.numpy(), residual.numpy(), tip_err.numpy()
+        ).reshape(b, m)
+        reached = (residual <= c.max_residual).numpy().reshape(b, m)
+        picks = [
+            [g * m + k for k in distinct_ranking(cost[g], wrists[g], reached[g], keep, c.wrist_search)]
+            for g in range(b)
+        ]
+        rows = torch.as_tensor([r for p in picks for r in p])
+        tip_err = (self.solver.fingertips(q[rows]) - targets[rows]).norm(dim=-1).numpy()
+        err_of = dict(zip(rows.tolist(), tip_err, strict=True))
+        q_np, residual_np = q.numpy(), residual.numpy()
+        return [[(base[r], q_np[r], float(residual_np[r]), err_of[r]) for r in p] for p in picks]
 
     def _hand_points(self, q: torch.Tensor, base: np.ndarray) -> np.ndarray:
         """(B, N, 3) the hand's collision points (:mod:`ges_core.collision_points`), object frame, for q (B, K)."""

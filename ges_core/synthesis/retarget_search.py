@@ -29,9 +29,15 @@ __all__ = [
     "WristSearchConfig",
     "candidate_offsets",
     "candidate_wrists",
+    "distinct_ranking",
     "object_penalty",
     "table_penalty",
 ]
+
+
+BOX_MARGIN = 0.01
+"""m: the cloud's samples may lie up to about their spacing (a few mm at 512 points on a 5-10 cm object)
+inside the true surface's bounding box; hand points further out than this are not measured."""
 
 
 class WristSearchConfig(BaseModel):
@@ -73,6 +79,11 @@ class WristSearchConfig(BaseModel):
     thumb_keep: int = Field(
         2, ge=0, description="thumb joints the opened hand keeps at the grasp: PregraspConfig/RefineConfig.thumb_keep"
     )
+    # Alternatives (GraspRetargeter.retarget_ranked, tried by refinement when the best one fails): neighbours
+    # on the grid (20 deg apart in yaw/roll/pitch) fail alike, so an alternative must differ from every
+    # placement ranked before it by a whole grid step in angle or by 2 cm in position.
+    distinct_deg: float = Field(15.0, ge=0, description="rotation between ranked placements, degrees (or distance)")
+    distinct_distance: float = Field(0.02, ge=0, description="wrist-origin distance between ranked placements, m")
 
 
 def candidate_offsets(config: WristSearchConfig) -> np.ndarray:
@@ -114,6 +125,29 @@ def candidate_wrists(
     return out
 
 
+def distinct_ranking(
+    cost: np.ndarray, wrists: np.ndarray, eligible: np.ndarray, keep: int, config: WristSearchConfig
+) -> list[int]:
+    """Up to ``keep`` candidate indices, best first: the lowest ``cost`` (M,), then the cheapest
+    ``eligible`` (M,) candidates whose wrist pose (of ``wrists`` (M, 4, 4)) differs from every one picked
+    before by at least ``config.distinct_deg`` of rotation or ``config.distinct_distance`` of position.
+    Ties go to the lower index (the paper's placement is index 0)."""
+    order = np.argsort(cost, kind="stable")
+    picked = [int(order[0])]
+    min_cos = np.cos(np.radians(config.distinct_deg))
+    for k in order[1:]:
+        if len(picked) >= keep:
+            break
+        if not eligible[k]:
+            continue
+        rot = wrists[picked, :3, :3]
+        cos = (np.einsum("pij,ij->p", rot, wrists[k, :3, :3]) - 1.0) / 2.0  # cos of the relative rotation angle
+        far = np.linalg.norm(wrists[picked, :3, 3] - wrists[k, :3, 3], axis=1) >= config.distinct_distance
+        if np.all((cos <= min_cos) | far):
+            picked.append(int(k))
+    return picked
+
+
 def _turn_about_normal(poses: np.ndarray, topo: TopologyDescriptors, angle: float) -> np.ndarray:
     """(B, 4, 4) ``poses`` turned by ``angle`` rad about each grasp's palm normal through its contact centre."""
     if angle == 0.0:
@@ -145,14 +179,21 @@ def object_penalty(points: np.ndarray, cloud: ObjectCloud, config: WristSearchCo
     d: signed distance of each point from the surface, approximated through its nearest cloud sample c
     with outward normal n as ``(p - c) . n`` (negative inside). Good near the surface, which is where
     the links that should not touch are; a point deeper than half the object's thickness may read as outside.
+    Only points within the cloud's bounding box grown by ``clearance + BOX_MARGIN`` are measured (the
+    others are outside the object by more than the clearance, so add nothing); most of the hand is.
     """
-    pts = torch.as_tensor(cloud.points[: config.cloud_points])
-    nrm = torch.as_tensor(cloud.normals[: config.cloud_points])
-    hand = torch.as_tensor(points).reshape(-1, 3)
-    nearest = torch.cdist(hand, pts).argmin(dim=1)
-    d = ((hand - pts[nearest]) * nrm[nearest]).sum(-1).reshape(points.shape[:2]).numpy()
-    short = np.clip(config.object_clearance - d, 0.0, None)
-    return config.object_weight * (short**2).sum(axis=1)
+    pts = cloud.points[: config.cloud_points]
+    nrm = cloud.normals[: config.cloud_points]
+    flat = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    grow = config.object_clearance + BOX_MARGIN
+    near = np.flatnonzero(np.all((flat > pts.min(axis=0) - grow) & (flat < pts.max(axis=0) + grow), axis=1))
+    out = np.zeros(points.shape[:2])
+    if len(near):
+        hand = torch.as_tensor(flat[near])
+        nearest = torch.cdist(hand, torch.as_tensor(pts)).argmin(dim=1).numpy()
+        d = np.einsum("ij,ij->i", flat[near] - pts[nearest], nrm[nearest])
+        out.reshape(-1)[near] = np.clip(config.object_clearance - d, 0.0, None) ** 2
+    return config.object_weight * out.sum(axis=1)
 
 
 def table_penalty(link_z: np.ndarray, config: WristSearchConfig) -> np.ndarray:
