@@ -186,3 +186,70 @@ def test_thumb_keep_must_agree_across_steps():
         {"refine": {"thumb_keep": 1}, "pregrasp": {"thumb_keep": 1}, "retarget": {"wrist_search": {"thumb_keep": 1}}}
     )
     assert config.refine.thumb_keep == 1
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize(("attempts", "failing"), [(1, "refinement"), (3, "refinement"), (3, "validation")])
+def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeypatch, attempts, failing):
+    """A first attempt judged failed (test double of the refinement verdict or of the validator) moves on to
+    the next distinct placement.
+
+    The attempts refine the retargeter's ranked placements in order (checked against an independent
+    ranking); the record holds the passing attempt's refined grasp, every verdict and the summed times.
+    With ``attempts=1`` (the paper's single pass) the step fails with the first verdict."""
+    from ges_core.synthesis import run_worker
+    from ges_core.synthesis.retarget_search import ObjectCloud
+    from ges_core.synthesis.types import ValidationResult
+
+    calls, verdicts = [], []
+    real_refine = run_worker.refine_grasp
+
+    def recording_refine(*args, **kwargs):
+        calls.append((args[3], real_refine(*args, **kwargs)))
+        return calls[-1][1]
+
+    def verdict(refined, hand, config=None):
+        if failing == "refinement":
+            verdicts.append("few_contacts" if not verdicts else "ok")
+            return verdicts[-1]
+        return "ok"
+
+    def validate(*args, **kwargs):
+        verdicts.append("dropped" if not verdicts else "ok")
+        return ValidationResult(verdicts[-1] == "ok", verdicts[-1], {}, 0.25 * len(verdicts))
+
+    monkeypatch.setattr(run_worker, "refine_grasp", recording_refine)
+    monkeypatch.setattr(run_worker, "refine_verdict", verdict)
+    monkeypatch.setattr(run_worker, "validate_grasp", validate)
+    config = SynthesisConfig.model_validate(
+        {
+            "library": {"sources": ["procedural"], "procedural_count": 1},
+            "validate_sims": ["sapien"] if failing == "validation" else [],
+            "attempts": attempts,
+        }
+    )
+    oid = "procedural/cube/000"
+    run_synthesis([oid], ["allegro"], config, tmp_path / "ds")
+    (record,) = open_dataset(tmp_path / "ds")
+    assert len(calls) == min(attempts, 2)
+    assert [a[failing] for a in record.extra["attempts"]] == verdicts[: len(calls)]
+    seed = object_seed(config.seed, oid)
+    points, normals = config.library.build().point_cloud(oid, config.points, seed=seed)
+    contacts = generate_contacts(points, normals, config.contacts, object_id=oid, seed=seed).contacts
+    ranked = GraspRetargeter(load_registry().build_hand("allegro"), config.retarget).retarget_ranked(
+        [contacts], [ObjectCloud(points, normals)], keep=attempts
+    )[0]
+    for (tried, _), expected in zip(calls, ranked, strict=False):  # attempt i refines placement i
+        np.testing.assert_allclose(tried.wrist_pose, expected.wrist_pose, atol=1e-9)
+    used = calls[-1][1]
+    np.testing.assert_allclose(record.grasp.wrist_pose, used.grasp.wrist_pose, atol=1e-12)
+    np.testing.assert_allclose(record.grasp.q, used.grasp.q, atol=1e-12)
+    assert record.grasp_stage == "refinement"
+    assert record.steps["refinement"].seconds == pytest.approx(sum(r.seconds for _, r in calls), rel=1e-6)
+    if attempts == 1:
+        assert record.steps["refinement"].reason == "few_contacts" and "attempt" not in record.extra
+        assert record.steps["validation"].reason == "skipped"
+    else:
+        assert record.steps["refinement"].ok and record.extra["attempt"] == 1
+    if failing == "validation":
+        assert record.steps["validation"].ok and record.steps["validation"].seconds == pytest.approx(0.75)

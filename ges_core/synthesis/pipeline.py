@@ -93,6 +93,13 @@ class SynthesisConfig(BaseModel):
     # 8: a batch of 8 grasps costs about as much as one in the batched solver (it is dominated by
     # per-call overhead at small sizes) while the chunk's simulators are still reused for 8 objects.
     chunk_size: int = Field(8, ge=1, description="objects per retargeting batch and per worker task")
+    # attempts: the paper refines its one retargeted pose (and validates nothing). Here each (object, hand)
+    # tries the wrist search's best placement and, when it fails refinement or validation, the next distinct
+    # ones (GraspRetargeter.retarget_ranked), best first; 1 is the paper's single pass. Measured on the 20
+    # demo objects (docs/synthesis/refine_validate.md, "Attempts").
+    attempts: int = Field(
+        3, ge=1, description="wrist placements tried per object and hand until one passes refinement and validation"
+    )
     library: LibrarySettings = Field(default_factory=LibrarySettings)
     scene: SceneConfig = Field(default_factory=SceneConfig)
     contacts: ContactConfig = Field(default_factory=ContactConfig)

@@ -20,6 +20,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ges_core.dataset import GraspRecord, StepOutcome, software_versions
+from ges_core.dataset.record import NOT_RUN
 from ges_core.errors import AssetError, SimulationError, SynthesisError
 from ges_core.synthesis.contacts import generate_contacts
 from ges_core.synthesis.pipeline import Task, object_seed
@@ -29,7 +30,7 @@ from ges_core.synthesis.retarget import GraspRetargeter
 from ges_core.synthesis.retarget_search import ObjectCloud
 from ges_core.synthesis.run_records import ObjectWork, build_record, contacts_from_record
 from ges_core.synthesis.sim_scene import stage_scene
-from ges_core.synthesis.types import Grasp
+from ges_core.synthesis.types import Grasp, RefinedGrasp
 from ges_core.synthesis.validate import validate_grasp
 
 __all__ = ["run_task"]
@@ -122,13 +123,16 @@ def _contacts(state: _State, object_id: str) -> ObjectWork:
 
 
 # -- step 2: retargeting (one batch per hand and chunk) ----------------------------------------
-def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[Grasp | SynthesisError | None]:
-    """One result per work: a Grasp, a SynthesisError, or None (no contacts to retarget)."""
+def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[list[Grasp] | SynthesisError | None]:
+    """One result per work: its grasps best first (the attempts of :func:`_attempts`), a SynthesisError,
+    or None (no contacts to retarget)."""
     ready = [i for i, w in enumerate(works) if w.result is not None]
     out: list = [None] * len(works)
     if ready:
-        solved = state.retargeter(hand).retarget_many(
-            [works[i].result.contacts for i in ready], [works[i].cloud for i in ready]
+        solved = state.retargeter(hand).retarget_ranked(
+            [works[i].result.contacts for i in ready],
+            [works[i].cloud for i in ready],
+            keep=state.context.config.attempts,
         )
         for i, result in zip(ready, solved, strict=True):
             out[i] = result
@@ -137,7 +141,6 @@ def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[Gra
 
 # -- steps 3-5: refinement, pre-grasp, validation ---------------------------------------------
 def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> GraspRecord:
-    cfg = state.context.config
     steps, extra = {"contacts": work.step}, dict(work.extra)
     if result is None:
         steps.update(dict.fromkeys(("retargeting", "refinement", "validation"), StepOutcome.skipped()))
@@ -147,22 +150,72 @@ def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> 
         extra["errors"] = {"retargeting": str(result)}
         steps.update(dict.fromkeys(("refinement", "validation"), StepOutcome.skipped()))
         return build_record(state, hand, work, steps, extra)
-    seconds = float(result.meta.get("seconds", 0.0))
-    reached = bool(result.meta.get("reached", True))
+    best = result[0]
+    seconds = float(best.meta.get("seconds", 0.0))
+    reached = bool(best.meta.get("reached", True))
     steps["retargeting"] = (
         StepOutcome(ok=True, seconds=seconds) if reached else StepOutcome.failed("unreachable", seconds)
     )
     if not reached:
         steps.update(dict.fromkeys(("refinement", "validation"), StepOutcome.skipped()))
-        return build_record(state, hand, work, steps, extra, grasp=result, stage="retargeting")
-    refined, steps["refinement"] = _refine(state, sims, hand, work, result, extra)
-    grasp = refined.grasp if refined is not None else result
-    stage = "refinement" if refined is not None else "retargeting"
-    pre = pregrasp(state.hand(hand), grasp, work.result.approach, cfg.pregrasp)
-    steps["validation"] = (
-        _validate(state, sims, hand, work, grasp, pre, extra) if steps["refinement"].ok else (StepOutcome.skipped())
+        return build_record(state, hand, work, steps, extra, grasp=best, stage="retargeting")
+    chosen = _attempts(state, sims, hand, work, result, extra)
+    steps["refinement"], steps["validation"] = chosen.refinement, chosen.validation
+    grasp = chosen.refined.grasp if chosen.refined is not None else chosen.retargeted
+    stage = "refinement" if chosen.refined is not None else "retargeting"
+    return build_record(
+        state, hand, work, steps, extra, grasp=grasp, stage=stage, pre=chosen.pre, refined=chosen.refined
     )
-    return build_record(state, hand, work, steps, extra, grasp=grasp, stage=stage, pre=pre, refined=refined)
+
+
+@dataclass(eq=False)
+class _Attempt:
+    """One wrist placement taken through refinement, the pre-grasp and validation."""
+
+    retargeted: Grasp
+    refined: RefinedGrasp | None
+    refinement: StepOutcome
+    pre: Grasp
+    validation: StepOutcome
+    notes: dict
+
+    @property
+    def passed(self) -> bool:
+        return self.refinement.ok and (self.validation.ok or self.validation.reason == NOT_RUN)
+
+
+def _attempts(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasps: list[Grasp], extra: dict) -> _Attempt:
+    """Take ``grasps`` (best wrist placement first) through refinement and validation until one passes both.
+
+    Returns the passing attempt; none passing, the first that refined, else the first. Its notes go into
+    ``extra``, every attempt's verdicts into ``extra["attempts"]`` and the passing one's index into
+    ``extra["attempt"]``. The returned outcomes' times are the sums over the attempts."""
+    cfg, tries = state.context.config, []
+    for grasp in grasps:
+        notes: dict = {}
+        refined, refinement = _refine(state, sims, hand, work, grasp, notes)
+        settled = refined.grasp if refined is not None else grasp
+        pre = pregrasp(state.hand(hand), settled, work.result.approach, cfg.pregrasp)
+        validation = (
+            _validate(state, sims, hand, work, refined.grasp, pre, notes) if refinement.ok else StepOutcome.skipped()
+        )
+        tries.append(_Attempt(grasp, refined, refinement, pre, validation, notes))
+        if tries[-1].passed:
+            break
+    index = len(tries) - 1 if tries[-1].passed else next((i for i, t in enumerate(tries) if t.refinement.ok), 0)
+    chosen = tries[index]
+    extra.update(chosen.notes)
+    setup = {k: v for t in tries for k, v in t.notes.get("setup_seconds", {}).items()}  # built in the first attempt
+    if setup:
+        extra["setup_seconds"] = setup
+    extra["attempts"] = [
+        {"refinement": t.refinement.reason or "ok", "validation": t.validation.reason or "ok"} for t in tries
+    ]
+    if chosen.passed:
+        extra["attempt"] = index
+    chosen.refinement = replace(chosen.refinement, seconds=sum(t.refinement.seconds for t in tries))
+    chosen.validation = replace(chosen.validation, seconds=sum(t.validation.seconds for t in tries))
+    return chosen
 
 
 def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, extra: dict):
@@ -189,7 +242,7 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
     """Validate in every configured simulator; the primary one's verdict is the step's outcome."""
     cfg, model = state.context.config, state.hand(hand)
     if not cfg.validate_sims:
-        return StepOutcome(ok=False, reason="not_run")
+        return StepOutcome(ok=False, reason=NOT_RUN)
     asset = state.library.get(work.object_id)
     verdicts = {}
     for name in cfg.validate_sims:
