@@ -37,6 +37,23 @@ def test_demo_runs_end_to_end_then_resumes(demo_dir, capsys):
 
 
 @pytest.mark.sim
+def test_demo_with_another_config_is_refused_unless_fresh(tmp_path, capsys):
+    out = tmp_path / "demo"
+    argv = ["demo", "--out", str(out), "--no-progress", "-o", "objects=1", "-o", "hands=[allegro]", *FAST]
+    assert cli.main([*argv, "-o", "pictures=false"]) == 0
+    first = sorted(p.name for p in (out / "dataset").rglob("*"))
+    capsys.readouterr()
+    changed = [*argv, "-o", "pictures=false", "-o", "synthesis.attempts=1"]
+    assert cli.main(changed) == 1
+    assert "attempts: 3 -> 1" in capsys.readouterr().err
+    assert cli.main([*changed, "--fresh"]) == 0
+    text = capsys.readouterr().out
+    assert f"moved the earlier {out} to {out}.old-1" in text and "1 grasps synthesized, 0 already in" in text
+    assert sorted(p.name for p in (tmp_path / "demo.old-1" / "dataset").rglob("*")) == first  # nothing lost
+    assert [r.object_id for r in open_dataset(out / "dataset")] == ["procedural/can/000"]
+
+
+@pytest.mark.sim
 def test_retarget_reuses_stored_contacts(demo_dir, capsys, tmp_path):
     if not (demo_dir / "dataset").is_dir():
         _demo(demo_dir, capsys)

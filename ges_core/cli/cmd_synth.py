@@ -14,6 +14,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     dp.add_argument("--config", type=Path, metavar="PATH", help="demo config (default configs/demo.yaml)")
     _common(dp)
     dp.add_argument("--out", metavar="DIR", help="output folder (default runs/demo)")
+    dp.add_argument(
+        "--fresh", action="store_true", help="start over: move an existing output folder aside to DIR.old-N first"
+    )
     dp.set_defaults(func=run_demo_cmd)
 
     sp = sub.add_parser("synth", help="generate a grasp dataset for chosen hands, objects and simulator")
@@ -43,6 +46,17 @@ def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _move_aside(out: Path) -> None:
+    """Rename an existing ``out`` to the first free ``out.old-N`` (nothing is deleted) and say so."""
+    if not out.exists():
+        return
+    n = 1
+    while out.with_name(f"{out.name}.old-{n}").exists():
+        n += 1
+    aside = out.rename(out.with_name(f"{out.name}.old-{n}"))
+    print(f"--fresh: moved the earlier {out} to {aside}")
+
+
 def _registry(args: argparse.Namespace):
     from ges_core.synthesis.pipeline import RegistrySpec
 
@@ -58,6 +72,8 @@ def run_demo_cmd(args: argparse.Namespace) -> int:
     overrides += [f"workers={args.workers}"] if args.workers else []
     config = default_demo_config(args.config, tuple(overrides))
     _check_objects(config.synthesis, config.object_ids())
+    if args.fresh:
+        _move_aside(Path(config.out))
     print(run_demo(config, registry=_registry(args), progress=not args.no_progress))
     return 0
 
