@@ -166,8 +166,9 @@ def test_drive_gains_reproduce_the_implicit_spring_damper():
     c = pd.dt * (pd.damping + pd.stiffness * pd.dt)
     # one implicit-Euler step from rest: v' = dt Kp e / (I + dt Kd + dt^2 Kp), i.e. v' = pGain e / dt
     np.testing.assert_allclose(pd.position_gains / pd.dt, pd.dt * pd.stiffness / (pd.inertia + c))
-    q, v, target = np.zeros((1, 3)), np.array([[1.0, -2.0, 0.5]]), np.ones((1, 3))
-    np.testing.assert_allclose(pd.force_limits(q, v, target), np.abs(pd.stiffness - (c / pd.dt) * v))
+    # the force limit is the spring force at the current position, whatever the velocity (drive.py)
+    q, target = np.array([[0.0, 0.5, 2.0]]), np.array([[1.0, 0.25, 1.0]])
+    np.testing.assert_allclose(pd.force_limits(q, target), [[400.0, 1.25, 0.5]])
 
 
 def test_a_finger_blocked_by_the_table_pushes_with_the_spring_force(hand):

@@ -18,18 +18,35 @@ with at most ``force``, where ``v*`` is the joint velocity after gravity and app
 * ``positionGain = alpha Kp dt / (Kd + Kp dt)``, ``velocityGain = alpha``, ``targetVelocity = 0``:
   the servo seeks ``v' = alpha v_t + (1 - alpha) v*``, which is SAPIEN's implicit step including
   gravity, with ``I`` the diagonal of the joint-space mass matrix at the start pose;
-* ``force = |Kp (q* - q) - (Kd + Kp dt) v|``: the PD force at the current state. A joint
-  blocked by contact (``v = 0``) therefore pushes with ``Kp (q* - q)``, the spring force, as in
-  SAPIEN, instead of PyBullet's usual "hold position with up to the effort limit". (SAPIEN's own
-  blocked drive only approximates it: measured +15 % at 20 solver iterations, -26 % at 10, +104 % at
-  100; see ``docs/simulators.md``.)
+* ``force = |Kp (q* - q)|``: the spring force at the current position. A joint blocked by
+  contact therefore pushes with the spring force, as SAPIEN's implicit drive does (its force
+  ``Kp (q* - q') - (Kd + Kp dt) v'`` at a blocked ``v' = 0``), instead of PyBullet's usual "hold
+  position with up to the effort limit". (SAPIEN's own blocked drive only approximates it: measured
+  +15 % at 20 solver iterations, -26 % at 10, +104 % at 100; see ``docs/simulators.md``.) Where the
+  joint ends the step moving toward its target, the implicit force is below the spring force, so
+  the limit does not bind and the servo makes SAPIEN's step exactly (free motion: unchanged).
+
+  The limit must not depend on the joint's *current* velocity. It used to be the PD force at the
+  current state, ``|Kp (q* - q) - (Kd + Kp dt) v|``: an explicit damping term, and on a light link
+  an explicit term rings. Measured (Shadow, Kp = 1, Kd = 0.1, I ~ 1e-6 kg m^2 at the distal
+  joints): a thumb tip pressed on a box alternated every step between v = -1.4 and +2.9 rad/s with
+  a limit of 0.004 and 0.46 N m, its torque a tenth of the spring force or less; fingertip grasps that
+  SAPIEN lifts slid out (of 7 Shadow grasps SAPIEN held, PyBullet validation held 0; 6 with
+  this limit).
+  PyBullet's reported velocity of a link in contact is no guide either: it includes motion that
+  something (we think the contact's split-impulse position correction) takes back, e.g. a blocked
+  FFJ1 read +1.1 to +1.7 rad/s
+  while its angle stayed within 0.04 rad for 40 steps. The price: a joint pushed *away* from its
+  target within one step is braked with at most the spring force, not the spring force plus
+  ``(Kd + Kp dt) v'`` (the servo still seeks SAPIEN's velocity, so this is capped, not lost).
 
 Static loads: a contact (a constraint) meets exactly the spring force. Gravity on the hand (off by
 default) is exact for the floating wrist (the whole hand falls with ``g``: sag ``m g / Kp``), but a
 finger loaded through its children settles at ``I_j (M^-1 tau)_j / Kp`` instead of ``tau_j / Kp``
 (Allegro joint_1.0 at Kp = 1: 0.097 vs 0.058 rad; at Kp = 400 both are below 2e-4 rad). Seeking
 ``alpha v_t + (1 - alpha) v`` with ``velocityGain = 1`` gets the mean sag right but rings with
-period two under gravity (the force limit's explicit damping), so we keep the smooth form.
+period two under gravity (measured with the earlier force limit and its explicit damping term),
+so we keep the smooth form.
 
 A target beyond a joint limit: PyBullet clips ``POSITION_CONTROL`` targets to the limits itself
 (measured), so the servo seeks the limit, while the force limit keeps the raw target's spring
@@ -96,9 +113,9 @@ class ImplicitPD:
         """(J,) PyBullet ``velocityGains`` (with zero ``targetVelocities``): ``alpha``."""
         return self.blend
 
-    def force_limits(self, q: np.ndarray, v: np.ndarray, target: np.ndarray) -> np.ndarray:
-        """(E, J) PyBullet ``forces``: ``|Kp (q* - q) - (Kd + Kp dt) v|``, the PD force at ``q``, ``v`` (E, J)."""
-        return np.abs(self.stiffness * (target - q) - self._velocity_coefficient * v)
+    def force_limits(self, q: np.ndarray, target: np.ndarray) -> np.ndarray:
+        """(E, J) PyBullet ``forces``: ``|Kp (q* - q)|``, the spring force at ``q`` (E, J) (module docs)."""
+        return np.abs(self.stiffness * (target - q))
 
     @cached_property
     def _velocity_coefficient(self) -> np.ndarray:
