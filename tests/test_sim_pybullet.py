@@ -166,9 +166,13 @@ def test_drive_gains_reproduce_the_implicit_spring_damper():
     c = pd.dt * (pd.damping + pd.stiffness * pd.dt)
     # one implicit-Euler step from rest: v' = dt Kp e / (I + dt Kd + dt^2 Kp), i.e. v' = pGain e / dt
     np.testing.assert_allclose(pd.position_gains / pd.dt, pd.dt * pd.stiffness / (pd.inertia + c))
-    # the force limit is the spring force at the current position, whatever the velocity (drive.py)
-    q, target = np.array([[0.0, 0.5, 2.0]]), np.array([[1.0, 0.25, 1.0]])
-    np.testing.assert_allclose(pd.force_limits(q, target), [[400.0, 1.25, 0.5]])
+    # the force limit is the spring force at the current position, whatever the velocity (drive.py) ...
+    q, v, target = np.array([[0.0, 0.5, 2.0]]), np.array([[1.0, -2.0, 0.5]]), np.array([[1.0, 0.25, 1.0]])
+    np.testing.assert_allclose(pd.force_limits(q, v, target), [[400.0, 1.25, 0.5]])
+    # ... but the PD force at the current state on joints outside spring_limit (the floating wrist's)
+    mixed = dataclasses.replace(pd, spring_limit=np.array([False, True, False]))
+    pd_force = np.abs(pd.stiffness * (target - q) - (c / pd.dt) * v)
+    np.testing.assert_allclose(mixed.force_limits(q, v, target), [[pd_force[0, 0], 1.25, pd_force[0, 2]]])
 
 
 def test_a_finger_blocked_by_the_table_pushes_with_the_spring_force(hand):
@@ -399,12 +403,20 @@ def test_palm_on_the_table_is_a_table_contact(hand):
     sim.set_hand_state(open_q(hand), palm_down[None])
     sim.load_object(box_asset(), pose=np.array([0.5, 0.5, 0.03, 1.0, 0.0, 0.0, 0.0]))
     sim.set_wrist_targets((palm_down - [0, 0, 0.005, 0, 0, 0, 0])[None])  # press 5 mm into the table
-    sim.step(60)
-    on_table = sim.contact_forces(["base_link"], "table")[0, 0]
-    assert on_table[2] > 1.0  # the table pushes the palm up ...
-    assert np.linalg.norm(on_table[:2]) <= on_table[2] * 1.0 + 1e-6  # ... inside the friction cone (mu = 1)
-    assert np.abs(sim.contact_forces(["base_link"], "object")).max() == 0.0
-    assert {(c.body_a, c.link_a, c.body_b) for c in sim.contact_pairs(0)} >= {("hand", "base_link", "table")}
+    sim.step(50)
+    # over the next 10 steps (PyBullet's contact point between the palm and the table may drop out for a
+    # single step while the palm stays pressed: measured ~19 N on the steps before and after such a step)
+    forces, pairs = [], []
+    for _ in range(10):
+        sim.step()
+        forces.append(sim.contact_forces(["base_link"], "table")[0, 0])
+        pairs.append({(c.body_a, c.link_a, c.body_b) for c in sim.contact_pairs(0)})
+        assert np.abs(sim.contact_forces(["base_link"], "object")).max() == 0.0
+    pressed = [i for i, f in enumerate(forces) if f[2] > 1.0]  # the table pushes the palm up ...
+    assert len(pressed) >= 8, [round(f[2], 2) for f in forces]
+    for i in pressed:
+        assert np.linalg.norm(forces[i][:2]) <= forces[i][2] * 1.0 + 1e-6  # ... inside the friction cone (mu = 1)
+        assert ("hand", "base_link", "table") in pairs[i]
 
 
 # -- errors and lifetime ------------------------------------------------------------------------

@@ -438,7 +438,7 @@ class PybulletBackend(SimBackend):
         if fresh:  # a cached state was checked when it was read at the end of the last step
             for e, problem in drive_problems(q, v).items():
                 blown.setdefault(e, problem)
-        return self._targets, layout.pd.force_limits(q, self._targets)
+        return self._targets, layout.pd.force_limits(q, v, self._targets)
 
     def _send_drives(self, scene: Scene, targets: np.ndarray, forces: np.ndarray) -> None:
         ids, position_gains, velocity_gains, zeros = self._motor_args

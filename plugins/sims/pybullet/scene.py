@@ -197,7 +197,11 @@ def hand_layout(scene: Scene, hand: HandModel, config: SceneConfig, floating: bo
         idx_sim_to_hand=idx_sim_to_hand,
         idx_hand_to_sim=np.argsort(idx_sim_to_hand),
         pd=ImplicitPD(
-            np.array(stiffness, dtype=np.float64), np.array(damping, dtype=np.float64), inertia, config.timestep
+            np.array(stiffness, dtype=np.float64),
+            np.array(damping, dtype=np.float64),
+            inertia,
+            config.timestep,
+            spring_limit=np.arange(len(drive_ids)) >= len(wrist),  # the hand's joints (drive.py)
         ),
     )
 
