@@ -146,8 +146,8 @@ class GraspRetargeter:
         The first grasp is :meth:`retarget_many`'s. The others are the next-best placements of the
         wrist search that differ from every one kept before by at least ``wrist_search.distinct_deg``
         of rotation or ``wrist_search.distinct_distance`` of position and that reach their contacts
-        (``meta["reached"]``): the later attempts of collision-aware refinement. Degenerate contact
-        sets come back as SynthesisError.
+        (``meta["reached"]``): the pipeline's later attempts (``SynthesisConfig.attempts``). Degenerate
+        contact sets come back as SynthesisError.
         """
         if keep < 1:
             raise ValueError(f"retarget_ranked: keep must be at least 1, got {keep}")
