@@ -211,6 +211,18 @@ def test_refine_verdict(allegro, depth, table, frozen, verdict):
     assert refine_verdict(refined, allegro) == verdict
 
 
+@pytest.mark.parametrize(
+    ("shift", "turn", "verdict"),
+    [(0.0, 0.0, "ok"), (0.019, 14.9, "ok"), (0.021, 0.0, "object_moved"), (0.0, 15.1, "object_moved")],
+)
+def test_refine_verdict_rejects_an_object_moved_by_the_close(allegro, shift, turn, verdict):
+    grasp = top_grasp(allegro)
+    meta = {"touching_fingers": ("index", "thumb"), "object_shift": shift, "object_turn_deg": turn}
+    moved = Grasp(hand=grasp.hand, wrist_pose=grasp.wrist_pose, q=grasp.q, meta=meta)
+    refined = RefinedGrasp(grasp=moved, max_penetration=0.0, table_contact=False, frozen=())
+    assert refine_verdict(refined, allegro) == verdict
+
+
 def test_refine_verdict_counts_tips_that_touch_without_freezing(allegro):
     """A tip that reaches its retargeted contact exactly touches with ~0 N and is never frozen."""
     grasp = top_grasp(allegro)
@@ -287,6 +299,11 @@ def test_freezing_keeps_the_object_in_place(allegro, sim_name):
     with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
         frozen = refine_grasp(sim, allegro, box_object(), top_grasp(allegro))
         pushing = refine_grasp(sim, allegro, box_object(), top_grasp(allegro), RefineConfig(gamma=1e9))
+        rest = stage_scene(sim, allegro, box_object())  # where the box starts: loaded at rest again
+    for refined in (frozen, pushing):  # the recorded displacement against the two poses, read independently
+        after = np.asarray(refined.grasp.meta["object_pose_after_refine"])
+        assert refined.grasp.meta["object_shift"] == pytest.approx(np.linalg.norm(after[:3] - rest[:3]), abs=1e-6)
+    assert pushing.grasp.meta["object_turn_deg"] > frozen.grasp.meta["object_turn_deg"]
     assert pushing.frozen == ()
     assert _shift(frozen) < 0.002
     assert _shift(pushing) > 0.005 and _shift(pushing) > 3 * _shift(frozen)

@@ -22,7 +22,8 @@ Here, through :class:`ges_core.sim.SimBackend` only (any hand, any backend):
 The output grasp is the measured state, the base pose expressed in the object's final frame (the
 object may be nudged a little), with the deepest hand-object penetration, any table contact and the
 fingers whose tips touch the object (``meta["touching_fingers"]``: frozen, or touching at the end)
-read from the backend's contact pairs at the end.
+read from the backend's contact pairs at the end, and how far the object moved and turned while the hand
+closed (``meta["object_shift"]`` m, ``meta["object_turn_deg"]``).
 """
 
 from __future__ import annotations
@@ -75,6 +76,13 @@ class RefineConfig(ConfigModel):
     stall_motion: float = Field(0.005, ge=0, description="joint motion over stall_window under which it stalled, rad")
     max_penetration: float = Field(0.004, ge=0, description="refine_verdict: deepest penetration accepted, m")
     min_touching: int = Field(2, ge=0, description="refine_verdict: fingertips that must touch, thumb included")
+    # The refined grasp is stored relative to the object's *final* pose, and validation re-stages the
+    # object at rest: an object that rolled or tipped during the close makes that relation wrong (the
+    # Shadow's refined ellipsoid grasp, tipped 54 deg, put the forearm 65 mm into the table). Measured on
+    # the 20 demo objects, both engines, one attempt: grasps that then validated had turned at most 11 deg
+    # and moved at most 10 mm (but one sphere); the failures with a moved object had turned 16-143 deg.
+    max_object_turn: float = Field(15.0, ge=0, description="refine_verdict: object rotation during the close, deg")
+    max_object_shift: float = Field(0.02, ge=0, description="refine_verdict: object displacement during the close, m")
     table_force: float = Field(0.05, ge=0, description="a hand-table pair pushing harder than this touches, N")
     # 2: rotation and abduction (both built-in hands), so the opened thumb stays opposed and closes by
     # flexion toward its contact. With 1 the Shadow thumb swung in from the index side and landed on the
@@ -120,11 +128,14 @@ def refine_grasp(
             f"refine_grasp: {sim.name} blew up closing hand '{hand.name}' on object '{obj.object_id}': {error}",
             reason="unstable",
         ) from error
-    return _result(sim, d, grasp, frozen, steps, config, start)
+    return _result(sim, d, grasp, frozen, steps, config, start, object_pose)
 
 
 def refine_verdict(refined: RefinedGrasp, hand: HandModel, config: RefineConfig | None = None) -> str:
-    """'ok', or why the refined grasp is unusable: 'penetration', 'table_contact' or 'few_contacts'.
+    """'ok', or why the refined grasp is unusable: 'penetration', 'table_contact', 'object_moved' or 'few_contacts'.
+
+    object_moved: the object turned more than ``max_object_turn`` or moved more than ``max_object_shift``
+    while the hand closed (``grasp.meta["object_turn_deg"]``, ``["object_shift"]``; absent: not checked).
 
     few_contacts: fewer than ``min_touching`` fingertips touched the object at the end or were frozen
     on contact (``grasp.meta["touching_fingers"]``, else ``frozen``), or the thumb was not among them.
@@ -138,6 +149,12 @@ def refine_verdict(refined: RefinedGrasp, hand: HandModel, config: RefineConfig 
         return "penetration"
     if refined.table_contact:
         return "table_contact"
+    meta = refined.grasp.meta
+    if (
+        meta.get("object_turn_deg", 0.0) > config.max_object_turn
+        or meta.get("object_shift", 0.0) > config.max_object_shift
+    ):
+        return "object_moved"
     if config.min_touching and (len(touching) < config.min_touching or thumb not in touching):
         return "few_contacts"
     return "ok"
@@ -241,10 +258,13 @@ def _result(
     steps: int,
     config: RefineConfig,
     start: float,
+    object_start: np.ndarray,
 ) -> RefinedGrasp:
-    """The measured final state as a RefinedGrasp (base pose in the object's final frame)."""
+    """The measured final state as a RefinedGrasp (base pose in the object's final frame);
+    ``object_start`` (7,) is the object's pose before the hand closed, world."""
     q = sim.joint_state()[0][0]
     object_pose = sim.object_pose()[0]
+    moved = relative(object_start, object_pose)
     contacts = hand_contacts(sim, config.table_force)
     names = tuple(f.name for f, hit in zip(d.fingers, frozen, strict=True) if hit)
     touching = tuple(
@@ -254,6 +274,8 @@ def _result(
         **grasp.meta,
         "refine_steps": steps,
         "object_pose_after_refine": object_pose.tolist(),
+        "object_shift": float(np.linalg.norm(moved[:3])),
+        "object_turn_deg": float(np.degrees(2.0 * np.arccos(min(1.0, abs(float(moved[3])))))),
         "touching_fingers": touching,
     }
     refined = Grasp(hand=grasp.hand, wrist_pose=relative(object_pose, sim.wrist_pose()[0]), q=q, meta=meta)

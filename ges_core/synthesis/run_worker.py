@@ -233,7 +233,9 @@ def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gras
         extra.setdefault("errors", {})["refinement"] = str(error)
         return None, StepOutcome.failed(getattr(error, "reason", "unstable"), time.perf_counter() - start)
     verdict = refine_verdict(refined, model, cfg.refine)
-    extra.update(frozen=list(refined.frozen), touching_fingers=list(refined.grasp.meta.get("touching_fingers", ())))
+    meta = refined.grasp.meta
+    extra.update(frozen=list(refined.frozen), touching_fingers=list(meta.get("touching_fingers", ())))
+    extra.update(object_shift=meta["object_shift"], object_turn_deg=meta["object_turn_deg"])
     seconds = float(refined.seconds)
     return refined, StepOutcome(ok=True, seconds=seconds) if verdict == "ok" else StepOutcome.failed(verdict, seconds)
 
