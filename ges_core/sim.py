@@ -99,11 +99,18 @@ class SimBackend(ABC):
 
     @abstractmethod
     def load_object(
-        self, obj: ObjectAsset, pose: np.ndarray | None = None, env_ids: Sequence[int] | None = None
+        self,
+        obj: ObjectAsset,
+        pose: np.ndarray | None = None,
+        env_ids: Sequence[int] | None = None,
+        *,
+        fixed: bool = False,
     ) -> None:
         """Put ``obj`` into the scenes ``env_ids`` (all if None), replacing any object there.
 
-        pose: (7,) or (len(env_ids), 7); None rests it on the table at the origin.
+        pose: (7,) or (len(env_ids), 7); None rests it on the table at the origin. fixed: the object
+        stays where it is put (kinematic in SAPIEN, static in PyBullet), contacts push only the hand and
+        are reported as usual; until the next load_object.
         """
 
     # -- commands -------------------------------------------------------------------------

@@ -99,6 +99,27 @@ def test_dropped_box_rests_at_half_height(backend):
     np.testing.assert_allclose(np.abs(pose[3]), 1.0, atol=1e-4)
 
 
+def test_a_fixed_object_stays_put_and_still_reports_contacts(backend, hand):
+    """load_object(fixed=True): no fall under gravity, no push from a hand driven into it, contacts read as usual;
+    the next load_object is free again (the same box dropped from the same pose falls)."""
+    make_sim, _ = backend
+    sim = make_sim(hand)
+    start = np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0])  # 10 cm above the table
+    sim.load_object(box_asset(), pose=start, fixed=True)
+    palm_down = np.array([0.0, 0.0, 0.3, 0.0, 1.0, 0.0, 0.0])  # well above, then driven down through the box
+    sim.set_hand_state(open_q(hand), palm_down[None])
+    pushed = 0.0
+    for i in range(90):
+        sim.set_wrist_targets((palm_down - [0, 0, 0.25 * min(1.0, (i + 1) / 60), 0, 0, 0, 0])[None])
+        sim.step()
+        pushed = max(pushed, float(np.abs(sim.contact_forces(["base_link", *hand.description.tip_links])[0]).max()))
+    np.testing.assert_allclose(sim.object_pose()[0], start, atol=1e-6)
+    assert pushed > 1.0  # the hand did push on it, N
+    sim.load_object(box_asset(), pose=start)
+    sim.step(60)
+    assert sim.object_pose()[0, 2] < 0.05
+
+
 @pytest.mark.parametrize(
     ("shape", "rest_z"),
     [

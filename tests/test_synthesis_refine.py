@@ -65,7 +65,7 @@ class ExplodingBackend(SimBackend):
     def load_hand(self, hand, *, floating=True):
         self.k = hand.description.num_joints
 
-    def load_object(self, obj, pose=None, env_ids=None):
+    def load_object(self, obj, pose=None, env_ids=None, *, fixed=False):
         pass
 
     def set_joint_targets(self, q):
@@ -295,10 +295,12 @@ def test_refinement_freezes_fingers_on_contact(allegro, sim_name):
 @pytest.mark.sim
 @pytest.mark.parametrize("sim_name", SIMS)
 def test_freezing_keeps_the_object_in_place(allegro, sim_name):
-    """The same closing with freezing switched off (gamma huge) shoves the box around."""
+    """With a free object, the same closing with freezing switched off (gamma huge) shoves the box around."""
     with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
-        frozen = refine_grasp(sim, allegro, box_object(), top_grasp(allegro))
-        pushing = refine_grasp(sim, allegro, box_object(), top_grasp(allegro), RefineConfig(gamma=1e9))
+        frozen = refine_grasp(sim, allegro, box_object(), top_grasp(allegro), RefineConfig(fix_object=False))
+        pushing = refine_grasp(
+            sim, allegro, box_object(), top_grasp(allegro), RefineConfig(gamma=1e9, fix_object=False)
+        )
         rest = stage_scene(sim, allegro, box_object())  # where the box starts: loaded at rest again
     for refined in (frozen, pushing):  # the recorded displacement against the two poses, read independently
         after = np.asarray(refined.grasp.meta["object_pose_after_refine"])
@@ -307,6 +309,19 @@ def test_freezing_keeps_the_object_in_place(allegro, sim_name):
     assert pushing.frozen == ()
     assert _shift(frozen) < 0.002
     assert _shift(pushing) > 0.005 and _shift(pushing) > 3 * _shift(frozen)
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_fixed_object_is_not_moved_even_without_freezing(allegro, sim_name):
+    """fix_object (default): the object stays at rest even when fingers never freeze and push on (gamma huge)."""
+    with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+        pushing = refine_grasp(sim, allegro, box_object(), top_grasp(allegro), RefineConfig(gamma=1e9))
+        rest = stage_scene(sim, allegro, box_object())
+    after = np.asarray(pushing.grasp.meta["object_pose_after_refine"])
+    np.testing.assert_allclose(after, rest, atol=1e-6)
+    assert pushing.grasp.meta["object_shift"] < 1e-6 and pushing.grasp.meta["object_turn_deg"] < 1e-3
+    assert len(pushing.grasp.meta["touching_fingers"]) >= 2  # the tips reached it and pushed
 
 
 @pytest.mark.sim

@@ -42,11 +42,12 @@ _LOADED: weakref.WeakKeyDictionary[SimBackend, str] = weakref.WeakKeyDictionary(
 """Which hand these helpers loaded into which backend (a backend takes one hand for its lifetime)."""
 
 
-def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset) -> np.ndarray:
+def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset, *, fixed: bool = False) -> np.ndarray:
     """Load ``hand`` (floating, once per backend) and ``obj`` (resting on the table); return the object pose.
 
     Returns (7,) the object's pose in the world right after loading, position m + quaternion wxyz.
-    A backend keeps the hand between calls; the object is replaced on every call.
+    A backend keeps the hand between calls; the object is replaced on every call. fixed: the object
+    stays at its resting pose whatever pushes it (``SimBackend.load_object(fixed=True)``).
     """
     if sim.num_envs != 1:
         raise ConfigError(
@@ -61,7 +62,7 @@ def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset) -> np.ndarra
         raise SimulationError(
             f"{sim.name}: this backend already holds hand '{loaded}'; build a new backend for hand '{hand.name}'"
         )
-    sim.load_object(obj)
+    sim.load_object(obj, fixed=fixed)
     return sim.object_pose()[0]
 
 

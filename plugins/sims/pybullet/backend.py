@@ -139,7 +139,12 @@ class PybulletBackend(SimBackend):
         self._reset_hand(np.tile(self._start, (self.num_envs, 1)), list(range(self.num_envs)))
 
     def load_object(
-        self, obj: ObjectAsset, pose: np.ndarray | None = None, env_ids: Sequence[int] | None = None
+        self,
+        obj: ObjectAsset,
+        pose: np.ndarray | None = None,
+        env_ids: Sequence[int] | None = None,
+        *,
+        fixed: bool = False,
     ) -> None:
         """Put ``obj`` into scenes ``env_ids`` (all if None), replacing any object; pose None rests it on the table.
 
@@ -157,7 +162,7 @@ class PybulletBackend(SimBackend):
         self._restore(ids)
         for e, row in zip(ids, poses, strict=True):
             scene = self._scenes[e]
-            create_object(scene, obj)
+            create_object(scene, obj, fixed=fixed)
             scene.obj_friction = obj.friction
             self._apply_friction(scene)
             scene.obj_load_pose = row.copy()
@@ -329,7 +334,7 @@ class PybulletBackend(SimBackend):
             if self._hand is not None:
                 load_hand_body(scene, self._hand, self.config, self._layout.floating)
             if old.asset is not None:
-                create_object(scene, old.asset)
+                create_object(scene, old.asset, fixed=old.obj_fixed)
                 scene.obj_friction, scene.obj_load_pose = old.obj_friction, old.obj_load_pose
             self._apply_friction(scene)
             self._blown.discard(e)

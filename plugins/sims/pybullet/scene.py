@@ -68,6 +68,8 @@ class Scene:
     """The object's own (PhysX-style) friction coefficient."""
     asset: ObjectAsset | None = None
     """The object's asset (kept to rebuild the scene of an env that blew up)."""
+    obj_fixed: bool = False
+    """The object is static (``load_object(fixed=True)``)."""
 
 
 @dataclass(frozen=True)
@@ -235,8 +237,9 @@ def set_hand_friction(scene: Scene, layout: HandLayout, friction: float) -> None
         p.changeDynamics(scene.hand, link, lateralFriction=friction, physicsClientId=scene.cid)
 
 
-def create_object(scene: Scene, obj: ObjectAsset) -> MassProperties:
-    """Replace the scene's object by a new body of ``obj``'s collision shapes (no visuals), at the origin."""
+def create_object(scene: Scene, obj: ObjectAsset, *, fixed: bool = False) -> MassProperties:
+    """Replace the scene's object by a new body of ``obj``'s collision shapes (no visuals), at the origin;
+    ``fixed``: a static body (mass 0), which contacts do not move."""
     if scene.obj >= 0:
         p.removeBody(scene.obj, physicsClientId=scene.cid)
         scene.obj = -1
@@ -265,7 +268,9 @@ def create_object(scene: Scene, obj: ObjectAsset) -> MassProperties:
         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,  # the object's weight is an external force
         physicsClientId=scene.cid,
     )
-    scene.obj_mass, scene.asset = props.mass, obj
+    if fixed:
+        p.changeDynamics(scene.obj, -1, mass=0.0, physicsClientId=scene.cid)
+    scene.obj_mass, scene.asset, scene.obj_fixed = (0.0 if fixed else props.mass), obj, fixed
     scene.base_in_obj = (tuple(props.inertial_pose[:3]), tuple(wxyz_to_xyzw(props.inertial_pose[3:])))
     scene.obj_in_base = p.invertTransform(*scene.base_in_obj)
     return props

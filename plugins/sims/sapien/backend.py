@@ -120,7 +120,12 @@ class SapienBackend(SimBackend):
         self._reset_hand(list(range(self.num_envs)))
 
     def load_object(
-        self, obj: ObjectAsset, pose: np.ndarray | None = None, env_ids: Sequence[int] | None = None
+        self,
+        obj: ObjectAsset,
+        pose: np.ndarray | None = None,
+        env_ids: Sequence[int] | None = None,
+        *,
+        fixed: bool = False,
     ) -> None:
         self._live()
         ids = env_id_list(env_ids, self.num_envs, "sapien.load_object")
@@ -133,6 +138,7 @@ class SapienBackend(SimBackend):
                 env.scene.remove_entity(env.obj)
             env.obj = loading.build_object(env.scene, obj, self.config)
             env.obj_body = env.obj.find_component_by_type(sapien.physx.PhysxRigidDynamicComponent)
+            env.obj_body.kinematic = bool(fixed)
             loading.set_contact_offset([env.obj_body], self._contact_offset)
             if poses is None:
                 start = np.array([0.0, 0.0, loading.rest_height(env.obj), 1.0, 0.0, 0.0, 0.0])
