@@ -181,9 +181,8 @@ class GraspRetargeter:
 
         normals: (B, 5, 3) outward contact normals, object frame (the solver's pad term). Every
         candidate wrist placement (:mod:`.retarget_search`) of every grasp is solved in one batch; each
-        grasp's solutions are its candidates that reach their contacts, in order of objective (the paper's
-        placement first on ties), each at a placement distinct from the ones before; none reaching, the
-        cheapest alone (:func:`distinct_ranking`)."""
+        grasp's solutions are its candidates in order of objective (the paper's placement first on
+        ties), each at a placement distinct from the ones before (:func:`distinct_ranking`)."""
         c = self.config
         wrists = candidate_wrists(
             topo,

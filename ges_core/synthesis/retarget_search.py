@@ -6,10 +6,8 @@ pose (the Shadow thumb reached the thumb contact of a 79 mm box 17 mm off, with 
 fingers then push the object sideways and no grasp holds. This module makes the wrist placement a
 small search: candidate placements vary the paper's roll, pitch, palm distance and ``y_d`` and add a
 yaw about the palm normal through the contacts' centre; every candidate's joints are solved (one
-batch), and among the candidates that reach their contacts (residual within ``max_residual``) the one
-with the lowest retargeting objective (fingertip + pad terms, plus the table and object penalties)
-wins; none reaching, the lowest of all (the step then fails as unreachable). The paper's own placement
-is candidate 0 and wins ties. ``enabled=False`` gives the paper's placement.
+batch), and the candidate with the lowest retargeting objective (fingertip + pad terms) wins. The
+paper's own placement is candidate 0 and wins ties. ``enabled=False`` gives the paper's placement.
 
 The candidate set is a fixed, seeded sample of the grid, the same for every grasp, so a grasp's
 result never depends on its batch mates.
@@ -130,20 +128,18 @@ def candidate_wrists(
 def distinct_ranking(
     cost: np.ndarray, wrists: np.ndarray, eligible: np.ndarray, keep: int, config: WristSearchConfig
 ) -> list[int]:
-    """Up to ``keep`` candidate indices, best first: the cheapest ``eligible`` (M,) candidate by ``cost``
-    (M,) (none eligible: the cheapest of all, alone), then the cheapest eligible ones whose wrist pose (of
-    ``wrists`` (M, 4, 4)) differs from every one picked before by at least ``config.distinct_deg`` of
-    rotation or ``config.distinct_distance`` of position. Ties go to the lower index (the paper's
-    placement is index 0)."""
+    """Up to ``keep`` candidate indices, best first: the lowest ``cost`` (M,), then the cheapest
+    ``eligible`` (M,) candidates whose wrist pose (of ``wrists`` (M, 4, 4)) differs from every one picked
+    before by at least ``config.distinct_deg`` of rotation or ``config.distinct_distance`` of position.
+    Ties go to the lower index (the paper's placement is index 0)."""
     order = np.argsort(cost, kind="stable")
-    if not eligible.any():
-        return [int(order[0])]
-    order = order[eligible[order]]
     picked = [int(order[0])]
     min_cos = np.cos(np.radians(config.distinct_deg))
     for k in order[1:]:
         if len(picked) >= keep:
             break
+        if not eligible[k]:
+            continue
         rot = wrists[picked, :3, :3]
         cos = (np.einsum("pij,ij->p", rot, wrists[k, :3, :3]) - 1.0) / 2.0  # cos of the relative rotation angle
         far = np.linalg.norm(wrists[picked, :3, 3] - wrists[k, :3, 3], axis=1) >= config.distinct_distance
