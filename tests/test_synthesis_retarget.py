@@ -23,7 +23,13 @@ from ges_core.kinematics import HandKinematics
 from ges_core.objects.pointcloud import sample_surface
 from ges_core.registry import load_registry
 from ges_core.synthesis.retarget import GraspRetargeter, RetargetConfig, raise_contacts, retarget_contacts
-from ges_core.synthesis.retarget_search import ObjectCloud, WristSearchConfig, distinct_ranking, object_penalty
+from ges_core.synthesis.retarget_search import (
+    ObjectCloud,
+    WristSearchConfig,
+    candidate_wrists,
+    distinct_ranking,
+    object_penalty,
+)
 from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
 from ges_core.synthesis.retarget_wrist import (
     check_contact_array,
@@ -285,7 +291,9 @@ def test_wrist_search_fits_at_least_as_well_as_the_papers_placement(hands, kins,
     assert len(paper.search_offsets) == 1 and not paper.search_offsets.any()
     # fit only: with the table penalty on, a placement may fit worse to keep the hand off the table
     searched = GraspRetargeter(hands[name], RetargetConfig(wrist_search={"table_weight": 0.0}), kinematics=kins[name])
-    assert not searched.search_offsets[0].any() and len(searched.search_offsets) == 96  # row 0: the paper's
+    offsets = searched.search_offsets
+    assert not offsets[0].any() and len(offsets) == 96 + 32  # row 0: the paper's; 32 with a lateral slide
+    assert not offsets[:96, 5].any() and set(offsets[96:, 5]) == {-0.02, -0.01}
     better = 0
     for contacts in box_contact_sets():
         a, b = (
@@ -295,6 +303,19 @@ def test_wrist_search_fits_at_least_as_well_as_the_papers_placement(hands, kins,
         assert b <= a + 1e-12
         better += b < 0.5 * a
     assert better >= 1, f"{name}: the search never halved the objective"
+
+
+def test_lateral_slide_moves_the_wrist_along_the_lateral_axis(hands, kins):
+    """A candidate slid by s along u_palm is the unslid one translated by s * u_palm, rotation unchanged."""
+    r = GraspRetargeter(hands["allegro"], kinematics=kins["allegro"])
+    pos = raise_contacts(np.stack([c.positions for c in box_contact_sets()]), 0.0)
+    topo = topology_descriptors(pos, r.frame.chirality)
+    offsets = np.array([[20.0, 0.0, 20.0, -0.15, -0.02, 0.0], [20.0, 0.0, 20.0, -0.15, -0.02, -0.02]])
+    c = r.config
+    kw = {"roll_deg": c.roll_deg, "pitch_deg": c.pitch_deg, "palm_distance": c.palm_distance, "y_d": c.y_d}
+    wrists = candidate_wrists(topo, r.frame, offsets, **kw)
+    np.testing.assert_allclose(wrists[:, 1, :3, :3], wrists[:, 0, :3, :3], atol=1e-12)
+    np.testing.assert_allclose(wrists[:, 1, :3, 3] - wrists[:, 0, :3, 3], -0.02 * topo.lateral_axis, atol=1e-12)
 
 
 def test_wrist_search_result_does_not_depend_on_batch_mates(retargeters):

@@ -110,7 +110,7 @@ class GraspRetargeter:
         """(4, 4) wrist-link pose in the base-link frame at ``q_init``."""
         self.frame: HandFrame = hand_frame(d, self._wrist_points(q_open))
         self.search_offsets = candidate_offsets(self.config.wrist_search)
-        """(M, 5) wrist placements tried per grasp (row 0: the paper's), see :mod:`.retarget_search`."""
+        """(M, 6) wrist placements tried per grasp (row 0: the paper's), see :mod:`.retarget_search`."""
         self._opened = torch.as_tensor(open_joint_mask(d, self.config.wrist_search.thumb_keep))
         """(K,) joints the pre-grasp and refinement open (their table clearance is checked too)."""
         hull = collision_points(hand.urdf_text())

@@ -5,9 +5,10 @@ deg, ``O_palm`` 3/4 ``l_p`` behind the contacts). For a hand whose thumb cannot 
 pose (the Shadow thumb reached the thumb contact of a 79 mm box 17 mm off, with its side), the
 fingers then push the object sideways and no grasp holds. This module makes the wrist placement a
 small search: candidate placements vary the paper's roll, pitch, palm distance and ``y_d`` and add a
-yaw about the palm normal through the contacts' centre; every candidate's joints are solved (one
-batch), and the candidate with the lowest retargeting objective (fingertip + pad terms) wins. The
-paper's own placement is candidate 0 and wins ties. ``enabled=False`` gives the paper's placement.
+yaw about the palm normal through the contacts' centre and a slide along the lateral axis; every
+candidate's joints are solved (one batch), and the candidate with the lowest retargeting objective
+(fingertip + pad terms, plus the table and object penalties) wins. The paper's own placement is
+candidate 0 and wins ties. ``enabled=False`` gives the paper's placement.
 
 The candidate set is a fixed, seeded sample of the grid, the same for every grasp, so a grasp's
 result never depends on its batch mates.
@@ -54,8 +55,14 @@ class WristSearchConfig(BaseModel):
     pitch_deg: tuple[float, ...] = Field((-20.0, 0.0, 20.0, 40.0), description="added to the paper's pitch, degrees")
     palm_distance: tuple[float, ...] = Field((-0.3, -0.15, 0.0), description="added to palm_distance, in l_p")
     y_d: tuple[float, ...] = Field((-0.04, -0.02, 0.0), description="added to y_d, metres")
+    # Lateral: the hand slid along u_palm (index -> little); negative toward the index side. In a side grasp
+    # u_palm points down, and the Allegro (four fingers, ~10 cm palm) reaching contacts 2.5-8.4 cm up a 10 cm
+    # can pressed the table with its palm and ring finger in every placement that fitted (13-53 N); slid 1-2
+    # cm toward the index side, 2-3 of the 3 best placements of both cans refined without touching it.
+    lateral: tuple[float, ...] = Field((-0.02, -0.01), description="slides along u_palm (index -> little), metres")
+    lateral_candidates: int = Field(32, ge=0, description="placements tried with a lateral slide, added to candidates")
     candidates: int = Field(
-        96, ge=1, description="placements tried per grasp: the paper's plus a seeded sample of the grid"
+        96, ge=1, description="placements tried per grasp without lateral slide: the paper's plus a seeded sample"
     )
     seed: int = Field(0, description="seed of the grid sample")
     # Table: points on every link's collision geometry (ges_core.collision_points) should stay 5 mm above
@@ -87,17 +94,24 @@ class WristSearchConfig(BaseModel):
 
 
 def candidate_offsets(config: WristSearchConfig) -> np.ndarray:
-    """(M, 5) offsets (yaw deg, roll deg, pitch deg, palm distance l_p, y_d m); row 0 is all zeros (the paper's)."""
-    grid = np.array(
-        list(itertools.product(config.yaw_deg, config.roll_deg, config.pitch_deg, config.palm_distance, config.y_d)),
-        dtype=np.float64,
-    )
-    grid = grid[np.any(grid != 0.0, axis=1)]
-    if not config.enabled or len(grid) == 0:
-        return np.zeros((1, 5))
-    take = min(config.candidates - 1, len(grid))
-    rows = np.sort(np.random.default_rng(config.seed).choice(len(grid), size=take, replace=False))
-    return np.concatenate([np.zeros((1, 5)), grid[rows]])
+    """(M, 6) offsets (yaw deg, roll deg, pitch deg, palm distance l_p, y_d m, lateral m); row 0 is all zeros
+    (the paper's). Rows 1 .. ``candidates - 1``: a seeded sample of the grid without lateral slide; then
+    ``lateral_candidates`` rows sampled from the grid with each nonzero ``lateral`` (another seed), so the
+    slid placements add to the others and never displace them."""
+    if not config.enabled:
+        return np.zeros((1, 6))
+    angles = (config.yaw_deg, config.roll_deg, config.pitch_deg, config.palm_distance, config.y_d)
+    plain = _sample(np.array(list(itertools.product(*angles, (0.0,)))), config.candidates - 1, config.seed)
+    slides = tuple(v for v in config.lateral if v != 0.0)
+    slid = _sample(np.array(list(itertools.product(*angles, slides))), config.lateral_candidates, config.seed + 1)
+    return np.concatenate([np.zeros((1, 6)), plain, slid])
+
+
+def _sample(grid: np.ndarray, take: int, seed: int) -> np.ndarray:
+    """Up to ``take`` rows of ``grid`` (K, 6) other than all zeros, seeded, in grid order."""
+    grid = grid.reshape(-1, 6)[np.any(grid.reshape(-1, 6) != 0.0, axis=1)]
+    take = min(take, len(grid))
+    return grid[np.sort(np.random.default_rng(seed).choice(len(grid), size=take, replace=False))]
 
 
 def candidate_wrists(
@@ -110,9 +124,9 @@ def candidate_wrists(
     palm_distance: float,
     y_d: float,
 ) -> np.ndarray:
-    """(B, M, 4, 4) wrist-link poses, object frame: the paper's placement moved by each of ``offsets`` (M, 5)."""
+    """(B, M, 4, 4) wrist-link poses, object frame: the paper's placement moved by each of ``offsets`` (M, 6)."""
     out = np.empty((len(topo.center), len(offsets), 4, 4))
-    for m, (yaw, roll, pitch, dist, yd) in enumerate(offsets):
+    for m, (yaw, roll, pitch, dist, yd, lateral) in enumerate(offsets):
         poses = wrist_poses(
             topo,
             hand,
@@ -122,6 +136,7 @@ def candidate_wrists(
             y_d=y_d + yd,
         )
         out[:, m] = _turn_about_normal(poses, topo, np.radians(yaw))
+        out[:, m, :3, 3] += lateral * topo.lateral_axis
     return out
 
 
