@@ -54,6 +54,27 @@ def test_demo_with_another_config_is_refused_unless_fresh(tmp_path, capsys):
 
 
 @pytest.mark.sim
+def test_retarget_table_counts_each_hands_records_once(tmp_path, capsys):
+    """A source dataset that already holds target-hand records (retargeted in place before, or the demo's
+    two hands) must not add them to the new ones in the printed table."""
+    demo = tmp_path / "demo"
+    argv = ["demo", "--out", str(demo), "--no-progress", "-o", "objects=1", "-o", "hands=[allegro]", *FAST]
+    assert cli.main([*argv, "-o", "pictures=false"]) == 0
+    source = demo / "dataset"
+    assert cli.main(["retarget", "--from", "allegro", "--to", "shadow", str(source), "--no-progress"]) == 0  # in place
+    assert "| shadow | sapien | 1 |" in capsys.readouterr().out
+    assert sorted(r.hand for r in open_dataset(source)) == ["allegro", "shadow"]
+    out = tmp_path / "again"
+    assert (
+        cli.main(["retarget", "--from", "allegro", "--to", "shadow", str(source), "--out", str(out), "--no-progress"])
+        == 0
+    )
+    text = capsys.readouterr().out
+    assert "| shadow | sapien | 1 |" in text and "| allegro | sapien | 1 |" in text
+    assert [r.hand for r in open_dataset(out)] == ["shadow"]
+
+
+@pytest.mark.sim
 def test_retarget_reuses_stored_contacts(demo_dir, capsys, tmp_path):
     if not (demo_dir / "dataset").is_dir():
         _demo(demo_dir, capsys)

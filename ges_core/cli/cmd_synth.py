@@ -119,8 +119,9 @@ def run_retarget_cmd(args: argparse.Namespace) -> int:
         ids, [args.target_hand], config, out, workers=args.workers, progress=not args.no_progress,
         registry=_registry(args), source=(str(args.dataset), args.source_hand),
     )  # fmt: skip
-    wanted = {(o, h) for o in ids for h in (args.source_hand, args.target_hand)}
-    _print_table(args.dataset, wanted, extra=out if Path(out) != Path(args.dataset) else None)
+    # the source hand's records from DATASET, the target hand's from where they were written (a dataset
+    # holding both hands, like the demo's, would otherwise count its own target-hand records too)
+    _print_table(args.dataset, {(o, args.source_hand) for o in ids}, extra=(out, {(o, args.target_hand) for o in ids}))
     return 0
 
 
@@ -131,11 +132,14 @@ def _check_objects(config, ids: list[str]) -> None:
         library.entry(oid)
 
 
-def _print_table(root: Path, wanted: set[tuple[str, str]], extra: Path | None = None) -> None:
+def _print_table(
+    root: Path, wanted: set[tuple[str, str]], extra: tuple[Path, set[tuple[str, str]]] | None = None
+) -> None:
+    """The Table 1 summary of ``root``'s records in ``wanted`` (and of ``extra``: another folder and its keys)."""
     from ges_core.dataset import open_dataset
     from ges_core.synthesis.run_table import format_table, table_rows
 
     records = [r for r in open_dataset(root) if r.key in wanted]
     if extra is not None:
-        records += [r for r in open_dataset(extra) if r.key in wanted]
+        records += [r for r in open_dataset(extra[0]) if r.key in extra[1]]
     print(format_table(table_rows(records)))
