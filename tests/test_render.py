@@ -25,7 +25,7 @@ from ges_core.render import (
     write_png,
 )
 from ges_core.render.png import tile_origin
-from ges_core.render.scene import HAND_COLOR
+from ges_core.render.scene import HAND_COLOR, OBJECT_COLOR
 from ges_core.synthesis.types import Grasp
 
 HALF = np.array([0.025, 0.035, 0.05])
@@ -83,7 +83,8 @@ def contacts() -> ContactSet:
 def test_grasp_picture_shows_object_contacts_and_hand(tmp_path, hands, box, hand_name):
     hand = hands[hand_name]
     start = time.perf_counter()
-    path = render_grasp(hand, box, contacts(), top_grasp(hand), tmp_path / "grasp.png")
+    fixed_view = GraspRenderer(RenderConfig(away_from_base=None))  # the view VISIBLE_CONTACTS are placed for
+    path = render_grasp(hand, box, contacts(), top_grasp(hand), tmp_path / "grasp.png", renderer=fixed_view)
     seconds = time.perf_counter() - start
     print(f"{hand_name}: one 320x240 picture with a fresh renderer in {seconds:.3f} s")
     with Image.open(path) as image:  # read back by Pillow, independently of our reader
@@ -92,9 +93,30 @@ def test_grasp_picture_shows_object_contacts_and_hand(tmp_path, hands, box, hand
     assert rgb.std() > 20  # not blank
     for slot in FINGER_SLOTS:  # markers under a see-through finger mix with its grey, hence 0.98
         assert slot_pixels(rgb, SLOT_COLORS[slot], 0.98) >= 10, slot
-    bare = read_png(render_grasp(hand, box, None, top_grasp(hand), tmp_path / "bare.png"))  # negative control
+    bare = read_png(render_grasp(hand, box, None, top_grasp(hand), tmp_path / "bare.png", renderer=fixed_view))
+    fixed_view.close()  # bare: the negative control
     assert all(slot_pixels(bare, SLOT_COLORS[s], 0.98) == 0 for s in FINGER_SLOTS)
     assert seconds < 5.0
+
+
+def test_camera_looks_from_the_side_away_from_the_forearm(hands, box):
+    """The Shadow's base (forearm, 29 cm behind the palm) turned toward the default camera hides most of the box
+    from the fixed view; looking from the side away from the base shows it."""
+    from ges_core.transforms import matrix_to_pose, pose_to_matrix
+
+    hand = hands["shadow"]
+    grasp = top_grasp(hand)
+    base = pose_to_matrix(grasp.wrist_pose)
+    toward = np.radians(RenderConfig().azimuth_deg) - np.arctan2(base[1, 3], base[0, 3])  # forearm -> camera
+    turn = np.eye(4)
+    turn[:2, :2] = [[np.cos(toward), -np.sin(toward)], [np.sin(toward), np.cos(toward)]]
+    facing = matrix_to_pose(turn @ base)  # the grasp turned about the box's vertical axis
+    joints = dict(zip(hand.description.joint_names, grasp.q, strict=True))
+    seen = {}
+    for away in (None, 30.0):
+        with GraspRenderer(RenderConfig(away_from_base=away, hand_opacity=1.0)) as r:
+            seen[away] = slot_pixels(r.render(box, None, hand, facing, joints), OBJECT_COLOR, 0.998)
+    assert seen[30.0] > 2 * seen[None] + 100, seen
 
 
 def test_hand_alone_is_drawn_where_its_links_are(hands, renderer, box):
