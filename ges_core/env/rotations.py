@@ -7,6 +7,9 @@ from __future__ import annotations
 import numpy as np
 import torch
 
+from ges_core.transforms import bilinear_matrix, outer16
+from ges_core.transforms import quat_mul as quat_mul_np  # the numpy Hamilton product (one implementation)
+
 __all__ = [
     "quat_conj",
     "quat_conj_np",
@@ -70,32 +73,11 @@ def quat_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
 # -- numpy float64 versions for the environment's per-step path -----------------------------------
 # The same maths as the torch helpers above on numpy arrays: on a handful of envs every torch op costs
 # several microseconds of dispatch, so the per-control-step code (observation, wrist targets) uses these
-# and converts to torch once. The bilinear forms below are written as one outer product times a constant
-# matrix (three numpy calls instead of ~30 elementwise ones).
-
-
-def _bilinear(terms: dict[tuple[int, int], dict[int, float]], out: int) -> np.ndarray:
-    """(16, out) matrix M with ``(a ⊗ b).reshape(16) @ M`` = Σ coef · a_i b_j per output, from (i, j) -> {k: coef}."""
-    m = np.zeros((16, out))
-    for (i, j), row in terms.items():
-        for k, coef in row.items():
-            m[4 * i + j, k] += coef
-    return m
-
+# and converts to torch once. The quadratic form below is one outer product times a constant matrix
+# (ges_core.transforms.bilinear_matrix), as is the Hamilton product quat_mul_np (ges_core.transforms.quat_mul).
 
 _W, _X, _Y, _Z = range(4)
-_HAMILTON = _bilinear(
-    {
-        (_W, _W): {0: 1.0}, (_X, _X): {0: -1.0}, (_Y, _Y): {0: -1.0}, (_Z, _Z): {0: -1.0},
-        (_W, _X): {1: 1.0}, (_X, _W): {1: 1.0}, (_Y, _Z): {1: 1.0}, (_Z, _Y): {1: -1.0},
-        (_W, _Y): {2: 1.0}, (_X, _Z): {2: -1.0}, (_Y, _W): {2: 1.0}, (_Z, _X): {2: 1.0},
-        (_W, _Z): {3: 1.0}, (_X, _Y): {3: 1.0}, (_Y, _X): {3: -1.0}, (_Z, _W): {3: 1.0},
-    },
-    4,
-)  # fmt: skip
-"""Hamilton product a * b as a bilinear form, as :func:`quat_mul`."""
-
-_ROTATION = _bilinear(
+_ROTATION = bilinear_matrix(
     {
         (_Y, _Y): {0: -2.0, 8: -2.0}, (_Z, _Z): {0: -2.0, 4: -2.0}, (_X, _X): {4: -2.0, 8: -2.0},
         (_X, _Y): {1: 2.0, 3: 2.0}, (_W, _Z): {1: -2.0, 3: 2.0},
@@ -113,17 +95,6 @@ _EYE9 = np.eye(3).reshape(9)
 _CONJ = np.array([1.0, -1.0, -1.0, -1.0])
 
 
-def _outer16(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(..., 16) flattened outer products of (..., 4) and (..., 4)."""
-    outer = a[..., :, None] * b[..., None, :]
-    return outer.reshape(*outer.shape[:-2], 16)
-
-
-def quat_mul_np(a: np.ndarray, b: np.ndarray, out: np.ndarray | None = None) -> np.ndarray:
-    """Hamilton product ``a * b``, (..., 4) wxyz float64 (numpy :func:`quat_mul`); ``out``: where to write it."""
-    return np.matmul(_outer16(a, b), _HAMILTON, out=out)
-
-
 def quat_conj_np(q: np.ndarray) -> np.ndarray:
     """Conjugate, (..., 4) wxyz (numpy :func:`quat_conj`)."""
     return q * _CONJ
@@ -134,7 +105,7 @@ def quat_to_matrix_np(q: np.ndarray) -> np.ndarray:
 
     ``R @ v`` is :func:`quat_rotate` (q, v); ``v @ R`` (v as a row) rotates by the inverse.
     """
-    flat = _outer16(q, q) @ _ROTATION + _EYE9
+    flat = outer16(q, q) @ _ROTATION + _EYE9
     return flat.reshape(*q.shape[:-1], 3, 3)
 
 
