@@ -119,7 +119,7 @@ class GraspRetargeter:
         self._hull_link_of = torch.as_tensor(np.repeat(np.arange(len(hull)), [len(v) for v in hull.values()]))
         self._hull_points = torch.as_tensor(np.concatenate(list(hull.values())))  # (N, 3), link frames
         tips = {f.tip_link for f in d.fingers}
-        self._body_point = torch.as_tensor([link not in tips for link in hull])[self._hull_link_of]
+        self._body_point = np.array([link not in tips for link in hull])[self._hull_link_of.numpy()]
         """(N,) True for collision points of links other than fingertips (kept out of the object)."""
 
     def retarget(self, contacts: ContactSet) -> Grasp:
@@ -233,7 +233,7 @@ class GraspRetargeter:
         for b, cloud in enumerate(clouds):
             if cloud is not None and c.object_weight > 0:
                 rows = slice(b * m, (b + 1) * m)
-                out[rows] = object_penalty(points[rows][:, self._body_point.numpy()], cloud, c)
+                out[rows] = object_penalty(points[rows][:, self._body_point], cloud, c)
         return out
 
     def _grasp(

@@ -86,7 +86,8 @@ class WristSearchConfig(BaseModel):
     thumb_keep: int = Field(
         2, ge=0, description="thumb joints the opened hand keeps at the grasp: PregraspConfig/RefineConfig.thumb_keep"
     )
-    # Alternatives (GraspRetargeter.retarget_ranked, tried by refinement when the best one fails): neighbours
+    # Alternatives (GraspRetargeter.retarget_ranked: the pipeline's next attempts when a placement fails
+    # refinement or validation, SynthesisConfig.attempts): neighbours
     # on the grid (20 deg apart in yaw/roll/pitch) fail alike, so an alternative must differ from every
     # placement ranked before it by a whole grid step in angle or by 2 cm in position.
     distinct_deg: float = Field(15.0, ge=0, description="rotation between ranked placements, degrees (or distance)")
@@ -109,7 +110,8 @@ def candidate_offsets(config: WristSearchConfig) -> np.ndarray:
 
 def _sample(grid: np.ndarray, take: int, seed: int) -> np.ndarray:
     """Up to ``take`` rows of ``grid`` (K, 6) other than all zeros, seeded, in grid order."""
-    grid = grid.reshape(-1, 6)[np.any(grid.reshape(-1, 6) != 0.0, axis=1)]
+    grid = grid.reshape(-1, 6)  # an empty product comes as (0,)
+    grid = grid[np.any(grid != 0.0, axis=1)]
     take = min(take, len(grid))
     return grid[np.sort(np.random.default_rng(seed).choice(len(grid), size=take, replace=False))]
 

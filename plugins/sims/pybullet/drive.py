@@ -35,10 +35,10 @@ with at most ``force``, where ``v*`` is the joint velocity after gravity and app
   this limit).
   PyBullet's reported velocity of a link in contact is no guide either: it includes motion that
   something (we think the contact's split-impulse position correction) takes back, e.g. a blocked
-  FFJ1 read +1.1 to +1.7 rad/s
-  while its angle stayed within 0.04 rad for 40 steps. The price: a joint pushed *away* from its
-  target within one step is braked with at most the spring force, not the spring force plus
-  ``(Kd + Kp dt) v'`` (the servo still seeks SAPIEN's velocity, so this is capped, not lost).
+  FFJ1 read +1.1 to +1.7 rad/s while its angle stayed within 0.04 rad for 40 steps. The price: a
+  joint pushed *away* from its target within one step is braked with at most the spring force, not
+  the spring force plus ``(Kd + Kp dt) v'`` (the servo still seeks SAPIEN's velocity, so this is
+  capped, not lost).
 
   The floating wrist's six virtual joints (which carry the whole hand) keep the PD force at the current
   state, ``|Kp (q* - q) - (Kd + Kp dt) v|``: with the spring limit there too, the scripted expert of the
@@ -134,10 +134,14 @@ class ImplicitPD:
     def force_limits(self, q: np.ndarray, v: np.ndarray, target: np.ndarray) -> np.ndarray:
         """(E, J) PyBullet ``forces``: ``|Kp (q* - q)|``, the spring force at ``q`` (E, J), on the
         ``spring_limit`` joints; ``|Kp (q* - q) - (Kd + Kp dt) v|``, the PD force at ``q``, ``v``, on the others."""
-        spring = self.stiffness * (target - q)
-        if self.spring_limit is not None and not self.spring_limit.all():
-            return np.abs(np.where(self.spring_limit, spring, spring - self._velocity_coefficient * v))
-        return np.abs(spring)
+        return np.abs(self.stiffness * (target - q) - self._limit_damping * v)
+
+    @cached_property
+    def _limit_damping(self) -> np.ndarray:
+        """(J,) the force limit's velocity coefficient: ``Kd + Kp dt``, 0 on the ``spring_limit`` joints."""
+        if self.spring_limit is None:
+            return np.zeros_like(self.stiffness)
+        return np.where(self.spring_limit, 0.0, self._velocity_coefficient)
 
     @cached_property
     def _velocity_coefficient(self) -> np.ndarray:
