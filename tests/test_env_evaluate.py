@@ -17,7 +17,7 @@ from ges_core.env.evaluate import BaselineConfig, SplitRow, evaluate_baseline, f
 from ges_core.env.grasp_env import GraspEnv
 from ges_core.env.grasp_source import load_grasp
 from ges_core.env.success import EndReason
-from ges_core.errors import BackendUnavailable, ConfigError
+from ges_core.errors import AssetError, BackendUnavailable, ConfigError
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.synthesis.pipeline import LibrarySettings, SynthesisConfig, run_synthesis
@@ -165,6 +165,19 @@ def test_other_settings_are_refused_but_another_selection_reuses(full_run, datas
     validated = report.config.model_copy(update={"selection": "validated"})
     again = evaluate_baseline(dataset, validated, out, registry=CountingRegistry(refuse=True))
     assert again.evaluated == [] and set(again.reused) <= set(pair)
+
+
+def test_results_of_another_version_are_refused_and_kept(full_run, dataset, tmp_path):
+    report, out = full_run
+    source = results_path(out, report.config)
+    stored = json.loads(source.read_text())
+    copy = tmp_path / "other"
+    results_path(copy, report.config).parent.mkdir(parents=True, exist_ok=True)
+    text = json.dumps({**stored, "version": stored["version"] + 1})
+    results_path(copy, report.config).write_text(text)
+    with pytest.raises(AssetError, match=r"baseline results of version 2, this code reads 1.*another --out"):
+        evaluate_baseline(dataset, report.config, copy, registry=CountingRegistry(refuse=True))
+    assert results_path(copy, report.config).read_text() == text  # nothing overwritten
 
 
 def test_killed_run_resumes_with_the_missing_object_only(dataset, pair, tmp_path):

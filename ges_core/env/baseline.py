@@ -34,10 +34,10 @@ from __future__ import annotations
 import torch
 
 from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
-from ges_core.env.rotations import quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
+from ges_core.env.rotations import interpolate_pose, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 from ges_core.hand import HandModel
 from ges_core.policy import Expert
-from ges_core.synthesis.squeeze import squeeze_targets
+from ges_core.synthesis.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 
 __all__ = ["ScriptedExpert"]
 
@@ -64,7 +64,7 @@ class ScriptedExpert(Expert):
         overshoot: float = 0.3,
         lift: float = 0.225,
         hand: HandModel | None = None,
-        squeeze_force: float = 5.0,
+        squeeze_force: float = SQUEEZE_FORCE,
         approach_steps: int = 15,
         pause_steps: int = 5,
         carry_margin: float = 0.05,
@@ -110,7 +110,8 @@ class ScriptedExpert(Expert):
         self.plan: dict[str, torch.Tensor] = {}
         """Per env, set at its episode's first step (float64): start_q, close_q (n, K); start_obj, start_pos,
         grasp_pos, target_pos (n, 3) m; start_rot, grasp_rot, target_rot (n, 4) wxyz; progress (n,) of the
-        approach in [0, 1]. target_* mirror the env's integrated wrist target (world frame)."""
+        approach in [0, 1]; drift (n, 2) m, the lifted object's smoothed sideways offset (:meth:`_drift`).
+        target_* mirror the env's integrated wrist target (world frame)."""
 
     def reset(self, env_ids: torch.Tensor | None = None) -> None:
         """Restart the script in ``env_ids`` (all if None)."""
@@ -166,7 +167,7 @@ class ScriptedExpert(Expert):
         close = goal.clone()
         for i in fresh.nonzero().flatten().tolist():
             press = squeeze_targets(
-                self.hand, goal[i].numpy(), force=self.squeeze_force, min_squeeze=0.05, max_squeeze=0.6
+                self.hand, goal[i].numpy(), force=self.squeeze_force, min_squeeze=MIN_SQUEEZE, max_squeeze=MAX_SQUEEZE
             )
             close[i] = torch.as_tensor(press)
         return close
@@ -188,10 +189,9 @@ class ScriptedExpert(Expert):
     def _wrist_goal(self, obj: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """Where the wrist target should be after this step: (n, 3) position m, (n, 4) wxyz, world."""
         p = self.plan
-        s = p["progress"][:, None]
-        turn = quat_to_rotvec(quat_mul(p["grasp_rot"], quat_conj(p["start_rot"])))
-        rot = quat_mul(rotvec_to_quat(s * turn), p["start_rot"])
-        pos = p["start_pos"] + s * (p["grasp_pos"] - p["start_pos"])
+        start, grasp = (torch.cat([p[f"{k}_pos"], p[f"{k}_rot"]], dim=1) for k in ("start", "grasp"))
+        pose = interpolate_pose(start, grasp, p["progress"][:, None])
+        pos, rot = pose[:, :3], pose[:, 3:]
         carrying = (self.t >= self.approach_steps + self.close_steps + self.pause_steps)[:, None]
         return torch.where(carrying, self._carry(obj, pos), pos), rot
 

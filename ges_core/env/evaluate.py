@@ -139,7 +139,7 @@ def scripted_expert(env: GraspEnv, config: BaselineConfig) -> Expert:
 # -- one object ---------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class EpisodeOutcome:
-    """One episode per env: (n,) arrays."""
+    """One episode per env: lists of n entries."""
 
     reasons: list[str]
     """EndReason name (lower case) per env; 'running' if the env never ended."""
@@ -254,6 +254,11 @@ def _read_results(path: Path, header: dict) -> dict[str, dict]:
         raise AssetError(f"cannot read baseline results {path}: {exc}; delete the file to start over") from exc
     if not isinstance(data, dict) or data.get("format") != RESULTS_FORMAT:
         raise AssetError(f"{path} is not a baseline results file (format {RESULTS_FORMAT!r}); choose another --out")
+    if data.get("version") != RESULTS_VERSION:
+        raise AssetError(
+            f"{path} holds baseline results of version {data.get('version')!r}, this code reads {RESULTS_VERSION}; "
+            "choose another --out or delete the file to start over"
+        )
     diffs = config_differences(data.get("run"), header)
     if diffs:
         raise ConfigError(
@@ -414,8 +419,7 @@ def evaluate_baseline(
     records = [r for r in selection.records if r.split in config.splits]
     defaults = scripted_defaults() if expert is scripted_expert else {}
     path, header = results_path(out, config), _header(config, expert_name, defaults)
-    store = _read_results(path, header)
-    """Every stored object (those outside this run's selection too: they stay in the file)."""
+    store = _read_results(path, header)  # every stored object (those outside this selection stay in the file)
     report = BaselineReport(path, config, selection, [], expert_name=expert_name)
     todo = [r for r in records if store.get(r.object_id, {}).get("grasp_key") != grasp_key(r)]
     fresh = {r.object_id for r in todo}

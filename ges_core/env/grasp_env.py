@@ -33,14 +33,11 @@ from ges_core.env.arrays import as_numpy
 from ges_core.env.layout import ActionLayout, ObservationLayout
 from ges_core.env.reward import TERMS, RewardConfig, RewardFunction, consistency_groups
 from ges_core.env.rotations import (
-    quat_conj,
+    interpolate_pose,
     quat_conj_np,
-    quat_mul,
     quat_mul_np,
     quat_to_matrix_np,
-    quat_to_rotvec,
     quat_to_rotvec_np,
-    rotvec_to_quat,
     rotvec_to_quat_np,
 )
 from ges_core.env.success import EndReason, SuccessConfig, SuccessTracker
@@ -337,12 +334,6 @@ class GraspEnv:
         reason = self.tracker.update(self._state_arrays(state)[0]["obj"], timeout)
         bad = as_numpy(unstable)
         return torch.from_numpy(np.where(bad, _UNSTABLE, reason.numpy())) if bad.any() else reason
-
-
-def interpolate_pose(a: torch.Tensor, b: torch.Tensor, s: float) -> torch.Tensor:
-    """(n, 7) poses a fraction ``s`` in [0, 1] from ``a`` to ``b``: linear position, slerp rotation."""
-    rel = quat_to_rotvec(quat_mul(b[:, 3:], quat_conj(a[:, 3:])))
-    return torch.cat([a[:, :3] + s * (b[:, :3] - a[:, :3]), quat_mul(rotvec_to_quat(s * rel), a[:, 3:])], dim=1)
 
 
 def open_hand_start_pose(hand: HandModel, obj_pos: np.ndarray, height: float) -> np.ndarray:

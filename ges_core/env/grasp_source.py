@@ -22,7 +22,6 @@ from their leaders (``HandDescription.apply_couplings``), as validation does.
 
 from __future__ import annotations
 
-from collections import Counter
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -35,7 +34,7 @@ from ges_core.hand import HandDescription
 from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.splits import SPLITS
 from ges_core.sim import SceneConfig
-from ges_core.transforms import matrix_to_pose, pose_to_matrix
+from ges_core.synthesis.sim_scene import compose
 
 __all__ = [
     "SELECTIONS",
@@ -105,16 +104,6 @@ class GraspSelection:
     """object_id -> why its record was left out."""
     splits: dict[str, str] = field(default_factory=dict)
     """object_id -> split, for every record considered (chosen or not)."""
-
-    def counts(self) -> dict[str, tuple[int, int]]:
-        """split -> (records chosen, records considered)."""
-        chosen = Counter(r.split for r in self.records)
-        seen = Counter(self.splits.values())
-        return {s: (chosen.get(s, 0), seen[s]) for s in sorted(seen, key=_split_order)}
-
-
-def _split_order(split: str) -> tuple[int, str]:
-    return (SPLITS.index(split) if split in SPLITS else len(SPLITS), split)
 
 
 def select_records(
@@ -204,20 +193,20 @@ def grasp_targets(
             f"({_failure(record) or 'no grasp'}); pick records with select_records()"
         )
     order = _joint_order(record, hand)
-    world = None if object_pose is None else _pose_matrix(object_pose)
+    world = None if object_pose is None else _checked_pose(object_pose)
     rows = []
     for pose in (record.grasp, record.pregrasp):
-        wrist = pose.wrist_pose if world is None else matrix_to_pose(world @ pose_to_matrix(pose.wrist_pose))
+        wrist = pose.wrist_pose if world is None else compose(world, pose.wrist_pose)
         rows += [wrist, hand.apply_couplings(pose.q[order])]
     return GraspTargets(*(np.tile(np.asarray(r, dtype=np.float64), (num_envs, 1)) for r in rows))
 
 
-def _pose_matrix(pose: np.ndarray) -> np.ndarray:
-    """(4, 4) transform of a (7,) pose; ConfigError unless finite with a non-zero quaternion."""
+def _checked_pose(pose: np.ndarray) -> np.ndarray:
+    """(7,) float64 ``pose``; ConfigError unless finite with a non-zero quaternion."""
     pose = np.asarray(pose, dtype=np.float64)
     if pose.shape != (7,) or not np.isfinite(pose).all() or np.linalg.norm(pose[3:]) < 1e-9:
         raise ConfigError(f"grasp_targets: object_pose must be a finite (7,) pose x, y, z, qw, qx, qy, qz; got {pose}")
-    return pose_to_matrix(pose)
+    return pose
 
 
 def _joint_order(record: GraspRecord, hand: HandDescription) -> np.ndarray:

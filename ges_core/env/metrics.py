@@ -53,7 +53,7 @@ class EpisodeMetrics:
     def __init__(self, num_envs: int, groups: torch.Tensor, dt: float) -> None:
         if dt <= 0:
             raise ConfigError(f"EpisodeMetrics: dt = {dt} s; the control step must be > 0")
-        self.groups, self.dt = groups, dt
+        self.dt = dt
         self._groups = np.asarray(groups, dtype=np.int64)
         self._all_sums = torch.zeros(len(METRIC_NAMES), num_envs, dtype=torch.float64)
         self.sums = dict(zip(METRIC_NAMES, self._all_sums.unbind(), strict=True))

@@ -11,6 +11,7 @@ from ges_core.transforms import bilinear_matrix, outer16
 from ges_core.transforms import quat_mul as quat_mul_np  # the numpy Hamilton product (one implementation)
 
 __all__ = [
+    "interpolate_pose",
     "quat_conj",
     "quat_conj_np",
     "quat_mul",
@@ -68,6 +69,13 @@ def quat_rotate(q: torch.Tensor, v: torch.Tensor) -> torch.Tensor:
     qv = q[..., 1:]
     t = 2.0 * torch.cross(qv.expand_as(v), v, dim=-1)
     return v + q[..., :1] * t + torch.cross(qv.expand_as(v), t, dim=-1)
+
+
+def interpolate_pose(a: torch.Tensor, b: torch.Tensor, s: float | torch.Tensor) -> torch.Tensor:
+    """(n, 7) poses a fraction ``s`` in [0, 1] (a number, or (n, 1) per pose) from ``a`` to ``b`` (n, 7):
+    linear position, slerp rotation (wxyz)."""
+    rel = quat_to_rotvec(quat_mul(b[:, 3:], quat_conj(a[:, 3:])))
+    return torch.cat([a[:, :3] + s * (b[:, :3] - a[:, :3]), quat_mul(rotvec_to_quat(s * rel), a[:, 3:])], dim=1)
 
 
 # -- numpy float64 versions for the environment's per-step path -----------------------------------

@@ -65,11 +65,6 @@ _REASONS = np.array([_reason(*(bool(code >> bit & 1) for bit in range(4))) for c
 _BITS = np.array([1, 2, 4, 8])
 
 
-def _index(env_ids) -> np.ndarray | slice:
-    """Env indices or a bool mask (torch, numpy or a list) as a numpy index; a slice as it is."""
-    return env_ids if isinstance(env_ids, slice) else as_numpy(env_ids)
-
-
 class SuccessTracker:
     """Per-env success bookkeeping for ``num_envs`` episodes; ``sim_steps`` physics steps per update."""
 
@@ -91,7 +86,7 @@ class SuccessTracker:
 
     def reset(self, env_ids: torch.Tensor, start: torch.Tensor) -> None:
         """Start new episodes in ``env_ids`` with the object centre at ``start`` (len(env_ids), 3)."""
-        ids = _index(env_ids)
+        ids = as_numpy(env_ids)
         self._start[ids] = as_numpy(start, np.float64)
         self._held[ids] = 0
         self._max_rise[ids] = 0.0

@@ -54,7 +54,8 @@ class GraspVecEnv(VecEnv):
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """Apply actions (num_envs, num_actions) in [-1, 1]; rewards (n,), dones (n,) long, extras.
 
-        The bookkeeping between the env's calls is numpy on views of the tensors (no torch op per step).
+        The bookkeeping between the env's calls is numpy on views of the tensors; the only torch ops per
+        step copy the tracker's peers flags and highest rises into ``extras`` before the auto-reset.
         """
         env = self.env
         unstable = env.apply_action(actions)

@@ -22,7 +22,19 @@ import torch
 from ges_core.hand import HandDescription, HandModel
 from ges_core.kinematics import shared_kinematics
 
-__all__ = ["press_directions", "press_torques", "squeeze_targets"]
+__all__ = ["MAX_SQUEEZE", "MIN_SQUEEZE", "SQUEEZE_FORCE", "press_directions", "press_torques", "squeeze_targets"]
+
+# Stage 1 validation's squeeze (ValidateConfig's defaults; the scripted expert of Stage 2 uses the same).
+# 5 N per tip holds the 0.1-0.3 kg demo objects with mu = 1 and two tips. The Shadow hand (Kp = 1 N·m/rad)
+# then gets 0.1-0.5 rad past the grasp; the Allegro (Kp = 400) gets the 0.05 rad floor (5 N would be
+# ~1 mrad, lost in the refined pose's own error: 0.02 rad left PyBullet's fingertips off the box).
+# 0.6 rad keeps a weak hand's targets within reach of the grasp (a 1.5 rad cap did not hold better).
+SQUEEZE_FORCE = 5.0
+"""Fingertip force the closing targets ask for, N."""
+MIN_SQUEEZE = 0.05
+"""Floor on the largest extra target angle, rad."""
+MAX_SQUEEZE = 0.6
+"""Cap on the extra target angle per joint, rad."""
 
 
 def squeeze_targets(

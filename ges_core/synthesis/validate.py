@@ -50,7 +50,7 @@ from ges_core.synthesis.sim_scene import (
     tip_forces,
     tip_rule,
 )
-from ges_core.synthesis.squeeze import squeeze_targets
+from ges_core.synthesis.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 from ges_core.synthesis.types import Grasp, ValidationResult
 
 __all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "validate_grasp"]
@@ -71,14 +71,10 @@ class ValidateConfig(ConfigModel):
     # lifted; a dropped object falls far below (to the table, 0.2 m down).
     lift_tolerance: float = Field(0.03, ge=0, description="how far below lift_height the object may stay, m")
     # Squeeze (ges_core.synthesis.squeeze): each fingertip driven to press about squeeze_force N toward the
-    # opposing fingers. 5 N per tip holds the 0.1-0.3 kg demo objects with mu = 1 and two tips. The Shadow
-    # hand (Kp = 1 N·m/rad) then gets 0.1-0.5 rad past the grasp; the Allegro (Kp = 400) gets the 0.05 rad
-    # floor (5 N would be ~1 mrad, lost in the refined pose's own error: 0.02 rad left PyBullet's fingertips
-    # off the box).
-    squeeze_force: float = Field(5.0, ge=0, description="fingertip force the closing targets ask for, N")
-    min_squeeze: float = Field(0.05, ge=0, description="floor on the largest extra target angle, rad")
-    # 0.6 rad: keeps a weak hand's targets within reach of the grasp (a 1.5 rad cap did not hold better).
-    max_squeeze: float = Field(0.6, ge=0, description="cap on the extra target angle per joint, rad")
+    # opposing fingers; the defaults and where they come from are in squeeze.py.
+    squeeze_force: float = Field(SQUEEZE_FORCE, ge=0, description="fingertip force the closing targets ask for, N")
+    min_squeeze: float = Field(MIN_SQUEEZE, ge=0, description="floor on the largest extra target angle, rad")
+    max_squeeze: float = Field(MAX_SQUEEZE, ge=0, description="cap on the extra target angle per joint, rad")
     # 0.05 N: the foundation sim check's 'touching with force' bar (ges_core.sim_check.MIN_TIP_FORCE_N).
     min_tip_force: float = Field(0.05, ge=0, description="a fingertip pushing harder than this touches, N")
     min_tips: int = Field(2, ge=1, description="fingertips that must touch during the hold")
