@@ -15,7 +15,7 @@ from ges_core.env import evaluate
 from ges_core.env.baseline import ScriptedExpert
 from ges_core.env.evaluate import BaselineConfig, SplitRow, evaluate_baseline, format_table, results_path, summarize
 from ges_core.env.grasp_env import GraspEnv
-from ges_core.env.grasp_source import load_grasp
+from ges_core.env.grasp_source import load_grasp, select_records
 from ges_core.env.success import EndReason
 from ges_core.errors import AssetError, BackendUnavailable, ConfigError
 from ges_core.registry import load_registry
@@ -163,8 +163,10 @@ def test_other_settings_are_refused_but_another_selection_reuses(full_run, datas
     with pytest.raises(ConfigError, match=r"were written with other settings \(config.envs: 2 -> 3\).*another --out"):
         evaluate_baseline(dataset, other, out, registry=CountingRegistry(refuse=True))
     validated = report.config.model_copy(update={"selection": "validated"})
+    want = [r.object_id for r in select_records(open_dataset(dataset), "allegro", selection="validated").records]
     again = evaluate_baseline(dataset, validated, out, registry=CountingRegistry(refuse=True))
-    assert again.evaluated == [] and set(again.reused) <= set(pair)
+    assert want and again.evaluated == [] and again.reused == want
+    assert again.results == [r for r in report.results if r["object_id"] in want]
 
 
 def test_results_of_another_version_are_refused_and_kept(full_run, dataset, tmp_path):

@@ -16,6 +16,7 @@ from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.registry import load_registry
 from ges_core.synthesis.squeeze import squeeze_targets
+from ges_core.synthesis.validate import ValidateConfig
 
 pytestmark = pytest.mark.sim
 N = 2
@@ -121,16 +122,17 @@ def test_scripted_expert_with_a_hand_closes_to_the_stage1_squeeze() -> None:
     try:
         env.reset_all()
         obs, _ = env.observe()
-        expert = ScriptedExpert(
-            env.obs_layout, env.act_layout, close_steps=1, approach_steps=0, hand=env.hand, squeeze_force=5.0
-        )
+        expert = ScriptedExpert(env.obs_layout, env.act_layout, close_steps=1, approach_steps=0, hand=env.hand)
         expert.act(obs)
         action = expert.act(obs)  # t = 1 = close_steps: the targets have reached their end
         goal = env.obs_layout.unpack(obs.to(torch.float64), "q") + env.obs_layout.unpack(
             obs.to(torch.float64), "goal_q"
         )
         for i in range(N):
-            want = squeeze_targets(env.hand, goal[i].numpy(), force=5.0, min_squeeze=0.05, max_squeeze=0.6)
+            v = ValidateConfig()  # the validator's squeeze
+            want = squeeze_targets(
+                env.hand, goal[i].numpy(), force=v.squeeze_force, min_squeeze=v.min_squeeze, max_squeeze=v.max_squeeze
+            )
             got = env.act_layout.joint_targets(action.to(torch.float64))[i].numpy()
             np.testing.assert_allclose(got, np.clip(want, *env.hand.description.limits_array.T), atol=1e-5)
     finally:

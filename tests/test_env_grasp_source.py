@@ -1,7 +1,7 @@
 """Stage 1 records into the Stage 2 environment: selection, frames, joint order by name, error messages.
 
-A tiny dataset from the real pipeline (Allegro, SAPIEN): a cube, a can, and a flat sheet whose
-contact step fails (no grasp stored).
+A tiny dataset from the real pipeline (Allegro, SAPIEN): the first of a few primitives that gets a grasp,
+and a flat sheet whose contact step fails (no grasp stored).
 """
 
 from __future__ import annotations
@@ -68,6 +68,22 @@ def registry():
 @pytest.fixture(scope="module")
 def allegro(registry):
     return registry.build_hand("allegro")
+
+
+def test_each_rule_rejects_what_it_should(dataset, grasped):
+    """The real record with its validation, then its refinement, marked failed: only the stricter rules drop it."""
+    record = dataset.get(grasped, "allegro")
+    assert all(rejection(record, rule) == "" for rule in SELECTIONS)  # validated: every rule takes it
+    steps = record.steps
+    dropped = dataclasses.replace(steps["validation"], ok=False, reason="dropped")
+    unvalidated = dataclasses.replace(record, steps={**steps, "validation": dropped})
+    assert rejection(unvalidated, "validated") == "not validated (failed at validation: dropped)"
+    assert rejection(unvalidated, "refined") == rejection(unvalidated, "any") == ""
+    few = dataclasses.replace(steps["refinement"], ok=False, reason="few_contacts")
+    unrefined = dataclasses.replace(record, steps={**steps, "refinement": few, "validation": dropped})
+    assert rejection(unrefined, "refined") == "not refined (failed at refinement: few_contacts)"
+    assert rejection(unrefined, "validated").startswith("not validated")
+    assert rejection(unrefined, "any") == ""
 
 
 def test_selection_rules_follow_the_records_flags(dataset, grasped):

@@ -96,7 +96,6 @@ def test_grasp_picture_shows_object_contacts_and_hand(tmp_path, hands, box, hand
     bare = read_png(render_grasp(hand, box, None, top_grasp(hand), tmp_path / "bare.png", renderer=fixed_view))
     fixed_view.close()  # bare: the negative control
     assert all(slot_pixels(bare, SLOT_COLORS[s], 0.98) == 0 for s in FINGER_SLOTS)
-    assert seconds < 5.0
 
 
 def test_camera_looks_from_the_side_away_from_the_forearm(hands, box):

@@ -194,8 +194,8 @@ def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeyp
     """A first attempt judged failed (test double of the refinement verdict or of the validator) moves on to
     the next distinct placement.
 
-    The attempts refine the retargeter's ranked placements in order (checked against an independent
-    ranking); the record holds the passing attempt's refined grasp, every verdict and the summed times.
+    The attempts refine the retargeter's ranked placements in order (checked against the ranking recomputed
+    outside the pipeline); the record holds the passing attempt's refined grasp, every verdict and the summed times.
     With ``attempts=1`` (the paper's single pass) the step fails with the first verdict."""
     from ges_core.synthesis import run_worker
     from ges_core.synthesis.retarget_search import ObjectCloud

@@ -195,6 +195,32 @@ def test_pose_helpers_against_scipy():
     np.testing.assert_allclose(mid[:3], (a[:3] + b[:3]) / 2)
 
 
+@pytest.mark.parametrize("hand_name", ["allegro", "shadow"])
+def test_creep_moves_every_fingertip_toward_what_it_opposes(hand_name):
+    """Finite differences through forward kinematics (not the Jacobian the creep is built from): a small step
+    along the creep brings each fingertip closer to its aim (thumb: the other tips' mean; others: the thumb),
+    and each finger's largest joint change is the overshoot."""
+    hand = REGISTRY.build_hand(hand_name)
+    d = hand.description
+    q = d.apply_couplings(d.closed_pose(0.5))
+    push = creep_direction(hand, q, 0.1)
+    kin = HandKinematics.from_hand(hand)
+    offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
+    thumb = [f.name for f in d.fingers].index(d.finger_for_slot("thumb").name)
+
+    def gaps(joints: np.ndarray) -> np.ndarray:
+        tips = kin.points(torch.as_tensor(joints)[None], list(d.tip_links), offsets)[0].numpy()
+        aims = np.repeat(tips[thumb][None], len(tips), axis=0)
+        aims[thumb] = np.delete(tips, thumb, axis=0).mean(axis=0)
+        return np.linalg.norm(aims - tips, axis=1)
+
+    closer = gaps(q) - gaps(q + 1e-3 * push)
+    for f, finger in enumerate(d.fingers):
+        idx = d.joint_index(finger.joints)
+        assert np.abs(push[idx]).max() == pytest.approx(0.1), finger.name
+        assert closer[f] > 0, (finger.name, closer)
+
+
 # -- refine_verdict and error paths (no engine) -----------------------------------------------
 @pytest.mark.parametrize(
     ("depth", "table", "frozen", "verdict"),

@@ -291,9 +291,9 @@ def test_wrist_search_fits_at_least_as_well_as_the_papers_placement(hands, kins,
     assert len(paper.search_offsets) == 1 and not paper.search_offsets.any()
     # fit only: with the table penalty on, a placement may fit worse to keep the hand off the table
     searched = GraspRetargeter(hands[name], RetargetConfig(wrist_search={"table_weight": 0.0}), kinematics=kins[name])
-    offsets = searched.search_offsets
-    assert not offsets[0].any() and len(offsets) == 96 + 32  # row 0: the paper's; 32 with a lateral slide
-    assert not offsets[:96, 5].any() and set(offsets[96:, 5]) == {-0.02, -0.01}
+    offsets, ws = searched.search_offsets, searched.config.wrist_search
+    assert not offsets[0].any() and len(offsets) == ws.candidates + ws.lateral_candidates  # row 0: the paper's
+    assert not offsets[: ws.candidates, 5].any() and set(offsets[ws.candidates :, 5]) == set(ws.lateral)
     better = 0
     for contacts in box_contact_sets():
         a, b = (
@@ -588,9 +588,11 @@ def box_depth(points: np.ndarray, half: np.ndarray, center: np.ndarray) -> np.nd
     return np.clip(inside.min(axis=-1), 0.0, None)
 
 
-@pytest.mark.parametrize("name", HANDS)
-def test_object_cloud_keeps_the_hand_body_out_of_the_object(hands, kins, name):
-    """Contacts 2 cm below a box's top: with its surface samples the non-fingertip links go in less (exact box)."""
+def test_object_cloud_keeps_the_hand_body_out_of_the_object(hands, kins):
+    """Contacts 2 cm below a box's top: without the box's surface samples the Shadow's middle phalanges go
+    over its top edge into it; with them they come out (exact box depth). (The Allegro's body stays out of
+    this box either way, 2e-7 m^2, so it cannot show the effect.)"""
+    name = "shadow"
     hand, d = hands[name], hands[name].description
     half, center = np.array([0.03, 0.05, 0.035]), np.array([0.0, 0.0, 0.035])
     mesh = trimesh.creation.box(extents=2 * half)
@@ -610,6 +612,4 @@ def test_object_cloud_keeps_the_hand_body_out_of_the_object(hands, kins, name):
         ]
         depth[with_cloud] = float(sum((x**2).sum() for x in inside))
     print(f"{name}: body depth^2 sum without cloud {depth[False]:.2e}, with {depth[True]:.2e}")
-    assert depth[True] <= depth[False] + 1e-12, depth
-    if depth[False] > 1e-5:  # a body going in (Shadow: its middle phalanges over the top edge) is pulled out
-        assert depth[True] < 0.5 * depth[False], depth
+    assert depth[False] > 1e-5 and depth[True] < 0.5 * depth[False], depth
