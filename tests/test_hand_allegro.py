@@ -17,7 +17,7 @@ from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
 from ges_core.registry import load_registry
 from ges_core.urdf import absolutize_mesh_paths
-from plugins.hands.allegro import hand as allegro
+from ges_plugins.hands.allegro import hand as allegro
 
 from helpers_sim import pybullet_body
 

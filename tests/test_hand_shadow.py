@@ -19,8 +19,8 @@ from scipy.spatial.transform import Rotation
 
 from ges_core.errors import AssetError
 from ges_core.transforms import quat_to_matrix
-from plugins.hands.shadow import assets
-from plugins.hands.shadow.convert import (
+from ges_plugins.hands.shadow import assets
+from ges_plugins.hands.shadow.convert import (
     collision_meshes_from_mjmodel,
     contact_pairs_from_mjmodel,
     geom_collides,
@@ -28,7 +28,7 @@ from plugins.hands.shadow.convert import (
     tendon_couplings_from_mjmodel,
     urdf_from_mjmodel,
 )
-from plugins.hands.shadow.hand import ShadowHand, build_hand
+from ges_plugins.hands.shadow.hand import ShadowHand, build_hand
 
 PREFIX = "robot0:"
 N_CONFIGS = 20

@@ -16,7 +16,7 @@ import pytest
 
 from ges_core.registry import load_registry
 from ges_core.transforms import quat_to_matrix
-from plugins.sims.pybullet.backend import PybulletBackend
+from ges_plugins.sims.pybullet.backend import PybulletBackend
 
 from helpers_sim import loaded_sim, open_q
 

@@ -15,10 +15,10 @@ import pytest
 from ges_core.objects.asset import ObjectAsset, PrimitiveShape
 from ges_core.transforms import quat_to_matrix
 from ges_core.urdf import euler_xyz_to_quat
-from plugins.sims.pybullet.backend import REST_MARGIN as PYBULLET_REST_MARGIN
-from plugins.sims.pybullet.backend import PybulletBackend
-from plugins.sims.sapien.backend import SapienBackend
-from plugins.sims.sapien.loading import REST_MARGIN as SAPIEN_REST_MARGIN
+from ges_plugins.sims.pybullet.backend import REST_MARGIN as PYBULLET_REST_MARGIN
+from ges_plugins.sims.pybullet.backend import PybulletBackend
+from ges_plugins.sims.sapien.backend import SapienBackend
+from ges_plugins.sims.sapien.loading import REST_MARGIN as SAPIEN_REST_MARGIN
 
 from helpers_sim import UP, allegro_test_hand, box_asset, loaded_sim, open_q
 

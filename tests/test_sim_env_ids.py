@@ -16,9 +16,9 @@ import torch
 
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.sim import SimBackend
-from plugins.sims.pybullet.backend import PybulletBackend
-from plugins.sims.pybullet.engine import p
-from plugins.sims.sapien.backend import SapienBackend
+from ges_plugins.sims.pybullet.backend import PybulletBackend
+from ges_plugins.sims.pybullet.engine import p
+from ges_plugins.sims.sapien.backend import SapienBackend
 
 from helpers_sim import UP, allegro_test_hand, box_asset, loaded_sim, open_q
 

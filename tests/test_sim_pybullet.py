@@ -18,11 +18,11 @@ from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.transforms import quat_to_matrix
 from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat
-from plugins.sims.pybullet import shapes
-from plugins.sims.pybullet.backend import MAX_JOINT_SPEED, PybulletBackend
-from plugins.sims.pybullet.bench import GRASP_BASE_POSE, grasp_scene
-from plugins.sims.pybullet.drive import ImplicitPD, product_friction
-from plugins.sims.pybullet.hand_urdf import principal_moments, pybullet_hand_urdf, sanitize_inertias
+from ges_plugins.sims.pybullet import shapes
+from ges_plugins.sims.pybullet.backend import MAX_JOINT_SPEED, PybulletBackend
+from ges_plugins.sims.pybullet.bench import GRASP_BASE_POSE, grasp_scene
+from ges_plugins.sims.pybullet.drive import ImplicitPD, product_friction
+from ges_plugins.sims.pybullet.hand_urdf import principal_moments, pybullet_hand_urdf, sanitize_inertias
 
 from helpers_sim import UP, TestHand, allegro_test_hand, box_asset, loaded_sim, open_q, run_python
 
@@ -88,7 +88,7 @@ def test_pybullet_chatter_stays_out_of_ges_output():
 def test_silenced_hides_c_and_python_output_of_the_block_only():
     code = """
 import ctypes, os, sys
-from plugins.sims.pybullet.engine import silenced
+from ges_plugins.sims.pybullet.engine import silenced
 libc = ctypes.CDLL(None)
 print("before", flush=False)
 with silenced(1, 2):

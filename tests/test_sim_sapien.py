@@ -16,9 +16,9 @@ from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.urdf import WRIST_JOINTS, euler_xyz_to_quat, neighbour_link_pairs, quat_to_euler_xyz
-from plugins.sims.sapien.backend import SapienBackend, euler_xyz
-from plugins.sims.sapien.bench import allegro_top_down
-from plugins.sims.sapien.loading import PAIR_BITS, pair_exclusion_bits
+from ges_plugins.sims.sapien.backend import SapienBackend, euler_xyz
+from ges_plugins.sims.sapien.bench import allegro_top_down
+from ges_plugins.sims.sapien.loading import PAIR_BITS, pair_exclusion_bits
 
 from helpers_sim import ALLEGRO_TIPS, UP, allegro_test_hand, box_asset, loaded_sim, open_q, run_python
 

@@ -1,6 +1,6 @@
 """The Allegro Hand (right, 16 joints, 4 fingers) from the URDF shipped inside ``mani-skill``.
 
-Light on purpose: the hand itself (and any heavy import) lives in :mod:`plugins.hands.allegro.hand`,
+Light on purpose: the hand itself (and any heavy import) lives in :mod:`ges_plugins.hands.allegro.hand`,
 loaded only when the registry builds the hand.
 """
 
@@ -18,7 +18,7 @@ def ges_register_hands(register: Callable[[HandSpec], None]) -> None:
     register(
         HandSpec(
             name="allegro",
-            entry_point="plugins.hands.allegro.hand:build_hand",
+            entry_point="ges_plugins.hands.allegro.hand:build_hand",
             description="Allegro Hand, right (16 joints, 4 fingers; little-finger slot served by the ring finger)",
         )
     )

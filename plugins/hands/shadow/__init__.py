@@ -17,7 +17,7 @@ def ges_register_hands(register: Callable[[HandSpec], None]) -> None:
     register(
         HandSpec(
             name="shadow",
-            entry_point="plugins.hands.shadow.hand:build_hand",
+            entry_point="ges_plugins.hands.shadow.hand:build_hand",
             description="Shadow Dexterous Hand with forearm, 24 joints (gymnasium-robotics MJCF -> URDF)",
         )
     )

@@ -129,7 +129,7 @@ def cached_urdf(asset_dir: Path | None = None) -> Path:
     target = folder / URDF_NAME
     if target.is_file():
         return target
-    from plugins.hands.shadow.convert import collision_meshes_from_mjmodel, urdf_from_mjmodel  # imports mujoco
+    from ges_plugins.hands.shadow.convert import collision_meshes_from_mjmodel, urdf_from_mjmodel  # imports mujoco
 
     model = compile_model(asset_dir)
     for name, text in collision_meshes_from_mjmodel(model, root_body=ROOT_BODY).items():

@@ -7,7 +7,7 @@ from typing import Any
 
 from ges_core.hand import HandDescription, HandModel
 from ges_core.hand_yaml import description_from_yaml
-from plugins.hands.shadow.assets import cached_urdf
+from ges_plugins.hands.shadow.assets import cached_urdf
 
 __all__ = ["DESCRIPTION_FILE", "ShadowHand", "build_hand"]
 

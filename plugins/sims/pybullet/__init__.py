@@ -17,7 +17,7 @@ def ges_register_sims(register: Callable[[SimSpec], None]) -> None:
     register(
         SimSpec(
             name="pybullet",
-            entry_point="plugins.sims.pybullet.backend:PybulletBackend",
+            entry_point="ges_plugins.sims.pybullet.backend:PybulletBackend",
             requires=("pybullet",),
             description="PyBullet 3.2.7 on the CPU: one DIRECT client per scene, SAPIEN-like implicit PD drives",
         )

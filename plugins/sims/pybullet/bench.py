@@ -1,6 +1,6 @@
 """Interface overhead of the PyBullet backend: raw physics step vs one full control step.
 
-``python -m plugins.sims.pybullet.bench [HAND] [--envs N] [--steps N] [--no-self-collision]
+``python -m ges_plugins.sims.pybullet.bench [HAND] [--envs N] [--steps N] [--no-self-collision]
 [--solver-iterations N]`` builds
 the registry's hand (default ``allegro``; the scene's pose is made for it) and prints microseconds
 per physics step per scene for:

@@ -14,7 +14,7 @@ def ges_register_sims(register: Callable[[SimSpec], None]) -> None:
     register(
         SimSpec(
             name="sapien",
-            entry_point="plugins.sims.sapien.backend:SapienBackend",
+            entry_point="ges_plugins.sims.sapien.backend:SapienBackend",
             requires=("sapien",),
             description="SAPIEN 3.0 with CPU PhysX, one scene per env, headless (no render device needed)",
         )

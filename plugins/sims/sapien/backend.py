@@ -25,11 +25,11 @@ from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import ContactPair, ContactPartner, SceneConfig, SimBackend, check_env_rows, env_id_list
 from ges_core.urdf import quat_to_euler_xyz
-from plugins.sims.sapien import loading
-from plugins.sims.sapien.checks import MAX_JOINT_SPEED, MAX_OBJECT_SPEED, blown_message, state_problem
-from plugins.sims.sapien.contacts import PARTNERS, ContactReader
-from plugins.sims.sapien.engine import sapien
-from plugins.sims.sapien.poses import PoseTable, sapien_pose
+from ges_plugins.sims.sapien import loading
+from ges_plugins.sims.sapien.checks import MAX_JOINT_SPEED, MAX_OBJECT_SPEED, blown_message, state_problem
+from ges_plugins.sims.sapien.contacts import PARTNERS, ContactReader
+from ges_plugins.sims.sapien.engine import sapien
+from ges_plugins.sims.sapien.poses import PoseTable, sapien_pose
 
 __all__ = ["MAX_JOINT_SPEED", "MAX_OBJECT_SPEED", "SapienBackend"]
 

@@ -3,7 +3,7 @@
 A full step is what a controller does each tick: joint and wrist targets, ``step()``, then
 ``joint_state``, ``link_poses`` and ``contact_forces`` of the five slot fingertips and
 ``object_pose``. The scene is a hand closed top-down on a box resting on the table, so the
-contact path has real pairs to sum. Run ``python -m plugins.sims.sapien.bench [HAND]``.
+contact path has real pairs to sum. Run ``python -m ges_plugins.sims.sapien.bench [HAND]``.
 """
 
 from __future__ import annotations
@@ -33,7 +33,7 @@ def measure_overhead(
     shared, busy machine disturbs far less than wall time.
     wrist: (7,) base pose above the object; grasp_q: (K,) closed joint targets.
     """
-    from plugins.sims.sapien.backend import SapienBackend
+    from ges_plugins.sims.sapien.backend import SapienBackend
 
     with SapienBackend(SceneConfig(num_envs=1, **scene)) as sim:
         sim.load_hand(hand)

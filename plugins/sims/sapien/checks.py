@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from plugins.sims.sapien.engine import sapien
+from ges_plugins.sims.sapien.engine import sapien
 
 __all__ = ["MAX_JOINT_SPEED", "MAX_OBJECT_SPEED", "blown_message", "state_problem"]
 

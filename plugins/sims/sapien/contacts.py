@@ -15,7 +15,7 @@ import numpy as np
 
 from ges_core.errors import UnknownNameError
 from ges_core.sim import ContactPair, ContactPartner
-from plugins.sims.sapien.engine import sapien
+from ges_plugins.sims.sapien.engine import sapien
 
 __all__ = ["PARTNERS", "TOUCH_DISTANCE", "ContactReader"]
 

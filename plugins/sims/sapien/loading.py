@@ -24,7 +24,7 @@ from ges_core.urdf import (
     parse_urdf,
     strip_render_data,
 )
-from plugins.sims.sapien.engine import sapien
+from ges_plugins.sims.sapien.engine import sapien
 
 __all__ = [
     "build_hand",

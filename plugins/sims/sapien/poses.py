@@ -13,7 +13,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ges_core.errors import UnknownNameError
-from plugins.sims.sapien.engine import sapien
+from ges_plugins.sims.sapien.engine import sapien
 
 __all__ = ["PoseTable", "pose_array", "sapien_pose"]
 
