@@ -10,6 +10,7 @@ import difflib
 from collections.abc import Iterable
 
 __all__ = [
+    "ArrayError",
     "AssetError",
     "BackendUnavailable",
     "ConfigError",
@@ -60,6 +61,15 @@ class UnknownNameError(GesError, KeyError):
 
     def __str__(self) -> str:  # KeyError would otherwise quote the message
         return str(self.args[0])
+
+
+class ArrayError(GesError, ValueError):
+    """An array argument has the wrong shape, is not numeric, or holds NaN, inf or a zero quaternion.
+
+    One type for that one kind of mistake, wherever an array crosses a boundary (a simulator command, an
+    environment action, a contact set, a point cloud); raised by :mod:`ges_core.arrays`. A ``ValueError``
+    too, so ``except ValueError`` keeps working.
+    """
 
 
 class AssetError(GesError):

@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ges_core.env.arrays import as_numpy
+from ges_core.arrays import as_numpy
 from ges_core.env.reward import direction_variance, direction_variance_np
 from ges_core.errors import ConfigError
 

@@ -18,7 +18,7 @@ import torch
 from pydantic import Field
 
 from ges_core.config import ConfigModel
-from ges_core.env.arrays import as_numpy
+from ges_core.arrays import as_numpy
 
 __all__ = ["EndReason", "SuccessConfig", "SuccessTracker"]
 
