@@ -1,8 +1,8 @@
 """Every hook GES-UniGrasp calls, in one place.
 
 Registration hooks are collectors (as in ``llm`` and ``tox``): the core passes a ``register``
-callable and a plugin calls it once per thing it provides. The core stores the specs, rejects
-duplicate names (naming both sources) and answers look-ups.
+callable and a plugin calls it once per thing it provides. The core calls them through pluggy's
+hook caller, stores the specs, rejects duplicate names (naming both sources) and answers look-ups.
 """
 
 from __future__ import annotations
@@ -30,8 +30,8 @@ def ges_register_hands(register: Callable[[HandSpec], None]) -> None:
     """Register hand models.
 
     :param register: call ``register(HandSpec(name=..., entry_point="pkg.mod:factory"))`` once
-        per hand; the factory takes the hand's ``registry.yaml`` settings as keyword arguments
-        and returns a :class:`ges_core.hand.HandModel`.
+        per hand; the factory takes the hand's settings as keyword arguments (the spec's
+        ``settings``, then ``registry.yaml``'s) and returns a :class:`ges_core.hand.HandModel`.
     """
 
 

@@ -1,13 +1,14 @@
 """Building the plugin manager: discovery in a fixed, documented order.
 
-1. The entry-point group ``ges.plugins`` through pluggy's ``load_setuptools_entrypoints``: the
-   built-in hands and simulators (declared in this project's ``pyproject.toml``) and any
-   installed third-party package. ``GES_DISABLE_PLUGIN_AUTOLOAD=1`` (or ``autoload=False``)
-   keeps only this project's own entry points.
-2. Local plugins named in ``registry.yaml``: a dotted module (``pkg.mod``) or a ``.py`` file.
-3. ``pm.check_pending()``: a misspelled hook implementation fails here, not silently.
+1. The built-in plugins of :data:`ges_core.builtins.BUILTIN_PLUGINS` (hands and simulators shipped in
+   ``plugins/``), found even in a checkout that was not pip-installed.
+2. The entry-point group ``ges.plugins`` through pluggy's ``load_setuptools_entrypoints``: every
+   installed third-party package. ``GES_DISABLE_PLUGIN_AUTOLOAD=1`` (or ``autoload=False``) skips them.
+3. Local plugins named in ``registry.yaml``: a dotted module (``pkg.mod``) or a ``.py`` file.
+4. ``pm.check_pending()``: a misspelled hook implementation fails here, not silently.
 
-There is no plugin manager at import time: call :func:`get_plugin_manager`.
+``--no-plugin NAME`` (``blocked``) skips a plugin of any of the three sources. There is no plugin manager
+at import time: call :func:`get_plugin_manager`.
 """
 
 from __future__ import annotations
@@ -24,14 +25,15 @@ from types import ModuleType
 import pluggy
 
 from ges_core import hookspecs
+from ges_core.builtins import BUILTIN_PLUGINS, builtin_source, import_builtin
 from ges_core.errors import PluginError
 
 __all__ = ["AUTOLOAD_ENV", "ENTRY_POINT_GROUP", "OWN_DISTRIBUTION", "get_plugin_manager", "plugin_sources"]
 
 ENTRY_POINT_GROUP = "ges.plugins"
-"""Entry-point group that built-in and third-party plugins declare."""
+"""Entry-point group that third-party plugins declare."""
 OWN_DISTRIBUTION = "ges-unigrasp"
-"""This project's distribution name; its entry points load even with autoload off."""
+"""This project's distribution name; it declares no entry points (its plugins are built-ins)."""
 AUTOLOAD_ENV = "GES_DISABLE_PLUGIN_AUTOLOAD"
 """Set to 1 to skip third-party entry points."""
 
@@ -46,7 +48,7 @@ def get_plugin_manager(
     """A fresh plugin manager with every plugin discovered and checked.
 
     local_plugins: registry.yaml ``plugins`` entries; file paths are relative to ``base_dir``.
-    blocked: plugin (entry-point) names not to load (the CLI's ``--no-plugin``).
+    blocked: plugin names not to load (the CLI's ``--no-plugin``): built-in, entry point or local entry.
     autoload: load third-party entry points; default: unless ``GES_DISABLE_PLUGIN_AUTOLOAD=1``.
     """
     pm = pluggy.PluginManager(hookspecs.PROJECT)
@@ -55,7 +57,9 @@ def get_plugin_manager(
         pm.set_blocked(name)
     if autoload is None:
         autoload = os.environ.get(AUTOLOAD_ENV, "") not in ("1", "true", "yes")
-    _load_entry_points(pm, autoload=autoload)
+    _load_builtins(pm)
+    if autoload:
+        _load_entry_points(pm)
     for ref in local_plugins:
         _load_local_plugin(pm, ref, base_dir or Path.cwd())
     try:
@@ -66,11 +70,18 @@ def get_plugin_manager(
 
 
 def plugin_sources(pm: pluggy.PluginManager) -> dict[str, str]:
-    """Plugin name -> where it came from (``dist-name version`` or ``local: ref``)."""
-    sources = {pm.get_name(plugin): f"{pm.get_name(plugin)} (local)" for plugin in pm.get_plugins()}
+    """Plugin name -> where it came from (built-in, ``dist-name version`` or ``local``)."""
+    sources = {name: f"{name} (local)" for name, _ in pm.list_name_plugin()}
+    sources.update({name: builtin_source(name) for name in BUILTIN_PLUGINS if name in sources})
     for plugin, dist in pm.list_plugin_distinfo():
         sources[pm.get_name(plugin)] = f"{pm.get_name(plugin)} from {dist.metadata['name']} {dist.version}"
     return sources
+
+
+def _load_builtins(pm: pluggy.PluginManager) -> None:
+    for name in BUILTIN_PLUGINS:
+        if not pm.is_blocked(name):
+            pm.register(import_builtin(name), name=name)
 
 
 def _entry_points() -> list[importlib.metadata.EntryPoint]:
@@ -81,19 +92,14 @@ def _dist_name(ep: importlib.metadata.EntryPoint) -> str:
     return ep.dist.metadata["name"] if ep.dist is not None else "?"
 
 
-def _load_entry_points(pm: pluggy.PluginManager, *, autoload: bool) -> None:
+def _load_entry_points(pm: pluggy.PluginManager) -> None:
     seen: dict[str, str] = {}
     for ep in _entry_points():
         dist = _dist_name(ep)
-        if ep.name in seen and seen[ep.name] != dist:
-            raise PluginError(
-                f"two packages declare the plugin '{ep.name}': {seen[ep.name]} and {dist}; uninstall one of them",
-                plugin=ep.name,
-            )
-        seen[ep.name] = dist
-        if not autoload and dist != OWN_DISTRIBUTION:
-            continue
-        if pm.is_blocked(ep.name) or pm.has_plugin(ep.name):
+        if dist == OWN_DISTRIBUTION:
+            continue  # an older install's entry points for what are built-ins now
+        _check_name(ep.name, dist, seen)
+        if pm.is_blocked(ep.name):
             continue
         try:
             pm.load_setuptools_entrypoints(ENTRY_POINT_GROUP, name=ep.name)
@@ -103,6 +109,21 @@ def _load_entry_points(pm: pluggy.PluginManager, *, autoload: bool) -> None:
                 f"Fix or uninstall it, or skip it with --no-plugin {ep.name}",
                 plugin=ep.name,
             ) from exc
+
+
+def _check_name(name: str, dist: str, seen: dict[str, str]) -> None:
+    """An entry-point name is claimed once: by one package, and by no built-in."""
+    if name in BUILTIN_PLUGINS:
+        raise PluginError(
+            f"package {dist} declares the plugin '{name}', the name of a built-in plugin; "
+            f"rename its entry point, or uninstall it",
+            plugin=name,
+        )
+    if name in seen and seen[name] != dist:
+        raise PluginError(
+            f"two packages declare the plugin '{name}': {seen[name]} and {dist}; uninstall one of them", plugin=name
+        )
+    seen[name] = dist
 
 
 def _load_local_plugin(pm: pluggy.PluginManager, ref: str, base_dir: Path) -> None:
@@ -115,7 +136,9 @@ def _load_local_plugin(pm: pluggy.PluginManager, ref: str, base_dir: Path) -> No
         raise
     except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
         raise PluginError(
-            f"local plugin '{ref}' from registry.yaml failed to import: {type(exc).__name__}: {exc}", plugin=ref
+            f"local plugin '{ref}' from registry.yaml failed to import: {type(exc).__name__}: {exc}. "
+            f"Fix it, or remove it from registry.yaml's plugins",
+            plugin=ref,
         ) from exc
     pm.register(module, name=name)
 

@@ -7,7 +7,9 @@ plugins by name with their per-plugin settings.
 
 from __future__ import annotations
 
+import inspect
 import os
+from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -15,7 +17,7 @@ from typing import Any
 import pluggy
 
 from ges_core.config import RegistryConfig, apply_overrides, parse_model, read_yaml
-from ges_core.errors import PluginError, RegistrationError, UnknownNameError
+from ges_core.errors import GesError, PluginError, RegistrationError, UnknownNameError
 from ges_core.hand import HandModel
 from ges_core.plugins import get_plugin_manager, plugin_sources
 from ges_core.sim import SceneConfig, SimBackend
@@ -54,9 +56,8 @@ class Registry:
         self._specs: dict[str, dict[str, PluginSpec]] = {kind: {} for kind in KINDS}
         sources = plugin_sources(pm)
         for kind, (hook_name, spec_cls) in KINDS.items():
-            for impl in getattr(pm.hook, hook_name).get_hookimpls():
-                source = sources.get(impl.plugin_name, impl.plugin_name)
-                impl.function(register=self._registrar(kind, spec_cls, source))
+            for plugin, caller in _callers_per_plugin(pm, hook_name):
+                caller(register=self._registrar(kind, spec_cls, sources[pm.get_name(plugin)]))
 
     def _registrar(self, kind: str, spec_cls: type[PluginSpec], source: str):
         def register(spec: PluginSpec) -> None:
@@ -97,8 +98,8 @@ class Registry:
         return name
 
     def settings(self, kind: str, name: str) -> dict[str, Any]:
-        """Factory keyword arguments for one plugin from registry.yaml ``settings``."""
-        return dict(self.config.settings.get(kind, {}).get(name, {}))
+        """Factory keyword arguments of one plugin: its spec's tuned defaults, then registry.yaml ``settings``."""
+        return {**self.spec(kind, name).settings, **self.config.settings.get(kind, {}).get(name, {})}
 
     def _kind(self, kind: str) -> dict[str, PluginSpec]:
         if kind not in self._specs:
@@ -128,10 +129,44 @@ class Registry:
 
     @staticmethod
     def _call(spec: PluginSpec, factory: Any, *args: Any, **kwargs: Any) -> Any:
+        """``factory(*args, **kwargs)``; settings it cannot take, and any non-GesError it raises, name the plugin."""
+        _check_settings(spec, factory, args, kwargs)
         try:
             return factory(*args, **kwargs)
-        except TypeError as exc:
-            raise PluginError(f"{spec.kind} '{spec.name}' rejected its settings: {exc}", plugin=spec.name) from exc
+        except GesError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
+            raise PluginError(
+                f"{spec.kind} plugin '{spec.name}' ({spec.source}) failed while building: {type(exc).__name__}: {exc}. "
+                f"This is a bug in the plugin; report it to its authors (--debug shows the traceback)",
+                plugin=spec.name,
+            ) from exc
+
+
+def _callers_per_plugin(pm: pluggy.PluginManager, hook_name: str) -> list[tuple[object, Callable[..., Any]]]:
+    """(plugin, hook caller limited to that plugin) per plugin implementing ``hook_name``, in pluggy's call order.
+
+    Each call goes through pluggy's hook caller (argument selection, ordering, wrappers, blocked plugins);
+    one plugin at a time, so every spec is credited to the plugin that registered it.
+    """
+    plugins = list(dict.fromkeys(impl.plugin for impl in reversed(getattr(pm.hook, hook_name).get_hookimpls())))
+    return [(p, pm.subset_hook_caller(hook_name, [o for o in plugins if o is not p])) for p in plugins]
+
+
+def _check_settings(spec: PluginSpec, factory: Any, args: tuple, kwargs: dict[str, Any]) -> None:
+    """A ``PluginError`` naming the registry.yaml entry when the settings do not fit the factory's signature."""
+    try:
+        signature = inspect.signature(factory)
+    except (TypeError, ValueError):  # no signature to check (some builtins); the call will tell
+        return
+    try:
+        signature.bind(*args, **kwargs)
+    except TypeError as exc:
+        raise PluginError(
+            f"{spec.kind} '{spec.name}' rejected its settings {sorted(kwargs)}: {exc}. "
+            f"Check settings.{spec.kind}.{spec.name} in registry.yaml (or --set)",
+            plugin=spec.name,
+        ) from exc
 
 
 def load_registry(

@@ -25,9 +25,9 @@ pip() {
 echo "setup: installing torch==$TORCH_VERSION (CPU) and the project; this takes about a minute"
 pip install --upgrade pip setuptools wheel
 pip install "torch==$TORCH_VERSION"
-pip install -e ".[test]"
+pip install -e ".[all,test]"  # every simulator and hand asset (the extras: pyproject.toml)
 # the engines' import chatter (Vulkan fallback, PyBullet build time) is shown only if the check fails
-check=$(.venv/bin/python -c "import torch, sapien, pybullet, pytorch_kinematics, rsl_rl, tensordict, gymnasium, ges_core" 2>&1) \
+check=$(.venv/bin/python -c "import torch, sapien, pybullet, mujoco, gymnasium_robotics, pytorch_kinematics, rsl_rl, ges_core" 2>&1) \
   || { echo "$check" >&2; echo "setup: import check failed; see the pip output above" >&2; exit 1; }
 echo "$want" > "$stamp"
 echo "setup: done"

@@ -21,6 +21,31 @@ def test_list_shows_builtins_with_sources(capsys):
     assert "ges-unigrasp" in out and "*shadow" in out.replace(" ", "")
 
 
+ENGINE_PLUGIN = """
+from ges_core import hookimpl
+from ges_core.specs import SimSpec
+
+@hookimpl
+def ges_register_sims(register):
+    register(SimSpec(name="fancy", entry_point="x:y", requires=("no_such_engine_xyz",), install="pip install 'x[f]'"))
+    register(SimSpec(name="plain", entry_point="x:y", requires=("no_such_engine_xyz",)))
+"""
+
+
+def test_list_says_what_to_install_for_a_missing_engine(capsys, tmp_path):
+    (tmp_path / "engines.py").write_text(ENGINE_PLUGIN)
+    (tmp_path / "registry.yaml").write_text("plugins: [engines.py]\n")
+    code, out, _ = run(capsys, "--registry", str(tmp_path / "registry.yaml"), "list", "sim")
+    lines = {line.split()[0].lstrip("*"): line for line in out.splitlines()[1:]}
+    assert code == 0 and lines["fancy"].endswith("[needs: pip install 'x[f]']")
+    assert lines["plain"].endswith("[missing: no_such_engine_xyz]") and "needs" not in lines["sapien"]
+
+
+def test_info_shows_requirements_and_settings(capsys):
+    code, out, _ = run(capsys, "--set", "settings.sim.sapien.contact_offset=0.004", "info", "sim", "sapien")
+    assert code == 0 and "requires: sapien (installed)" in out and "settings: contact_offset=0.004" in out
+
+
 def test_unknown_hand_is_one_line_with_known_names(capsys):
     code, out, err = run(capsys, "info", "hand", "shadwo")
     assert code == 1 and out == ""

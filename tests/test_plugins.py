@@ -7,7 +7,9 @@ import sys
 
 import pytest
 
+from ges_core import __version__
 from ges_core import plugins as plugin_mod
+from ges_core.builtins import BUILTIN_PLUGINS
 from ges_core.errors import PluginError, RegistrationError, UnknownNameError
 from ges_core.registry import Registry, load_registry
 
@@ -21,12 +23,33 @@ def ges_register_hands(register):
 """
 
 
-def test_builtins_come_from_entry_points():
+def test_builtins_need_no_entry_points(monkeypatch):
+    monkeypatch.setattr(plugin_mod, "_entry_points", lambda: [])
+    registry = load_registry()
+    assert registry.names("hand") == ["allegro", "shadow"] and registry.names("sim") == ["pybullet", "sapien"]
+    assert registry.spec("sim", "sapien").source == f"sapien (built-in, ges-unigrasp {__version__})"
+
+
+def test_builtins_load_with_autoload_off():
     registry = load_registry(autoload=False)
     assert {"shadow", "allegro"} <= set(registry.names("hand"))
     assert {"sapien", "pybullet"} <= set(registry.names("sim"))
-    sources = {spec.source for spec in registry.specs("sim")}
-    assert all("ges-unigrasp" in s for s in sources), sources
+    assert all("built-in, ges-unigrasp" in spec.source for spec in registry.specs("sim"))
+
+
+def test_a_builtin_can_be_blocked():
+    registry = load_registry(blocked=("pybullet",))
+    assert "pybullet" not in registry.names("sim") and "sapien" in registry.names("sim")
+
+
+def test_builtin_failing_to_import_is_named(monkeypatch):
+    monkeypatch.setitem(BUILTIN_PLUGINS, "broken", "ges_plugins.sims.no_such_plugin")
+    with pytest.raises(PluginError) as err:
+        plugin_mod.get_plugin_manager(autoload=False)
+    msg = str(err.value)
+    assert "built-in plugin 'broken' (ges_plugins.sims.no_such_plugin) failed to import: ModuleNotFoundError" in msg
+    assert "--no-plugin broken" in msg and isinstance(err.value.__cause__, ModuleNotFoundError)
+    assert plugin_mod.get_plugin_manager(autoload=False, blocked=["broken"]).has_plugin("sapien")
 
 
 def test_local_plugin_by_file_path(write_registry, tmp_path):
@@ -51,6 +74,43 @@ def test_duplicate_name_names_both_sources(write_registry, tmp_path):
         load_registry(write_registry("plugins: [dup.py]\n"), autoload=False)
     msg = str(err.value)
     assert "'allegro'" in msg and "ges-unigrasp" in msg and "dup.py" in msg
+
+
+def test_each_spec_is_credited_to_its_plugin(write_registry, tmp_path):
+    for name in ("hand_a", "hand_b"):
+        (tmp_path / f"{name}.py").write_text(LOCAL_HAND.format(name=name))
+    registry = load_registry(write_registry("plugins: [hand_a.py, hand_b.py]\n"), autoload=False)
+    assert registry.spec("hand", "hand_a").source == "local:hand_a.py (local)"
+    assert registry.spec("hand", "hand_b").source == "local:hand_b.py (local)"
+
+
+HOOK_OPTIONS = """
+from ges_core import hookimpl
+from ges_core.specs import HandSpec
+
+calls = []
+
+@hookimpl
+def ges_register_sims():  # takes none of the spec's arguments: pluggy passes only what it asks for
+    calls.append("sims")
+
+@hookimpl(wrapper=True)
+def ges_register_hands(register):
+    calls.append("before")
+    register(HandSpec(name="wrapped", entry_point="x:y"))
+    result = yield
+    calls.append("after")
+    return result
+"""
+
+
+def test_hooks_are_called_through_pluggy(write_registry, tmp_path):
+    """Hook options pluggy implements (argument selection, new-style wrappers) work in registration hooks."""
+    (tmp_path / "options.py").write_text(HOOK_OPTIONS)
+    registry = load_registry(write_registry("plugins: [options.py]\n"), autoload=False)
+    (module,) = [p for name, p in registry.pm.list_name_plugin() if name == "local:options.py"]
+    assert module.calls == ["before", "after", "sims"]
+    assert registry.spec("hand", "wrapped").source == "local:options.py (local)"
 
 
 def test_unknown_name_lists_known_and_suggests():
@@ -111,6 +171,21 @@ def test_third_party_entry_point_that_raises_is_named(monkeypatch):
     # blocking it lets everything else load
     pm = plugin_mod.get_plugin_manager(autoload=True, blocked=["fancy"])
     assert pm.is_blocked("fancy")
+
+
+def test_entry_point_with_a_builtin_name_is_refused(monkeypatch):
+    fake = _FakeEntryPoint("shadow", "ges-fake-shadow", lambda: pytest.fail("must not load"))
+    monkeypatch.setattr(plugin_mod, "_entry_points", lambda: [fake])
+    with pytest.raises(
+        PluginError, match="package ges-fake-shadow declares the plugin 'shadow', the name of a built-in"
+    ):
+        plugin_mod.get_plugin_manager(autoload=True)
+
+
+def test_own_entry_points_of_an_older_install_are_ignored(monkeypatch):
+    stale = _FakeEntryPoint("shadow", plugin_mod.OWN_DISTRIBUTION, lambda: pytest.fail("must not load"))
+    monkeypatch.setattr(plugin_mod, "_entry_points", lambda: [stale])
+    assert plugin_mod.get_plugin_manager(autoload=True).has_plugin("shadow")
 
 
 def test_two_packages_declaring_one_plugin_name(monkeypatch):

@@ -23,6 +23,12 @@ def run(args: argparse.Namespace) -> int:
     registry = registry_from_args(args)
     spec = registry.spec(args.kind, args.name)
     print(f"{spec.kind} '{spec.name}': {spec.description}\n  source: {spec.source}\n  entry point: {spec.entry_point}")
+    if spec.requires:
+        missing = spec.missing()
+        state = f"missing {', '.join(missing)}: {spec.install}" if missing else "installed"
+        print(f"  requires: {', '.join(spec.requires)} ({state})")
+    settings = registry.settings(args.kind, spec.name)
+    print(f"  settings: {', '.join(f'{k}={v!r}' for k, v in settings.items()) or '(none)'}")
     if args.kind == "hand":
         hand = registry.build_hand(args.name)
         print(f"  urdf: {hand.urdf_path()}")

@@ -1,11 +1,11 @@
-"""``ges list``: every registered plugin, its source and whether its engine is importable."""
+"""``ges list``: every registered plugin, its source, and what to install where its engine is missing."""
 
 from __future__ import annotations
 
 import argparse
-import importlib.util
 
 from ges_core.registry import KINDS
+from ges_core.specs import PluginSpec
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -15,9 +15,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.set_defaults(func=run)
 
 
-def _available(spec) -> str:
-    missing = [m for m in getattr(spec, "requires", ()) if importlib.util.find_spec(m) is None]
-    return f"  [missing: {', '.join(missing)}]" if missing else ""
+def _available(spec: PluginSpec) -> str:
+    """Empty when every module the plugin requires is installed, else what to install."""
+    missing = spec.missing()
+    if not missing:
+        return ""
+    return f"  [needs: {spec.install}]" if spec.install else f"  [missing: {', '.join(missing)}]"
 
 
 def run(args: argparse.Namespace) -> int:

@@ -19,6 +19,8 @@ def ges_register_hands(register: Callable[[HandSpec], None]) -> None:
         HandSpec(
             name="allegro",
             entry_point="ges_plugins.hands.allegro.hand:build_hand",
+            requires=("mani_skill",),  # holds the URDF and meshes (found, not imported)
+            install="pip install 'ges-unigrasp[allegro]'",
             description="Allegro Hand, right (16 joints, 4 fingers; little-finger slot served by the ring finger)",
         )
     )

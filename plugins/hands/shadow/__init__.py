@@ -18,6 +18,8 @@ def ges_register_hands(register: Callable[[HandSpec], None]) -> None:
         HandSpec(
             name="shadow",
             entry_point="ges_plugins.hands.shadow.hand:build_hand",
+            requires=("gymnasium_robotics", "mujoco"),  # the MJCF source and its converter
+            install="pip install 'ges-unigrasp[shadow]'",
             description="Shadow Dexterous Hand with forearm, 24 joints (gymnasium-robotics MJCF -> URDF)",
         )
     )

@@ -19,6 +19,12 @@ def ges_register_sims(register: Callable[[SimSpec], None]) -> None:
             name="pybullet",
             entry_point="ges_plugins.sims.pybullet.backend:PybulletBackend",
             requires=("pybullet",),
+            install="pip install 'ges-unigrasp[pybullet]'",
+            # PyBullet's solver needs ~100 iterations to hold a stiff fingertip squeeze: at the shared
+            # default of 20 (SceneConfig.solver_iterations), Stage 1 validation lifted 3/9 objects with
+            # Allegro, at 100 it lifted 8/9 (SAPIEN: 7/9 at 20). Costs about 1.4x per step. See
+            # docs/simulators.md. registry.yaml's settings.sim.pybullet overrides it.
+            settings={"solver_iterations": 100},
             description="PyBullet 3.2.7 on the CPU: one DIRECT client per scene, SAPIEN-like implicit PD drives",
         )
     )
