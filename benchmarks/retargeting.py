@@ -43,7 +43,7 @@ import torch
 
 from ges_core.kinematics import HandKinematics
 from ges_core.registry import load_registry
-from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
+from ges_core.synthesis.retarget.solver import VectorRetargetConfig, VectorRetargeter
 
 RESULTS = Path(__file__).resolve().parent / "results" / "retargeting.json"
 DEX_NORM_DELTA = 4e-3

@@ -35,7 +35,7 @@ from ges_core.env.evaluate import BaselineConfig, evaluate_baseline
 from ges_core.env.grasp_source import SELECTIONS, rejection
 from ges_core.errors import AssetError
 from ges_core.objects.splits import SPLITS
-from ges_core.synthesis.pipeline import SynthesisConfig, run_synthesis
+from ges_core.synthesis import SynthesisConfig, run_synthesis
 
 from _results import code_state, write_results
 

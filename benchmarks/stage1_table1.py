@@ -1,6 +1,6 @@
 """Stage 1 Table 1: per hand x simulator, step success and time per object, physics-validated success.
 
-Runs the pipeline on the built-in demo objects (``ges_core.synthesis.run_demo.DEMO_OBJECTS``, all
+Runs the pipeline on the built-in demo objects (``ges_core.synthesis.run.demo.DEMO_OBJECTS``, all
 convex or pre-decomposed: no CoACD run) for each hand, refining in each simulator and validating every
 grasp in both simulators (cross-simulator agreement). One thread (``torch.set_num_threads(1)``, one
 process). Prints markdown and writes ``benchmarks/results/stage1_table1.json``.
@@ -24,9 +24,9 @@ from pathlib import Path
 import torch
 
 from ges_core.dataset import open_dataset, software_versions
-from ges_core.synthesis.pipeline import SynthesisConfig, run_synthesis
-from ges_core.synthesis.run_demo import DEMO_OBJECTS
-from ges_core.synthesis.run_table import agreement_rates, format_table, table_rows
+from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis.run.demo import DEMO_OBJECTS
+from ges_core.synthesis.run.table import agreement_rates, format_table, table_rows
 
 from _results import code_state, write_results
 

@@ -7,7 +7,7 @@ import pytest
 
 import ges_core.cli as cli
 from ges_core.dataset import open_dataset, validate_dataset
-from ges_core.synthesis.pipeline import SynthesisConfig
+from ges_core.synthesis import SynthesisConfig
 
 FAST = ["-o", "synthesis.validate.hold_steps=60"]
 
@@ -96,7 +96,7 @@ def test_retarget_reuses_stored_contacts(demo_dir, capsys, tmp_path):
 
 def test_retarget_errors(tmp_path, capsys):
     from ges_core.dataset import DatasetWriter
-    from ges_core.synthesis.pipeline import SynthesisConfig
+    from ges_core.synthesis import SynthesisConfig
 
     DatasetWriter(tmp_path / "empty", SynthesisConfig().dump()).close()
     assert cli.main(["retarget", "--from", "shadow", "--to", "allegro", str(tmp_path / "empty")]) == 1

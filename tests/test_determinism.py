@@ -25,7 +25,7 @@ _SCRIPT = textwrap.dedent(
     """
     import pickle, sys
     from ges_core.dataset import open_dataset
-    from ges_core.synthesis.pipeline import SynthesisConfig, run_synthesis
+    from ges_core.synthesis import SynthesisConfig, run_synthesis
     out, ids = sys.argv[1], sys.argv[2].split(",")
     config = SynthesisConfig.model_validate({"validate": {"hold_steps": 60}})
     run_synthesis(ids, ["allegro"], config, out)

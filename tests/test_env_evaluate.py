@@ -18,9 +18,10 @@ from ges_core.env.grasp_env import GraspEnv
 from ges_core.env.grasp_source import load_grasp, select_records
 from ges_core.env.success import EndReason
 from ges_core.errors import AssetError, BackendUnavailable, ConfigError
+from ges_core.objects.library import LibraryConfig
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
-from ges_core.synthesis.pipeline import LibrarySettings, SynthesisConfig, run_synthesis
+from ges_core.synthesis import SynthesisConfig, run_synthesis
 
 pytestmark = pytest.mark.sim
 CANDIDATES = ("procedural/cube/000", "procedural/sphere/000", "procedural/box/000", "procedural/ellipsoid/000")
@@ -49,7 +50,7 @@ class CountingRegistry:
 def grown(tmp_path_factory) -> tuple:
     """(dataset folder, ids A and B of the two records holding grasps, sorted; records without one may be there)."""
     root = tmp_path_factory.mktemp("evaluate") / "ds"
-    library = LibrarySettings(sources=("procedural",), procedural_count=1)
+    library = LibraryConfig(sources=("procedural",), procedural_count=1)
     config = SynthesisConfig.model_validate({"library": library, "validate": {"hold_steps": 60}})
     found = []
     for oid in CANDIDATES:

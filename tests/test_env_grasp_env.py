@@ -15,8 +15,8 @@ from ges_core.env.success import EndReason
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.registry import load_registry
-from ges_core.synthesis.squeeze import squeeze_targets
-from ges_core.synthesis.validate import ValidateConfig
+from ges_core.synthesis.physics.squeeze import squeeze_targets
+from ges_core.synthesis.physics.validate import ValidateConfig
 
 pytestmark = pytest.mark.sim
 N = 2

@@ -26,10 +26,11 @@ from ges_core.env.grasp_source import (
 )
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import AssetError, ConfigError
+from ges_core.objects.library import LibraryConfig
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
-from ges_core.synthesis.pipeline import LibrarySettings, SynthesisConfig, run_synthesis
-from ges_core.synthesis.sim_scene import compose
+from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis.physics.scene import compose
 
 pytestmark = pytest.mark.sim
 FLAT = "user/flat/sheet"
@@ -44,7 +45,7 @@ def dataset(tmp_path_factory):
     (root / "objects" / "flat").mkdir(parents=True)
     sheet = "v 0 0 0\nv 0.1 0 0\nv 0.1 0.1 0\nv 0 0.1 0\nf 1 2 3\nf 1 3 4\n"  # zero volume
     (root / "objects" / "flat" / "sheet.obj").write_text(sheet)
-    library = LibrarySettings(sources=("procedural", "user"), user_dir=str(root / "objects"), procedural_count=1)
+    library = LibraryConfig(sources=("procedural", "user"), user_dir=str(root / "objects"), procedural_count=1)
     config = SynthesisConfig.model_validate({"library": library, "validate": {"hold_steps": 60}})
     run_synthesis([FLAT], ["allegro"], config, root / "ds")
     for oid in CANDIDATES:
@@ -107,7 +108,7 @@ def test_targets_are_the_record_in_the_world_with_joints_by_name(dataset, graspe
     pose = object_rest_pose(registry, "sapien", asset)
     targets = grasp_targets(record, allegro.description, 3, pose)
     assert targets.q.shape == (3, 16) and targets.wrist_pose.shape == (3, 7)
-    # cross-check with Stage 1's own frame mapping (synthesis.sim_scene.compose) and a fresh scene
+    # cross-check with Stage 1's own frame mapping (synthesis.physics.scene.compose) and a fresh scene
     with registry.build_sim("sapien", SceneConfig()) as sim:
         sim.load_object(asset)
         world = sim.object_pose()[0]

@@ -9,7 +9,7 @@ from scipy.optimize import linprog
 from scipy.spatial import ConvexHull
 
 from ges_core.errors import SynthesisError
-from ges_core.synthesis.force_closure import (
+from ges_core.synthesis.contacts.force_closure import (
     ForceClosureConfig,
     cone_forces,
     ferrari_canny,

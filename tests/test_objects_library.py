@@ -7,6 +7,7 @@ import re
 import numpy as np
 import pytest
 import trimesh
+from pydantic import ValidationError
 
 from ges_core.cli import main
 from ges_core.errors import AssetError, ConfigError
@@ -101,17 +102,27 @@ def test_unknown_id_suggests_close_ids(library):
         library.entry("nothing/at/all")
 
 
-def test_config_problems_are_listed_together(tmp_path):
+def test_config_problems_are_listed_together(tmp_path, capsys):
     with pytest.raises(ConfigError) as info:
-        ObjectLibrary(LibraryConfig(sources=("procedural", "shapenet", "user"), procedural_count=-1, density=0))
+        ObjectLibrary(sources=("procedural", "shapenet"), procedural_count=-1, density=0, user_scale=-1)
     msg = str(info.value)
     for part in (
-        "unknown source 'shapenet'",
-        "user_dir: required",
-        "procedural_count: must be >= 0",
-        "density: must be positive",
+        "invalid object library config",
+        "sources: Value error, unknown source(s) ['shapenet'] (known: procedural, pybullet, user)",
+        "procedural_count: Input should be greater than or equal to 0",
+        "density: Input should be greater than 0",
+        "user_scale: Input should be greater than 0",
     ):
         assert part in msg
+    with pytest.raises(ValidationError, match="user_dir: required when sources include 'user'"):
+        LibraryConfig(sources=("user",))
+    assert main(["objects", "list", "--count", "-1"]) == 1
+    assert "invalid object library options: procedural_count: Input should be greater" in capsys.readouterr().err
+
+
+def test_user_dir_is_a_str_or_a_path(tmp_path):
+    assert LibraryConfig(user_dir=str(tmp_path)) == LibraryConfig(user_dir=tmp_path)
+    assert LibraryConfig(user_dir=str(tmp_path)).model_dump(mode="json")["user_dir"] == str(tmp_path)
     with pytest.raises(ConfigError, match="unknown split 'test'"):
         ObjectLibrary(sources=("procedural",)).list(split="test")
 

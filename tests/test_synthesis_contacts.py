@@ -9,8 +9,8 @@ from pydantic import ValidationError
 
 from ges_core.errors import SynthesisError
 from ges_core.objects.library import LibraryConfig, ObjectLibrary
-from ges_core.synthesis.contacts import ContactConfig, generate_contacts
-from ges_core.synthesis.force_closure import ForceClosureConfig, ferrari_canny
+from ges_core.synthesis.contacts.force_closure import ForceClosureConfig, ferrari_canny
+from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
 
 CFG = ContactConfig()
 THUMB, FINGERS = 0, slice(1, 5)

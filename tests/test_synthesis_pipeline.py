@@ -9,11 +9,18 @@ from pydantic import ValidationError
 
 from ges_core.dataset import open_dataset, validate_dataset
 from ges_core.errors import ConfigError
+from ges_core.objects.library import LibraryConfig
 from ges_core.registry import load_registry
-from ges_core.synthesis.contacts import generate_contacts
-from ges_core.synthesis.pipeline import LibrarySettings, SynthesisConfig, object_seed, plan_tasks, run_synthesis
-from ges_core.synthesis.retarget import GraspRetargeter
-from ges_core.synthesis.run_table import format_table, table_rows
+from ges_core.synthesis import (
+    THUMB_KEEP,
+    GraspRetargeter,
+    SynthesisConfig,
+    format_table,
+    generate_contacts,
+    run_synthesis,
+    table_rows,
+)
+from ges_core.synthesis.run.tasks import object_seed, plan_tasks
 
 GOOD = ["procedural/cube/000", "procedural/box/000"]
 FLAT, HUGE = "user/flat/sheet", "user/big/crate"
@@ -32,7 +39,7 @@ def user_dir(tmp_path_factory):
 
 def small_config(user_dir, **kw) -> SynthesisConfig:
     """Short validation (fewer hold steps) to keep the tests quick; otherwise the defaults."""
-    library = LibrarySettings(sources=("procedural", "user"), user_dir=str(user_dir), procedural_count=1)
+    library = LibraryConfig(sources=("procedural", "user"), user_dir=str(user_dir), procedural_count=1)
     data = {"library": library, "validate": {"hold_steps": 60}, "chunk_size": 2, **kw}
     return SynthesisConfig.model_validate(data)
 
@@ -179,13 +186,37 @@ def test_concave_object_without_decomposition_fails_refinement_with_reason(tmp_p
     assert record.steps["validation"].reason == "skipped"
 
 
-def test_thumb_keep_must_agree_across_steps():
-    with pytest.raises(ValidationError, match=r"opened hand must be the same in every step.*refine.thumb_keep': 1"):
-        SynthesisConfig.model_validate({"refine": {"thumb_keep": 1}})
-    config = SynthesisConfig.model_validate(
-        {"refine": {"thumb_keep": 1}, "pregrasp": {"thumb_keep": 1}, "retarget": {"wrist_search": {"thumb_keep": 1}}}
-    )
-    assert config.refine.thumb_keep == 1
+def test_the_opened_hand_is_one_setting():
+    """thumb_keep lives in SynthesisConfig only; the steps' own configs refuse it."""
+    assert SynthesisConfig().thumb_keep == THUMB_KEEP == 2
+    for data in ({"refine": {"thumb_keep": 1}}, {"pregrasp": {"thumb_keep": 1}}):
+        with pytest.raises(ValidationError, match="thumb_keep"):
+            SynthesisConfig.model_validate(data)
+    with pytest.raises(ValidationError, match="thumb_keep"):
+        SynthesisConfig.model_validate({"retarget": {"wrist_search": {"thumb_keep": 1}}})
+
+
+@pytest.mark.sim
+def test_thumb_keep_reaches_every_step(tmp_path, monkeypatch):
+    """The run's one thumb_keep goes to the wrist search, refinement and the pre-grasp alike."""
+    from ges_core.synthesis.run import worker as run_worker
+
+    seen: dict[str, list[int]] = {"retarget": [], "refine": [], "pregrasp": []}
+
+    def spy(name, real):
+        def call(*args, **kwargs):
+            seen[name].append(kwargs["thumb_keep"])
+            return real(*args, **kwargs)
+
+        return call
+
+    monkeypatch.setattr(run_worker, "GraspRetargeter", spy("retarget", run_worker.GraspRetargeter))
+    monkeypatch.setattr(run_worker, "refine_grasp", spy("refine", run_worker.refine_grasp))
+    monkeypatch.setattr(run_worker, "pregrasp", spy("pregrasp", run_worker.pregrasp))
+    library = {"sources": ["procedural"], "procedural_count": 1}
+    config = SynthesisConfig.model_validate({"library": library, "validate_sims": [], "attempts": 1, "thumb_keep": 1})
+    run_synthesis(["procedural/cube/000"], ["allegro"], config, tmp_path / "ds")
+    assert seen == {"retarget": [1], "refine": [1], "pregrasp": [1]}
 
 
 @pytest.mark.sim
@@ -197,8 +228,8 @@ def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeyp
     The attempts refine the retargeter's ranked placements in order (checked against the ranking recomputed
     outside the pipeline); the record holds the passing attempt's refined grasp, every verdict and the summed times.
     With ``attempts=1`` (the paper's single pass) the step fails with the first verdict."""
-    from ges_core.synthesis import run_worker
-    from ges_core.synthesis.retarget_search import ObjectCloud
+    from ges_core.synthesis.retarget.search import ObjectCloud
+    from ges_core.synthesis.run import worker as run_worker
     from ges_core.synthesis.types import ValidationResult
 
     calls, verdicts = [], []

@@ -18,9 +18,9 @@ from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig, SimBackend
 from ges_core.sim_check import grasp_start_pose
-from ges_core.synthesis.pregrasp import PregraspConfig, open_joint_mask, pregrasp
-from ges_core.synthesis.refine import RefineConfig, creep_direction, refine_grasp, refine_verdict
-from ges_core.synthesis.sim_scene import closing_direction, compose, interpolate_pose, relative, stage_scene
+from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, PregraspConfig, open_joint_mask, pregrasp
+from ges_core.synthesis.physics.refine import RefineConfig, creep_direction, refine_grasp, refine_verdict
+from ges_core.synthesis.physics.scene import closing_direction, compose, interpolate_pose, relative, stage_scene
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 
 REGISTRY = load_registry(autoload=False)
@@ -130,7 +130,7 @@ def test_pregrasp_opens_the_fingers_but_keeps_thumb_opposition_and_wrist(hand_na
     finger_joints = {j for f in d.fingers for j in f.joints}
     for k, name in enumerate(d.joint_names):
         # the thumb's first two joints (rotation, abduction: its opposition); Shadow's wrist joints
-        kept = name in thumb.joints[: PregraspConfig().thumb_keep] or name not in finger_joints
+        kept = name in thumb.joints[:THUMB_KEEP] or name not in finger_joints
         assert pre.q[k] == pytest.approx(grasp.q[k] if kept else d.open_pose[k]), name
     # independent check with forward kinematics: the opened fingertips spread away from the thumb tip
     kin = HandKinematics.from_hand(hand)

@@ -22,16 +22,16 @@ from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
 from ges_core.objects.pointcloud import sample_surface
 from ges_core.registry import load_registry
-from ges_core.synthesis.retarget import GraspRetargeter, RetargetConfig, raise_contacts, retarget_contacts
-from ges_core.synthesis.retarget_search import (
+from ges_core.synthesis.retarget.retargeter import GraspRetargeter, RetargetConfig, raise_contacts, retarget_contacts
+from ges_core.synthesis.retarget.search import (
     ObjectCloud,
     WristSearchConfig,
     candidate_wrists,
     distinct_ranking,
     object_penalty,
 )
-from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
-from ges_core.synthesis.retarget_wrist import (
+from ges_core.synthesis.retarget.solver import VectorRetargetConfig, VectorRetargeter
+from ges_core.synthesis.retarget.wrist import (
     check_contact_array,
     contact_problems,
     coupling_rotation,

@@ -14,12 +14,12 @@ from test_synthesis_refine import DOWN, REGISTRY, SIMS, ExplodingBackend, box_ob
 from ges_core.errors import ConfigError
 from ges_core.kinematics import HandKinematics
 from ges_core.sim import SceneConfig
-from ges_core.synthesis.pregrasp import pregrasp
-from ges_core.synthesis.refine import refine_grasp, refine_verdict
-from ges_core.synthesis.sim_scene import tip_rule
-from ges_core.synthesis.squeeze import press_directions, squeeze_targets
+from ges_core.synthesis.physics.pregrasp import pregrasp
+from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
+from ges_core.synthesis.physics.scene import tip_rule
+from ges_core.synthesis.physics.squeeze import press_directions, squeeze_targets
+from ges_core.synthesis.physics.validate import HoldRecord, ValidateConfig, agreement, classify, validate_grasp
 from ges_core.synthesis.types import Grasp, ValidationResult
-from ges_core.synthesis.validate import HoldRecord, ValidateConfig, agreement, classify, validate_grasp
 
 CONFIG = ValidateConfig()
 

@@ -42,20 +42,21 @@ def _library_options(p: argparse.ArgumentParser) -> None:
 
 def library_from_args(args: argparse.Namespace, **extra):
     """The :class:`ObjectLibrary` the command-line options describe."""
+    from ges_core.config import parse_model
     from ges_core.objects.library import LibraryConfig, ObjectLibrary
 
     sources = tuple(args.source) if args.source else ("procedural", "pybullet") + (("user",) if args.user_dir else ())
-    config = LibraryConfig(
-        sources=sources,
-        seed=args.seed,
-        procedural_count=args.count,
-        user_dir=args.user_dir,
-        user_scale=args.user_scale,
-        normalize_size=args.normalize,
-        split_seed=args.split_seed,
+    settings = {
+        "sources": sources,
+        "seed": args.seed,
+        "procedural_count": args.count,
+        "user_dir": args.user_dir,
+        "user_scale": args.user_scale,
+        "normalize_size": args.normalize,
+        "split_seed": args.split_seed,
         **extra,
-    )
-    return ObjectLibrary(config)
+    }
+    return ObjectLibrary(parse_model(LibraryConfig, settings, where="object library options"))
 
 
 def run_list(args: argparse.Namespace) -> int:

@@ -58,14 +58,14 @@ def _move_aside(out: Path) -> None:
 
 
 def _registry(args: argparse.Namespace):
-    from ges_core.synthesis.pipeline import RegistrySpec
+    from ges_core.synthesis.run.tasks import RegistrySpec
 
     return RegistrySpec(args.registry, tuple(args.registry_overrides), tuple(args.no_plugin))
 
 
 def run_demo_cmd(args: argparse.Namespace) -> int:
     """Run the demo and print its summary table."""
-    from ges_core.synthesis.run_demo import default_demo_config, run_demo
+    from ges_core.synthesis.run.demo import default_demo_config, run_demo
 
     overrides = list(args.overrides)
     overrides += [f"out={args.out}"] if args.out else []
@@ -81,7 +81,7 @@ def run_demo_cmd(args: argparse.Namespace) -> int:
 def run_synth_cmd(args: argparse.Namespace) -> int:
     """Generate a dataset and print its table."""
     from ges_core.config import load_config
-    from ges_core.synthesis.pipeline import SynthesisConfig, run_synthesis
+    from ges_core.synthesis import SynthesisConfig, run_synthesis
 
     overrides = list(args.overrides)
     overrides += [f"refine_sim={args.sim}", f"validate_sims=[{args.sim}]"] if args.sim else []
@@ -99,9 +99,8 @@ def run_synth_cmd(args: argparse.Namespace) -> int:
 
 def run_retarget_cmd(args: argparse.Namespace) -> int:
     """Retarget stored contacts of --from to --to; print a per-hand success table."""
-    from ges_core.config import parse_model
     from ges_core.dataset import open_dataset
-    from ges_core.synthesis.pipeline import SynthesisConfig, run_synthesis
+    from ges_core.synthesis import SynthesisConfig, run_synthesis
 
     dataset = open_dataset(args.dataset)
     if args.source_hand == args.target_hand:
@@ -113,7 +112,7 @@ def run_retarget_cmd(args: argparse.Namespace) -> int:
             f"dataset {args.dataset} holds no record of hand '{args.source_hand}' "
             f"(it holds: {', '.join(hands) or 'none'})"
         )
-    config = parse_model(SynthesisConfig, dataset.run_config, where=f"{args.dataset} run_config")
+    config = SynthesisConfig.of_dataset(dataset)
     out = args.out or args.dataset
     run_synthesis(
         ids, [args.target_hand], config, out, workers=args.workers, progress=not args.no_progress,
@@ -137,7 +136,7 @@ def _print_table(
 ) -> None:
     """The Table 1 summary of ``root``'s records in ``wanted`` (and of ``extra``: another folder and its keys)."""
     from ges_core.dataset import open_dataset
-    from ges_core.synthesis.run_table import format_table, table_rows
+    from ges_core.synthesis.run.table import format_table, table_rows
 
     records = [r for r in open_dataset(root) if r.key in wanted]
     if extra is not None:

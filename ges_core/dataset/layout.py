@@ -28,6 +28,7 @@ __all__ = [
     "DATASET_FORMAT",
     "DATASET_VERSION",
     "MANIFEST",
+    "READABLE_VERSIONS",
     "RECORDS_DIR",
     "FolderScan",
     "config_differences",
@@ -41,7 +42,11 @@ __all__ = [
 ]
 
 DATASET_FORMAT = "ges.contactgrasp_dataset"
-DATASET_VERSION = 1
+DATASET_VERSION = 2
+"""Version 2: records of record version 2 (typed fields instead of ``extra``) and, from the Stage 1 pipeline, a
+``run_config`` with one ``thumb_keep`` and the whole ``library`` section. Version 1 is still read."""
+READABLE_VERSIONS = (1, 2)
+"""Dataset versions this code opens; a writer resuming an older one rewrites its manifest as DATASET_VERSION."""
 MANIFEST = "manifest.json"
 RECORDS_DIR = "records"
 INDEX_FIELDS = ("object_id", "hand", "simulator", "category", "split")
@@ -110,10 +115,11 @@ def read_manifest(root: Path) -> dict:
     if not isinstance(data, dict) or data.get("format") != DATASET_FORMAT:
         found = data.get("format") if isinstance(data, dict) else type(data).__name__
         raise AssetError(f"{path} is not a grasp dataset manifest: format {found!r}, expected {DATASET_FORMAT!r}")
-    if data.get("version") != DATASET_VERSION:
+    if data.get("version") not in READABLE_VERSIONS:
+        readable = ", ".join(str(v) for v in READABLE_VERSIONS)
         raise AssetError(
             f"{path}: dataset version {data.get('version')!r} is not supported by this GES-UniGrasp "
-            f"(reads version {DATASET_VERSION}); use the GES-UniGrasp version that wrote it"
+            f"(reads versions {readable}); use the GES-UniGrasp version that wrote it"
         )
     return data
 

@@ -137,7 +137,7 @@ class DatasetWriter:
     def _open(self, allow_config_change: bool) -> dict:
         if (self.root / MANIFEST).is_file():
             manifest = read_manifest(self.root)
-            return self._check_config(manifest, allow_config_change)
+            return dict(self._check_config(manifest, allow_config_change), version=DATASET_VERSION)
         if self.root.exists() and any(self._foreign_files()):
             raise AssetError(
                 f"{self.root} is not empty and holds no {MANIFEST}: it is not a grasp dataset. "

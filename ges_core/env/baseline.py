@@ -37,7 +37,7 @@ from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
 from ges_core.env.rotations import interpolate_pose, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 from ges_core.hand import HandModel
 from ges_core.policy import Expert
-from ges_core.synthesis.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
+from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 
 __all__ = ["ScriptedExpert"]
 
@@ -99,7 +99,7 @@ class ScriptedExpert(Expert):
         (PD targets exactly at a contact pose give no grip force). Used without ``hand``.
 
         hand: the env's hand; given, the closing targets are Stage 1 validation's squeeze instead
-        (:func:`ges_core.synthesis.squeeze.squeeze_targets`: each fingertip pressing ``squeeze_force`` N
+        (:func:`ges_core.synthesis.physics.squeeze.squeeze_targets`: each fingertip pressing ``squeeze_force`` N
         toward what it opposes). The overshoot rule pushed the Shadow thumb across its contact (0 of 21
         objects lifted, benchmarks/scripted_baseline.py)."""
         self.obs_layout, self.act_layout = obs_layout, act_layout

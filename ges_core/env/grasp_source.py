@@ -34,7 +34,7 @@ from ges_core.hand import HandDescription
 from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.splits import SPLITS
 from ges_core.sim import SceneConfig
-from ges_core.synthesis.sim_scene import compose
+from ges_core.synthesis.physics.scene import compose
 
 __all__ = [
     "SELECTIONS",
@@ -161,7 +161,7 @@ def _matching_entries(dataset: Dataset, hand: str, simulator: str | None, split:
 def library_for(dataset: Dataset):
     """The :class:`~ges_core.objects.library.ObjectLibrary` the dataset was generated from (its run config)."""
     from ges_core.config import parse_model
-    from ges_core.synthesis.pipeline import LibrarySettings
+    from ges_core.objects.library import LibraryConfig
 
     settings = dataset.run_config.get("library") if isinstance(dataset.run_config, dict) else None
     if not isinstance(settings, dict):
@@ -169,7 +169,7 @@ def library_for(dataset: Dataset):
             f"dataset {dataset.root}: its run_config has no 'library' section, so its objects cannot be "
             "rebuilt; it was not written by the Stage 1 pipeline (ges synth / ges demo)"
         )
-    return parse_model(LibrarySettings, settings, where=f"{dataset.root} run_config.library").build()
+    return parse_model(LibraryConfig, settings, where=f"{dataset.root} run_config.library").build()
 
 
 def grasp_targets(

@@ -9,12 +9,14 @@
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
+from pydantic import Field, field_validator, model_validator
 
+from ges_core.config import ConfigModel, parse_model
 from ges_core.errors import ConfigError, UnknownNameError
 from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.decompose import FAST, CoacdSettings
@@ -28,47 +30,44 @@ __all__ = ["LibraryConfig", "ObjectInfo", "ObjectLibrary", "UnknownObjectError"]
 _ASSET_DEFAULTS = ObjectAsset(object_id="", category="", mesh_path=Path(), collision=())
 
 
-@dataclass(frozen=True, kw_only=True)
-class LibraryConfig:
-    """Which objects the library holds and how it processes them."""
+class LibraryConfig(ConfigModel):
+    """Which objects the library holds and how it processes them (also a Stage 1 run's ``library`` section)."""
 
-    sources: tuple[str, ...] = ("procedural", "pybullet")
-    """Any of ``procedural``, ``pybullet``, ``user`` (``user`` needs ``user_dir``)."""
-    seed: int = 0
-    """Seed of the procedural dimensions."""
-    procedural_count: int = 10
-    """Objects per procedural category."""
-    user_dir: Path | None = None
-    """Folder laid out ``<category>/<instance>.{obj,stl,ply,glb}``."""
-    user_scale: float = 1.0
-    """Factor taking the user files' units to metres."""
-    normalize_size: float | None = None
-    """If set, every object is scaled uniformly so its largest extent is this many metres."""
-    split_seed: int = 0
-    """Seed of the train / unseen splits."""
-    coacd: CoacdSettings = field(default_factory=lambda: FAST)
-    """Decomposition settings; ``get`` looks up the cache under these."""
-    decompose: bool = False
-    """Compute a missing decomposition on demand in ``get`` (slow) instead of raising."""
-    density: float = _ASSET_DEFAULTS.density
-    """kg/m^3 of every object."""
-    friction: float = _ASSET_DEFAULTS.friction
+    sources: tuple[str, ...] = Field(("procedural", "pybullet"), description="procedural, pybullet and/or user")
+    seed: int = Field(0, description="seed of the procedural dimensions")
+    procedural_count: int = Field(10, ge=0, description="objects per procedural category")
+    user_dir: Path | None = Field(
+        None, description="folder <category>/<instance>.{obj,stl,ply,glb} of user objects (a str or a Path)"
+    )
+    user_scale: float = Field(1.0, gt=0, description="factor taking the user files' units to metres")
+    normalize_size: float | None = Field(
+        None, gt=0, description="if set, every object is scaled uniformly so its largest extent is this many metres"
+    )
+    split_seed: int = Field(0, description="seed of the train / unseen splits")
+    coacd: CoacdSettings = Field(default_factory=lambda: FAST, description="decomposition settings (cache key)")
+    decompose: bool = Field(
+        False, description="compute a missing convex decomposition on demand (slow, ~5-20 s per mesh, then cached)"
+    )
+    density: float = Field(_ASSET_DEFAULTS.density, gt=0, description="kg/m^3 of every object")
+    friction: float = Field(_ASSET_DEFAULTS.friction, description="friction coefficient of every object")
 
-    def validate(self) -> None:
-        """Raise ConfigError listing every invalid field."""
-        problems = [
-            f"sources: unknown source '{s}' (known: {', '.join(SOURCES)})" for s in self.sources if s not in SOURCES
-        ]
+    @field_validator("sources")
+    @classmethod
+    def _known_sources(cls, sources: tuple[str, ...]) -> tuple[str, ...]:
+        unknown = [s for s in sources if s not in SOURCES]
+        if unknown:
+            raise ValueError(f"unknown source(s) {unknown} (known: {', '.join(SOURCES)})")
+        return sources
+
+    @model_validator(mode="after")
+    def _user_needs_a_folder(self) -> LibraryConfig:
         if "user" in self.sources and self.user_dir is None:
-            problems.append("user_dir: required when sources include 'user'")
-        if self.procedural_count < 0:
-            problems.append(f"procedural_count: must be >= 0, got {self.procedural_count}")
-        for name in ("user_scale", "density", "normalize_size"):
-            value = getattr(self, name)
-            if value is not None and not value > 0:
-                problems.append(f"{name}: must be positive, got {value}")
-        if problems:
-            raise ConfigError("invalid object library config: " + "; ".join(problems), problems=problems)
+            raise ValueError("user_dir: required when sources include 'user'")
+        return self
+
+    def build(self) -> ObjectLibrary:
+        """The :class:`ObjectLibrary` these settings describe."""
+        return ObjectLibrary(self)
 
 
 @dataclass(frozen=True)
@@ -96,10 +95,11 @@ class ObjectLibrary:
     """All objects of the configured sources, with splits, assets, point clouds and sizes."""
 
     def __init__(self, config: LibraryConfig | None = None, **overrides) -> None:
-        config = replace(config or LibraryConfig(), **overrides)
+        config = config or LibraryConfig()
+        if overrides:
+            config = parse_model(LibraryConfig, {**dict(config), **overrides}, where="object library config")
         if config.user_dir is not None and "user" not in config.sources and not overrides.get("sources"):
-            config = replace(config, sources=(*config.sources, "user"))
-        config.validate()
+            config = config.model_copy(update={"sources": (*config.sources, "user")})
         self.config = config
         self._processed: dict[str, ProcessedObject] = {}
 

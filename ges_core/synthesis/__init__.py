@@ -1,7 +1,68 @@
-"""Stage 1: contact-guided grasp synthesis.
+"""Stage 1: contact-guided grasp synthesis, one subpackage per step, in data-flow order.
 
-One module per step, in data-flow order: ``contacts`` (point cloud -> five contacts),
-``force_closure`` (grasp quality), ``retarget`` (contacts -> wrist pose and joint angles),
-``refine`` (collision-aware closing in a simulator), ``pregrasp`` (back off and open),
-``validate`` (lift-and-hold in physics). Hands and simulators enter only through their interfaces.
+======================  =====================================  ============================================
+step                    entry point                            input -> output
+======================  =====================================  ============================================
+1 ``contacts/``         :func:`generate_contacts`              point cloud -> five contacts (ContactResult)
+2 ``retarget/``         :class:`GraspRetargeter`               contacts -> wrist pose + joints (Grasp)
+3 ``physics/refine``    :func:`refine_grasp`                   Grasp -> settled Grasp in a simulator (RefinedGrasp)
+4 ``physics/pregrasp``  :func:`pregrasp`                       Grasp -> backed-off, opened Grasp (no simulator)
+5 ``physics/validate``  :func:`validate_grasp`                 Grasp + pre-grasp -> lift-and-hold verdict
+======================  =====================================  ============================================
+
+``types`` holds what passes between the steps (:class:`ContactResult`, :class:`Grasp`,
+:class:`RefinedGrasp`, :class:`ValidationResult`). ``run/`` takes many objects and hands through the five
+steps: :class:`SynthesisConfig` (the run's settings, ``thumb_keep`` the one opened hand of steps 2-4),
+:func:`run_synthesis` (tasks, workers, one :class:`~ges_core.dataset.GraspRecord` per pair, the dataset),
+:func:`table_rows` / :func:`format_table` (the paper's Table 1) and :func:`run_demo` (``ges demo``).
+Hands and simulators enter only through their interfaces.
 """
+
+from __future__ import annotations
+
+from ges_core.synthesis.contacts import ContactConfig, generate_contacts
+from ges_core.synthesis.physics import (
+    THUMB_KEEP,
+    PregraspConfig,
+    RefineConfig,
+    ValidateConfig,
+    pregrasp,
+    refine_grasp,
+    validate_grasp,
+)
+from ges_core.synthesis.retarget import GraspRetargeter, RetargetConfig
+from ges_core.synthesis.run import (
+    RegistrySpec,
+    RunReport,
+    SynthesisConfig,
+    format_table,
+    run_demo,
+    run_synthesis,
+    table_rows,
+)
+from ges_core.synthesis.types import ContactResult, Grasp, RefinedGrasp, ValidationResult
+
+__all__ = [
+    "THUMB_KEEP",
+    "ContactConfig",
+    "ContactResult",
+    "Grasp",
+    "GraspRetargeter",
+    "PregraspConfig",
+    "RefineConfig",
+    "RefinedGrasp",
+    "RegistrySpec",
+    "RetargetConfig",
+    "RunReport",
+    "SynthesisConfig",
+    "ValidateConfig",
+    "ValidationResult",
+    "format_table",
+    "generate_contacts",
+    "pregrasp",
+    "refine_grasp",
+    "run_demo",
+    "run_synthesis",
+    "table_rows",
+    "validate_grasp",
+]

@@ -29,8 +29,9 @@ from scipy.spatial import cKDTree
 
 from ges_core.contact import ContactSet
 from ges_core.errors import SynthesisError
-from ges_core.synthesis import contact_slicing as sl
-from ges_core.synthesis.contact_frame import (
+from ges_core.synthesis.contacts import slicing as sl
+from ges_core.synthesis.contacts.force_closure import ForceClosureConfig, ferrari_canny
+from ges_core.synthesis.contacts.frame import (
     Pca,
     canonical_frame,
     choose_strategy,
@@ -38,8 +39,7 @@ from ges_core.synthesis.contact_frame import (
     pca,
     symmetry_score,
 )
-from ges_core.synthesis.contact_optimize import optimize_contacts
-from ges_core.synthesis.force_closure import ForceClosureConfig, ferrari_canny
+from ges_core.synthesis.contacts.optimize import optimize_contacts
 from ges_core.synthesis.types import ContactResult
 
 __all__ = ["ContactConfig", "generate_contacts"]

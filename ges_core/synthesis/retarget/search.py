@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from pydantic import BaseModel, ConfigDict, Field
 
-from ges_core.synthesis.retarget_wrist import HandFrame, TopologyDescriptors, wrist_poses
+from ges_core.synthesis.retarget.wrist import HandFrame, TopologyDescriptors, wrist_poses
 
 __all__ = [
     "ObjectCloud",
@@ -81,11 +81,6 @@ class WristSearchConfig(BaseModel):
     object_clearance: float = Field(0.0, ge=0, description="metres non-fingertip links should stay out of the object")
     object_weight: float = Field(10.0, ge=0, description="weight of the squared object shortfall, per m^2 of fit")
     cloud_points: int = Field(512, ge=1, description="object surface samples used (first N of the cloud)")
-    # The opened hand (pre-grasp, start of refinement) is checked too: the Allegro's opened thumb reached
-    # 2 cm lower than at the grasp and pressed the table at 80-200 N on flat objects (jenga, random_urdfs/000).
-    thumb_keep: int = Field(
-        2, ge=0, description="thumb joints the opened hand keeps at the grasp: PregraspConfig/RefineConfig.thumb_keep"
-    )
     # Alternatives (GraspRetargeter.retarget_ranked: the pipeline's next attempts when a placement fails
     # refinement or validation, SynthesisConfig.attempts): neighbours
     # on the grid (20 deg apart in yaw/roll/pitch) fail alike, so an alternative must differ from every

@@ -3,9 +3,9 @@
 For each :class:`~ges_core.contact.ContactSet` (object frame):
 
 1. topology descriptors ``(F, n_palm, d_palm, u_palm)`` and the wrist-link pose from them, the
-   paper's constant roll/pitch coupling and the wrist origin (:mod:`.retarget_wrist`);
+   paper's constant roll/pitch coupling and the wrist origin (:mod:`.wrist`);
 2. the contacts in the hand's base-link frame, then vector retargeting of the finger joints
-   (:mod:`.retarget_solver`), batched over all contact sets given at once;
+   (:mod:`.solver`), batched over all contact sets given at once;
 3. the base-link pose in the object frame: ``T_obj_base = T_obj_wrist inv(T_base_wrist(q_open))``.
    The wrist link may differ from the base (Shadow: base = forearm, wrist = palm, with WRJ1/WRJ0
    between them); joints of no finger stay at the open pose, so that transform is fixed.
@@ -27,8 +27,8 @@ from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
-from ges_core.synthesis.pregrasp import open_joint_mask
-from ges_core.synthesis.retarget_search import (
+from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, open_joint_mask
+from ges_core.synthesis.retarget.search import (
     ObjectCloud,
     WristSearchConfig,
     candidate_offsets,
@@ -37,8 +37,8 @@ from ges_core.synthesis.retarget_search import (
     object_penalty,
     table_penalty,
 )
-from ges_core.synthesis.retarget_solver import VectorRetargetConfig, VectorRetargeter
-from ges_core.synthesis.retarget_wrist import (
+from ges_core.synthesis.retarget.solver import VectorRetargetConfig, VectorRetargeter
+from ges_core.synthesis.retarget.wrist import (
     HandFrame,
     TopologyDescriptors,
     contact_problems,
@@ -52,8 +52,6 @@ from ges_core.transforms import matrix_to_pose
 __all__ = [
     "GraspRetargeter",
     "RetargetConfig",
-    "VectorRetargetConfig",
-    "VectorRetargeter",
     "raise_contacts",
     "retarget_contacts",
 ]
@@ -93,11 +91,18 @@ class RetargetConfig(BaseModel):
 class GraspRetargeter:
     """Retargets contact sets to grasps of one hand; build once, call many times.
 
-    hand: the hand; config: settings; kinematics: an already built HandKinematics of ``hand``.
+    hand: the hand; config: settings; kinematics: an already built HandKinematics of ``hand``;
+    thumb_keep: the opened hand's kept thumb joints (``SynthesisConfig.thumb_keep``), whose table clearance the
+    wrist search checks too.
     """
 
     def __init__(
-        self, hand: HandModel, config: RetargetConfig | None = None, *, kinematics: HandKinematics | None = None
+        self,
+        hand: HandModel,
+        config: RetargetConfig | None = None,
+        *,
+        kinematics: HandKinematics | None = None,
+        thumb_keep: int = THUMB_KEEP,
     ) -> None:
         self.hand, self.config = hand, config or RetargetConfig()
         self.kinematics = kinematics or HandKinematics.from_hand(hand)
@@ -110,8 +115,10 @@ class GraspRetargeter:
         """(4, 4) wrist-link pose in the base-link frame at ``q_init``."""
         self.frame: HandFrame = hand_frame(d, self._wrist_points(q_open))
         self.search_offsets = candidate_offsets(self.config.wrist_search)
-        """(M, 6) wrist placements tried per grasp (row 0: the paper's), see :mod:`.retarget_search`."""
-        self._opened = torch.as_tensor(open_joint_mask(d, self.config.wrist_search.thumb_keep))
+        """(M, 6) wrist placements tried per grasp (row 0: the paper's), see :mod:`.search`."""
+        # The opened hand (pre-grasp, start of refinement) is checked too: the Allegro's opened thumb reached
+        # 2 cm lower than at the grasp and pressed the table at 80-200 N on flat objects (jenga, random_urdfs/000).
+        self._opened = torch.as_tensor(open_joint_mask(d, thumb_keep))
         """(K,) joints the pre-grasp and refinement open (their table clearance is checked too)."""
         hull = collision_points(hand.urdf_text())
         self.hull_links = list(hull)
@@ -180,7 +187,7 @@ class GraspRetargeter:
         """Per grasp, up to ``keep`` solutions (base pose (4, 4), joints (K,), residual, per-slot errors (5,)).
 
         normals: (B, 5, 3) outward contact normals, object frame (the solver's pad term). Every
-        candidate wrist placement (:mod:`.retarget_search`) of every grasp is solved in one batch; each
+        candidate wrist placement (:mod:`.search`) of every grasp is solved in one batch; each
         grasp's solutions are its candidates in order of objective (the paper's placement first on
         ties), each at a placement distinct from the ones before (:func:`distinct_ranking`)."""
         c = self.config

@@ -8,7 +8,7 @@ Here, through :class:`ges_core.sim.SimBackend` only (any hand, any backend):
 
 1. the hand (floating) and the object (resting on the table, gravity on: the table holds it, no
    kinematic object exists in the interface) are loaded; the base link is put at the grasp's wrist
-   pose with the fingers open (the joints :func:`ges_core.synthesis.pregrasp.open_joint_mask` opens;
+   pose with the fingers open (the joints :func:`ges_core.synthesis.physics.pregrasp.open_joint_mask` opens;
    the others start at the grasp's values) and held there by the wrist drive;
 2. finger targets ramp linearly from open to the grasp's ``q`` over ``ramp_steps``, then creep on
    along the closing direction up to ``overshoot`` rad further over ``creep_steps`` (fingertips
@@ -39,8 +39,8 @@ from ges_core.errors import SimulationError, SynthesisError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
-from ges_core.synthesis.pregrasp import open_joint_mask
-from ges_core.synthesis.sim_scene import (
+from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, open_joint_mask
+from ges_core.synthesis.physics.scene import (
     check_grasp,
     closing_direction,
     compose,
@@ -50,7 +50,7 @@ from ges_core.synthesis.sim_scene import (
     stage_scene,
     tip_forces,
 )
-from ges_core.synthesis.squeeze import press_torques
+from ges_core.synthesis.physics.squeeze import press_torques
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 
 __all__ = ["RefineConfig", "refine_grasp", "refine_verdict"]
@@ -89,10 +89,6 @@ class RefineConfig(ConfigModel):
     max_object_turn: float = Field(15.0, ge=0, description="refine_verdict: object rotation during the close, deg")
     max_object_shift: float = Field(0.02, ge=0, description="refine_verdict: object displacement during the close, m")
     table_force: float = Field(0.05, ge=0, description="a hand-table pair pushing harder than this touches, N")
-    # 2: rotation and abduction (both built-in hands), so the opened thumb stays opposed and closes by
-    # flexion toward its contact. With 1 the Shadow thumb swung in from the index side and landed on the
-    # box's side face (validated grasps on the 20 demo objects, SAPIEN: Shadow 5 with 2, 0 with 1; Allegro 8, 7).
-    thumb_keep: int = Field(2, ge=0, description="proximal thumb joints that start at the grasp, not open")
     # overshoot: retargeting puts fingertips *on* their contacts, give or take a few mm, so a tip often
     # stops 1-3 mm short and never touches (0-2 of 4 Allegro fingers frozen on the procedural objects).
     # Creeping 0.1 rad further (~1 cm at the tip) after the ramp lets them reach the surface and freeze;
@@ -107,12 +103,19 @@ class RefineConfig(ConfigModel):
 
 
 def refine_grasp(
-    sim: SimBackend, hand: HandModel, obj: ObjectAsset, grasp: Grasp, config: RefineConfig | None = None
+    sim: SimBackend,
+    hand: HandModel,
+    obj: ObjectAsset,
+    grasp: Grasp,
+    config: RefineConfig | None = None,
+    *,
+    thumb_keep: int = THUMB_KEEP,
 ) -> RefinedGrasp:
     """Close ``hand`` from open toward ``grasp.q`` at ``grasp.wrist_pose`` on ``obj``, freezing fingers on contact.
 
     sim: a backend with ``num_envs == 1``, fresh or used before by these functions with the same hand.
     grasp: base pose in the object frame and joints (K,). Returns the settled grasp, object frame.
+    thumb_keep: proximal thumb joints that start at the grasp's values, not open (the pre-grasp's opened hand).
     Raises SynthesisError (reason ``unstable``) when the simulation blows up.
     """
     config = config or RefineConfig()
@@ -122,7 +125,7 @@ def refine_grasp(
     object_pose = stage_scene(sim, hand, obj, fixed=config.fix_object)
     wrist = compose(object_pose, np.asarray(grasp.wrist_pose, dtype=np.float64))
     q_grasp = d.apply_couplings(grasp.q)
-    q_open = np.where(open_joint_mask(d, config.thumb_keep), np.asarray(d.open_pose), q_grasp)
+    q_open = np.where(open_joint_mask(d, thumb_keep), np.asarray(d.open_pose), q_grasp)
     sim.set_hand_state(q_open[None], wrist[None])
     sim.set_wrist_targets(wrist[None])
     push = creep_direction(hand, q_grasp, config.overshoot) if config.creep == "press" else None
@@ -167,7 +170,7 @@ def refine_verdict(refined: RefinedGrasp, hand: HandModel, config: RefineConfig 
 
 def creep_direction(hand: HandModel, q_grasp: np.ndarray, overshoot: float) -> np.ndarray:
     """(K,) creep past ``q_grasp``: per finger, ``J^T u`` (its tip toward what it opposes) scaled so the
-    finger's largest joint change is ``overshoot`` rad (:func:`ges_core.synthesis.squeeze.press_torques`)."""
+    finger's largest joint change is ``overshoot`` rad (:func:`ges_core.synthesis.physics.squeeze.press_torques`)."""
     d = hand.description
     torque = press_torques(hand, d.apply_couplings(q_grasp))
     push = np.zeros_like(torque)

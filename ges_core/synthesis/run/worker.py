@@ -1,6 +1,6 @@
 """One pipeline task (a chunk of objects) in one process: the Stage 1 steps, in order, per object and hand.
 
-Used by :func:`ges_core.synthesis.pipeline.run_synthesis`, in the parent (``workers=1``) or in spawned
+Used by :func:`ges_core.synthesis.run.pipeline.run_synthesis`, in the parent (``workers=1``) or in spawned
 worker processes. Hands, retargeters and the object library are built once per process; simulators
 once per (object, hand): one per simulator, shared by that object's refinement and validation.
 
@@ -22,16 +22,16 @@ from pathlib import Path
 from ges_core.dataset import GraspRecord, StepOutcome, software_versions
 from ges_core.dataset.record import NOT_RUN
 from ges_core.errors import AssetError, SimulationError, SynthesisError
-from ges_core.synthesis.contacts import generate_contacts
-from ges_core.synthesis.pipeline import Task, object_seed
-from ges_core.synthesis.pregrasp import pregrasp
-from ges_core.synthesis.refine import refine_grasp, refine_verdict
-from ges_core.synthesis.retarget import GraspRetargeter
-from ges_core.synthesis.retarget_search import ObjectCloud
-from ges_core.synthesis.run_records import ObjectWork, build_record, contacts_from_record
-from ges_core.synthesis.sim_scene import stage_scene
+from ges_core.synthesis.contacts.generate import generate_contacts
+from ges_core.synthesis.physics.pregrasp import pregrasp
+from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
+from ges_core.synthesis.physics.scene import stage_scene
+from ges_core.synthesis.physics.validate import validate_grasp
+from ges_core.synthesis.retarget.retargeter import GraspRetargeter
+from ges_core.synthesis.retarget.search import ObjectCloud
+from ges_core.synthesis.run.records import ObjectWork, build_record, contacts_from_record
+from ges_core.synthesis.run.tasks import RunContext, Task, object_seed
 from ges_core.synthesis.types import Grasp, RefinedGrasp
-from ges_core.synthesis.validate import validate_grasp
 
 __all__ = ["run_task"]
 
@@ -39,7 +39,7 @@ _STATES: dict[int, _State] = {}
 """Per-process cache: id of the run context -> built hands, retargeters and library."""
 
 
-def run_task(task: Task, context) -> list[GraspRecord]:
+def run_task(task: Task, context: RunContext) -> list[GraspRecord]:
     """Records of every (object, hand) pair of ``task``, object order then hand order."""
     state = _state(context)
     works = {oid: _contacts(state, oid) for oid, _ in task.pairs}
@@ -60,7 +60,7 @@ def run_task(task: Task, context) -> list[GraspRecord]:
 class _State:
     """What a process builds once per run context."""
 
-    context: object
+    context: RunContext
     registry: object
     library: object
     hands: dict = field(default_factory=dict)
@@ -76,11 +76,13 @@ class _State:
 
     def retargeter(self, name: str) -> GraspRetargeter:
         if name not in self.retargeters:
-            self.retargeters[name] = GraspRetargeter(self.hand(name), self.context.config.retarget)
+            self.retargeters[name] = GraspRetargeter(
+                self.hand(name), self.context.config.retarget, thumb_keep=self.context.config.thumb_keep
+            )
         return self.retargeters[name]
 
 
-def _state(context) -> _State:
+def _state(context: RunContext) -> _State:
     key = hash((context.config.model_dump_json(), context.registry, context.pictures, context.source))
     if key not in _STATES:
         cfg = context.config
@@ -195,7 +197,7 @@ def _attempts(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasps: l
         notes: dict = {}
         refined, refinement = _refine(state, sims, hand, work, grasp, notes)
         settled = refined.grasp if refined is not None else grasp
-        pre = pregrasp(state.hand(hand), settled, work.result.approach, cfg.pregrasp)
+        pre = pregrasp(state.hand(hand), settled, work.result.approach, cfg.pregrasp, thumb_keep=cfg.thumb_keep)
         validation = (
             _validate(state, sims, hand, work, refined.grasp, pre, notes) if refinement.ok else StepOutcome.skipped()
         )
@@ -225,7 +227,7 @@ def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gras
     try:
         asset = state.library.get(work.object_id)
         sim = sims.get(hand, cfg.refine_sim, asset, extra)
-        refined = refine_grasp(sim, model, asset, grasp, cfg.refine)
+        refined = refine_grasp(sim, model, asset, grasp, cfg.refine, thumb_keep=cfg.thumb_keep)
     except AssetError as error:
         extra.setdefault("errors", {})["refinement"] = str(error)
         return None, StepOutcome.failed("no_collision_model", time.perf_counter() - start)

@@ -8,7 +8,7 @@ also requires a *fingertip* grasp through the hold. Phases, all through
 1. approach: the hand starts at the pre-grasp (teleported, fingers as the pre-grasp says) and the
    wrist drive moves the base to the grasp pose over ``approach_steps``;
 2. close: finger targets ramp from the pre-grasp joints to the grasp joints pushed further so each
-   fingertip presses toward the opposing fingers (:mod:`ges_core.synthesis.squeeze`) over ``close_steps``;
+   fingertip presses toward the opposing fingers (:mod:`ges_core.synthesis.physics.squeeze`) over ``close_steps``;
 3. lift: the wrist target rises ``lift_height`` (world +z) over ``lift_steps``;
 4. hold: ``hold_steps`` at the lifted pose.
 
@@ -42,7 +42,7 @@ from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
-from ges_core.synthesis.sim_scene import (
+from ges_core.synthesis.physics.scene import (
     check_grasp,
     compose,
     interpolate_pose,
@@ -50,7 +50,7 @@ from ges_core.synthesis.sim_scene import (
     tip_forces,
     tip_rule,
 )
-from ges_core.synthesis.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
+from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 from ges_core.synthesis.types import Grasp, ValidationResult
 
 __all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "validate_grasp"]
@@ -70,7 +70,7 @@ class ValidateConfig(ConfigModel):
     # 0.03 m: a grasp that lets the object slip 3 cm within the hand over the lift still counts as
     # lifted; a dropped object falls far below (to the table, 0.2 m down).
     lift_tolerance: float = Field(0.03, ge=0, description="how far below lift_height the object may stay, m")
-    # Squeeze (ges_core.synthesis.squeeze): each fingertip driven to press about squeeze_force N toward the
+    # Squeeze (ges_core.synthesis.physics.squeeze): each fingertip driven to press about squeeze_force N toward the
     # opposing fingers; the defaults and where they come from are in squeeze.py.
     squeeze_force: float = Field(SQUEEZE_FORCE, ge=0, description="fingertip force the closing targets ask for, N")
     min_squeeze: float = Field(MIN_SQUEEZE, ge=0, description="floor on the largest extra target angle, rad")

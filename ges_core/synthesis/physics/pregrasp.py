@@ -23,27 +23,38 @@ from pydantic import Field
 from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription, HandModel
-from ges_core.synthesis.sim_scene import check_grasp
+from ges_core.synthesis.physics.scene import check_grasp
 from ges_core.synthesis.types import Grasp
 
-__all__ = ["PregraspConfig", "open_joint_mask", "pregrasp"]
+__all__ = ["THUMB_KEEP", "PregraspConfig", "open_joint_mask", "pregrasp"]
+
+# 2: rotation and abduction (both built-in hands), so the opened thumb stays opposed and closes by
+# flexion toward its contact. With 1 the Shadow thumb swung in from the index side and landed on the
+# box's side face (validated grasps on the 20 demo objects, SAPIEN: Shadow 5 with 2, 0 with 1; Allegro 8, 7).
+THUMB_KEEP = 2
+"""Proximal thumb joints the opened hand keeps at the grasp's values (default of ``SynthesisConfig.thumb_keep``,
+the one setting of the opened hand shared by refinement, the pre-grasp and the wrist search)."""
 
 
 class PregraspConfig(ConfigModel):
     """How far to back off and which joints to open."""
 
     backoff: float = Field(0.02, ge=0, description="metres moved back against the approach direction (paper: 0.02)")
-    # 2: rotation and abduction (both built-in hands), so the opened thumb stays opposed and closes by
-    # flexion toward its contact. With 1 the Shadow thumb swung in from the index side and landed on the
-    # box's side face (validated grasps on the 20 demo objects, SAPIEN: Shadow 5 with 2, 0 with 1; Allegro 8, 7).
-    thumb_keep: int = Field(2, ge=0, description="proximal thumb joints that keep the grasp's values")
     open_fraction: float = Field(1.0, ge=0, le=1, description="fraction of the way from the grasp to the open pose")
 
 
-def pregrasp(hand: HandModel, grasp: Grasp, approach: np.ndarray, config: PregraspConfig | None = None) -> Grasp:
+def pregrasp(
+    hand: HandModel,
+    grasp: Grasp,
+    approach: np.ndarray,
+    config: PregraspConfig | None = None,
+    *,
+    thumb_keep: int = THUMB_KEEP,
+) -> Grasp:
     """The pre-grasp ``g_init`` of ``grasp``, object frame like the grasp.
 
     approach: (3,) direction the hand moves toward the object, object frame (normalized here).
+    thumb_keep: proximal thumb joints that keep the grasp's values (:func:`open_joint_mask`).
     Returns a :class:`Grasp` with the backed-off base pose and the opened joints (couplings applied).
     """
     config = config or PregraspConfig()
@@ -53,7 +64,7 @@ def pregrasp(hand: HandModel, grasp: Grasp, approach: np.ndarray, config: Pregra
     pose = np.array(grasp.wrist_pose, dtype=np.float64)
     pose[:3] -= config.backoff * direction
     q = np.asarray(grasp.q, dtype=np.float64)
-    mask = open_joint_mask(d, config.thumb_keep)
+    mask = open_joint_mask(d, thumb_keep)
     opened = q + config.open_fraction * (np.asarray(d.open_pose) - q)
     q_init = d.apply_couplings(np.where(mask, opened, q))
     meta = {**grasp.meta, "pregrasp_backoff": config.backoff, "approach": direction.tolist()}

@@ -16,7 +16,11 @@ from pathlib import Path
 from pydantic import BaseModel, ConfigDict, Field
 
 from ges_core.config import load_config
-from ges_core.synthesis.pipeline import RegistrySpec, SynthesisConfig, run_synthesis
+from ges_core.dataset import open_dataset
+from ges_core.synthesis.run.config import SynthesisConfig
+from ges_core.synthesis.run.pipeline import run_synthesis
+from ges_core.synthesis.run.table import format_table, table_rows
+from ges_core.synthesis.run.tasks import RegistrySpec
 
 __all__ = ["DEMO_OBJECTS", "DemoConfig", "default_demo_config", "run_demo"]
 
@@ -45,7 +49,7 @@ DEMO_OBJECTS: tuple[str, ...] = (
 """Built-in objects of every convex or pre-decomposed kind (no CoACD run needed), categories interleaved
 so that the first few already span several categories (``-o objects=3``)."""
 
-DEMO_CONFIG = Path(__file__).resolve().parents[2] / "configs" / "demo.yaml"
+DEMO_CONFIG = Path(__file__).resolve().parents[3] / "configs" / "demo.yaml"
 
 
 class DemoConfig(BaseModel):
@@ -78,9 +82,6 @@ def default_demo_config(path: str | Path | None = None, overrides: tuple[str, ..
 
 def run_demo(config: DemoConfig, *, registry: RegistrySpec | None = None, progress: bool = True) -> str:
     """Run the demo and return the text it prints at the end (summary table and where things are)."""
-    from ges_core.dataset import open_dataset
-    from ges_core.synthesis.run_table import format_table, table_rows
-
     start = time.perf_counter()
     out = Path(config.out)
     ids, hands = config.object_ids(), list(config.hands)

@@ -7,7 +7,7 @@ from dataclasses import dataclass, field, replace
 import numpy as np
 
 from ges_core.dataset import GraspRecord, HandPose, Quality, StepOutcome
-from ges_core.synthesis.retarget_search import ObjectCloud
+from ges_core.synthesis.retarget.search import ObjectCloud
 from ges_core.synthesis.types import ContactResult, Grasp, RefinedGrasp
 
 __all__ = ["ObjectWork", "build_record", "contacts_from_record"]

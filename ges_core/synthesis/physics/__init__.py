@@ -1,0 +1,24 @@
+"""Steps 3-5 in physics, through :class:`ges_core.sim.SimBackend` only: refinement, pre-grasp, validation.
+
+``refine`` (:func:`refine_grasp`: close the hand on the object, freezing fingers on contact), ``pregrasp``
+(:func:`pregrasp`: back off and open, no simulator; the opened hand's ``THUMB_KEEP``), ``validate``
+(:func:`validate_grasp`: lift and hold). Shared by them: ``scene`` (staging the hand and the object, pose
+algebra, contact queries) and ``squeeze`` (closing targets from fingertip forces, Jacobian transpose).
+"""
+
+from __future__ import annotations
+
+from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, PregraspConfig, pregrasp
+from ges_core.synthesis.physics.refine import RefineConfig, refine_grasp, refine_verdict
+from ges_core.synthesis.physics.validate import ValidateConfig, validate_grasp
+
+__all__ = [
+    "THUMB_KEEP",
+    "PregraspConfig",
+    "RefineConfig",
+    "ValidateConfig",
+    "pregrasp",
+    "refine_grasp",
+    "refine_verdict",
+    "validate_grasp",
+]

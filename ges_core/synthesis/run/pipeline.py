@@ -1,0 +1,125 @@
+"""The Stage 1 pipeline: objects x hands -> contacts -> retargeting -> refinement -> pre-grasp -> validation -> dataset.
+
+>>> config = SynthesisConfig(refine_sim="sapien", validate_sims=("sapien",))
+>>> report = run_synthesis(["procedural/can/000", "procedural/box/000"], ["allegro"], config, "runs/mine")
+>>> report.written, report.skipped
+
+Per object (one seed per object, derived from ``(seed, object_id)``, never from the order):
+point cloud (``points`` samples) -> five contacts (shared by every hand). Per hand: the contact sets of
+a whole chunk of objects are retargeted as one batch (batched solves are much cheaper per grasp;
+each grasp's solution does not depend on its batch mates, see ``tests/test_synthesis_pipeline.py``),
+then per object: refinement in ``refine_sim``, pre-grasp, validation in every ``validate_sims``
+simulator, one :class:`~ges_core.dataset.GraspRecord`. A ``SynthesisError``, ``SimulationError`` or
+``AssetError`` of one object becomes that record's failed step with its reason and the run goes on.
+
+Objects are cut into fixed chunks of ``chunk_size`` (in the order given) whatever the number of
+workers; each (object, hand) gets fresh simulators (a reused scene carries the previous object's
+history, see :mod:`.worker`), so a record does not depend on its chunk mates, on resuming or on
+``workers``. The parent process alone writes the dataset (atomic, resumable:
+stored (object, hand) pairs are skipped).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections.abc import Callable, Iterator, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ges_core.dataset import DatasetWriter
+from ges_core.errors import ConfigError
+from ges_core.synthesis.run.config import SynthesisConfig
+from ges_core.synthesis.run.tasks import RegistrySpec, RunContext, Task, plan_tasks
+from ges_core.synthesis.run.worker import run_task
+
+__all__ = ["RunReport", "run_synthesis"]
+
+
+@dataclass
+class RunReport:
+    """What a run did."""
+
+    root: Path
+    written: list[tuple[str, str]] = field(default_factory=list)
+    """(object_id, hand) of the records written by this run."""
+    skipped: list[tuple[str, str]] = field(default_factory=list)
+    """Pairs already in the dataset (resume)."""
+    recovered: list[str] = field(default_factory=list)
+    """What opening the dataset repaired (see DatasetWriter.recovered)."""
+
+
+def run_synthesis(
+    object_ids: Sequence[str],
+    hands: Sequence[str],
+    config: SynthesisConfig,
+    out: str | Path,
+    *,
+    workers: int = 1,
+    progress: bool = False,
+    registry: RegistrySpec | None = None,
+    pictures: str | Path | None = None,
+    source: tuple[str, str] | None = None,
+    on_record: Callable | None = None,
+) -> RunReport:
+    """Synthesize and validate grasps of ``object_ids`` x ``hands``; write them to the dataset ``out``.
+
+    workers: processes (1 = this process). pictures: folder for one PNG per record (None: none).
+    source: (dataset folder, hand): that hand's stored contacts replace contact generation (cross-hand
+    retargeting); every object needs a record of that hand there. on_record: called with each record as it is written.
+    """
+    _check_run(object_ids, hands, workers)
+    registry = registry or RegistrySpec()
+    with DatasetWriter(out, config.dump()) as writer:
+        report = RunReport(Path(out), recovered=list(writer.recovered))
+        tasks, report.skipped = plan_tasks(list(object_ids), list(hands), config.chunk_size, writer.has)
+        context = RunContext(config, registry, str(pictures) if pictures else None, _source(source))
+        bar = _progress_bar(sum(t.size for t in tasks), progress)
+        try:
+            for records in _results(tasks, context, workers):
+                for record in records:
+                    writer.add(record)
+                    report.written.append(record.key)
+                    if on_record is not None:
+                        on_record(record)
+                bar.update(len(records))
+        finally:
+            bar.close()
+    return report
+
+
+def _source(source: tuple[str, str] | None) -> tuple[str, str] | None:
+    return None if source is None else (str(source[0]), str(source[1]))
+
+
+def _check_run(object_ids: Sequence[str], hands: Sequence[str], workers: int) -> None:
+    problems = []
+    if not object_ids:
+        problems.append("no objects given")
+    if not hands:
+        problems.append("no hands given")
+    if len(set(object_ids)) != len(object_ids):
+        problems.append("an object is listed twice")
+    if workers < 1:
+        problems.append(f"workers must be >= 1, got {workers}")
+    if problems:
+        raise ConfigError("cannot start the synthesis run: " + "; ".join(problems), problems=problems)
+
+
+def _results(tasks: list[Task], context: RunContext, workers: int) -> Iterator[list]:
+    """Records of each task, in task order (so the dataset is written in the same order for any N)."""
+    if workers == 1 or len(tasks) <= 1:
+        for task in tasks:
+            yield run_task(task, context)
+        return
+    ctx = multiprocessing.get_context("spawn")  # fork would copy engine state (SAPIEN, PyBullet clients, torch threads)
+    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
+        futures = [pool.submit(run_task, task, context) for task in tasks]
+        for future in futures:
+            yield future.result()
+
+
+def _progress_bar(total: int, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, disable=not enabled, unit="grasp", desc="synthesis", dynamic_ncols=True)

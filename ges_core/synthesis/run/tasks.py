@@ -1,0 +1,78 @@
+"""What one worker gets: a task (a chunk of objects and their missing hands) and the run context.
+
+Shared by the pipeline, which plans the tasks, and the worker, which runs them (neither imports the
+other's module for these, so the import graph stays acyclic).
+"""
+
+from __future__ import annotations
+
+import hashlib
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+from ges_core.synthesis.run.config import SynthesisConfig
+
+__all__ = ["RegistrySpec", "RunContext", "Task", "object_seed", "plan_tasks"]
+
+
+def object_seed(seed: int, object_id: str) -> int:
+    """A 31-bit seed of one object, from the run seed and the object id only (not the run order)."""
+    digest = hashlib.sha256(f"{seed}:{object_id}".encode()).digest()
+    return int.from_bytes(digest[:4], "little") & 0x7FFFFFFF
+
+
+@dataclass(frozen=True)
+class Task:
+    """One chunk of work: objects, and per object the hands still missing from the dataset."""
+
+    index: int
+    pairs: tuple[tuple[str, tuple[str, ...]], ...]
+    """((object_id, (hand, ...)), ...) in the run's object order."""
+
+    @property
+    def size(self) -> int:
+        """Number of (object, hand) records this task produces."""
+        return sum(len(hands) for _, hands in self.pairs)
+
+
+def plan_tasks(
+    object_ids: Sequence[str], hands: Sequence[str], chunk_size: int, done: Callable[[str, str], bool]
+) -> tuple[list[Task], list[tuple[str, str]]]:
+    """Fixed chunks of ``object_ids`` with the pairs ``done`` says are missing; returns (tasks, skipped pairs)."""
+    tasks, skipped = [], []
+    for start in range(0, len(object_ids), chunk_size):
+        pairs = []
+        for oid in object_ids[start : start + chunk_size]:
+            missing = tuple(h for h in hands if not done(oid, h))
+            skipped += [(oid, h) for h in hands if h not in missing]
+            if missing:
+                pairs.append((oid, missing))
+        if pairs:
+            tasks.append(Task(start // chunk_size, tuple(pairs)))
+    return tasks, skipped
+
+
+@dataclass(frozen=True)
+class RegistrySpec:
+    """How workers build the registry (the CLI's --registry / --set / --no-plugin)."""
+
+    path: str | None = None
+    overrides: tuple[str, ...] = ()
+    blocked: tuple[str, ...] = ()
+
+    def load(self):
+        from ges_core.registry import load_registry
+
+        return load_registry(self.path, overrides=self.overrides, blocked=self.blocked)
+
+
+@dataclass(frozen=True)
+class RunContext:
+    """Everything a worker needs besides its task (picklable)."""
+
+    config: SynthesisConfig
+    registry: RegistrySpec
+    pictures: str | None
+    """Folder of one PNG per record, or None."""
+    source: tuple[str, str] | None
+    """(dataset folder, hand) whose stored contacts are reused, or None."""
