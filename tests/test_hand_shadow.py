@@ -325,19 +325,19 @@ def test_cache_is_reused_and_keyed_by_source_content(tmp_path, monkeypatch):
 
 # -- (f) errors ---------------------------------------------------------------------------------
 def test_missing_asset_names_the_file_and_the_package(tmp_path):
-    with pytest.raises(AssetError, match=r"hand/robot\.xml is missing.*pip install gymnasium-robotics"):
+    with pytest.raises(AssetError, match=r"hand/robot\.xml is missing.*pip install 'ges-unigrasp\[shadow\]'"):
         build_hand(asset_dir=tmp_path)
 
 
 def test_missing_mesh_names_the_stl(tmp_path):
     copy = copy_assets(tmp_path, with_meshes=False)
-    with pytest.raises(AssetError, match=r"stls/hand/forearm_electric\.stl is missing.*pip install gymnasium-robotics"):
+    with pytest.raises(AssetError, match=r"stls/hand/forearm_electric\.stl is missing.*'ges-unigrasp\[shadow\]'"):
         assets.cached_urdf(copy)
 
 
 def test_missing_package_says_how_to_install(monkeypatch):
     monkeypatch.setattr(assets.importlib.util, "find_spec", lambda name: None)
-    with pytest.raises(AssetError, match="gymnasium-robotics, which is not installed: pip install gymnasium-robotics"):
+    with pytest.raises(AssetError, match=r"gymnasium-robotics, which is not installed: pip install 'ges-unigrasp\["):
         assets.default_asset_dir()
 
 

@@ -89,7 +89,7 @@ def pybullet_data_dir() -> Path:
     """The installed ``pybullet_data`` folder (found without importing pybullet)."""
     spec = importlib.util.find_spec("pybullet_data")
     if spec is None or not spec.submodule_search_locations:
-        raise AssetError("pybullet_data is not installed; `pip install pybullet` provides it")
+        raise AssetError("pybullet_data is not installed; `pip install 'ges-unigrasp[pybullet]'` provides it")
     return Path(next(iter(spec.submodule_search_locations)))
 
 

@@ -60,7 +60,9 @@ def source_urdf_path() -> Path:
     """mani-skill's right Allegro URDF, found without importing ``mani_skill`` (slow, pulls in SAPIEN)."""
     spec = importlib.util.find_spec("mani_skill")
     if spec is None or not spec.submodule_search_locations:
-        raise BackendUnavailable("the 'allegro' hand needs the mani-skill package: pip install mani-skill==3.0.1")
+        raise BackendUnavailable(
+            "the 'allegro' hand needs the mani-skill package (3.0.1): pip install 'ges-unigrasp[allegro]'"
+        )
     path = Path(list(spec.submodule_search_locations)[0]) / SOURCE_RELPATH
     if not path.is_file():
         raise AssetError(f"the 'allegro' hand: {path} is missing; reinstall mani-skill==3.0.1")

@@ -42,7 +42,7 @@ places the hand in gymnasium's scene) is left out."""
 URDF_NAME = "shadow.urdf"
 CONVERTER_FILES: tuple[Path, ...] = (Path(__file__), Path(__file__).with_name("convert.py"))
 """Their bytes are part of the cache key, so editing the converter invalidates old URDFs."""
-INSTALL_HINT = "pip install gymnasium-robotics"
+INSTALL_HINT = "pip install 'ges-unigrasp[shadow]'"
 
 
 def default_asset_dir() -> Path:
