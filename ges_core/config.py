@@ -26,20 +26,16 @@ class ConfigModel(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
 
 
-class Defaults(BaseModel):
+class Defaults(ConfigModel):
     """Which plugin of each kind is used when none is named."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     hand: str = Field("shadow", description="default hand plugin")
     sim: str = Field("sapien", description="default simulator plugin")
     gate: str | None = Field(None, description="default gate plugin (none until gating exists)")
 
 
-class RegistryConfig(BaseModel):
+class RegistryConfig(ConfigModel):
     """The contents of ``registry.yaml``."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     defaults: Defaults = Field(default_factory=Defaults)
     plugins: list[str] = Field(

@@ -26,8 +26,9 @@ import xml.etree.ElementTree as ET
 from typing import Any
 
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import Field, ValidationError, field_validator
 
+from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS
 from ges_core.errors import AssetError
 from ges_core.hand import FingerSpec, HandDescription, JointCoupling, WristConvention
@@ -38,8 +39,7 @@ __all__ = ["description_from_yaml", "expand_per_joint", "urdf_joint_limits"]
 PerJoint = float | dict[str, float] | list[float]
 
 
-class _Finger(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class _Finger(ConfigModel):
     name: str
     slot: str
     joints: list[str]
@@ -59,22 +59,19 @@ class _Finger(BaseModel):
         return (v[0] / norm, v[1] / norm, v[2] / norm)
 
 
-class _Wrist(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class _Wrist(ConfigModel):
     link: str
     palm_normal: tuple[float, float, float]
     finger_direction: tuple[float, float, float]
 
 
-class _Coupling(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class _Coupling(ConfigModel):
     follower: str
     leader: str
     ratio: float = 1.0
 
 
-class _HandFile(BaseModel):
-    model_config = ConfigDict(extra="forbid")
+class _HandFile(ConfigModel):
     name: str
     joint_names: list[str] | None = None
     fingers: list[_Finger]

@@ -11,8 +11,9 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SceneConfig, SimBackend
@@ -24,10 +25,8 @@ MIN_TIP_FORCE_N = 0.05
 """A fingertip 'touches with force' above this contact force, newtons."""
 
 
-class SimCheckConfig(BaseModel):
+class SimCheckConfig(ConfigModel):
     """Settings of ``ges sim check``."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     hand: str | None = Field(None, description="hand plugin (default: registry.yaml)")
     object: str | None = Field(None, description="object-library id (default: a box of box_half_extents)")
