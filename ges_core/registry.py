@@ -127,6 +127,32 @@ class Registry:
             )
         return sim
 
+    def build_renderer(self, name: str | None = None, config: Any = None) -> Any:
+        """A grasp-picture renderer (:class:`ges_core.render.Renderer`) from simulator ``name``'s plugin, or
+        from the first simulator, by name, that offers one (``SimSpec.renderer``); config: a RenderConfig or None."""
+        from ges_core.errors import BackendUnavailable
+        from ges_core.render.base import Renderer
+
+        offering = [spec.name for spec in self.specs("sim") if spec.renderer]
+        if name is None and not offering:
+            raise BackendUnavailable(
+                f"no simulator plugin offers a renderer for grasp pictures (simulators: "
+                f"{', '.join(self.names('sim')) or 'none'}); install one that does: "
+                "pip install 'ges-unigrasp[pybullet]'"
+            )
+        spec = self.spec("sim", name or offering[0])
+        if not spec.renderer:
+            raise BackendUnavailable(
+                f"simulator '{spec.name}' offers no renderer for grasp pictures; "
+                f"those that do: {', '.join(offering) or 'none'}"
+            )
+        renderer = self._call(spec, replace(spec, entry_point=spec.renderer).load(), config)
+        if not isinstance(renderer, Renderer):
+            raise PluginError(
+                f"sim plugin '{spec.name}' ({spec.source}) returned {type(renderer).__name__}, not a Renderer"
+            )
+        return renderer
+
     @staticmethod
     def _call(spec: PluginSpec, factory: Any, *args: Any, **kwargs: Any) -> Any:
         """``factory(*args, **kwargs)``; settings it cannot take, and any non-GesError it raises, name the plugin."""

@@ -102,6 +102,10 @@ class SimSpec(PluginSpec):
     """A simulator plugin; the factory is called ``factory(scene_config, **settings)`` -> SimBackend."""
 
     kind: ClassVar[str] = "sim"
+    renderer: str = ""
+    """``"module:Attr"`` of the engine's grasp-picture renderer, called ``factory(config)`` with a
+    :class:`ges_core.render.RenderConfig` or None -> :class:`ges_core.render.Renderer`; empty: none
+    (:meth:`ges_core.registry.Registry.build_renderer`)."""
 
 
 @dataclass(frozen=True, kw_only=True)

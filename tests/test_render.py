@@ -1,4 +1,5 @@
-"""Grasp pictures: PyBullet TinyRenderer pictures of object, contacts and hand, and contact sheets."""
+"""Grasp pictures: the renderer a simulator plugin offers (PyBullet's TinyRenderer), found through the
+registry, drawing object, contacts and hand; and contact sheets."""
 
 from __future__ import annotations
 
@@ -11,22 +12,29 @@ import torch
 from PIL import Image
 
 from ges_core.contact import FINGER_SLOTS, ContactSet
-from ges_core.errors import AssetError, UnknownNameError
+from ges_core.errors import AssetError, BackendUnavailable, UnknownNameError
 from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.simple import box_asset
+from ges_core.registry import load_registry
 from ges_core.render import (
+    HAND_COLOR,
+    OBJECT_COLOR,
     SLOT_COLORS,
     GraspRenderer,
     RenderConfig,
+    Renderer,
     contact_sheet,
+    open_renderer,
     read_png,
     render_grasp,
     render_record,
     write_png,
 )
 from ges_core.render.png import tile_origin
-from ges_core.render.scene import HAND_COLOR, OBJECT_COLOR
 from ges_core.synthesis.types import Grasp
+from ges_plugins.sims.pybullet.render import PybulletRenderer
+
+REGISTRY = load_registry()
 
 HALF = np.array([0.025, 0.035, 0.05])
 """Half extents of the test box, metres (bottom face on the table)."""
@@ -38,10 +46,7 @@ VISIBLE_NORMALS = np.array([[0, -1, 0], [1, 0, 0], [1, 0, 0], [1, 0, 0], [0, 0, 
 
 @pytest.fixture(scope="module")
 def hands():
-    from ges_core.registry import load_registry
-
-    registry = load_registry()
-    return {name: registry.build_hand(name) for name in ("shadow", "allegro")}
+    return {name: REGISTRY.build_hand(name) for name in ("shadow", "allegro")}
 
 
 @pytest.fixture(scope="module")
@@ -49,9 +54,14 @@ def box() -> ObjectAsset:
     return box_asset(tuple(HALF), object_id="test/box")
 
 
+def renderer_with(config: RenderConfig | None = None) -> Renderer:
+    """The registry's renderer (the first simulator that offers one: PyBullet's)."""
+    return open_renderer(REGISTRY, config)
+
+
 @pytest.fixture(scope="module")
 def renderer():
-    with GraspRenderer() as r:
+    with renderer_with() as r:
         yield r
 
 
@@ -76,6 +86,27 @@ def contacts() -> ContactSet:
     return ContactSet(VISIBLE_CONTACTS, VISIBLE_NORMALS, "test/box")
 
 
+# --- finding a renderer ---------------------------------------------------------------------------
+def test_the_registry_builds_the_renderer_a_simulator_offers():
+    small = RenderConfig(size=(64, 48))
+    with open_renderer(REGISTRY) as first, open_renderer(REGISTRY, small, sim="pybullet") as named:
+        assert isinstance(first, PybulletRenderer) and isinstance(named, PybulletRenderer)
+        assert named.config.size == (64, 48) and first.config == RenderConfig()
+        assert named.render(None).shape == (48, 64, 3)
+    with GraspRenderer(RenderConfig(size=(32, 24))) as old_name:  # the old class name still builds one
+        assert isinstance(old_name, PybulletRenderer) and old_name.render(None).shape == (24, 32, 3)
+
+
+def test_no_renderer_says_which_simulators_offer_one():
+    with pytest.raises(BackendUnavailable, match="simulator 'sapien' offers no renderer .*; those that do: pybullet"):
+        REGISTRY.build_renderer("sapien")
+    with pytest.raises(UnknownNameError, match="unknown sim 'pybulet'. Did you mean 'pybullet'"):
+        REGISTRY.build_renderer("pybulet")
+    without = load_registry(blocked=("pybullet",))
+    with pytest.raises(BackendUnavailable, match=r"no simulator plugin offers a renderer .* \(simulators: sapien\)"):
+        open_renderer(without)
+
+
 # --- pictures -----------------------------------------------------------------------------------
 
 
@@ -83,7 +114,7 @@ def contacts() -> ContactSet:
 def test_grasp_picture_shows_object_contacts_and_hand(tmp_path, hands, box, hand_name):
     hand = hands[hand_name]
     start = time.perf_counter()
-    fixed_view = GraspRenderer(RenderConfig(away_from_base=None))  # the view VISIBLE_CONTACTS are placed for
+    fixed_view = renderer_with(RenderConfig(away_from_base=None))  # the view VISIBLE_CONTACTS are placed for
     path = render_grasp(hand, box, contacts(), top_grasp(hand), tmp_path / "grasp.png", renderer=fixed_view)
     seconds = time.perf_counter() - start
     print(f"{hand_name}: one 320x240 picture with a fresh renderer in {seconds:.3f} s")
@@ -113,7 +144,7 @@ def test_camera_looks_from_the_side_away_from_the_forearm(hands, box):
     joints = dict(zip(hand.description.joint_names, grasp.q, strict=True))
     seen = {}
     for away in (None, 30.0):
-        with GraspRenderer(RenderConfig(away_from_base=away, hand_opacity=1.0)) as r:
+        with renderer_with(RenderConfig(away_from_base=away, hand_opacity=1.0)) as r:
             seen[away] = slot_pixels(r.render(box, None, hand, facing, joints), OBJECT_COLOR, 0.998)
     assert seen[30.0] > 2 * seen[None] + 100, seen
 
@@ -123,7 +154,7 @@ def test_hand_alone_is_drawn_where_its_links_are(hands, renderer, box):
     hand = hands["allegro"]
     grasp = top_grasp(hand)
     joints = dict(zip(hand.description.joint_names, grasp.q, strict=True))
-    with GraspRenderer(RenderConfig(hand_opacity=1.0)) as opaque:
+    with renderer_with(RenderConfig(hand_opacity=1.0)) as opaque:
         rgb = opaque.render(None, None, hand, grasp.wrist_pose, joints)
         only_object = opaque.render(box)
     assert slot_pixels(rgb, HAND_COLOR, 0.998) > 0.05 * rgb.shape[0] * rgb.shape[1]
@@ -164,9 +195,9 @@ def test_hidden_contacts_are_drawn_faintly(box):
     positions[4], normals[4] = [0.01, HALF[1], 0.03], [0, 1, 0]  # off the top, which the camera sees
     far = ContactSet(positions, normals, "test/box")
     short = 0.003  # normal sticks that stay inside the balls, so nothing pokes out past the box
-    with GraspRenderer(RenderConfig(normal_length=short)) as r:
+    with renderer_with(RenderConfig(normal_length=short)) as r:
         faint = r.render(box, far)
-    with GraspRenderer(RenderConfig(normal_length=short, hidden_contact_opacity=0.0)) as r:
+    with renderer_with(RenderConfig(normal_length=short, hidden_contact_opacity=0.0)) as r:
         none = r.render(box, far)
         visible = r.render(box, contacts())
     assert (np.abs(faint.astype(int) - none).sum(axis=2) > 30).sum() > 20

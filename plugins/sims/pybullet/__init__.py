@@ -1,6 +1,7 @@
 """The PyBullet simulator plugin (PyBullet 3.2.7, headless DIRECT clients, one per scene).
 
-Importing this package is light: ``pybullet`` is imported when the backend is built.
+Importing this package is light: ``pybullet`` is imported when the backend (or its grasp-picture
+renderer, :mod:`.render`) is built.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ def ges_register_sims(register: Callable[[SimSpec], None]) -> None:
             # Allegro, at 100 it lifted 8/9 (SAPIEN: 7/9 at 20). Costs about 1.4x per step. See
             # docs/simulators.md. registry.yaml's settings.sim.pybullet overrides it.
             settings={"solver_iterations": 100},
+            renderer="ges_plugins.sims.pybullet.render:PybulletRenderer",
             description="PyBullet 3.2.7 on the CPU: one DIRECT client per scene, SAPIEN-like implicit PD drives",
         )
     )
