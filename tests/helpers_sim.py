@@ -6,6 +6,7 @@ absolute) with an inline YAML, so simulator tests do not depend on the Allegro h
 
 from __future__ import annotations
 
+import dataclasses
 import importlib.util
 import os
 import subprocess
@@ -35,6 +36,7 @@ __all__ = [
     "allegro_test_hand",
     "allegro_urdf_source",
     "box_asset",
+    "reordered",
     "run_python",
 ]
 
@@ -108,6 +110,15 @@ def allegro_test_hand() -> TestHand:
     text = absolutize_mesh_paths(strip_render_data(source.read_text()), source.parent)
     return TestHand(
         description_from_yaml(ALLEGRO_YAML, text), cached_text_file(text, "test_hands", stem="allegro_right")
+    )
+
+
+def reordered(hand: HandModel, order: list[int]) -> TestHand:
+    """The same hand with its per-joint data listed in another joint order (``order``: old index per new slot)."""
+    d = hand.description
+    fields = ("joint_names", "joint_limits", "open_pose", "pd_stiffness", "pd_damping")
+    return TestHand(
+        dataclasses.replace(d, **{f: tuple(getattr(d, f)[i] for i in order) for f in fields}), hand.urdf_path()
     )
 
 

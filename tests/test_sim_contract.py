@@ -2,17 +2,24 @@
 
 Tests that used to be written once per backend (test_sim_sapien.py, test_sim_pybullet.py) with the
 same scene and the same references: forward kinematics from pytorch-kinematics, rest heights of
-primitives, wrist driving and reset semantics. Engine-specific behaviour stays in the per-backend files.
+primitives, joint and wrist driving, object replacement, reset semantics, determinism, and every
+argument and state error (checked once, in ``ges_core.sim``, so the messages are the same). Where the
+engines differ in precision, :data:`TOLERANCES` says by how much. Engine-specific behaviour (each
+engine's own API as a reference, its internals) stays in the per-backend files.
 """
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from functools import partial
 
 import numpy as np
 import pytest
 
+from ges_core.errors import ArrayError, ConfigError, SimulationError, UnknownNameError
 from ges_core.objects.asset import ObjectAsset, PrimitiveShape
+from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig
 from ges_core.transforms import quat_to_matrix
 from ges_core.urdf import euler_xyz_to_quat
 from ges_plugins.sims.pybullet.backend import REST_MARGIN as PYBULLET_REST_MARGIN
@@ -20,11 +27,30 @@ from ges_plugins.sims.pybullet.backend import PybulletBackend
 from ges_plugins.sims.sapien.backend import SapienBackend
 from ges_plugins.sims.sapien.loading import REST_MARGIN as SAPIEN_REST_MARGIN
 
-from helpers_sim import UP, allegro_test_hand, box_asset, loaded_sim, open_q
+from helpers_sim import ALLEGRO_TIPS, UP, allegro_test_hand, box_asset, loaded_sim, open_q, reordered
 
 pytestmark = pytest.mark.sim
 
-BACKENDS = {"sapien": (SapienBackend, SAPIEN_REST_MARGIN), "pybullet": (PybulletBackend, PYBULLET_REST_MARGIN)}
+
+@dataclass(frozen=True)
+class Tolerances:
+    """How closely one backend meets the contract where its precision shows."""
+
+    rest_margin: float
+    """m between the table and an object put down by ``load_object(pose=None)`` (the backend's constant)."""
+    joint_target: float
+    """rad: a free joint's position against its PD target after 120 steps."""
+    reset_q: float
+    """rad: joint positions right after reset() against the open pose (SAPIEN stores float32)."""
+    reset_object: float
+    """m (and unit-quaternion components): the object right after reset() against its load pose."""
+
+
+TOLERANCES = {
+    "sapien": Tolerances(rest_margin=SAPIEN_REST_MARGIN, joint_target=0.02, reset_q=1e-6, reset_object=1e-6),
+    "pybullet": Tolerances(rest_margin=PYBULLET_REST_MARGIN, joint_target=5e-3, reset_q=1e-12, reset_object=1e-7),
+}
+BACKENDS = {"sapien": SapienBackend, "pybullet": PybulletBackend}
 
 
 @pytest.fixture(scope="module")
@@ -35,8 +61,22 @@ def hand():
 @pytest.fixture(params=sorted(BACKENDS))
 def backend(request):
     """(make_sim, rest margin) of one backend: ``make_sim(hand=None, floating=True, **scene)``."""
-    cls, margin = BACKENDS[request.param]
-    return partial(loaded_sim, cls), margin
+    return partial(loaded_sim, BACKENDS[request.param]), TOLERANCES[request.param].rest_margin
+
+
+@pytest.fixture(params=sorted(BACKENDS))
+def named(request):
+    """(name, make_sim, tolerances) of one backend."""
+    name = request.param
+    return name, partial(loaded_sim, BACKENDS[name]), TOLERANCES[name]
+
+
+def test_registry_builds_the_backend(named):
+    name, _, _ = named
+    registry = load_registry(blocked=tuple({"shadow", "allegro", "sapien", "pybullet"} - {name}))
+    assert registry.spec("sim", name).requires == (name,)
+    with registry.build_sim(name, SceneConfig(num_envs=2)) as sim:
+        assert isinstance(sim, BACKENDS[name]) and sim.num_envs == 2 and sim.name == name
 
 
 @pytest.mark.parametrize("floating", [True, False])
@@ -136,6 +176,146 @@ def test_primitives_fall_to_their_physical_rest_height(backend, shape, rest_z):
     sim.load_object(obj, pose=np.array([0.0, 0.0, 0.3, 1.0, 0.0, 0.0, 0.0]))
     sim.step(150)
     assert abs(sim.object_pose()[0, 2] - rest_z) < 2e-3
+
+
+@pytest.mark.parametrize("floating", [True, False])
+def test_joint_targets_reach_each_named_joint(named, hand, floating):
+    """A hand declaring its joints in reverse order, a distinct target per joint: each comes back by name."""
+    _, make_sim, tol = named
+    flipped = reordered(hand, list(range(hand.description.num_joints))[::-1])
+    d = flipped.description
+    lim = d.limits_array
+    target = lim[:, 0] + (np.arange(d.num_joints) + 1) / (d.num_joints + 1) * (lim[:, 1] - lim[:, 0])
+    sim = make_sim(flipped, floating=floating, self_collision=False)
+    sim.set_hand_state(open_q(flipped), UP[None])
+    sim.set_joint_targets(target[None])
+    sim.step(120)
+    q, qvel = sim.joint_state()
+    np.testing.assert_allclose(q[0], target, atol=tol.joint_target)
+    assert np.abs(qvel).max() < 0.05
+    assert np.array_equal(sim.idx_sim_to_hand[sim.idx_hand_to_sim], np.arange(d.num_joints))
+
+
+def test_object_replacement_and_env_ids(named):
+    """load_object(env_ids=[1]) replaces env 1's object only; each env holds one object, the one last loaded."""
+    name, make_sim, _ = named
+    sim = make_sim(num_envs=2)
+    sim.load_object(box_asset(object_id="t/small"))
+    sim.load_object(box_asset((0.05, 0.05, 0.05), object_id="t/big"), env_ids=[1])
+    sim.step(60)
+    np.testing.assert_allclose(sim.object_pose()[:, 2], [0.03, 0.05], atol=1e-3)
+    for env, size in enumerate((0.03, 0.05)):
+        (pair,) = sim.contact_pairs(env)  # the object on the table: one pair, one object
+        assert {pair.body_a, pair.body_b} == {"object", "table"}
+        assert pair.force == pytest.approx(500.0 * (2 * size) ** 3 * 9.81, rel=0.02)  # its weight
+    with pytest.raises(ConfigError, match=rf"{name}.load_object: env ids \[2\] out of range for num_envs=2 \(valid"):
+        sim.load_object(box_asset(), env_ids=[2])
+    with pytest.raises(ConfigError, match=rf"{name}.contact_pairs: env ids \[5\] out of range for num_envs=2"):
+        sim.contact_pairs(5)
+
+
+@pytest.mark.parametrize("floating", [True, False])
+def test_reset_opens_the_hand_at_the_last_base_pose(named, hand, floating):
+    """reset(): open hand at the base pose last given to set_hand_state, targets there, object at its load pose."""
+    _, make_sim, tol = named
+    sim = make_sim(hand, floating=floating, num_envs=2)
+    start = np.array([0.3, 0.0, 0.2, 1.0, 0.0, 0.0, 0.0])
+    sim.load_object(box_asset(), pose=start)
+    bases = np.stack([UP, [0.1, -0.2, 0.4, *euler_xyz_to_quat(np.array([0.4, -0.3, 1.2]))]])
+    sim.set_hand_state(open_q(hand, 2) + 0.1, bases)
+    sim.set_hand_state(open_q(hand, 2) + 0.2)  # no base pose: the last one given still counts
+    sim.set_joint_targets(np.tile(hand.description.closed_pose(0.5), (2, 1)))
+    if floating:
+        sim.set_wrist_targets(bases + [0.05, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0])
+    sim.step(30)
+    sim.reset()
+    np.testing.assert_allclose(sim.object_pose(), np.tile(start, (2, 1)), atol=tol.reset_object)
+    np.testing.assert_allclose(sim.wrist_pose(), bases, atol=1e-6)
+    q, qvel = sim.joint_state()
+    np.testing.assert_allclose(q, open_q(hand, 2), atol=tol.reset_q)
+    np.testing.assert_array_equal(qvel, 0.0)
+    sim.step(30)  # joint and wrist targets were reset too: nothing moves
+    np.testing.assert_allclose(sim.joint_state()[0], open_q(hand, 2), atol=1e-4)
+    np.testing.assert_allclose(sim.wrist_pose(), bases, atol=1e-5)
+
+
+def _scripted_run(make_sim, hand) -> tuple[np.ndarray, ...]:
+    """A hand closing on a box for 40 steps: the state and contact forces at the end."""
+    sim = make_sim(hand)
+    sim.load_object(box_asset((0.015, 0.04, 0.03)))
+    base = np.array([-0.01, -0.02, 0.115, np.sqrt(0.5), 0.0, np.sqrt(0.5), 0.0])  # palm down over the box
+    sim.set_hand_state(open_q(hand), base[None])
+    sim.set_wrist_targets(base[None])
+    sim.set_joint_targets(hand.description.closed_pose(0.55)[None])
+    sim.step(40)
+    return (*sim.joint_state(), sim.wrist_pose(), sim.object_pose(), sim.contact_forces(ALLEGRO_TIPS, "any"))
+
+
+def test_identical_runs_give_identical_states(named, hand):
+    _, make_sim, _ = named
+    first, second = _scripted_run(make_sim, hand), _scripted_run(make_sim, hand)
+    assert np.abs(first[-1]).max() > 0.01  # the fingers touch something: contacts are part of the run
+    for a, b in zip(first, second, strict=True):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_unknown_link_names_suggest_a_close_one(named, hand):
+    _, make_sim, _ = named
+    sim = make_sim(hand)
+    with pytest.raises(UnknownNameError, match="unknown hand link 'link_3.0_tp'. Did you mean 'link_3.0_tip'"):
+        sim.link_poses(["link_3.0_tp"])
+    with pytest.raises(UnknownNameError, match="unknown hand link 'thumb'"):
+        sim.contact_forces(["thumb"])
+
+
+def test_bad_arguments_raise_one_error_type_each(named, hand):
+    """Shapes, NaN and zero quaternions: ArrayError; env_ids, partner, step count: ConfigError; both name the call."""
+    name, make_sim, _ = named
+    sim = make_sim(hand, num_envs=2)
+    k = hand.description.num_joints
+    cases = [
+        (ArrayError, lambda: sim.set_joint_targets(np.zeros(k)), rf"{name}.set_joint_targets: q has shape \({k},\), "
+         rf"expected \(2, {k}\) \(one row per env, hand joint_names order, rad\)"),
+        (ArrayError, lambda: sim.set_hand_state(np.full((2, k), np.nan)), rf"{name}.set_hand_state: q holds NaN"),
+        (ArrayError, lambda: sim.set_hand_state(open_q(hand, 2), np.zeros((2, 7))),
+         rf"{name}.set_hand_state: wrist_pose has a zero quaternion \(row \[0, 1\]\)"),
+        (ArrayError, lambda: sim.set_wrist_targets(UP[None]), rf"{name}.set_wrist_targets: pose has shape \(1, 7\)"),
+        (ArrayError, lambda: sim.set_hand_state(open_q(hand, 2), UP), r"wrist_pose has shape \(7,\), expected \(2, 7"),
+        (ArrayError, lambda: sim.load_object(box_asset(), pose=np.zeros(6)), rf"{name}.load_object: pose has shape"),
+        (ArrayError, lambda: sim.set_hand_state(open_q(hand, 2), env_ids=[1]),
+         rf"{name}.set_hand_state: q has 2 rows but env_ids names 1 env\(s\) \[1\]"),
+        (ConfigError, lambda: sim.reset(env_ids=[0, 0]), rf"{name}.reset: env_ids \[0, 0\] repeat \[0\]"),
+        (ConfigError, lambda: sim.contact_forces(ALLEGRO_TIPS, "hand"),
+         rf"{name}.contact_forces: partner 'hand' is not one of object, table, any"),
+        (ConfigError, lambda: sim.step(-1), rf"{name}.step: n=-1; give a whole number of steps >= 0"),
+        (ConfigError, lambda: sim.step(1.5), rf"{name}.step: n=1.5"),
+    ]  # fmt: skip
+    for error, call, message in cases:
+        with pytest.raises(error, match=message):
+            call()
+    sim.load_object(box_asset())
+    with pytest.raises(ArrayError, match=rf"{name}.set_object_pose: pose has shape \(2, 6\)"):
+        sim.set_object_pose(np.zeros((2, 6)))
+
+
+def test_calls_the_state_does_not_allow_are_simulation_errors(named, hand):
+    name, make_sim, _ = named
+    sim = make_sim()
+    no_hand = rf"{name}.joint_state: no hand loaded; call load_hand\(hand\) first"
+    with pytest.raises(SimulationError, match=no_hand) as caught:
+        sim.joint_state()
+    assert caught.value.env_ids == ()
+    with pytest.raises(SimulationError, match=rf"{name}.object_pose: no object in env\(s\) \[0\]; call load_object"):
+        sim.object_pose()
+    sim.load_hand(hand, floating=False)
+    with pytest.raises(SimulationError, match=rf"{name}: hand 'allegro_test' is already loaded; build a new backend"):
+        sim.load_hand(hand)
+    with pytest.raises(SimulationError, match=rf"{name}.set_wrist_targets: the hand was loaded with floating=False"):
+        sim.set_wrist_targets(UP[None])
+    sim.close()
+    sim.close()  # twice is harmless
+    with pytest.raises(SimulationError, match=rf"{name}: this backend is closed; build a new one with registry"):
+        sim.step()
 
 
 def test_reset_without_a_base_pose_returns_to_the_origin(backend, hand):

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 
-from ges_core.errors import ConfigError, SimulationError
+from ges_core.errors import ArrayError, ConfigError, SimulationError
 from ges_core.sim import SimBackend
 from ges_plugins.sims.pybullet.backend import PybulletBackend
 from ges_plugins.sims.pybullet.engine import p
@@ -141,15 +141,21 @@ def test_bad_env_ids_are_rejected_before_anything_changes(hand, name):
         (lambda: sim.set_hand_state(q1, env_ids=[3]), rf"{name}.set_hand_state: env ids \[3\] out of range "),
         (lambda: sim.set_object_pose(pose1, env_ids=[-1]), r"env ids \[-1\] out of range for num_envs=3 \(valid: 0..2"),
         (lambda: sim.reset(env_ids=[1, 2, 1]), rf"{name}.reset: env_ids \[1, 2, 1\] repeat \[1\]; name each env once"),
-        (lambda: sim.set_hand_state(open_q(hand, 2), env_ids=[1]), r"q has 2 rows but env_ids names 1 env\(s\) \[1\]"),
-        (lambda: sim.set_hand_state(q1, np.tile(UP, (3, 1)), env_ids=[0]), r"wrist_pose has 3 rows but env_ids names"),
-        (lambda: sim.set_object_pose(np.tile(pose1, (2, 1)), env_ids=[0]), r"pose has 2 rows but env_ids names 1"),
         (lambda: sim.reset(env_ids=[True, False, True]), r"integer env indices.*boolean mask"),
         (lambda: sim.reset(env_ids=[0.0]), r"integer env indices, got \[0.0\]"),
         (lambda: sim.reset(env_ids=[[0]]), r"1-D sequence"),
     ]
     for call, message in cases:
         with pytest.raises(ConfigError, match=message):
+            call()
+    rows = [  # arrays that do not match env_ids: the array is wrong, an ArrayError
+        (lambda: sim.set_hand_state(open_q(hand, 2), env_ids=[1]), r"q has 2 rows but env_ids names 1 env\(s\) \[1\]"),
+        (lambda: sim.set_hand_state(q1, np.tile(UP, (3, 1)), env_ids=[0]), r"wrist_pose has 3 rows but env_ids names"),
+        (lambda: sim.set_object_pose(np.tile(pose1, (2, 1)), env_ids=[0]), r"pose has 2 rows but env_ids names 1"),
+        (lambda: sim.load_object(box_asset(), np.tile(pose1, (2, 1)), env_ids=[2]), r"load_object: pose has 2 rows"),
+    ]
+    for call, message in rows:
+        with pytest.raises(ArrayError, match=message):
             call()
     after = _state(sim)
     for key in before:
@@ -226,7 +232,8 @@ def test_every_blown_env_is_listed_and_teleports_restore_them(hand, name):
 @pytest.mark.parametrize("name", BACKENDS)
 def test_command_errors_name_no_env(hand, name):
     sim = loaded_sim(BACKENDS[name], hand)
-    with pytest.raises(SimulationError) as caught:
-        sim.step(-1)
+    sim.close()
+    with pytest.raises(SimulationError) as caught:  # refused, not blown: no env to blame
+        sim.step(1)
     assert caught.value.env_ids == ()
     assert SimulationError("x", env_ids=[3, 1, 3]).env_ids == (1, 3)

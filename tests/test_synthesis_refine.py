@@ -54,59 +54,66 @@ def allegro():
 
 
 class ExplodingBackend(SimBackend):
-    """A backend double: does nothing, reads zeros and raises SimulationError once stepped past ``explode_after``."""
+    """A backend double: does nothing, reads zeros and blows up env 0 once stepped past ``explode_after``.
+
+    Only the engine hooks are written here; the core (``ges_core.sim.SimBackend``) checks arguments and
+    raises the SimulationError.
+    """
 
     name = "exploding"
+    blowup_hint = "the state blew up"
 
     def __init__(self, config: SceneConfig | None = None, *, explode_after: int = 0) -> None:
         super().__init__(config or SceneConfig())
         self.explode_after, self.steps, self.k = explode_after, 0, 0
 
-    def load_hand(self, hand, *, floating=True):
+    def _load_hand(self, hand, floating):
         self.k = hand.description.num_joints
 
-    def load_object(self, obj, pose=None, env_ids=None, *, fixed=False):
+    def _load_object(self, obj, ids, fixed):
         pass
 
-    def set_joint_targets(self, q):
+    def _rest_height(self, obj, env_id):
+        return 0.0
+
+    def _set_joint_targets(self, q):
         pass
 
-    def set_wrist_targets(self, pose):
+    def _set_wrist_targets(self, coords):
         pass
 
-    def set_hand_state(self, q, wrist_pose=None):
+    def _wrist_rotation_targets(self):
+        return np.zeros((self.num_envs, 3))
+
+    def _set_hand_state(self, q, base, ids):
         pass
 
-    def set_object_pose(self, pose):
+    def _set_object_pose(self, pose, ids):
         pass
 
-    def step(self, n=1):
+    def _step(self, n):
         self.steps += n
-        if self.steps > self.explode_after:
-            raise SimulationError("exploding env 0: non-finite object velocity (nan); the state blew up")
+        return {0: "exploding env 0: non-finite object velocity (nan)"} if self.steps > self.explode_after else {}
 
-    def joint_state(self):
+    def _joint_state(self):
         return np.zeros((self.num_envs, self.k)), np.zeros((self.num_envs, self.k))
 
-    def wrist_pose(self):
+    def _wrist_pose(self):
         return np.tile([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], (self.num_envs, 1))
 
-    def link_poses(self, links):
+    def _link_poses(self, links):
         return np.tile([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0], (self.num_envs, len(links), 1))
 
-    def contact_forces(self, links, partner="object"):
+    def _contact_forces(self, links, partner):
         return np.zeros((self.num_envs, len(links), 3))
 
-    def object_pose(self):
-        return self.wrist_pose()
+    def _object_pose(self):
+        return self._wrist_pose()
 
-    def contact_pairs(self, env_id=0):
+    def _contact_pairs(self, env_id):
         return []
 
-    def reset(self):
-        pass
-
-    def close(self):
+    def _close(self):
         pass
 
 

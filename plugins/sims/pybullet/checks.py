@@ -1,8 +1,8 @@
-"""Checks of the PyBullet backend: arguments at its boundary, and which envs blew up after stepping.
+"""Checks of the PyBullet backend: its own setting, and which envs blew up after stepping.
 
-A state check returns a short description per bad env (``"pybullet env N: ... after stepping"``);
-:func:`blown_message` joins them and adds the likely causes once, so a single bad env reads exactly
-as it always has.
+A state check returns a short description per bad env (``"pybullet env N: ... after stepping"``); the
+core (:meth:`ges_core.sim.SimBackend.step`) joins them and adds :data:`BLOWUP_HINT` once, so a single
+bad env reads exactly as it always has. Command arguments are checked by the core.
 """
 
 from __future__ import annotations
@@ -11,18 +11,16 @@ import math
 
 import numpy as np
 
-from ges_core.errors import ConfigError, SimulationError
+from ges_core.errors import ConfigError
 
 from .engine import p
 from .scene import Scene
 
 __all__ = [
+    "BLOWUP_HINT",
     "MAX_JOINT_SPEED",
     "MAX_OBJECT_SPEED",
     "MAX_OBJECT_SPIN",
-    "blown_message",
-    "checked_array",
-    "checked_poses",
     "drive_problems",
     "object_problem",
     "solver_iterations_setting",
@@ -36,6 +34,11 @@ MAX_OBJECT_SPEED = 1e2
 """m/s; a box flung by a bad grasp leaves at a few m/s, an exploding solver at thousands."""
 MAX_OBJECT_SPIN = 1e3
 """rad/s, the same for rotation."""
+BLOWUP_HINT = (
+    "likely causes: a start pose deep inside the object or table, a time step too large for the "
+    "gains, or a target far outside the joint limits. reset() or reload the scene"
+)
+"""What follows the per-env descriptions in the SimulationError of a blow-up."""
 
 
 def drive_problems(q: np.ndarray, v: np.ndarray) -> dict[int, str]:
@@ -64,14 +67,6 @@ def object_problem(env: int, scene: Scene) -> str | None:
     return _blown(env, f"the object moves at {speed:.3g} m/s, {spin:.3g} rad/s")
 
 
-def blown_message(problems: dict[int, str]) -> str:
-    """One message for every bad env (``problems``: env -> description), ascending env order."""
-    return "; ".join(problems[e] for e in sorted(problems)) + (
-        "; likely causes: a start pose deep inside the object or table, a time step too large for the "
-        "gains, or a target far outside the joint limits. reset() or reload the scene"
-    )
-
-
 def _blown(env: int, what: str) -> str:
     return f"pybullet env {env}: {what} after stepping"
 
@@ -81,22 +76,3 @@ def solver_iterations_setting(value: object) -> int:
     if isinstance(value, bool) or not isinstance(value, int | np.integer) or value < 1:
         raise ConfigError(f"pybullet: solver_iterations={value!r}; give a whole number >= 1 or leave it unset")
     return int(value)
-
-
-def checked_array(value: np.ndarray, shape: tuple[int, ...], what: str) -> np.ndarray:
-    """``value`` as float64 if it has ``shape`` and only finite values, else a SimulationError naming ``what``."""
-    a = np.asarray(value, dtype=np.float64)
-    if a.shape != shape:
-        raise SimulationError(f"pybullet backend: {what} must have shape {shape} (one row per env), got {a.shape}")
-    if not np.isfinite(a).all():
-        raise SimulationError(f"pybullet backend: {what} contains NaN or inf; check the policy or planner output")
-    return a
-
-
-def checked_poses(value: np.ndarray, shape: tuple[int, ...] | None, what: str) -> np.ndarray:
-    """Checked (..., 7) poses with unit wxyz quaternions (shape None: one (7,) pose)."""
-    a = checked_array(value, shape or (7,), what)
-    norm = np.linalg.norm(a[..., 3:], axis=-1, keepdims=True)
-    if np.any(norm < 1e-9):
-        raise SimulationError(f"pybullet backend: {what} has a zero quaternion; poses are xyz + wxyz")
-    return np.concatenate([a[..., :3], a[..., 3:] / norm], axis=-1)

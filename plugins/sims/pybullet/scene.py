@@ -62,8 +62,6 @@ class Scene:
     """The object's PyBullet base (principal inertial) frame in the object frame, PyBullet (pos, xyzw)."""
     obj_in_base: tuple = ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0, 1.0))
     """The inverse: object frame in the base frame, PyBullet (pos, xyzw)."""
-    obj_load_pose: np.ndarray | None = None
-    """(7,) object pose right after loading, world frame (what reset() returns to)."""
     obj_friction: float | None = None
     """The object's own (PhysX-style) friction coefficient."""
     asset: ObjectAsset | None = None

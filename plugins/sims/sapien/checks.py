@@ -1,8 +1,8 @@
-"""State checks of the SAPIEN backend: which envs blew up, and the one message naming them all.
+"""State checks of the SAPIEN backend: which envs blew up, and what probably caused it.
 
-:func:`state_problem` describes one env's bad state (``"sapien env N: ..."``) or returns None;
-:func:`blown_message` joins the descriptions and adds the likely causes once, so a single bad env
-reads exactly as it always has.
+:func:`state_problem` describes one env's bad state (``"sapien env N: ..."``) or returns None; the core
+(:meth:`ges_core.sim.SimBackend.step`) joins the descriptions and adds :data:`BLOWUP_HINT` once, so a
+single bad env reads exactly as it always has.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 
 from ges_plugins.sims.sapien.engine import sapien
 
-__all__ = ["MAX_JOINT_SPEED", "MAX_OBJECT_SPEED", "blown_message", "state_problem"]
+__all__ = ["BLOWUP_HINT", "MAX_JOINT_SPEED", "MAX_OBJECT_SPEED", "state_problem"]
 
 MAX_JOINT_SPEED = 1.0e3
 """rad/s or m/s. Above this a joint velocity counts as exploding. PhysX caps joint speed at 100
@@ -21,6 +21,13 @@ MAX_JOINT_SPEED = 1.0e3
 MAX_OBJECT_SPEED = 1.0e2
 """m/s. Above this the object counts as exploding: a box dropped from 30 cm and struck by a
 snapping hand peaked at 2.2 m/s; 100 leaves room for throws and still catches blow-ups."""
+
+BLOWUP_HINT = (
+    "the state blew up. Likely causes: absurd or huge PD targets, gains too stiff for the timestep, "
+    "or deep interpenetration after a teleport; fix the command, lower the gains or the timestep, or "
+    "start collision-free"
+)
+"""What follows the per-env descriptions in the SimulationError of a blow-up."""
 
 
 def state_problem(
@@ -40,15 +47,6 @@ def state_problem(
         if not -MAX_OBJECT_SPEED < vel.min() <= vel.max() < MAX_OBJECT_SPEED:
             return _explosion(env_id, "object", float(np.linalg.norm(vel)), MAX_OBJECT_SPEED)
     return None
-
-
-def blown_message(problems: dict[int, str]) -> str:
-    """One message for every bad env (``problems``: env -> description), ascending env order."""
-    return "; ".join(problems[e] for e in sorted(problems)) + (
-        "; the state blew up. Likely causes: absurd or huge PD targets, gains too stiff for the timestep, "
-        "or deep interpenetration after a teleport; fix the command, lower the gains or the timestep, or "
-        "start collision-free"
-    )
 
 
 def _explosion(env_id: int, who: str, speed: float, limit: float) -> str:
