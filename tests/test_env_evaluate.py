@@ -11,9 +11,16 @@ import torch
 from ges_core.cli import main
 from ges_core.config import parse_model
 from ges_core.dataset import open_dataset
-from ges_core.env import evaluate
 from ges_core.env.baseline import ScriptedExpert
-from ges_core.env.evaluate import BaselineConfig, SplitRow, evaluate_baseline, format_table, results_path, summarize
+from ges_core.env.evaluate import (
+    BaselineConfig,
+    SplitRow,
+    evaluate_baseline,
+    format_table,
+    results_path,
+    runner,
+    summarize,
+)
 from ges_core.env.grasp_env import GraspEnv
 from ges_core.env.grasp_source import load_grasp, select_records
 from ges_core.env.success import EndReason
@@ -217,8 +224,8 @@ def test_a_changed_grasp_is_evaluated_again_and_other_objects_stay_stored(datase
 
 def test_a_changed_expert_default_invalidates_stored_results(full_run, dataset, monkeypatch):
     report, out = full_run
-    changed = {**evaluate.scripted_defaults(), "lift": 0.5}
-    monkeypatch.setattr(evaluate, "scripted_defaults", lambda: changed)
+    changed = {**runner.scripted_defaults(), "lift": 0.5}
+    monkeypatch.setattr(runner, "scripted_defaults", lambda: changed)  # where evaluate_baseline looks it up
     with pytest.raises(ConfigError, match=r"expert_defaults.lift: [0-9.]+ -> 0.5"):
         evaluate_baseline(dataset, report.config, out, registry=CountingRegistry(refuse=True))
 

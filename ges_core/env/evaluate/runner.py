@@ -1,42 +1,28 @@
-"""Evaluate an expert on Stage 1 grasps: per object one :class:`GraspEnv`, one episode per env.
+"""The episode runner: per selected record one fresh simulator, ``GraspEnv`` + ``GraspVecEnv`` and the expert.
 
->>> config = BaselineConfig(hand="allegro", sim="sapien", envs=2, selection="refined")
->>> report = evaluate_baseline("runs/demo/dataset", config, "runs/demo/baseline")
->>> print(report.table())
-
-Per selected record (:mod:`ges_core.env.grasp_source`): the object's rest pose in ``sim``, a fresh
-``sim`` with ``envs`` scenes (objects never share a scene: a reused scene carries the previous object's
-history, see ``ges_core/synthesis/run_worker.py``), ``GraspEnv`` + ``GraspVecEnv`` (full reset: stage
-one reaching to the pre-grasp), then the expert acts until every env has ended one episode. Recorded
-per object: each env's end reason, whether the paper's protocol (0.2 m up, held 200 simulation steps)
-and the peers' protocol (within 5 cm of the lift target at some step) succeeded, the highest rise.
-
-Results: ``<out>/baseline-<hand>-<sim>.json``, rewritten atomically after every object. A rerun with the
-same settings reuses every stored object whose grasp is unchanged (a killed run resumes where it
-stopped); other settings raise ConfigError. Without randomization every env of one object runs the
-same physics, so ``envs > 1`` only repeats the episode (a determinism check), see ``docs/env_baseline.md``.
+:func:`evaluate_baseline` selects the records, skips those the results store already holds
+(:mod:`~ges_core.env.evaluate.store`), runs the rest object by object (:func:`evaluate_object`,
+:func:`run_episodes`) and returns a :class:`BaselineReport` whose table comes from
+:mod:`~ges_core.env.evaluate.table`.
 """
 
 from __future__ import annotations
 
-import hashlib
-import inspect
-import json
 import time
 from collections import Counter
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import numpy as np
 import torch
-from pydantic import Field, field_validator
 
-from ges_core.config import ConfigModel, parse_model
+from ges_core.config import parse_model
 from ges_core.dataset import GraspRecord
-from ges_core.dataset.layout import config_differences, utc_now
 from ges_core.env.baseline import ScriptedExpert
-from ges_core.env.grasp_env import EnvConfig, GraspEnv
+from ges_core.env.evaluate.config import BaselineConfig, scripted_defaults
+from ges_core.env.evaluate.store import grasp_key, read_results, results_header, results_path, write_results
+from ges_core.env.evaluate.table import SplitRow, format_table, summarize
+from ges_core.env.grasp_env import GraspEnv
 from ges_core.env.grasp_source import (
     SELECTIONS,
     GraspSelection,
@@ -48,83 +34,19 @@ from ges_core.env.grasp_source import (
 )
 from ges_core.env.success import EndReason
 from ges_core.env.vec_env import GraspVecEnv
-from ges_core.errors import AssetError, ConfigError, GesError, SimulationError
-from ges_core.objects.splits import SPLITS
-from ges_core.paths import atomic_write_text
+from ges_core.errors import ConfigError, GesError, SimulationError
 from ges_core.policy import Expert
 from ges_core.sim import SceneConfig
 
 __all__ = [
-    "RESULTS_FORMAT",
-    "BaselineConfig",
     "BaselineReport",
-    "ScriptedSettings",
-    "SplitRow",
+    "EpisodeOutcome",
+    "ExpertFactory",
     "evaluate_baseline",
-    "format_table",
-    "results_path",
+    "evaluate_object",
     "run_episodes",
-    "summarize",
+    "scripted_expert",
 ]
-
-RESULTS_FORMAT = "ges.baseline_results"
-RESULTS_VERSION = 1
-REASONS: tuple[str, ...] = tuple(r.name.lower() for r in EndReason if r is not EndReason.RUNNING) + ("error",)
-"""End-reason columns of the table: the env's EndReason names, then 'error' (the object could not be set up)."""
-
-
-class ScriptedSettings(ConfigModel):
-    """Overrides of :class:`~ges_core.env.baseline.ScriptedExpert`'s parameters; None keeps the expert's default."""
-
-    approach_steps: int | None = Field(None, ge=0, description="control steps moving the wrist to the grasp first")
-    close_steps: int | None = Field(None, ge=1, description="control steps ramping the fingers to the goal")
-    pause_steps: int | None = Field(None, ge=0, description="control steps held between closing and lifting")
-    overshoot: float | None = Field(None, ge=0, description="fraction of (goal - start) pushed past the goal joints")
-    lift: float | None = Field(None, gt=0, description="metres to lift (see ScriptedExpert)")
-    carry_margin: float | None = Field(None, ge=0, description="m the wrist may rise past lift for a slipping object")
-    carry_gain: float | None = Field(None, ge=0, le=1, description="share of the object's sideways drift corrected")
-    squeeze_force: float | None = Field(None, ge=0, description="N each fingertip is driven to press with")
-
-    def kwargs(self) -> dict:
-        """The given overrides as ScriptedExpert keyword arguments."""
-        return {k: v for k, v in self.model_dump().items() if v is not None}
-
-
-def scripted_defaults() -> dict:
-    """ScriptedExpert's current default parameters (stored with results: a changed default invalidates them)."""
-    sig = inspect.signature(ScriptedExpert.__init__)
-    return {k: p.default for k, p in sig.parameters.items() if p.default is not inspect.Parameter.empty}
-
-
-class BaselineConfig(ConfigModel):
-    """Settings of one expert evaluation (stored in the results file; a resume needs the same)."""
-
-    hand: str = Field(..., description="registry name of the hand")
-    sim: str = Field(..., description="registry name of the simulator the episodes run in")
-    envs: int = Field(1, ge=1, description="envs (episodes) per object, all from the same grasp")
-    selection: str = Field("validated", description=f"which records give grasps: {', '.join(SELECTIONS)}")
-    splits: tuple[str, ...] = Field(SPLITS, min_length=1, description="splits to evaluate")
-    seed: int = Field(0, description="torch seed given to GraspVecEnv")
-    env: EnvConfig = Field(default_factory=EnvConfig)
-    expert: ScriptedSettings = Field(default_factory=ScriptedSettings)
-    scene: SceneConfig | None = Field(
-        None, description="physics settings; None: the dataset's Stage 1 scene (num_envs set to envs)"
-    )
-
-    @field_validator("selection")
-    @classmethod
-    def _known_selection(cls, value: str) -> str:
-        if value not in SELECTIONS:
-            raise ValueError(f"unknown selection '{value}'; choose one of {', '.join(SELECTIONS)}")
-        return value
-
-    @field_validator("splits")
-    @classmethod
-    def _known_splits(cls, value: tuple[str, ...]) -> tuple[str, ...]:
-        unknown = [s for s in value if s not in SPLITS]
-        if unknown:
-            raise ValueError(f"unknown splits {unknown}; choose from {', '.join(SPLITS)}")
-        return value
 
 
 ExpertFactory = Callable[[GraspEnv, BaselineConfig], Expert]
@@ -222,135 +144,6 @@ def _episodes(sim, hand, asset, targets, config: BaselineConfig, factory: Expert
     return run_episodes(venv, factory(env, config))
 
 
-def grasp_key(record: GraspRecord) -> str:
-    """16 hex digits identifying the record's grasp and pre-grasp (a changed record is evaluated again)."""
-    h = hashlib.sha256()
-    for pose in (record.grasp, record.pregrasp):
-        if pose is not None:
-            h.update(np.ascontiguousarray(pose.wrist_pose).tobytes() + np.ascontiguousarray(pose.q).tobytes())
-    h.update(",".join(record.joint_names).encode())
-    return h.hexdigest()[:16]
-
-
-# -- the results file --------------------------------------------------------------------------
-def results_path(out: str | Path, config: BaselineConfig) -> Path:
-    """``<out>/baseline-<hand>-<sim>.json``."""
-    return Path(out) / f"baseline-{config.hand}-{config.sim}.json"
-
-
-def _header(config: BaselineConfig, expert: str, defaults: dict) -> dict:
-    """What a stored result depends on: the expert, its defaults and every setting but the record choice."""
-    settings = config.model_dump(mode="json", exclude={"selection", "splits"})
-    return {"expert": expert, "expert_defaults": defaults, "config": settings}
-
-
-def _read_results(path: Path, header: dict) -> dict[str, dict]:
-    """Stored per-object results of a run with ``header``; {} if there is no file yet."""
-    if not path.is_file():
-        return {}
-    try:
-        data = json.loads(path.read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise AssetError(f"cannot read baseline results {path}: {exc}; delete the file to start over") from exc
-    if not isinstance(data, dict) or data.get("format") != RESULTS_FORMAT:
-        raise AssetError(f"{path} is not a baseline results file (format {RESULTS_FORMAT!r}); choose another --out")
-    if data.get("version") != RESULTS_VERSION:
-        raise AssetError(
-            f"{path} holds baseline results of version {data.get('version')!r}, this code reads {RESULTS_VERSION}; "
-            "choose another --out or delete the file to start over"
-        )
-    diffs = config_differences(data.get("run"), header)
-    if diffs:
-        raise ConfigError(
-            f"baseline results {path} were written with other settings ({'; '.join(diffs)}); choose another "
-            "--out, rerun with those settings, or delete the file to start over",
-            problems=diffs,
-        )
-    return dict(data.get("objects", {}))
-
-
-def _write_results(path: Path, header: dict, dataset: Path, objects: dict[str, dict]) -> None:
-    data = {
-        "format": RESULTS_FORMAT,
-        "version": RESULTS_VERSION,
-        "updated": utc_now(),
-        "dataset": str(dataset),
-        "run": header,
-        "objects": objects,
-    }
-    atomic_write_text(path, json.dumps(data, indent=1) + "\n")
-
-
-# -- the summary -----------------------------------------------------------------------------------
-@dataclass
-class SplitRow:
-    """One line of the summary table."""
-
-    split: str
-    objects: int = 0
-    """Objects evaluated."""
-    considered: int = 0
-    """Objects of the hand in the dataset (before the selection rule)."""
-    episodes: int = 0
-    paper: int = 0
-    """Episodes that met the paper's protocol."""
-    peers: int = 0
-    """Episodes that met the peers' protocol."""
-    reasons: Counter = field(default_factory=Counter)
-
-    @property
-    def paper_rate(self) -> float | None:
-        """Paper-protocol success rate over episodes (None without episodes)."""
-        return self.paper / self.episodes if self.episodes else None
-
-    @property
-    def peers_rate(self) -> float | None:
-        """Peers-protocol success rate over episodes (None without episodes)."""
-        return self.peers / self.episodes if self.episodes else None
-
-    def to_dict(self) -> dict:
-        """JSON-ready."""
-        return {
-            "split": self.split, "objects": self.objects, "considered": self.considered, "episodes": self.episodes,
-            "paper_success": self.paper, "peers_success": self.peers, "paper_rate": self.paper_rate,
-            "peers_rate": self.peers_rate, "end_reasons": {r: self.reasons.get(r, 0) for r in REASONS},
-        }  # fmt: skip
-
-
-def summarize(results: list[dict], considered: dict[str, int], splits: tuple[str, ...] = SPLITS) -> list[SplitRow]:
-    """One row per split in ``splits`` and an ``all`` row; considered: split -> objects in the dataset."""
-    rows = {s: SplitRow(s, considered=considered.get(s, 0)) for s in splits}
-    total = SplitRow("all", considered=sum(considered.get(s, 0) for s in splits))
-    for res in results:
-        if res["split"] not in rows:
-            continue
-        for row in (rows[res["split"]], total):
-            row.objects += 1
-            row.episodes += res["envs"]
-            row.paper += res["paper_success"]
-            row.peers += res["peers_success"]
-            row.reasons.update(res["end_reasons"])
-    return [*rows.values(), total]
-
-
-def format_table(rows: list[SplitRow], header: str = "") -> str:
-    """Markdown table of ``rows`` under an optional header line."""
-    reasons = [r for r in REASONS if any(row.reasons.get(r) for row in rows)] or ["success"]
-    lines = [header, ""] if header else []
-    lines.append("| split | objects | episodes | success (paper) | success (peers) | " + " | ".join(reasons) + " |")
-    lines.append("|---" * (5 + len(reasons)) + "|")
-    for row in rows:
-        cells = [row.split, f"{row.objects}/{row.considered}", str(row.episodes)]
-        cells += [_rate(row.paper, row.episodes), _rate(row.peers, row.episodes)]
-        cells += [str(row.reasons.get(r, 0)) for r in reasons]
-        lines.append("| " + " | ".join(cells) + " |")
-    return "\n".join(lines)
-
-
-def _rate(k: int, n: int) -> str:
-    return f"{100 * k / n:.1f} % ({k}/{n})" if n else "-"
-
-
 # -- the run -------------------------------------------------------------------------------------
 @dataclass
 class BaselineReport:
@@ -418,8 +211,8 @@ def evaluate_baseline(
     selection = select_records(data, config.hand, selection=config.selection)
     records = [r for r in selection.records if r.split in config.splits]
     defaults = scripted_defaults() if expert is scripted_expert else {}
-    path, header = results_path(out, config), _header(config, expert_name, defaults)
-    store = _read_results(path, header)  # every stored object (those outside this selection stay in the file)
+    path, header = results_path(out, config), results_header(config, expert_name, defaults)
+    store = read_results(path, header)  # every stored object (those outside this selection stay in the file)
     report = BaselineReport(path, config, selection, [], expert_name=expert_name)
     todo = [r for r in records if store.get(r.object_id, {}).get("grasp_key") != grasp_key(r)]
     fresh = {r.object_id for r in todo}
@@ -432,7 +225,7 @@ def evaluate_baseline(
         for record in bar:
             store[record.object_id] = evaluate_object(registry, hand, record, library, config, scene, expert)
             report.evaluated.append(record.object_id)
-            _write_results(path, header, data.root.resolve(), store)
+            write_results(path, header, data.root.resolve(), store)
             bar.set_postfix(success=sum(store[oid]["paper_success"] for oid in report.evaluated))
     report.results = [store[r.object_id] for r in records]
     report.seconds = time.perf_counter() - start
