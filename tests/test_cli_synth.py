@@ -88,7 +88,7 @@ def test_retarget_reuses_stored_contacts(demo_dir, capsys, tmp_path):
     assert validate_dataset(out) == [] and len(target) == 2
     for record in target:
         stored = source.get(record.object_id, "allegro")
-        assert record.hand == "shadow" and record.extra["contacts_from"] == "allegro"
+        assert record.hand == "shadow" and record.contacts_from == "allegro"
         np.testing.assert_array_equal(record.contacts.positions, stored.contacts.positions)
         assert record.steps["contacts"] == stored.steps["contacts"]
         assert record.joint_names != stored.joint_names  # a Shadow grasp, not a copy

@@ -17,10 +17,13 @@ from ges_core.contact import ContactSet
 from ges_core.dataset import (
     NOT_RUN,
     STEPS,
+    AttemptVerdict,
     DatasetWriter,
     GraspRecord,
     HandPose,
     Quality,
+    RefinementInfo,
+    SimVerdict,
     StepOutcome,
     open_dataset,
     record_relpath,
@@ -29,12 +32,23 @@ from ges_core.dataset import (
     validate_dataset,
 )
 from ges_core.dataset.checks import record_problems
-from ges_core.dataset.layout import normalize_config
-from ges_core.dataset.record import raw_to_bytes, read_raw, record_from_bytes, record_to_bytes, record_to_raw
+from ges_core.dataset.layout import DATASET_VERSION, normalize_config
+from ges_core.dataset.record import (
+    RECORD_VERSION,
+    raw_to_bytes,
+    read_raw,
+    record_from_bytes,
+    record_from_raw,
+    record_to_bytes,
+    record_to_raw,
+)
+from ges_core.dataset.record_v1 import upgraded
 from ges_core.dataset.store import load_record
 from ges_core.errors import AssetError, ConfigError
 from ges_core.paths import atomic_write_bytes
 
+DATASET_V1 = Path(__file__).parent / "data" / "dataset_v1"
+"""Four records written by the version-1 code (three of ``ges demo``, one failed contact step of ``ges synth``)."""
 CONFIG = {"hands": ["shadow", "allegro"], "sim": "sapien", "seed": 3, "refine": {"gamma": 2.5}}
 JOINTS = {"shadow": tuple(f"rh_J{i}" for i in range(24)), "allegro": tuple(f"joint_{i}.0" for i in range(16))}
 
@@ -80,9 +94,37 @@ def make_record(object_id: str, hand: str = "shadow", *, fail_at: str | None = N
         validation_flags={"lifted": fail_at is None, "held": fail_at is None},
         versions=software_versions("sapien"),
         seed=seed,
-        extra={"picture": f"pictures/{hand}.png"},
+        **_notes(hand, fail_at),
+        extra={"operator": "test"},
     )
     return GraspRecord(**(fields | kw))
+
+
+def _notes(hand: str, fail_at: str | None) -> dict:
+    """The typed Stage 1 notes of a record failing at ``fail_at`` (None: passing)."""
+    refined = fail_at not in ("contacts", "retargeting")
+    validated = refined and fail_at != "refinement"
+    verdict = SimVerdict(success=fail_at is None, reason="success" if fail_at is None else "dropped",
+                         flags={"lifted": True, "held": fail_at is None}, seconds=0.2)  # fmt: skip
+    return {
+        "symmetric": None if fail_at == "contacts" else False,
+        "attempt": 0 if fail_at is None else None,
+        "attempts": (AttemptVerdict(refinement="ok", validation="ok" if fail_at is None else "dropped"),)
+        if refined
+        else (),
+        "refinement": RefinementInfo(
+            frozen=["thumb", "index"],
+            touching_fingers=["thumb", "index", "middle"],
+            object_shift=0.001,
+            object_turn_deg=0.5,
+        )
+        if refined
+        else None,  # fmt: skip
+        "validations": {"sapien": verdict, "pybullet": verdict} if validated else {},
+        "errors": {fail_at: f"{fail_at} went wrong"} if fail_at in ("contacts", "retargeting") else {},
+        "setup_seconds": {"sapien": 0.03} if refined else {},
+        "picture": f"pictures/{hand}.png",
+    }
 
 
 def assert_same(a: GraspRecord, b: GraspRecord) -> None:
@@ -478,6 +520,40 @@ CORRUPTIONS = {
     "flags": (lambda m, a: m["validation_flags"].update(held="yes"), "validation_flags: must map names to true/false"),
     "seed": (lambda m, a: m.update(seed="3"), "seed: must be an integer, got '3'"),
     "extra": (lambda m, a: m.update(extra=[]), "extra: must be an object, got []"),
+    "note_missing": (
+        lambda m, a: m.pop("picture"),
+        "picture: missing (a version-2 record stores it, null or empty when there is none)",
+    ),
+    "symmetric": (lambda m, a: m.update(symmetric="no"), "symmetric: must be true, false or null, got 'no'"),
+    "errors": (lambda m, a: m["errors"].update(contacts=3), "errors: must be an object of messages"),
+    "setup_seconds": (
+        lambda m, a: m["setup_seconds"].update(sapien=-1),
+        "setup_seconds: must be an object of seconds >= 0",
+    ),
+    "attempts": (lambda m, a: m["attempts"].append({"refinement": "ok"}), "attempts: must be a list of"),
+    "attempt": (
+        lambda m, a: m.update(attempt=1),
+        "attempt: must be null or an index into the 1 attempts, got 1",
+    ),
+    "refinement_keys": (lambda m, a: m["refinement"].pop("frozen"), "refinement: must be null or {frozen,"),
+    "refinement_shift": (
+        lambda m, a: m["refinement"].update(object_shift=float("nan")),
+        "refinement.object_shift: must be a finite number >= 0, got nan",
+    ),
+    "refinement_fingers": (
+        lambda m, a: m["refinement"].update(frozen="thumb"),
+        "refinement.frozen: must be a list of finger names",
+    ),
+    "validations": (lambda m, a: m.update(validations=[]), "validations: must map simulators to verdicts"),
+    "verdict_keys": (lambda m, a: m["validations"]["sapien"].pop("flags"), "validations.sapien: must be {flags,"),
+    "verdict_types": (
+        lambda m, a: m["validations"]["sapien"].update(success="yes"),
+        "validations.sapien: success must be a bool, reason a string, seconds >= 0",
+    ),
+    "verdict_flags": (
+        lambda m, a: m["validations"]["sapien"]["flags"].update(held=1),
+        "validations.sapien.flags: must map names to true/false",
+    ),
     "contact_header": (
         lambda m, a: _drop(a, "contact_positions", "contact_normals"),
         "contacts: the JSON header and the contact arrays must be stored together",
@@ -511,8 +587,8 @@ CORRUPTIONS = {
         "steps.validation: attempted but the grasp or the pre-grasp is missing",
     ),
     "format": (
-        lambda m, a: m.update(version=2),
-        "not a grasp record: format 'ges.grasp_record' version 2, expected 'ges.grasp_record' version 1",
+        lambda m, a: m.update(version=3),
+        "not a grasp record: format 'ges.grasp_record' version 3, expected 'ges.grasp_record' version 1 or 2",
     ),
     "contact_format": (
         lambda m, a: m["contacts"].update(format="x"),
@@ -630,3 +706,73 @@ def test_cli_info_counts_rates_and_times(dataset, records, capsys):
 def test_cli_info_on_a_non_dataset_is_one_error_line(tmp_path, capsys):
     code, out, err = run_cli(capsys, "dataset", "info", str(tmp_path))
     assert code == 1 and out == "" and err.count("\n") == 1 and "is not a grasp dataset" in err
+
+
+# --- version 1 (records with a free-form extra) ---------------------------------------------------
+
+
+def _v1_files() -> list[Path]:
+    return sorted(DATASET_V1.glob("records/*/*.npz"))
+
+
+def test_version_1_dataset_opens_validates_and_reports(capsys):
+    assert len(_v1_files()) == 4 and json.loads((DATASET_V1 / "manifest.json").read_text())["version"] == 1
+    assert validate_dataset(DATASET_V1) == []
+    records = {r.key: r for r in open_dataset(DATASET_V1)}
+    assert len(records) == 4
+    code, out, _ = run_cli(capsys, "dataset", "info", str(DATASET_V1))
+    assert code == 0 and "4 records" in out.splitlines()[0]
+    code, out, _ = run_cli(capsys, "dataset", "validate", str(DATASET_V1))
+    assert code == 0 and "no problems" in out
+
+
+@pytest.mark.parametrize("path", _v1_files(), ids=lambda p: p.stem)
+def test_version_1_extra_becomes_the_typed_fields(path):
+    """Every key of a version-1 extra lands in its field, and nothing is left in extra."""
+    meta, arrays = read_raw(path.read_bytes())
+    extra = meta["extra"]
+    assert meta["version"] == 1 and extra
+    record = record_from_raw(meta, arrays)
+    assert record.extra == {}
+    assert record.symmetric == extra.get("symmetric") and record.attempt == extra.get("attempt")
+    assert record.attempts == tuple(AttemptVerdict(**a) for a in extra.get("attempts", ()))
+    assert record.errors == extra.get("errors", {}) and record.picture == extra.get("picture")
+    assert record.setup_seconds == extra.get("setup_seconds", {})
+    assert record.validations == {sim: SimVerdict(**v) for sim, v in extra.get("validations", {}).items()}
+    if "frozen" in extra:
+        assert record.refinement == RefinementInfo(**{k: extra[k] for k in RefinementInfo.__dataclass_fields__})
+    else:
+        assert record.refinement is None
+    assert record.validation_flags == (record.validations[record.simulator].flags if record.validations else {})
+
+
+@pytest.mark.parametrize("path", _v1_files(), ids=lambda p: p.stem)
+def test_version_1_record_written_again_is_version_2_and_reads_the_same(path):
+    record = load_record(DATASET_V1, path.relative_to(DATASET_V1).as_posix())
+    meta, arrays = record_to_raw(record)
+    assert meta["version"] == RECORD_VERSION == 2 and record_problems(meta, arrays) == []
+    assert_same(record_from_bytes(raw_to_bytes(meta, arrays)), record)
+
+
+def test_version_1_unknown_extra_keys_stay_in_extra():
+    meta = {"version": 1, "extra": {"frozen": ["thumb"], "operator": "me", "errors": {"contacts": "x"}}}
+    new = upgraded(meta)
+    assert new["version"] == 2 and new["extra"] == {"operator": "me"} and new["errors"] == {"contacts": "x"}
+    assert new["refinement"] == {"frozen": ["thumb"]}  # incomplete: the checks say so
+    assert new["attempts"] == [] and new["validations"] == {} and new["picture"] is None
+    assert upgraded({"version": 2, "extra": {"frozen": 1}})["extra"] == {"frozen": 1}  # only version 1 moves
+    problems = record_problems(dict(record_to_raw(make_record("procedural/box/0"))[0], **meta), {})
+    assert any(p.startswith("refinement: must be null or {frozen,") for p in problems), problems
+
+
+def test_version_1_dataset_resumed_by_the_writer_becomes_version_2(tmp_path, records):
+    import shutil
+
+    root = tmp_path / "v1"
+    shutil.copytree(DATASET_V1, root)
+    run_config = json.loads((root / "manifest.json").read_text())["run_config"]
+    with DatasetWriter(root, run_config) as writer:
+        assert len(writer) == 4
+        writer.add(records[0])
+    assert json.loads((root / "manifest.json").read_text())["version"] == DATASET_VERSION == 2
+    assert validate_dataset(root) == [] and len(open_dataset(root)) == 5

@@ -57,7 +57,11 @@ def _arrays(record) -> dict[str, np.ndarray]:
 
 def _outcomes(record) -> dict:
     steps = {name: (s.ok, s.reason) for name, s in record.steps.items()}
-    return {"steps": steps, "flags": dict(record.validation_flags), "frozen": record.extra.get("frozen")}
+    return {
+        "steps": steps,
+        "flags": dict(record.validation_flags),
+        "frozen": None if record.refinement is None else record.refinement.frozen,
+    }
 
 
 @pytest.mark.sim

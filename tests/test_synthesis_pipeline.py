@@ -59,7 +59,7 @@ def test_run_writes_valid_records_and_records_bad_objects(first_run):
     records = {r.object_id: r for r in open_dataset(out)}
     assert sorted(report.written) == sorted((o, "allegro") for o in records)
     assert records[FLAT].steps["contacts"].reason == "bad_mesh"
-    assert "zero volume" in records[FLAT].extra["errors"]["contacts"]
+    assert "zero volume" in records[FLAT].errors["contacts"]
     assert records[HUGE].steps["contacts"].reason == "no_graspable_width"
     for bad in (FLAT, HUGE):
         assert all(records[bad].steps[s].reason == "skipped" for s in ("retargeting", "refinement", "validation"))
@@ -182,7 +182,7 @@ def test_concave_object_without_decomposition_fails_refinement_with_reason(tmp_p
     (record,) = open_dataset(tmp_path / "ds")
     assert record.steps["contacts"].ok and record.steps["retargeting"].ok
     assert record.steps["refinement"].reason == "no_collision_model"
-    assert "ges objects prepare" in record.extra["errors"]["refinement"]
+    assert "ges objects prepare" in record.errors["refinement"]
     assert record.steps["validation"].reason == "skipped"
 
 
@@ -263,7 +263,7 @@ def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeyp
     run_synthesis([oid], ["allegro"], config, tmp_path / "ds")
     (record,) = open_dataset(tmp_path / "ds")
     assert len(calls) == min(attempts, 2)
-    assert [a[failing] for a in record.extra["attempts"]] == verdicts[: len(calls)]
+    assert [getattr(a, failing) for a in record.attempts] == verdicts[: len(calls)]
     seed = object_seed(config.seed, oid)
     points, normals = config.library.build().point_cloud(oid, config.points, seed=seed)
     contacts = generate_contacts(points, normals, config.contacts, object_id=oid, seed=seed).contacts
@@ -278,9 +278,25 @@ def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeyp
     assert record.grasp_stage == "refinement"
     assert record.steps["refinement"].seconds == pytest.approx(sum(r.seconds for _, r in calls), rel=1e-6)
     if attempts == 1:
-        assert record.steps["refinement"].reason == "few_contacts" and "attempt" not in record.extra
+        assert record.steps["refinement"].reason == "few_contacts" and record.attempt is None
         assert record.steps["validation"].reason == "skipped"
     else:
-        assert record.steps["refinement"].ok and record.extra["attempt"] == 1
+        assert record.steps["refinement"].ok and record.attempt == 1
     if failing == "validation":
         assert record.steps["validation"].ok and record.steps["validation"].seconds == pytest.approx(0.75)
+
+
+def test_config_of_a_dataset_reads_both_layouts(tmp_path):
+    """A version-1 run_config held thumb_keep in three steps (kept equal); it is read as the one."""
+    from pathlib import Path
+
+    from ges_core.dataset import DatasetWriter
+
+    old = open_dataset(Path(__file__).parent / "data" / "dataset_v1")
+    assert {old.run_config["refine"]["thumb_keep"], old.run_config["pregrasp"]["thumb_keep"]} == {2}
+    config = SynthesisConfig.of_dataset(old)
+    assert config.thumb_keep == 2 and config.validate_sims == ("sapien", "pybullet")
+    assert config.library == LibraryConfig(**old.run_config["library"])
+    new = SynthesisConfig.model_validate({"thumb_keep": 1, "library": {"procedural_count": 2}})
+    DatasetWriter(tmp_path / "ds", new.dump()).close()
+    assert SynthesisConfig.of_dataset(open_dataset(tmp_path / "ds")) == new

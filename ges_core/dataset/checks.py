@@ -11,9 +11,23 @@ from collections.abc import Mapping
 
 import numpy as np
 
-from ges_core.dataset.record import NOT_RUN, RECORD_FORMAT, RECORD_VERSION, SKIPPED, STEPS, Quality
+from ges_core.dataset.record import (
+    NOT_RUN,
+    RECORD_FORMAT,
+    RECORD_VERSION,
+    SKIPPED,
+    STEPS,
+    AttemptVerdict,
+    Quality,
+    RefinementInfo,
+    SimVerdict,
+)
+from ges_core.dataset.record_v1 import upgraded
 
-__all__ = ["UNIT_TOLERANCE", "record_problems"]
+__all__ = ["READABLE_RECORD_VERSIONS", "UNIT_TOLERANCE", "record_problems"]
+
+READABLE_RECORD_VERSIONS = (1, RECORD_VERSION)
+"""Record versions that are read: version 1 through :func:`ges_core.dataset.record_v1.upgraded`."""
 
 UNIT_TOLERANCE = 1e-6
 """Largest accepted | |v| - 1 | of a stored normal, direction or quaternion: float64 storage keeps
@@ -30,14 +44,16 @@ def record_problems(meta: object, arrays: Mapping[str, np.ndarray]) -> list[str]
     """Every problem of one record: schema, shapes, finite values, unit vectors, flag consistency."""
     if not isinstance(meta, dict):
         return [f"record scalars are a {type(meta).__name__}, not a JSON object"]
-    if meta.get("format") != RECORD_FORMAT or meta.get("version") != RECORD_VERSION:
+    if meta.get("format") != RECORD_FORMAT or meta.get("version") not in READABLE_RECORD_VERSIONS:
         found = f"{meta.get('format')!r} version {meta.get('version')!r}"
-        return [f"not a grasp record: format {found}, expected {RECORD_FORMAT!r} version {RECORD_VERSION}"]
+        expected = " or ".join(str(v) for v in READABLE_RECORD_VERSIONS)
+        return [f"not a grasp record: format {found}, expected {RECORD_FORMAT!r} version {expected}"]
+    meta = upgraded(meta)
     problems = _text_problems(meta) + _joint_name_problems(meta.get("joint_names"))
     problems += _step_problems(meta.get("steps"))
     problems += _array_problems(arrays, _joint_count(meta))
     problems += _quality_problems(meta.get("quality"))
-    problems += _misc_problems(meta)
+    problems += _misc_problems(meta) + _note_problems(meta)
     if not any(p.startswith("steps") for p in problems):
         problems += _presence_problems(meta, arrays)
     return problems
@@ -165,6 +181,85 @@ def _misc_problems(meta: dict) -> list[str]:
     return problems
 
 
+_NOTE_KEYS = (
+    "symmetric",
+    "contacts_from",
+    "attempt",
+    "attempts",
+    "refinement",
+    "validations",
+    "errors",
+    "setup_seconds",
+    "picture",
+)
+
+
+def _note_problems(meta: dict) -> list[str]:
+    """The typed Stage 1 notes: keys present (version 2), each of its type."""
+    if meta.get("version") == 1:
+        return []  # a version-1 record whose extra is no object: _misc_problems says so
+    missing = [k for k in _NOTE_KEYS if k not in meta]
+    if missing:
+        return [f"{k}: missing (a version-2 record stores it, null or empty when there is none)" for k in missing]
+    problems = [
+        f"{k}: must be {what}, got {meta[k]!r}"
+        for k, what, ok in (
+            ("symmetric", "true, false or null", meta["symmetric"] is None or isinstance(meta["symmetric"], bool)),
+            ("contacts_from", "a hand name or null", meta["contacts_from"] is None or _text(meta["contacts_from"])),
+            ("picture", "a path or null", meta["picture"] is None or _text(meta["picture"])),
+            ("errors", "an object of messages", _mapping_of(meta["errors"], lambda m: isinstance(m, str))),
+            ("setup_seconds", "an object of seconds >= 0", _mapping_of(meta["setup_seconds"], _seconds)),
+        )
+        if not ok
+    ]
+    return problems + _attempt_problems(meta) + _refinement_problems(meta["refinement"]) + _verdict_problems(meta)
+
+
+def _attempt_problems(meta: dict) -> list[str]:
+    attempts, attempt = meta["attempts"], meta["attempt"]
+    fields = sorted(AttemptVerdict.__dataclass_fields__)
+    if not isinstance(attempts, list) or not all(
+        isinstance(a, dict) and sorted(a) == fields and all(_text(v) for v in a.values()) for a in attempts
+    ):
+        return [f"attempts: must be a list of {{{', '.join(fields)}}} verdicts, got {attempts!r}"]
+    if attempt is not None and (not _index(attempt) or attempt >= len(attempts)):
+        return [f"attempt: must be null or an index into the {len(attempts)} attempts, got {attempt!r}"]
+    return []
+
+
+def _refinement_problems(refinement: object) -> list[str]:
+    if refinement is None:
+        return []
+    fields = sorted(RefinementInfo.__dataclass_fields__)
+    if not isinstance(refinement, dict) or sorted(refinement) != fields:
+        return [f"refinement: must be null or {{{', '.join(fields)}}}, got {refinement!r}"]
+    problems = [
+        f"refinement.{k}: must be a list of finger names, got {refinement[k]!r}"
+        for k in ("frozen", "touching_fingers")
+        if not isinstance(refinement[k], list) or not all(_text(f) for f in refinement[k])
+    ]
+    return problems + [
+        f"refinement.{k}: must be a finite number >= 0, got {refinement[k]!r}"
+        for k in ("object_shift", "object_turn_deg")
+        if not _seconds(refinement[k])
+    ]
+
+
+def _verdict_problems(meta: dict) -> list[str]:
+    verdicts, fields = meta["validations"], sorted(SimVerdict.__dataclass_fields__)
+    if not isinstance(verdicts, dict):
+        return [f"validations: must map simulators to verdicts, got {verdicts!r}"]
+    problems = []
+    for sim, v in verdicts.items():
+        if not isinstance(v, dict) or sorted(v) != fields:
+            problems.append(f"validations.{sim}: must be {{{', '.join(fields)}}}, got {v!r}")
+        elif not (isinstance(v["success"], bool) and _text(v["reason"]) and _seconds(v["seconds"])):
+            problems.append(f"validations.{sim}: success must be a bool, reason a string, seconds >= 0, got {v!r}")
+        elif not _mapping_of(v["flags"], lambda f: isinstance(f, bool)):
+            problems.append(f"validations.{sim}.flags: must map names to true/false, got {v['flags']!r}")
+    return problems
+
+
 def _presence_problems(meta: dict, arrays: Mapping[str, np.ndarray]) -> list[str]:
     """What the step flags promise must be stored (and nothing claims a step that did not run)."""
     steps, problems = meta["steps"], []
@@ -199,3 +294,21 @@ def _attempted(step: dict) -> bool:
 
 def _is_number(value: object) -> bool:
     return isinstance(value, int | float) and not isinstance(value, bool)
+
+
+def _seconds(value: object) -> bool:
+    """A finite number >= 0."""
+    return _is_number(value) and math.isfinite(value) and value >= 0
+
+
+def _index(value: object) -> bool:
+    return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _text(value: object) -> bool:
+    return isinstance(value, str) and bool(value)
+
+
+def _mapping_of(value: object, check) -> bool:
+    """A dict with string keys whose every value passes ``check``."""
+    return isinstance(value, dict) and all(isinstance(k, str) and check(v) for k, v in value.items())

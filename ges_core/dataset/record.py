@@ -15,12 +15,13 @@ import io
 import json
 import platform
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
 
 from ges_core.contact import ContactSet
+from ges_core.dataset.record_v1 import upgraded
 
 __all__ = [
     "NOT_RUN",
@@ -28,9 +29,12 @@ __all__ = [
     "RECORD_VERSION",
     "SKIPPED",
     "STEPS",
+    "AttemptVerdict",
     "GraspRecord",
     "HandPose",
     "Quality",
+    "RefinementInfo",
+    "SimVerdict",
     "StepOutcome",
     "record_from_bytes",
     "record_from_raw",
@@ -42,7 +46,9 @@ __all__ = [
 ]
 
 RECORD_FORMAT = "ges.grasp_record"
-RECORD_VERSION = 1
+RECORD_VERSION = 2
+"""Version 2: the Stage 1 notes are typed fields (``validations``, ``attempts``, ``refinement``, ``errors``, ...);
+version 1 kept them in the free-form ``extra`` and is still read (:mod:`ges_core.dataset.record_v1`)."""
 
 STEPS: tuple[str, ...] = ("contacts", "retargeting", "refinement", "validation")
 """The Stage 1 steps, in pipeline order; every record holds one :class:`StepOutcome` per step."""
@@ -112,6 +118,47 @@ class Quality:
 
 
 @dataclass(frozen=True, kw_only=True)
+class SimVerdict:
+    """One simulator's physics validation (lift and hold) of the record's grasp."""
+
+    success: bool
+    reason: str
+    """'success' or why not: 'no_contact', 'palm_only', 'dropped', 'not_lifted', 'unstable'."""
+    flags: Mapping[str, bool] = field(default_factory=dict)
+    """Per-phase flags, e.g. reached_grasp, fingertips_touching, lifted, held ({} when the simulator failed)."""
+    seconds: float = 0.0
+    """Wall time of the validation in this simulator, seconds."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class AttemptVerdict:
+    """The verdicts of one wrist placement tried (``SynthesisConfig.attempts``), best placement first."""
+
+    refinement: str
+    """'ok' or the refinement step's failure reason."""
+    validation: str
+    """'ok', the primary simulator's failure reason, 'skipped' (refinement failed) or 'not_run'."""
+
+
+@dataclass(frozen=True, kw_only=True)
+class RefinementInfo:
+    """What collision-aware refinement measured at the end of the chosen attempt."""
+
+    frozen: tuple[str, ...]
+    """Fingers whose targets were frozen on contact."""
+    touching_fingers: tuple[str, ...]
+    """Fingers whose tips touch the object at the end (frozen, or touching when it stopped)."""
+    object_shift: float
+    """How far the object moved while the hand closed, metres."""
+    object_turn_deg: float
+    """How far it turned meanwhile, degrees."""
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "frozen", tuple(self.frozen))
+        object.__setattr__(self, "touching_fingers", tuple(self.touching_fingers))
+
+
+@dataclass(frozen=True, kw_only=True)
 class GraspRecord:
     """Everything Stage 1 produced for one (object, hand) pair; see ``docs/dataset.md``."""
 
@@ -143,11 +190,31 @@ class GraspRecord:
     versions: Mapping[str, str] = field(default_factory=dict)
     """Software versions (see :func:`software_versions`)."""
     seed: int = 0
+    symmetric: bool | None = None
+    """Whether contact generation found the object rotationally symmetric about z (None: no contacts generated)."""
+    contacts_from: str | None = None
+    """The hand whose stored record supplied the contacts (cross-hand retargeting), or None."""
+    attempt: int | None = None
+    """Index in ``attempts`` of the placement that passed refinement and validation; None when none passed."""
+    attempts: tuple[AttemptVerdict, ...] = ()
+    """Every wrist placement tried, in order."""
+    refinement: RefinementInfo | None = None
+    """Refinement's measurements of the chosen attempt; None when refinement produced no grasp."""
+    validations: Mapping[str, SimVerdict] = field(default_factory=dict)
+    """Per validating simulator, its verdict on the chosen attempt (the primary one is the validation step)."""
+    errors: Mapping[str, str] = field(default_factory=dict)
+    """Error message per failed step: 'contacts', 'retargeting', 'refinement' or 'validation_<simulator>'."""
+    setup_seconds: Mapping[str, float] = field(default_factory=dict)
+    """Per simulator, the one-time build + hand load for this record (not in the step times), seconds."""
+    picture: str | None = None
+    """Path of the record's picture (POSIX), when pictures were drawn."""
     extra: Mapping[str, Any] = field(default_factory=dict)
-    """Free-form JSON-ready data (picture path, frozen fingers, ...)."""
+    """Free-form JSON-ready notes of other writers; the Stage 1 pipeline writes none (a version-1 record's
+    ``extra`` keys that have no typed field land here)."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "joint_names", tuple(self.joint_names))
+        object.__setattr__(self, "attempts", tuple(self.attempts))
         if self.approach is not None:
             object.__setattr__(self, "approach", np.asarray(self.approach, dtype=np.float64))
 
@@ -214,9 +281,30 @@ def record_to_raw(record: GraspRecord) -> tuple[dict, dict[str, np.ndarray]]:
         "validation_flags": dict(record.validation_flags),
         "versions": dict(record.versions),
         "seed": record.seed,
+        **_notes_to_raw(record),
         "extra": dict(record.extra),
     }
     return _plain(meta), arrays
+
+
+def _notes_to_raw(record: GraspRecord) -> dict:
+    """The Stage 1 notes of ``record`` as JSON-ready values (keys as the field names)."""
+    return {
+        "symmetric": record.symmetric,
+        "contacts_from": record.contacts_from,
+        "attempt": record.attempt,
+        "attempts": [asdict(a) for a in record.attempts],
+        "refinement": None if record.refinement is None else asdict(record.refinement),
+        "validations": {sim: _verdict_to_dict(v) for sim, v in record.validations.items()},
+        "errors": dict(record.errors),
+        "setup_seconds": dict(record.setup_seconds),
+        "picture": record.picture,
+    }
+
+
+def _verdict_to_dict(verdict: SimVerdict) -> dict:
+    return {"success": verdict.success, "reason": verdict.reason, "flags": dict(verdict.flags),
+            "seconds": verdict.seconds}  # fmt: skip
 
 
 def _plain(value: Any) -> Any:
@@ -237,7 +325,11 @@ def _quality_to_dict(quality: Quality) -> dict:
 
 
 def record_from_raw(meta: dict, arrays: Mapping[str, np.ndarray]) -> GraspRecord:
-    """Inverse of :func:`record_to_raw` (no checks beyond what the types need; see ``validate``)."""
+    """Inverse of :func:`record_to_raw` (no checks beyond what the types need; see ``validate``).
+
+    A version-1 record is read through :func:`ges_core.dataset.record_v1.upgraded` first.
+    """
+    meta = upgraded(meta)
     contacts = None
     if meta.get("contacts") is not None:
         data = dict(meta["contacts"], positions=arrays["contact_positions"], normals=arrays["contact_normals"])
@@ -254,8 +346,25 @@ def record_from_raw(meta: dict, arrays: Mapping[str, np.ndarray]) -> GraspRecord
         quality=Quality(**meta.get("quality", {})),
         validation_flags=meta.get("validation_flags", {}),
         versions=meta.get("versions", {}),
+        **_notes_from_raw(meta),
         extra=meta.get("extra", {}),
     )
+
+
+def _notes_from_raw(meta: dict) -> dict:
+    """The typed Stage 1 notes of a version-2 record's scalars (absent keys: the fields' defaults)."""
+    refinement = meta.get("refinement")
+    return {
+        "symmetric": meta.get("symmetric"),
+        "contacts_from": meta.get("contacts_from"),
+        "attempt": meta.get("attempt"),
+        "attempts": tuple(AttemptVerdict(**a) for a in meta.get("attempts", ())),
+        "refinement": None if refinement is None else RefinementInfo(**refinement),
+        "validations": {sim: SimVerdict(**v) for sim, v in meta.get("validations", {}).items()},
+        "errors": meta.get("errors", {}),
+        "setup_seconds": meta.get("setup_seconds", {}),
+        "picture": meta.get("picture"),
+    }
 
 
 def _pose(arrays: Mapping[str, np.ndarray], prefix: str) -> HandPose | None:

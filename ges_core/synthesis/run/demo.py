@@ -116,9 +116,9 @@ def _failures(records) -> str:
 def _sheet(records, path: Path) -> Path | str:
     from ges_core.render import contact_sheet
 
-    shown = [r for r in records if Path(r.extra.get("picture", "")).is_file()]
+    shown = [r for r in records if r.picture is not None and Path(r.picture).is_file()]
     if not shown:
         return "no pictures"
     labels = [f"{r.hand[:2]} {r.object_id.split('/', 1)[-1]}" for r in shown]
     colors = [(40, 170, 60) if r.success else (210, 50, 40) for r in shown]
-    return contact_sheet([r.extra["picture"] for r in shown], path, columns=8, labels=labels, frame_colors=colors)
+    return contact_sheet([r.picture for r in shown], path, columns=8, labels=labels, frame_colors=colors)

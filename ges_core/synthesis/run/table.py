@@ -73,10 +73,10 @@ def agreement_rates(records: Iterable[GraspRecord]) -> dict[str, dict]:
     """Per hand: how often the validating simulators judged the same grasps alike (records validated in 2+)."""
     out: dict[str, dict] = {}
     for record in records:
-        verdicts = record.extra.get("validations", {})
+        verdicts = record.validations
         if len(verdicts) < 2:
             continue
-        same = len({bool(v["success"]) for v in verdicts.values()}) == 1
+        same = len({v.success for v in verdicts.values()}) == 1
         row = out.setdefault(record.hand, {"grasps": 0, "agree": 0, "sims": sorted(verdicts)})
         row["grasps"] += 1
         row["agree"] += int(same)

@@ -9,7 +9,7 @@ the objects before it (measured: ``procedural/can/001`` after ``pybullet/random_
 15-24 mm of wrist position away from the same grasp refined first, though every input was equal, even
 with PhysX's enhanced determinism on and one step with the hand far from everything before each new
 object). A record then depended on which objects shared its chunk: a resumed run, another object list
-or another chunk size changed it. A fresh Allegro scene costs about 30-60 ms (``extra["setup_seconds"]``).
+or another chunk size changed it. A fresh Allegro scene costs about 30-60 ms (the record's ``setup_seconds``).
 """
 
 from __future__ import annotations
@@ -19,8 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ges_core.dataset import GraspRecord, StepOutcome, software_versions
-from ges_core.dataset.record import NOT_RUN
+from ges_core.dataset import NOT_RUN, AttemptVerdict, GraspRecord, SimVerdict, StepOutcome, software_versions
 from ges_core.errors import AssetError, SimulationError, SynthesisError
 from ges_core.synthesis.contacts.generate import generate_contacts
 from ges_core.synthesis.physics.pregrasp import pregrasp
@@ -29,7 +28,7 @@ from ges_core.synthesis.physics.scene import stage_scene
 from ges_core.synthesis.physics.validate import validate_grasp
 from ges_core.synthesis.retarget.retargeter import GraspRetargeter
 from ges_core.synthesis.retarget.search import ObjectCloud
-from ges_core.synthesis.run.records import ObjectWork, build_record, contacts_from_record
+from ges_core.synthesis.run.records import ObjectWork, PairResult, build_record, contacts_from_record
 from ges_core.synthesis.run.tasks import RunContext, Task, object_seed
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 
@@ -143,31 +142,25 @@ def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[lis
 
 # -- steps 3-5: refinement, pre-grasp, validation ---------------------------------------------
 def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> GraspRecord:
-    steps, extra = {"contacts": work.step}, dict(work.extra)
+    steps = {"contacts": work.step}
     if result is None:
-        steps.update(dict.fromkeys(("retargeting", "refinement", "validation"), StepOutcome.skipped()))
-        return build_record(state, hand, work, steps, extra)
+        return build_record(state, hand, work, PairResult(steps | _skipped("retargeting", "refinement", "validation")))
     if isinstance(result, SynthesisError):
         steps["retargeting"] = StepOutcome.failed(result.reason)
-        extra["errors"] = {"retargeting": str(result)}
-        steps.update(dict.fromkeys(("refinement", "validation"), StepOutcome.skipped()))
-        return build_record(state, hand, work, steps, extra)
+        pair = PairResult(steps | _skipped("refinement", "validation"), errors={"retargeting": str(result)})
+        return build_record(state, hand, work, pair)
     best = result[0]
     seconds = float(best.meta.get("seconds", 0.0))
-    reached = bool(best.meta.get("reached", True))
-    steps["retargeting"] = (
-        StepOutcome(ok=True, seconds=seconds) if reached else StepOutcome.failed("unreachable", seconds)
-    )
-    if not reached:
-        steps.update(dict.fromkeys(("refinement", "validation"), StepOutcome.skipped()))
-        return build_record(state, hand, work, steps, extra, grasp=best, stage="retargeting")
-    chosen = _attempts(state, sims, hand, work, result, extra)
-    steps["refinement"], steps["validation"] = chosen.refinement, chosen.validation
-    grasp = chosen.refined.grasp if chosen.refined is not None else chosen.retargeted
-    stage = "refinement" if chosen.refined is not None else "retargeting"
-    return build_record(
-        state, hand, work, steps, extra, grasp=grasp, stage=stage, pre=chosen.pre, refined=chosen.refined
-    )
+    if not bool(best.meta.get("reached", True)):
+        steps["retargeting"] = StepOutcome.failed("unreachable", seconds)
+        pair = PairResult(steps | _skipped("refinement", "validation"), grasp=best, stage="retargeting")
+        return build_record(state, hand, work, pair)
+    steps["retargeting"] = StepOutcome(ok=True, seconds=seconds)
+    return build_record(state, hand, work, _attempts(state, sims, hand, work, result, steps))
+
+
+def _skipped(*names: str) -> dict[str, StepOutcome]:
+    return dict.fromkeys(names, StepOutcome.skipped())
 
 
 @dataclass(eq=False)
@@ -179,116 +172,133 @@ class _Attempt:
     refinement: StepOutcome
     pre: Grasp
     validation: StepOutcome
-    notes: dict
+    validations: dict[str, SimVerdict]
+    """Per validating simulator, its verdict ({} when validation did not run)."""
+    errors: dict[str, str]
+    """Error message per failed step of this attempt."""
 
     @property
     def passed(self) -> bool:
         return self.refinement.ok and (self.validation.ok or self.validation.reason == NOT_RUN)
 
+    @property
+    def verdict(self) -> AttemptVerdict:
+        return AttemptVerdict(refinement=self.refinement.reason or "ok", validation=self.validation.reason or "ok")
 
-def _attempts(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasps: list[Grasp], extra: dict) -> _Attempt:
+
+def _attempts(
+    state: _State, sims: _Sims, hand: str, work: ObjectWork, grasps: list[Grasp], steps: dict[str, StepOutcome]
+) -> PairResult:
     """Take ``grasps`` (best wrist placement first) through refinement and validation until one passes both.
 
-    Returns the passing attempt; none passing, the first that refined, else the first. Its notes go into
-    ``extra``, every attempt's verdicts into ``extra["attempts"]`` and the passing one's index into
-    ``extra["attempt"]``. The returned outcomes' times are the sums over the attempts."""
-    cfg, tries = state.context.config, []
+    The result is the passing attempt's; none passing, the first that refined, else the first. It lists every
+    attempt's verdicts and the passing one's index; its refinement and validation times are the sums over the
+    attempts."""
+    tries = []
     for grasp in grasps:
-        notes: dict = {}
-        refined, refinement = _refine(state, sims, hand, work, grasp, notes)
-        settled = refined.grasp if refined is not None else grasp
-        pre = pregrasp(state.hand(hand), settled, work.result.approach, cfg.pregrasp, thumb_keep=cfg.thumb_keep)
-        validation = (
-            _validate(state, sims, hand, work, refined.grasp, pre, notes) if refinement.ok else StepOutcome.skipped()
-        )
-        tries.append(_Attempt(grasp, refined, refinement, pre, validation, notes))
+        tries.append(_attempt(state, sims, hand, work, grasp))
         if tries[-1].passed:
             break
     index = len(tries) - 1 if tries[-1].passed else next((i for i, t in enumerate(tries) if t.refinement.ok), 0)
     chosen = tries[index]
-    extra.update(chosen.notes)
-    setup = {k: v for t in tries for k, v in t.notes.get("setup_seconds", {}).items()}  # built in the first attempt
-    if setup:
-        extra["setup_seconds"] = setup
-    extra["attempts"] = [
-        {"refinement": t.refinement.reason or "ok", "validation": t.validation.reason or "ok"} for t in tries
-    ]
-    if chosen.passed:
-        extra["attempt"] = index
-    chosen.refinement = replace(chosen.refinement, seconds=sum(t.refinement.seconds for t in tries))
-    chosen.validation = replace(chosen.validation, seconds=sum(t.validation.seconds for t in tries))
-    return chosen
+    steps = steps | {
+        "refinement": replace(chosen.refinement, seconds=sum(t.refinement.seconds for t in tries)),
+        "validation": replace(chosen.validation, seconds=sum(t.validation.seconds for t in tries)),
+    }
+    return PairResult(
+        steps,
+        grasp=chosen.refined.grasp if chosen.refined is not None else chosen.retargeted,
+        stage="refinement" if chosen.refined is not None else "retargeting",
+        pre=chosen.pre,
+        refined=chosen.refined,
+        attempt=index if chosen.passed else None,
+        attempts=tuple(t.verdict for t in tries),
+        validations=chosen.validations,
+        errors=chosen.errors,
+        setup_seconds=dict(sims.setup_seconds),  # the simulators are built in the first attempt
+    )
 
 
-def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, extra: dict):
-    """(RefinedGrasp or None, the refinement step's outcome)."""
+def _attempt(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp) -> _Attempt:
+    cfg = state.context.config
+    refined, refinement, errors = _refine(state, sims, hand, work, grasp)
+    settled = refined.grasp if refined is not None else grasp
+    pre = pregrasp(state.hand(hand), settled, work.result.approach, cfg.pregrasp, thumb_keep=cfg.thumb_keep)
+    if not refinement.ok:
+        return _Attempt(grasp, refined, refinement, pre, StepOutcome.skipped(), {}, errors)
+    validation, verdicts, failures = _validate(state, sims, hand, work, refined.grasp, pre)
+    return _Attempt(grasp, refined, refinement, pre, validation, verdicts, errors | failures)
+
+
+def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp):
+    """(RefinedGrasp or None, the refinement step's outcome, {"refinement": error message} or {})."""
     cfg, model = state.context.config, state.hand(hand)
     start = time.perf_counter()
     try:
         asset = state.library.get(work.object_id)
-        sim = sims.get(hand, cfg.refine_sim, asset, extra)
+        sim = sims.get(hand, cfg.refine_sim, asset)
         refined = refine_grasp(sim, model, asset, grasp, cfg.refine, thumb_keep=cfg.thumb_keep)
     except AssetError as error:
-        extra.setdefault("errors", {})["refinement"] = str(error)
-        return None, StepOutcome.failed("no_collision_model", time.perf_counter() - start)
+        return None, StepOutcome.failed("no_collision_model", time.perf_counter() - start), {"refinement": str(error)}
     except (SynthesisError, SimulationError) as error:
-        extra.setdefault("errors", {})["refinement"] = str(error)
-        return None, StepOutcome.failed(getattr(error, "reason", "unstable"), time.perf_counter() - start)
+        outcome = StepOutcome.failed(getattr(error, "reason", "unstable"), time.perf_counter() - start)
+        return None, outcome, {"refinement": str(error)}
     verdict = refine_verdict(refined, model, cfg.refine)
-    meta = refined.grasp.meta
-    extra.update(frozen=list(refined.frozen), touching_fingers=list(meta.get("touching_fingers", ())))
-    extra.update(object_shift=meta["object_shift"], object_turn_deg=meta["object_turn_deg"])
     seconds = float(refined.seconds)
-    return refined, StepOutcome(ok=True, seconds=seconds) if verdict == "ok" else StepOutcome.failed(verdict, seconds)
+    outcome = StepOutcome(ok=True, seconds=seconds) if verdict == "ok" else StepOutcome.failed(verdict, seconds)
+    return refined, outcome, {}
 
 
-def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, pre: Grasp, extra: dict):
-    """Validate in every configured simulator; the primary one's verdict is the step's outcome."""
+def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, pre: Grasp):
+    """Validate in every configured simulator: (the primary one's verdict as the step's outcome, the verdict per
+    simulator, {"validation_<sim>": error message} of the simulators that failed to run)."""
     cfg, model = state.context.config, state.hand(hand)
     if not cfg.validate_sims:
-        return StepOutcome(ok=False, reason=NOT_RUN)
+        return StepOutcome(ok=False, reason=NOT_RUN), {}, {}
     asset = state.library.get(work.object_id)
-    verdicts = {}
+    verdicts, errors = {}, {}
     for name in cfg.validate_sims:
         try:
-            result = validate_grasp(sims.get(hand, name, asset, extra), model, asset, grasp, pre, cfg.validate_)
+            result = validate_grasp(sims.get(hand, name, asset), model, asset, grasp, pre, cfg.validate_)
         except SimulationError as error:  # a backend that fails to build or load counts as a blow-up
-            extra.setdefault("errors", {})[f"validation_{name}"] = str(error)
-            verdicts[name] = {"success": False, "reason": "unstable", "seconds": 0.0, "flags": {}}
+            errors[f"validation_{name}"] = str(error)
+            verdicts[name] = SimVerdict(success=False, reason="unstable")
             continue
-        verdicts[name] = {"success": result.success, "reason": result.reason, "seconds": result.seconds,
-                          "flags": dict(result.flags)}  # fmt: skip
-    extra["validations"] = verdicts
+        flags = {k: bool(v) for k, v in result.flags.items()}
+        verdicts[name] = SimVerdict(success=result.success, reason=result.reason, flags=flags, seconds=result.seconds)
     main = verdicts[cfg.primary_sim]
-    if main["success"]:
-        return StepOutcome(ok=True, seconds=main["seconds"])
-    return StepOutcome.failed(main["reason"], main["seconds"])
+    if main.success:
+        return StepOutcome(ok=True, seconds=main.seconds), verdicts, errors
+    return StepOutcome.failed(main.reason, main.seconds), verdicts, errors
 
 
 class _Sims:
-    """The task's simulators, one per (hand, simulator), built on first use with the hand loaded."""
+    """The simulators of one (object, hand) pair, one per simulator, built on first use with the hand loaded."""
 
     def __init__(self, state: _State) -> None:
         self.state, self.sims = state, {}
+        self.setup_seconds: dict[str, float] = {}
+        """Per simulator built since the last :meth:`close`, its build + hand load, seconds."""
 
-    def get(self, hand: str, name: str, asset, extra: dict):
+    def get(self, hand: str, name: str, asset):
         key = (hand, name)
         if key not in self.sims:
             start = time.perf_counter()
             sim = self.state.registry.build_sim(name, self.state.context.config.scene)
             self.sims[key] = sim
             stage_scene(sim, self.state.hand(hand), asset)  # load the hand now: one-time cost, not the object's
-            extra.setdefault("setup_seconds", {})[name] = time.perf_counter() - start
+            self.setup_seconds[name] = time.perf_counter() - start
         return self.sims[key]
 
     def close(self) -> None:
         for sim in self.sims.values():
             sim.close()
         self.sims.clear()
+        self.setup_seconds = {}
 
 
 def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
-    """``record`` with ``extra["picture"]`` set after drawing it (no picture folder: unchanged)."""
+    """``record`` with ``picture`` set after drawing it (no picture folder: unchanged)."""
     root = state.context.pictures
     if root is None:
         return record
@@ -302,7 +312,7 @@ def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
     except AssetError:
         asset = None  # no collision model: the picture shows the contacts and the hand only
     render_record(record, state.hand(record.hand), asset, path, renderer=state.renderer)
-    return replace(record, extra={**record.extra, "picture": path.as_posix()})
+    return replace(record, picture=path.as_posix())
 
 
 def picture_path(root: str | Path, object_id: str, hand: str) -> Path:

@@ -1,0 +1,52 @@
+"""Reader of version-1 records: their free-form ``extra`` becomes the typed fields of version 2.
+
+Version 1 (GES-UniGrasp before the typed records) kept the Stage 1 pipeline's notes in ``extra``:
+
+=====================================================  ==============================================
+version 1 (``extra[...]``)                             version 2
+=====================================================  ==============================================
+``symmetric``                                          ``symmetric``
+``contacts_from``                                      ``contacts_from``
+``attempt``, ``attempts`` (list of {refinement,        ``attempt``, ``attempts`` (AttemptVerdict)
+validation})
+``frozen``, ``touching_fingers``, ``object_shift``,    ``refinement`` (RefinementInfo)
+``object_turn_deg``
+``validations`` ({sim: {success, reason, seconds,      ``validations`` (SimVerdict per simulator)
+flags}})
+``errors`` ({step: message})                           ``errors``
+``setup_seconds`` ({sim: seconds})                     ``setup_seconds``
+``picture``                                            ``picture``
+any other key                                          ``extra``
+=====================================================  ==============================================
+
+Works on the raw JSON scalars (no types imported), so the checks of ``ges dataset validate`` read a
+version-1 file through the same function as the record reader.
+"""
+
+from __future__ import annotations
+
+__all__ = ["REFINEMENT_KEYS", "upgraded"]
+
+REFINEMENT_KEYS = ("frozen", "touching_fingers", "object_shift", "object_turn_deg")
+"""Version-1 ``extra`` keys that make up version 2's ``refinement``."""
+_MOVED = ("symmetric", "contacts_from", "attempt", "picture")
+"""Version-1 ``extra`` keys that keep their name as version-2 fields (absent: null)."""
+_COLLECTIONS = {"attempts": list, "validations": dict, "errors": dict, "setup_seconds": dict}
+"""Version-1 ``extra`` keys that keep their name, absent meaning empty."""
+
+
+def upgraded(meta: dict) -> dict:
+    """The scalars of a record as version 2: a version-1 record's ``extra`` moved into the typed keys.
+
+    Any other version is returned unchanged. Never raises on a dict ``extra`` whatever it holds (the
+    version-2 checks then report what is wrong); a non-dict ``extra`` is left for the checks to report.
+    """
+    extra = meta.get("extra")
+    if meta.get("version") != 1 or not isinstance(extra, dict):
+        return meta
+    rest = dict(extra)
+    notes = {key: rest.pop(key, None) for key in _MOVED}
+    notes |= {key: rest.pop(key, empty()) for key, empty in _COLLECTIONS.items()}
+    refinement = {key: rest.pop(key) for key in REFINEMENT_KEYS if key in rest}
+    notes["refinement"] = refinement or None
+    return {**meta, "version": 2, **notes, "extra": rest}
