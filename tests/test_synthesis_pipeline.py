@@ -199,7 +199,7 @@ def test_the_opened_hand_is_one_setting():
 @pytest.mark.sim
 def test_thumb_keep_reaches_every_step(tmp_path, monkeypatch):
     """The run's one thumb_keep goes to the wrist search, refinement and the pre-grasp alike."""
-    from ges_core.synthesis.run import worker as run_worker
+    from ges_core.synthesis.run import worker
 
     seen: dict[str, list[int]] = {"retarget": [], "refine": [], "pregrasp": []}
 
@@ -210,9 +210,9 @@ def test_thumb_keep_reaches_every_step(tmp_path, monkeypatch):
 
         return call
 
-    monkeypatch.setattr(run_worker, "GraspRetargeter", spy("retarget", run_worker.GraspRetargeter))
-    monkeypatch.setattr(run_worker, "refine_grasp", spy("refine", run_worker.refine_grasp))
-    monkeypatch.setattr(run_worker, "pregrasp", spy("pregrasp", run_worker.pregrasp))
+    monkeypatch.setattr(worker, "GraspRetargeter", spy("retarget", worker.GraspRetargeter))
+    monkeypatch.setattr(worker, "refine_grasp", spy("refine", worker.refine_grasp))
+    monkeypatch.setattr(worker, "pregrasp", spy("pregrasp", worker.pregrasp))
     library = {"sources": ["procedural"], "procedural_count": 1}
     config = SynthesisConfig.model_validate({"library": library, "validate_sims": [], "attempts": 1, "thumb_keep": 1})
     run_synthesis(["procedural/cube/000"], ["allegro"], config, tmp_path / "ds")
@@ -229,11 +229,11 @@ def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeyp
     outside the pipeline); the record holds the passing attempt's refined grasp, every verdict and the summed times.
     With ``attempts=1`` (the paper's single pass) the step fails with the first verdict."""
     from ges_core.synthesis.retarget.search import ObjectCloud
-    from ges_core.synthesis.run import worker as run_worker
+    from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
 
     calls, verdicts = [], []
-    real_refine = run_worker.refine_grasp
+    real_refine = worker.refine_grasp
 
     def recording_refine(*args, **kwargs):
         calls.append((args[3], real_refine(*args, **kwargs)))
@@ -249,9 +249,9 @@ def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeyp
         verdicts.append("dropped" if not verdicts else "ok")
         return ValidationResult(verdicts[-1] == "ok", verdicts[-1], {}, 0.25 * len(verdicts))
 
-    monkeypatch.setattr(run_worker, "refine_grasp", recording_refine)
-    monkeypatch.setattr(run_worker, "refine_verdict", verdict)
-    monkeypatch.setattr(run_worker, "validate_grasp", validate)
+    monkeypatch.setattr(worker, "refine_grasp", recording_refine)
+    monkeypatch.setattr(worker, "refine_verdict", verdict)
+    monkeypatch.setattr(worker, "validate_grasp", validate)
     config = SynthesisConfig.model_validate(
         {
             "library": {"sources": ["procedural"], "procedural_count": 1},
