@@ -64,3 +64,53 @@ def test_shipped_registry_yaml_validates():
 
     cfg = load_config(RegistryConfig, REPO / "registry.yaml")
     assert cfg.defaults.hand and cfg.defaults.sim
+
+
+def _all_modules() -> list[str]:
+    """Every module of ges_core and the built-in plugins (engines are imported lazily, so all import here)."""
+    import pkgutil
+
+    import ges_core
+    import ges_plugins
+
+    names = []
+    for package in (ges_core, ges_plugins):
+        names += [m.name for m in pkgutil.walk_packages(package.__path__, prefix=package.__name__ + ".")]
+    return [n for n in names if not n.endswith("__main__")]
+
+
+def test_every_settings_model_derives_from_config_model():
+    import importlib
+
+    from pydantic import BaseModel
+
+    from ges_core.config import ConfigModel
+
+    found: dict[str, type] = {}
+    for name in _all_modules():
+        module = importlib.import_module(name)
+        for value in vars(module).values():
+            if isinstance(value, type) and issubclass(value, BaseModel) and value.__module__ == name:
+                found[f"{name}.{value.__qualname__}"] = value
+    plain = sorted(name for name, cls in found.items() if cls is not ConfigModel and not issubclass(cls, ConfigModel))
+    assert len(found) > 20 and plain == []
+
+
+def test_nan_and_inf_are_refused_in_every_nested_config():
+    from ges_core.synthesis import SynthesisConfig
+
+    for key in ("retarget.roll_deg", "contacts.force_closure.mu", "retarget.wrist_search.distinct_deg", "refine.gamma"):
+        with pytest.raises(ConfigError, match=key.replace(".", r"\.") + ": Input should be a finite number"):
+            load_config(SynthesisConfig, overrides=[f"{key}=.nan"])
+    with pytest.raises(ConfigError, match="timestep: Input should be a finite number"):
+        load_config(SceneConfig, overrides=["timestep=.inf"])
+
+
+def test_the_shipped_demo_config_equals_the_built_in_defaults():
+    """An installed wheel has no configs/demo.yaml and runs on DemoConfig's defaults: they must not drift apart."""
+    from pathlib import Path
+
+    from ges_core.synthesis.run.demo import DemoConfig
+
+    shipped = Path(__file__).resolve().parents[1] / "configs" / "demo.yaml"
+    assert load_config(DemoConfig, shipped) == DemoConfig()

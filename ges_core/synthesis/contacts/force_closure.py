@@ -17,9 +17,10 @@ Model (the standard one of GraspIt! and Dex-Net):
 from __future__ import annotations
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 from scipy.spatial import ConvexHull, QhullError
 
+from ges_core.config import ConfigModel
 from ges_core.errors import SynthesisError
 
 __all__ = [
@@ -39,10 +40,8 @@ EPS_FLOOR = 1e-12
 """epsilon below this is round-off of an origin on the hull boundary (e.g. antipodal contacts)."""
 
 
-class ForceClosureConfig(BaseModel):
+class ForceClosureConfig(ConfigModel):
     """Friction and scaling of the Ferrari-Canny epsilon."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     mu: float = Field(0.5, ge=0.0, description="Coulomb friction coefficient; 0.5 is Dex-Net's default friction_coef")
     cone_edges: int = Field(

@@ -24,9 +24,10 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, model_validator
+from pydantic import Field, model_validator
 from scipy.spatial import cKDTree
 
+from ges_core.config import ConfigModel
 from ges_core.contact import ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.synthesis.contacts import slicing as sl
@@ -52,10 +53,8 @@ VISIBILITY_TUBE = 2.5
 samples then passes within the tube of about 5 of them (1.5 left ~17 % of walls unseen)."""
 
 
-class ContactConfig(BaseModel):
+class ContactConfig(ConfigModel):
     """Settings of contact generation; lengths in metres, angles in degrees."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     min_height: float = Field(
         0.01, ge=0.0, description="no contact below this height: fingers cannot reach under the table"

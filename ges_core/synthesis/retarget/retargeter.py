@@ -20,9 +20,10 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
 from ges_core.collision_points import collision_points
+from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
@@ -57,10 +58,8 @@ __all__ = [
 ]
 
 
-class RetargetConfig(BaseModel):
+class RetargetConfig(ConfigModel):
     """Settings of grasp retargeting."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     roll_deg: float = Field(10.0, description="pronation about the grasp axis, degrees (paper: 10)")
     pitch_deg: float = Field(20.0, description="fingers tilted toward the object about the lateral axis, degrees (20)")

@@ -21,8 +21,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.synthesis.retarget.wrist import HandFrame, TopologyDescriptors, wrist_poses
 
 __all__ = [
@@ -41,10 +42,8 @@ BOX_MARGIN = 0.01
 inside the true surface's bounding box; hand points further out than this are not measured."""
 
 
-class WristSearchConfig(BaseModel):
+class WristSearchConfig(ConfigModel):
     """Which wrist placements retargeting tries (offsets from the paper's placement)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     enabled: bool = Field(True, description="search around the paper's wrist placement (False: the paper's only)")
     # The grid: on the Shadow hand and the 79 x 98 mm demo box, a thumb pose with its pad facing the

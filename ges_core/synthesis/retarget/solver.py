@@ -28,8 +28,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
+from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS
 from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
@@ -46,10 +47,8 @@ _BOUND_EPS = 1e-9
 """Radians: a joint this close to a limit counts as on it (active set)."""
 
 
-class VectorRetargetConfig(BaseModel):
+class VectorRetargetConfig(ConfigModel):
     """Settings of :class:`VectorRetargeter`."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     alpha: float = Field(
         1.0,

@@ -4,9 +4,9 @@ from __future__ import annotations
 
 import copy
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from ges_core.config import parse_model
+from ges_core.config import ConfigModel, parse_model
 from ges_core.objects.library import LibraryConfig
 from ges_core.sim import SceneConfig
 from ges_core.synthesis.contacts.generate import ContactConfig
@@ -18,10 +18,10 @@ from ges_core.synthesis.retarget.retargeter import RetargetConfig
 __all__ = ["SynthesisConfig"]
 
 
-class SynthesisConfig(BaseModel):
+class SynthesisConfig(ConfigModel):
     """Settings of one Stage 1 run; stored as the dataset's ``run_config``."""
 
-    model_config = ConfigDict(extra="forbid", frozen=True, populate_by_name=True)
+    model_config = ConfigDict(populate_by_name=True)  # merged with ConfigModel's
 
     points: int = Field(1024, ge=16, description="surface samples per object point cloud")
     seed: int = Field(0, description="run seed; each object's seed is derived from (seed, object_id)")

@@ -13,9 +13,9 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import Field
 
-from ges_core.config import load_config
+from ges_core.config import ConfigModel, load_config
 from ges_core.dataset import open_dataset
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.pipeline import run_synthesis
@@ -52,10 +52,8 @@ so that the first few already span several categories (``-o objects=3``)."""
 DEMO_CONFIG = Path(__file__).resolve().parents[3] / "configs" / "demo.yaml"
 
 
-class DemoConfig(BaseModel):
+class DemoConfig(ConfigModel):
     """Settings of ``ges demo`` (``configs/demo.yaml``; ``-o key=value`` overrides)."""
-
-    model_config = ConfigDict(extra="forbid", frozen=True)
 
     objects: int | list[str] = Field(
         len(DEMO_OBJECTS), description="how many of the built-in demo objects (first N), or a list of object ids"
