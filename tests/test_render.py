@@ -20,7 +20,6 @@ from ges_core.render import (
     HAND_COLOR,
     OBJECT_COLOR,
     SLOT_COLORS,
-    GraspRenderer,
     RenderConfig,
     Renderer,
     contact_sheet,
@@ -93,8 +92,6 @@ def test_the_registry_builds_the_renderer_a_simulator_offers():
         assert isinstance(first, PybulletRenderer) and isinstance(named, PybulletRenderer)
         assert named.config.size == (64, 48) and first.config == RenderConfig()
         assert named.render(None).shape == (48, 64, 3)
-    with GraspRenderer(RenderConfig(size=(32, 24))) as old_name:  # the old class name still builds one
-        assert isinstance(old_name, PybulletRenderer) and old_name.render(None).shape == (24, 32, 3)
 
 
 def test_no_renderer_says_which_simulators_offer_one():

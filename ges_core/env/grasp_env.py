@@ -28,8 +28,8 @@ import numpy as np
 import torch
 from pydantic import Field
 
-from ges_core.config import ConfigModel
 from ges_core.arrays import as_numpy
+from ges_core.config import ConfigModel
 from ges_core.env.layout import ActionLayout, ObservationLayout
 from ges_core.env.reward import TERMS, RewardConfig, RewardFunction, consistency_groups
 from ges_core.env.rotations import (

@@ -17,8 +17,8 @@ import numpy as np
 import torch
 from pydantic import Field
 
-from ges_core.config import ConfigModel
 from ges_core.arrays import as_numpy
+from ges_core.config import ConfigModel
 
 __all__ = ["EndReason", "SuccessConfig", "SuccessTracker"]
 

@@ -32,7 +32,6 @@ __all__ = [
     "HAND_COLOR",
     "OBJECT_COLOR",
     "SLOT_COLORS",
-    "GraspRenderer",
     "RenderConfig",
     "Renderer",
     "contact_sheet",
@@ -58,11 +57,6 @@ def open_renderer(
 
         registry = load_registry()
     return registry.build_renderer(sim, config)
-
-
-def GraspRenderer(config: RenderConfig | None = None) -> Renderer:  # noqa: N802 - the old class name
-    """The default registry's renderer: ``open_renderer(config=config)`` (kept for the old ``GraspRenderer()``)."""
-    return open_renderer(config=config)
 
 
 def render_grasp(

@@ -20,7 +20,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ges_core.dataset import NOT_RUN, AttemptVerdict, GraspRecord, SimVerdict, StepOutcome, software_versions
-from ges_core.errors import AssetError, SimulationError, SynthesisError
+from ges_core.errors import ArrayError, AssetError, SimulationError, SynthesisError
 from ges_core.synthesis.contacts.generate import generate_contacts
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
@@ -240,7 +240,7 @@ def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gras
         refined = refine_grasp(sim, model, asset, grasp, cfg.refine, thumb_keep=cfg.thumb_keep)
     except AssetError as error:
         return None, StepOutcome.failed("no_collision_model", time.perf_counter() - start), {"refinement": str(error)}
-    except (SynthesisError, SimulationError) as error:
+    except (SynthesisError, SimulationError, ArrayError) as error:  # a non-finite command counts as a blow-up
         outcome = StepOutcome.failed(getattr(error, "reason", "unstable"), time.perf_counter() - start)
         return None, outcome, {"refinement": str(error)}
     verdict = refine_verdict(refined, model, cfg.refine)
@@ -260,7 +260,7 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
     for name in cfg.validate_sims:
         try:
             result = validate_grasp(sims.get(hand, name, asset), model, asset, grasp, pre, cfg.validate_)
-        except SimulationError as error:  # a backend that fails to build or load counts as a blow-up
+        except (SimulationError, ArrayError) as error:  # failing to build or load, or a NaN command: a blow-up
             errors[f"validation_{name}"] = str(error)
             verdicts[name] = SimVerdict(success=False, reason="unstable")
             continue
@@ -302,10 +302,10 @@ def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
     root = state.context.pictures
     if root is None:
         return record
-    from ges_core.render import GraspRenderer, render_record
+    from ges_core.render import open_renderer, render_record
 
     if state.renderer is None:
-        state.renderer = GraspRenderer()
+        state.renderer = open_renderer(state.registry)
     path = picture_path(root, record.object_id, record.hand)
     try:
         asset = state.library.get(record.object_id)
