@@ -300,3 +300,24 @@ def test_config_of_a_dataset_reads_both_layouts(tmp_path):
     new = SynthesisConfig.model_validate({"thumb_keep": 1, "library": {"procedural_count": 2}})
     DatasetWriter(tmp_path / "ds", new.dump()).close()
     assert SynthesisConfig.of_dataset(open_dataset(tmp_path / "ds")) == new
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("step", ["refine_grasp", "validate_grasp"])
+def test_a_non_finite_command_is_recorded_as_unstable_and_the_run_goes_on(tmp_path, monkeypatch, step):
+    """A step whose simulator command turns NaN (the backend's ArrayError) fails that record as 'unstable'."""
+    from ges_core.errors import ArrayError
+    from ges_core.synthesis.run import worker
+
+    def nan_command(*args, **kwargs):
+        raise ArrayError("sapien.set_joint_targets: q holds NaN or inf (at index [0, 3])")
+
+    monkeypatch.setattr(worker, step, nan_command)
+    library = {"sources": ["procedural"], "procedural_count": 1}
+    config = SynthesisConfig.model_validate({"library": library, "validate_sims": ["sapien"], "attempts": 1})
+    run_synthesis(["procedural/box/000"], ["allegro"], config, tmp_path / "ds")  # it refines
+    (record,) = open_dataset(tmp_path / "ds")
+    name = "refinement" if step == "refine_grasp" else "validation"
+    assert record.steps[name].reason == "unstable" and not record.steps[name].ok
+    error = record.errors["refinement" if name == "refinement" else "validation_sapien"]
+    assert "q holds NaN or inf" in error
