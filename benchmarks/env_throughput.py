@@ -44,13 +44,13 @@ import torch
 
 from ges_core.dataset import software_versions
 from ges_core.env.grasp_env import EnvConfig, GraspEnv, GraspTargets
-from ges_core.env.rotations import quat_mul, rotvec_to_quat
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import SimulationError
 from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import grasp_start_pose
+from ges_core.transforms_torch import quat_mul, rotvec_to_quat
 
 from _results import code_state, write_results
 

@@ -16,20 +16,18 @@ picks, among the angle sets that give one rotation, the one nearest the wrist's 
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
 
 from ges_core.errors import ArrayError, ConfigError
-from ges_core.urdf import quat_to_euler_xyz
+from ges_core.transforms import quat_to_euler_xyz
 
 __all__ = [
     "IDENTITY_POSE",
     "PARTNERS",
     "check_env_rows",
     "env_id_list",
-    "euler_xyz",
     "unit_quaternions",
     "unwrap_angles",
     "wrist_coordinates",
@@ -42,9 +40,6 @@ PARTNERS: tuple[str, ...] = ("object", "table", "any")
 """The ``partner`` values :meth:`ges_core.sim.SimBackend.contact_forces` accepts."""
 
 _TURN = 2 * np.pi
-_FEW_ROWS = 8
-"""Up to this many poses :func:`euler_xyz` does its arithmetic on Python floats (a numpy call on a tiny
-array costs ~1 µs of overhead, and a wrist command per env step is the common case)."""
 
 
 def env_id_list(env_ids: Sequence[int] | None, num_envs: int, who: str) -> list[int]:
@@ -96,35 +91,12 @@ def wrist_coordinates(pose: np.ndarray, reference: np.ndarray | None = None) -> 
     """(M, 7) base poses -> (M, 6) wrist joint values x, y, z (m), rx, ry, rz (rad, ``R = Rx Ry Rz``).
 
     reference: (M, 3) angles the new ones are unwrapped toward (:func:`unwrap_angles`); None keeps
-    :func:`ges_core.urdf.quat_to_euler_xyz`'s principal values (a teleport, which has no "before").
+    :func:`ges_core.transforms.quat_to_euler_xyz`'s principal values (a teleport, which has no "before").
     """
-    angles = euler_xyz(pose[:, 3:])
+    angles = quat_to_euler_xyz(pose[:, 3:])
     if reference is not None:
         angles = unwrap_angles(angles, reference)
     return np.concatenate([pose[:, :3], angles], axis=1)
-
-
-def euler_xyz(quat: np.ndarray) -> np.ndarray:
-    """(M, 4) quaternions wxyz -> (M, 3) angles (rx, ry, rz) with ``R = Rx Ry Rz``, bit for bit
-    :func:`ges_core.urdf.quat_to_euler_xyz`.
-
-    Up to ``_FEW_ROWS`` rows the same float64 operations run in the same order on Python floats (IEEE
-    arithmetic, correctly rounded square root) and only arcsin and arctan2 go to numpy, whose results do
-    not depend on the array's length: about 6 µs instead of 28 µs for one pose (``tests/test_sim_args.py``
-    checks the bits).
-    """
-    if len(quat) > _FEW_ROWS:
-        return quat_to_euler_xyz(quat)
-    r02, r12, r22, r01, r00 = [], [], [], [], []
-    for w, x, y, z in quat.tolist():
-        n = math.sqrt(w * w + x * x + y * y + z * z)
-        w, x, y, z = w / n, x / n, y / n, z / n
-        r02.append(min(max(2 * (x * z + w * y), -1.0), 1.0))
-        r12.append(-(2 * (y * z - w * x)))
-        r22.append(1 - 2 * (x * x + y * y))
-        r01.append(-(2 * (x * y - w * z)))
-        r00.append(1 - 2 * (y * y + z * z))
-    return np.stack([np.arctan2(r12, r22), np.arcsin(r02), np.arctan2(r01, r00)], axis=-1).reshape(len(quat), 3)
 
 
 def unwrap_angles(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:

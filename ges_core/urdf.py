@@ -19,8 +19,6 @@ __all__ = [
     "WRIST_JOINTS",
     "add_floating_base",
     "absolutize_mesh_paths",
-    "euler_xyz_to_quat",
-    "quat_to_euler_xyz",
     "strip_render_data",
     "root_link",
     "neighbour_link_pairs",
@@ -111,34 +109,6 @@ def add_floating_base(text: str, *, world_link: str = "ges_world") -> str:
         ET.SubElement(joint, "limit", lower=str(-lim), upper=str(lim), effort="1e6", velocity="100")
         root.append(joint)
     return ET.tostring(root, encoding="unicode")
-
-
-def euler_xyz_to_quat(angles: np.ndarray) -> np.ndarray:
-    """(..., 3) angles (rx, ry, rz) of ``R = Rx Ry Rz`` -> (..., 4) quaternion wxyz."""
-    a = np.asarray(angles, dtype=np.float64) / 2
-    cx, cy, cz = np.cos(a[..., 0]), np.cos(a[..., 1]), np.cos(a[..., 2])
-    sx, sy, sz = np.sin(a[..., 0]), np.sin(a[..., 1]), np.sin(a[..., 2])
-    w = cx * cy * cz - sx * sy * sz
-    x = sx * cy * cz + cx * sy * sz
-    y = cx * sy * cz - sx * cy * sz
-    z = cx * cy * sz + sx * sy * cz
-    return np.stack([w, x, y, z], axis=-1)
-
-
-def quat_to_euler_xyz(quat: np.ndarray) -> np.ndarray:
-    """(..., 4) quaternion wxyz -> (..., 3) angles (rx, ry, rz) with ``R = Rx Ry Rz``."""
-    q = np.asarray(quat, dtype=np.float64)
-    q = q / np.linalg.norm(q, axis=-1, keepdims=True)
-    w, x, y, z = q[..., 0], q[..., 1], q[..., 2], q[..., 3]
-    r02 = 2 * (x * z + w * y)
-    r12 = 2 * (y * z - w * x)
-    r22 = 1 - 2 * (x * x + y * y)
-    r01 = 2 * (x * y - w * z)
-    r00 = 1 - 2 * (y * y + z * z)
-    ry = np.arcsin(np.clip(r02, -1.0, 1.0))
-    rx = np.arctan2(-r12, r22)
-    rz = np.arctan2(-r01, r00)
-    return np.stack([rx, ry, rz], axis=-1)
 
 
 def neighbour_link_pairs(text: str) -> set[frozenset[str]]:

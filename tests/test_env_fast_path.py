@@ -26,23 +26,12 @@ from ges_core.env.reward import (
     direction_variance,
     direction_variance_np,
 )
-from ges_core.env.rotations import (
-    quat_conj,
-    quat_conj_np,
-    quat_mul,
-    quat_mul_np,
-    quat_rotate,
-    quat_to_matrix_np,
-    quat_to_rotvec,
-    quat_to_rotvec_np,
-    rotvec_to_quat,
-    rotvec_to_quat_np,
-)
 from ges_core.env.success import EndReason, SuccessConfig, SuccessTracker
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import SimulationError
 from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
+from ges_core.transforms_torch import quat_conj, quat_mul, quat_rotate, quat_to_rotvec, rotvec_to_quat
 
 N = 5
 LIFT = 0.2
@@ -183,28 +172,6 @@ def _close(a: torch.Tensor, b: torch.Tensor, what: str) -> None:
 
 
 # -- tests ----------------------------------------------------------------------------------------
-def test_numpy_rotations_match_the_torch_helpers() -> None:
-    rng = np.random.default_rng(0)
-    q, p = _unit_quats(rng, (40,)), _unit_quats(rng, (40,))
-    q[:5, 0] = -np.abs(q[:5, 0])  # w < 0: the rotation vector takes the shorter way round
-    q[5] = [1.0, 0.0, 0.0, 0.0]
-    q[6], q[7] = [-0.0, 1.0, 0.0, 0.0], [0.0, 0.0, 1.0, 0.0]  # half turns: -0.0 is not flipped either
-    v = rng.normal(size=(40, 3))
-    v[:3] *= 1e-12  # below the small-angle switch
-    tq, tp, tv = (torch.as_tensor(x) for x in (q, p, v))
-    np.testing.assert_allclose(quat_mul_np(q, p), quat_mul(tq, tp).numpy(), atol=1e-15)
-    np.testing.assert_allclose(quat_conj_np(q), quat_conj(tq).numpy())
-    np.testing.assert_allclose(quat_to_rotvec_np(q), quat_to_rotvec(tq).numpy(), atol=1e-14)
-    np.testing.assert_allclose(rotvec_to_quat_np(v), rotvec_to_quat(tv).numpy(), atol=1e-15)
-    rot = quat_to_matrix_np(q)
-    np.testing.assert_allclose((rot @ v[..., None])[..., 0], quat_rotate(tq, tv).numpy(), atol=1e-14)
-    np.testing.assert_allclose(v[:, None] @ rot, quat_rotate(quat_conj(tq), tv).numpy()[:, None], atol=1e-14)
-    long = q * 1.5  # not unit: still the same linear map as quat_rotate
-    np.testing.assert_allclose(
-        (quat_to_matrix_np(long) @ v[..., None])[..., 0], quat_rotate(torch.as_tensor(long), tv).numpy(), atol=1e-13
-    )
-
-
 def test_reward_function_matches_compute_reward() -> None:
     rng = np.random.default_rng(1)
     n, k = 6, 16

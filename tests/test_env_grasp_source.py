@@ -30,7 +30,7 @@ from ges_core.objects.library import LibraryConfig
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.synthesis import SynthesisConfig, run_synthesis
-from ges_core.synthesis.physics.scene import compose
+from ges_core.transforms import compose
 
 pytestmark = pytest.mark.sim
 FLAT = "user/flat/sheet"
@@ -108,7 +108,7 @@ def test_targets_are_the_record_in_the_world_with_joints_by_name(dataset, graspe
     pose = object_rest_pose(registry, "sapien", asset)
     targets = grasp_targets(record, allegro.description, 3, pose)
     assert targets.q.shape == (3, 16) and targets.wrist_pose.shape == (3, 7)
-    # cross-check with Stage 1's own frame mapping (synthesis.physics.scene.compose) and a fresh scene
+    # cross-check with Stage 1's own frame mapping (ges_core.transforms.compose) and a fresh scene
     with registry.build_sim("sapien", SceneConfig()) as sim:
         sim.load_object(asset)
         world = sim.object_pose()[0]

@@ -8,7 +8,6 @@ import torch
 from scipy.spatial.transform import Rotation
 
 from ges_core.env.layout import BLOCK_DOCS, ActionLayout, ObservationLayout
-from ges_core.env.rotations import quat_conj, quat_mul, quat_rotate, quat_to_rotvec, rotvec_to_quat
 from ges_core.errors import ConfigError
 from ges_core.registry import load_registry
 
@@ -76,20 +75,3 @@ def test_action_layout_maps_limits() -> None:
     assert torch.allclose(dr, torch.tensor([[0.0, 0.0, 0.1]]))  # clipped to 1
     q = torch.tensor([[0.25, 1.5]])
     assert torch.allclose(act.joint_targets(torch.cat([torch.zeros(1, 6), act.normalize_joints(q)], 1)), q)
-
-
-def test_rotations_match_scipy() -> None:
-    rng = np.random.default_rng(0)
-    r = Rotation.random(50, random_state=rng)
-    q = torch.as_tensor(_wxyz(r))
-    assert np.allclose(quat_to_rotvec(q).numpy(), r.as_rotvec(), atol=1e-9)
-    assert np.allclose(quat_to_rotvec(-q).numpy(), r.as_rotvec(), atol=1e-9)
-    back = rotvec_to_quat(torch.as_tensor(r.as_rotvec()))
-    assert np.allclose((back * q).sum(-1).abs().numpy(), 1.0)
-    s = Rotation.random(50, random_state=rng)
-    prod = quat_mul(q, torch.as_tensor(_wxyz(s)))
-    assert np.allclose(np.abs((prod.numpy() * _wxyz(r * s)).sum(-1)), 1.0)
-    v = rng.normal(size=(50, 3))
-    assert np.allclose(quat_rotate(q, torch.as_tensor(v)).numpy(), r.apply(v))
-    assert np.allclose(quat_to_rotvec(quat_mul(q, quat_conj(q))).numpy(), 0.0, atol=1e-7)
-    assert np.allclose(quat_to_rotvec(rotvec_to_quat(torch.zeros(1, 3, dtype=torch.float64))).numpy(), 0.0)

@@ -14,7 +14,7 @@ from helpers_env import build_grasp_env
 
 from ges_core.env.baseline import ScriptedExpert
 from ges_core.env.layout import ActionLayout, ObservationLayout
-from ges_core.env.rotations import quat_conj, quat_mul, quat_to_rotvec
+from ges_core.transforms_torch import quat_conj, quat_mul, quat_to_rotvec
 
 K = 3
 STEP, TURN = 0.005, 0.1

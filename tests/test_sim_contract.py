@@ -20,8 +20,7 @@ from ges_core.errors import ArrayError, ConfigError, SimulationError, UnknownNam
 from ges_core.objects.asset import ObjectAsset, PrimitiveShape
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
-from ges_core.transforms import quat_to_matrix
-from ges_core.urdf import euler_xyz_to_quat
+from ges_core.transforms import euler_xyz_to_quat, quat_to_matrix
 from ges_plugins.sims.pybullet.backend import REST_MARGIN as PYBULLET_REST_MARGIN
 from ges_plugins.sims.pybullet.backend import PybulletBackend
 from ges_plugins.sims.sapien.backend import SapienBackend

@@ -20,7 +20,7 @@ from ges_core.sim import SceneConfig, SimBackend
 from ges_core.sim_check import grasp_start_pose
 from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, PregraspConfig, open_joint_mask, pregrasp
 from ges_core.synthesis.physics.refine import RefineConfig, creep_direction, refine_grasp, refine_verdict
-from ges_core.synthesis.physics.scene import closing_direction, compose, interpolate_pose, relative, stage_scene
+from ges_core.synthesis.physics.scene import closing_direction, stage_scene
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 
 REGISTRY = load_registry(autoload=False)
@@ -184,24 +184,6 @@ def test_pregrasp_rejects_bad_input(allegro, change, message):
 
 
 # -- frames (pure) ----------------------------------------------------------------------------
-def test_pose_helpers_against_scipy():
-    from scipy.spatial.transform import Rotation
-
-    rng = np.random.default_rng(0)
-    a, b = (np.concatenate([rng.normal(size=3), np.roll(Rotation.random(random_state=s).as_quat(), 1)]) for s in (1, 2))
-
-    def canonical(pose):  # q and -q are one rotation: compare with w >= 0
-        return np.concatenate([pose[:3], pose[3:] * np.sign(pose[3])])
-
-    np.testing.assert_allclose(canonical(compose(a, relative(a, b))), canonical(b), atol=1e-12)
-    np.testing.assert_allclose(canonical(interpolate_pose(a, b, 0.0)), canonical(a), atol=1e-12)
-    np.testing.assert_allclose(canonical(interpolate_pose(a, b, 1.0)), canonical(b), atol=1e-12)
-    mid = interpolate_pose(a, b, 0.5)
-    ra, rb, rm = (Rotation.from_quat(np.roll(p[3:], -1)) for p in (a, b, mid))
-    assert (ra.inv() * rm).magnitude() == pytest.approx((ra.inv() * rb).magnitude() / 2)
-    np.testing.assert_allclose(mid[:3], (a[:3] + b[:3]) / 2)
-
-
 @pytest.mark.parametrize("hand_name", ["allegro", "shadow"])
 def test_creep_moves_every_fingertip_toward_what_it_opposes(hand_name):
     """Finite differences through forward kinematics (not the Jacobian the creep is built from): a small step

@@ -5,15 +5,12 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import torch
-from scipy.spatial.transform import Rotation
 
 from ges_core.errors import AssetError
-from ges_core.transforms import matrix_to_pose, pose_to_matrix, quat_mul, quat_to_matrix
+from ges_core.transforms import euler_xyz_to_quat, pose_to_matrix
 from ges_core.urdf import (
     WRIST_JOINTS,
     add_floating_base,
-    euler_xyz_to_quat,
-    quat_to_euler_xyz,
     root_link,
     strip_render_data,
 )
@@ -21,28 +18,6 @@ from ges_core.urdf import (
 from conftest import EXAMPLE_HAND_PKG
 
 GRIPPER = (EXAMPLE_HAND_PKG / "ges_example_hand" / "gripper.urdf").read_text()
-
-
-def test_euler_matches_scipy_intrinsic_xyz():
-    angles = np.random.default_rng(0).uniform(-1.5, 1.5, size=(200, 3))
-    ours = euler_xyz_to_quat(angles)
-    ref = Rotation.from_euler("XYZ", angles).as_quat()[:, [3, 0, 1, 2]]
-    assert np.allclose(np.abs((ours * ref).sum(axis=1)), 1.0)
-    assert np.allclose(quat_to_euler_xyz(ours), angles)
-
-
-def test_pose_matrix_round_trip():
-    rng = np.random.default_rng(1)
-    quat = Rotation.random(50, random_state=2).as_quat()[:, [3, 0, 1, 2]]
-    quat *= np.sign(quat[:, :1])
-    pose = np.concatenate([rng.normal(size=(50, 3)), quat], axis=1)
-    assert np.allclose(matrix_to_pose(pose_to_matrix(pose)), pose)
-
-
-def test_quat_mul_composes_rotations_like_scipy():
-    a, b = Rotation.random(20, random_state=3), Rotation.random(20, random_state=4)
-    wxyz = lambda r: r.as_quat()[:, [3, 0, 1, 2]]  # noqa: E731
-    np.testing.assert_allclose(quat_to_matrix(quat_mul(wxyz(a), wxyz(b))), (a * b).as_matrix(), atol=1e-12)
 
 
 def test_floating_base_moves_root_like_the_pose():

@@ -34,10 +34,10 @@ from __future__ import annotations
 import torch
 
 from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
-from ges_core.env.rotations import interpolate_pose, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 from ges_core.hand import HandModel
 from ges_core.policy import Expert
 from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
+from ges_core.transforms_torch import interpolate_pose, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 
 __all__ = ["ScriptedExpert"]
 

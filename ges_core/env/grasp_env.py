@@ -32,20 +32,21 @@ from ges_core.arrays import as_numpy
 from ges_core.config import ConfigModel
 from ges_core.env.layout import ActionLayout, ObservationLayout
 from ges_core.env.reward import TERMS, RewardConfig, RewardFunction, consistency_groups
-from ges_core.env.rotations import (
-    interpolate_pose,
-    quat_conj_np,
-    quat_mul_np,
-    quat_to_matrix_np,
-    quat_to_rotvec_np,
-    rotvec_to_quat_np,
-)
 from ges_core.env.success import EndReason, SuccessConfig, SuccessTracker
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
-from ges_core.transforms import matrix_to_pose, rotation_between_frames
+from ges_core.transforms import (
+    matrix_to_pose,
+    quat_conj,
+    quat_mul,
+    quat_to_rotvec,
+    rotation_between_frames,
+    rotvec_to_quat,
+    unit_quat_to_matrix,
+)
+from ges_core.transforms_torch import interpolate_pose
 
 _UNSTABLE = int(EndReason.UNSTABLE)  # plain ints: numpy compares IntEnum members several times slower
 
@@ -225,7 +226,7 @@ class GraspEnv:
         wt = self.wrist_target
         target = np.empty_like(wt)
         np.add(wt[:, :3], delta[:, :3], out=target[:, :3])
-        quat_mul_np(rotvec_to_quat_np(delta[:, 3:]), wt[:, 3:], out=target[:, 3:])
+        quat_mul(rotvec_to_quat(delta[:, 3:]), wt[:, 3:], out=target[:, 3:])
         self.wrist_target = target
         self.sim.set_wrist_targets(target)
         self.sim.set_joint_targets(self.act_layout.joint_targets_np(a))
@@ -280,13 +281,13 @@ class GraspEnv:
         """
         n, f = len(q), len(self.tip_links)
         ab, wv, rv = self._quat_buf  # (2, n, 4): goal, wrist; (2, n, 4): wrist, previous wrist; (3, n, 4)
-        rot = quat_to_matrix_np(np.concatenate([wrist[:, None, 3:], tips[..., 3:]], axis=1))  # (n, 1 + F, 3, 3)
+        rot = unit_quat_to_matrix(np.concatenate([wrist[:, None, 3:], tips[..., 3:]], axis=1))  # (n, 1 + F, 3, 3)
         tip_world = tips[..., :3] + (rot[:, 1:] @ self._tip_offsets)[..., 0]
         wpos, wq, prev = wrist[:, :3], wrist[:, 3:], self.wrist_prev
         local = np.concatenate([forces[:, :f], tip_world - wpos[:, None]], axis=1) @ rot[:, 0]  # v @ R = R^T v
         ab[0], ab[1], wv[0], wv[1], rv[0] = self._goal_pose[:, 3:], wq, wq, prev[:, 3:], wq
-        quat_mul_np(ab, quat_conj_np(wv), out=rv[1:])  # goal * wrist^-1, wrist * previous^-1
-        rotvec = quat_to_rotvec_np(rv)  # (3, n, 3): wrist, goal rotation, turn since the last observation
+        quat_mul(ab, quat_conj(wv), out=rv[1:])  # goal * wrist^-1, wrist * previous^-1
+        rotvec = quat_to_rotvec(rv)  # (3, n, 3): wrist, goal rotation, turn since the last observation
         vel = np.concatenate([wpos - prev[:, :3], rotvec[2]], axis=1) / self.control_dt
         self.wrist_prev = wrist
         blocks = {

@@ -34,7 +34,7 @@ from ges_core.hand import HandDescription
 from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.splits import SPLITS
 from ges_core.sim import SceneConfig
-from ges_core.synthesis.physics.scene import compose
+from ges_core.transforms import compose
 
 __all__ = [
     "SELECTIONS",

@@ -43,15 +43,14 @@ from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, open_joint_mask
 from ges_core.synthesis.physics.scene import (
     check_grasp,
     closing_direction,
-    compose,
     finger_joint_indices,
     hand_contacts,
-    relative,
     stage_scene,
     tip_forces,
 )
 from ges_core.synthesis.physics.squeeze import press_torques
 from ges_core.synthesis.types import Grasp, RefinedGrasp
+from ges_core.transforms import compose, relative
 
 __all__ = ["RefineConfig", "refine_grasp", "refine_verdict"]
 

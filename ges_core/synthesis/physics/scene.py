@@ -18,18 +18,14 @@ from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
 from ges_core.synthesis.types import Grasp
-from ges_core.transforms import matrix_to_pose, pose_to_matrix
 
 __all__ = [
     "TOUCH_SEPARATION",
     "HandContacts",
     "check_grasp",
     "closing_direction",
-    "compose",
     "finger_joint_indices",
     "hand_contacts",
-    "interpolate_pose",
-    "relative",
     "stage_scene",
     "tip_forces",
     "tip_rule",
@@ -82,30 +78,6 @@ def check_grasp(description: HandDescription, grasp: Grasp, what: str) -> None:
         problems.append("its wrist quaternion is zero")
     if problems:
         raise ConfigError(f"{what}: bad grasp: {'; '.join(problems)}; check the step that produced it")
-
-
-def compose(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(7,) pose ``a * b``: ``b`` given in ``a``'s frame, returned in ``a``'s parent frame."""
-    return matrix_to_pose(pose_to_matrix(a) @ pose_to_matrix(b))
-
-
-def relative(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """(7,) pose of ``b`` in the frame ``a`` (both (7,) in one parent frame): ``a^-1 * b``."""
-    return matrix_to_pose(np.linalg.inv(pose_to_matrix(a)) @ pose_to_matrix(b))
-
-
-def interpolate_pose(a: np.ndarray, b: np.ndarray, t: float) -> np.ndarray:
-    """(7,) pose ``t`` of the way from ``a`` to ``b``: linear position, spherical (slerp) rotation."""
-    qa, qb = a[3:] / np.linalg.norm(a[3:]), b[3:] / np.linalg.norm(b[3:])
-    dot = float(qa @ qb)
-    if dot < 0.0:  # the shorter way round
-        qb, dot = -qb, -dot
-    angle = np.arccos(min(1.0, dot))
-    if angle < 1e-6:
-        quat = qa + t * (qb - qa)
-    else:
-        quat = (np.sin((1 - t) * angle) * qa + np.sin(t * angle) * qb) / np.sin(angle)
-    return np.concatenate([a[:3] + t * (b[:3] - a[:3]), quat / np.linalg.norm(quat)])
 
 
 def closing_direction(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:

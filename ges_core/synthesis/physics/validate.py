@@ -44,14 +44,13 @@ from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
 from ges_core.synthesis.physics.scene import (
     check_grasp,
-    compose,
-    interpolate_pose,
     stage_scene,
     tip_forces,
     tip_rule,
 )
 from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 from ges_core.synthesis.types import Grasp, ValidationResult
+from ges_core.transforms import compose, interpolate_pose
 
 __all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "validate_grasp"]
 

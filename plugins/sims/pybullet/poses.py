@@ -2,12 +2,15 @@
 
 GES-UniGrasp poses are ``(..., 7)``: position (m) then a unit quaternion **w, x, y, z**.
 PyBullet speaks **x, y, z, w**; every conversion between the two happens here, so the backend
-never hands a raw PyBullet quaternion to its caller.
+never hands a raw PyBullet quaternion to its caller (the order swaps themselves are
+:mod:`ges_core.transforms`'s, re-exported here).
 """
 
 from __future__ import annotations
 
 import numpy as np
+
+from ges_core.transforms import wxyz_to_xyzw, xyzw_to_wxyz
 
 __all__ = [
     "IDENTITY_POSE",
@@ -19,18 +22,6 @@ __all__ = [
 
 IDENTITY_POSE = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
 """(7,) the identity pose, wxyz."""
-
-
-def wxyz_to_xyzw(quat: np.ndarray) -> np.ndarray:
-    """(..., 4) w, x, y, z -> (..., 4) x, y, z, w."""
-    q = np.asarray(quat, dtype=np.float64)
-    return np.concatenate([q[..., 1:], q[..., :1]], axis=-1)
-
-
-def xyzw_to_wxyz(quat: np.ndarray) -> np.ndarray:
-    """(..., 4) x, y, z, w -> (..., 4) w, x, y, z."""
-    q = np.asarray(quat, dtype=np.float64)
-    return np.concatenate([q[..., 3:], q[..., :3]], axis=-1)
 
 
 def to_pybullet(pose: np.ndarray) -> tuple[list[float], list[float]]:

@@ -27,6 +27,7 @@ from ges_core.errors import AssetError, BackendUnavailable, UnknownNameError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.render.base import HAND_COLOR, OBJECT_COLOR, SLOT_COLORS, TABLE_COLOR, RenderConfig, Renderer
+from ges_core.transforms import quat_from_z_axis, wxyz_to_xyzw
 
 __all__ = ["MIN_RADIUS", "PybulletRenderer"]
 
@@ -48,22 +49,6 @@ def _mesh_bounds(path: str) -> np.ndarray:
     if len(getattr(mesh, "vertices", ())) == 0:
         raise AssetError(f"mesh {path} has no vertices")
     return np.asarray(mesh.bounds, dtype=np.float64)
-
-
-def _xyzw(wxyz: Sequence[float]) -> list[float]:
-    return [float(wxyz[1]), float(wxyz[2]), float(wxyz[3]), float(wxyz[0])]
-
-
-def _quat_z_to(direction: np.ndarray) -> list[float]:
-    """PyBullet quaternion (xyzw) turning +z onto ``direction``."""
-    z = np.array([0.0, 0.0, 1.0])
-    d = direction / np.linalg.norm(direction)
-    axis, c = np.cross(z, d), float(z @ d)
-    if np.linalg.norm(axis) < 1e-9:
-        return [0.0, 0.0, 0.0, 1.0] if c > 0 else [1.0, 0.0, 0.0, 0.0]
-    axis = axis / np.linalg.norm(axis)
-    half = math.acos(max(-1.0, min(1.0, c))) / 2
-    return [*(axis * math.sin(half)).tolist(), math.cos(half)]
 
 
 class PybulletRenderer(Renderer):
@@ -204,7 +189,8 @@ class PybulletRenderer(Renderer):
                 ("stick", slot), shapeType=p.GEOM_CYLINDER, radius=0.0012, length=cfg.normal_length, rgbaColor=color
             )
             bodies.append(self._temp_body(ball, pos))
-            bodies.append(self._temp_body(stick, pos + nrm * cfg.normal_length / 2, _quat_z_to(nrm)))
+            along_normal = wxyz_to_xyzw(quat_from_z_axis(nrm)).tolist()
+            bodies.append(self._temp_body(stick, pos + nrm * cfg.normal_length / 2, along_normal))
         return bodies, contacts.positions + contacts.normals * cfg.normal_length
 
     def _load_hand(self, hand: HandModel) -> tuple[int, dict[str, int]]:
@@ -228,7 +214,7 @@ class PybulletRenderer(Renderer):
         # PyBullet places a base by its inertial frame, not its link frame: compose the two.
         inertial_pos, inertial_orn = self._p.getDynamicsInfo(body, -1, physicsClientId=self._cid)[3:5]
         pos, orn = self._p.multiplyTransforms(
-            wrist_pose[:3].tolist(), _xyzw(wrist_pose[3:]), inertial_pos, inertial_orn
+            wrist_pose[:3].tolist(), wxyz_to_xyzw(wrist_pose[3:]).tolist(), inertial_pos, inertial_orn
         )
         self._p.resetBasePositionAndOrientation(body, pos, orn, physicsClientId=self._cid)
         return body
