@@ -5,6 +5,10 @@ with one message naming who was called, what the argument holds and the shape it
 
     sapien.set_hand_state: q has shape (2, 16), expected (3, 16) (one row per env, hand joint_names order)
 
+Where a bad array is one object's data rather than a caller's mistake, Stage 1 records it instead of raising: the
+contact step turns an empty or NaN point cloud into that object's failed step (``SynthesisError`` with a reason
+such as ``nan_in_cloud``), and refinement and validation record a non-finite command as ``unstable``; the run goes on.
+
 Checks never normalise or round: a checked array holds the caller's values, as float64 unless another
 dtype is asked for (tensors are read through :func:`as_numpy`, without a copy where none is needed).
 """

@@ -15,7 +15,8 @@ from pathlib import Path
 
 import numpy as np
 
-from ges_core.errors import AssetError
+from ges_core.arrays import checked_array
+from ges_core.errors import ArrayError, AssetError
 from ges_core.paths import atomic_write_text
 
 __all__ = ["FINGER_SLOTS", "ContactSet"]
@@ -41,18 +42,12 @@ class ContactSet:
     meta: dict = field(default_factory=dict)
 
     def __post_init__(self) -> None:
-        pos = np.asarray(self.positions, dtype=np.float64)
-        nrm = np.asarray(self.normals, dtype=np.float64)
-        n = len(FINGER_SLOTS)
-        if pos.shape != (n, 3) or nrm.shape != (n, 3):
-            raise ValueError(
-                f"ContactSet needs positions and normals of shape ({n}, 3); got {pos.shape} and {nrm.shape}"
-            )
-        if not (np.isfinite(pos).all() and np.isfinite(nrm).all()):
-            raise ValueError("ContactSet positions and normals must be finite (found NaN or inf)")
+        shape, layout = (len(FINGER_SLOTS), 3), f"one row per slot: {', '.join(FINGER_SLOTS)}; object frame"
+        pos = checked_array(self.positions, shape, "ContactSet: positions", layout=layout)
+        nrm = checked_array(self.normals, shape, "ContactSet: normals", layout=layout)
         lengths = np.linalg.norm(nrm, axis=1)
         if np.any(lengths < 1e-9):
-            raise ValueError("ContactSet normals must be non-zero")
+            raise ArrayError(f"ContactSet: normals of rows {np.flatnonzero(lengths < 1e-9).tolist()} are zero")
         object.__setattr__(self, "positions", pos)
         object.__setattr__(self, "normals", nrm / lengths[:, None])
 

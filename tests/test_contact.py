@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from ges_core.contact import FINGER_SLOTS, ContactSet
-from ges_core.errors import AssetError
+from ges_core.errors import ArrayError, AssetError
 
 
 def _random_set(seed: int = 0) -> ContactSet:
@@ -47,13 +47,13 @@ def test_transform_preserves_distances_and_rotates_normals():
 @pytest.mark.parametrize(
     ("positions", "normals", "message"),
     [
-        (np.zeros((4, 3)), np.ones((4, 3)), "shape"),
-        (np.full((5, 3), np.nan), np.ones((5, 3)), "finite"),
-        (np.zeros((5, 3)), np.zeros((5, 3)), "non-zero"),
+        (np.zeros((4, 3)), np.ones((4, 3)), r"ContactSet: positions has shape \(4, 3\), expected \(5, 3\)"),
+        (np.full((5, 3), np.nan), np.ones((5, 3)), r"ContactSet: positions holds NaN or inf \(at index \[0, 0\]"),
+        (np.zeros((5, 3)), np.zeros((5, 3)), r"ContactSet: normals of rows \[0, 1, 2, 3, 4\] are zero"),
     ],
 )
 def test_invalid_sets_rejected(positions, normals, message):
-    with pytest.raises(ValueError, match=message):
+    with pytest.raises(ArrayError, match=message):
         ContactSet(positions, normals)
 
 

@@ -10,11 +10,13 @@ from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
 from ges_core.env.baseline import ScriptedExpert
-from ges_core.env.grasp_env import GraspEnv, GraspTargets
+from ges_core.env.grasp_env import EnvConfig, GraspEnv, GraspTargets
 from ges_core.env.success import EndReason
 from ges_core.env.vec_env import GraspVecEnv
-from ges_core.errors import ConfigError, SimulationError
+from ges_core.errors import ArrayError, SimulationError
+from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig
 from ges_core.synthesis.physics.squeeze import squeeze_targets
 from ges_core.synthesis.physics.validate import ValidateConfig
 
@@ -122,8 +124,13 @@ def test_grasp_targets_are_checked() -> None:
     hand = reg.build_hand("allegro")
     g = grasp_targets(hand, N)
     bad = GraspTargets(g.wrist_pose, g.q[:, :15], g.pre_wrist_pose, g.pre_q)
-    with pytest.raises(ConfigError, match=r"GraspTargets: shapes \{'q': \(2, 15\)\} should be"):
-        GraspEnv._check_grasps(bad, hand.description.num_joints)
+    sim = reg.build_sim("sapien", SceneConfig(num_envs=N))
+    with pytest.raises(ArrayError, match=r"GraspTargets: q has shape \(2, 15\), expected \(2, 16\)"):
+        GraspEnv(sim, hand, box_asset(), bad, EnvConfig())
+    nan = GraspTargets(g.wrist_pose, g.q, g.pre_wrist_pose * np.nan, g.pre_q)
+    with pytest.raises(ArrayError, match=r"GraspTargets: pre_wrist_pose holds NaN or inf"):
+        GraspEnv(sim, hand, box_asset(), nan, EnvConfig())
+    sim.close()
 
 
 def test_scripted_expert_with_a_hand_closes_to_the_stage1_squeeze() -> None:

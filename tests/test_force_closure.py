@@ -8,7 +8,7 @@ from pydantic import ValidationError
 from scipy.optimize import linprog
 from scipy.spatial import ConvexHull
 
-from ges_core.errors import SynthesisError
+from ges_core.errors import ArrayError
 from ges_core.synthesis.contacts.force_closure import (
     ForceClosureConfig,
     cone_forces,
@@ -146,15 +146,14 @@ def test_config_defaults_and_validation():
 @pytest.mark.parametrize(
     ("pos", "nrm", "needle"),
     [
-        (np.zeros((2, 2)), np.zeros((2, 2)), "shape (n, 3)"),
-        (np.zeros((0, 3)), np.zeros((0, 3)), "shape (n, 3)"),
-        (np.zeros((2, 3)), np.ones((3, 3)), "shape (n, 3)"),
-        (np.full((2, 3), np.nan), np.ones((2, 3)), "NaN/inf"),
-        (np.zeros((2, 3)), np.zeros((2, 3)), "zero normal"),
+        (np.zeros((2, 2)), np.zeros((2, 2)), "contact positions has shape (2, 2), expected (N, 3)"),
+        (np.zeros((0, 3)), np.zeros((0, 3)), "give at least one contact"),
+        (np.zeros((2, 3)), np.ones((3, 3)), "contact normals has shape (3, 3), expected (2, 3)"),
+        (np.full((2, 3), np.nan), np.ones((2, 3)), "contact positions holds NaN or inf"),
+        (np.zeros((2, 3)), np.zeros((2, 3)), "give at least one contact, each with a non-zero outward normal"),
     ],
 )
-def test_malformed_input_raises_bad_input(pos, nrm, needle):
-    with pytest.raises(SynthesisError) as err:
+def test_malformed_input_raises_one_array_error(pos, nrm, needle):
+    with pytest.raises(ArrayError) as err:
         ferrari_canny(pos, nrm)
-    assert err.value.reason == "bad_input"
-    assert needle in str(err.value)
+    assert f"ferrari_canny: {needle}" in str(err.value)

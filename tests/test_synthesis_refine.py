@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 
-from ges_core.errors import ConfigError, SimulationError, SynthesisError
+from ges_core.errors import ArrayError, ConfigError, SimulationError, SynthesisError
 from ges_core.kinematics import HandKinematics
 from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
@@ -163,22 +163,22 @@ def test_pregrasp_half_open_respects_couplings():
 
 
 @pytest.mark.parametrize(
-    ("change", "message"),
+    ("change", "error", "message"),
     [
-        ({"approach": np.zeros(3)}, "approach must be a finite, non-zero (3,) direction"),
-        ({"approach": np.array([0.0, np.nan, 1.0])}, "approach must be a finite, non-zero (3,) direction"),
-        ({"hand": "shadow"}, "it is for hand 'shadow', not 'allegro'"),
-        ({"q": np.zeros(3)}, "q has shape (3,), expected (16,)"),
-        ({"q": np.full(16, np.nan)}, "NaN or inf"),
-        ({"wrist_pose": np.zeros(7)}, "wrist quaternion is zero"),
-        ({"wrist_pose": np.zeros((4, 4))}, "wrist_pose has shape (4, 4), expected (7,)"),
+        ({"approach": np.zeros(3)}, ArrayError, "pregrasp: approach is a zero vector"),
+        ({"approach": np.array([0.0, np.nan, 1.0])}, ArrayError, "pregrasp: approach holds NaN or inf"),
+        ({"hand": "shadow"}, ConfigError, "pregrasp: bad grasp: it is for hand 'shadow', not 'allegro'"),
+        ({"q": np.zeros(3)}, ArrayError, "pregrasp: grasp q has shape (3,), expected (16,)"),
+        ({"q": np.full(16, np.nan)}, ArrayError, "pregrasp: grasp q holds NaN or inf"),
+        ({"wrist_pose": np.zeros(7)}, ArrayError, "pregrasp: grasp wrist_pose has a zero quaternion"),
+        ({"wrist_pose": np.zeros((4, 4))}, ArrayError, "pregrasp: grasp wrist_pose has shape (4, 4), expected (7,)"),
     ],
 )
-def test_pregrasp_rejects_bad_input(allegro, change, message):
+def test_pregrasp_rejects_bad_input(allegro, change, error, message):
     grasp = top_grasp(allegro)
     approach = change.pop("approach", DOWN)
     fields = {"hand": grasp.hand, "wrist_pose": grasp.wrist_pose, "q": grasp.q, **change}
-    with pytest.raises(ConfigError) as info:
+    with pytest.raises(error) as info:
         pregrasp(allegro, Grasp(**fields), approach)
     assert message in str(info.value)
 

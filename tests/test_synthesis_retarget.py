@@ -17,7 +17,7 @@ from pydantic import ValidationError
 
 from ges_core.collision_points import collision_points
 from ges_core.contact import FINGER_SLOTS, ContactSet
-from ges_core.errors import AssetError, SynthesisError
+from ges_core.errors import ArrayError, AssetError, SynthesisError
 from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics
 from ges_core.objects.pointcloud import sample_surface
@@ -394,20 +394,20 @@ def test_nan_and_wrongly_shaped_targets_are_refused(solvers):
     solver = solvers["allegro"]
     bad = torch.zeros(3, 5, 3, dtype=torch.float64)
     bad[1, 2, 0] = float("nan")
-    with pytest.raises(ValueError, match=r"NaN or inf \(grasps \[1\]\)"):
+    with pytest.raises(ArrayError, match=r"retargeting: targets holds NaN or inf \(at index \[1, 2, 0\]\)"):
         solver.solve(bad)
-    with pytest.raises(ValueError, match=r"shape \(B, 5, 3\).*got \(3, 4, 3\)"):
+    with pytest.raises(ArrayError, match=r"targets has shape \(3, 4, 3\), expected \(N, 5, 3\) \(one per slot"):
         solver.solve(torch.zeros(3, 4, 3))
-    with pytest.raises(ValueError, match=r"q_init must be a finite \(3, 16\) tensor in 'allegro' joint order"):
+    with pytest.raises(ArrayError, match=r"q_init has shape \(3, 15\), expected \(3, 16\).*'allegro' joint order"):
         solver.solve(torch.zeros(3, 5, 3), q_init=torch.zeros(3, 15))
-    with pytest.raises(ValueError, match="q_prev .* with NaN or inf"):
+    with pytest.raises(ArrayError, match="retargeting: q_prev holds NaN or inf"):
         solver.solve(torch.zeros(3, 5, 3), q_prev=torch.full((3, 16), float("nan")))
 
 
 def test_nan_and_wrongly_shaped_contacts_are_refused():
-    with pytest.raises(ValueError, match=r"contact positions contain NaN or inf \(contact sets \[0\]\)"):
+    with pytest.raises(ArrayError, match=r"contact positions holds NaN or inf \(at index \[0, 0\]"):
         check_contact_array(np.full((5, 3), np.nan))
-    with pytest.raises(ValueError, match=r"shape \(B, 5, 3\) or \(5, 3\).*got \(4, 3\)"):
+    with pytest.raises(ArrayError, match=r"contact positions has shape \(4, 3\), expected \(5, 3\)"):
         topology_descriptors(np.zeros((4, 3)))
 
 

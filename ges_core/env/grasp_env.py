@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from pydantic import Field
 
-from ges_core.arrays import as_numpy
+from ges_core.arrays import as_numpy, checked_array
 from ges_core.config import ConfigModel
 from ges_core.env.layout import ActionLayout, ObservationLayout
 from ges_core.env.reward import TERMS, RewardConfig, RewardFunction, consistency_groups
@@ -141,14 +141,11 @@ class GraspEnv:
         sim.load_hand(hand, floating=True)
         sim.load_object(obj)
 
-    @staticmethod
-    def _check_grasps(g: GraspTargets, k: int) -> None:
-        rows = {name: np.asarray(v).shape for name, v in vars(g).items()}
-        n = rows["q"][0] if rows["q"] else 0
-        want = {"wrist_pose": (n, 7), "q": (n, k), "pre_wrist_pose": (n, 7), "pre_q": (n, k)}
-        bad = {name: shape for name, shape in rows.items() if shape != want[name]}
-        if bad or not all(np.isfinite(np.asarray(v)).all() for v in vars(g).values()):
-            raise ConfigError(f"GraspTargets: shapes {bad or rows} should be {want} (K={k}), all values finite")
+    def _check_grasps(self, g: GraspTargets, k: int) -> None:
+        """ArrayError unless every field holds one finite row per env: poses (n, 7), joints (n, K)."""
+        for name, value in vars(g).items():
+            width, layout = (7, "x, y, z, qw, qx, qy, qz, world") if "pose" in name else (k, "hand joint_names order")
+            checked_array(value, (self.n, width), f"GraspTargets: {name}", layout=f"one row per env; {layout}")
 
     # -- resets ----------------------------------------------------------------------------
     def reset_all(self) -> None:

@@ -27,6 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ges_core.arrays import checked_poses
 from ges_core.dataset import Dataset, GraspRecord, open_dataset
 from ges_core.env.grasp_env import GraspTargets
 from ges_core.errors import AssetError, ConfigError
@@ -202,11 +203,8 @@ def grasp_targets(
 
 
 def _checked_pose(pose: np.ndarray) -> np.ndarray:
-    """(7,) float64 ``pose``; ConfigError unless finite with a non-zero quaternion."""
-    pose = np.asarray(pose, dtype=np.float64)
-    if pose.shape != (7,) or not np.isfinite(pose).all() or np.linalg.norm(pose[3:]) < 1e-9:
-        raise ConfigError(f"grasp_targets: object_pose must be a finite (7,) pose x, y, z, qw, qx, qy, qz; got {pose}")
-    return pose
+    """(7,) float64 ``pose``; ArrayError unless finite with a non-zero quaternion."""
+    return checked_poses(pose, None, "grasp_targets: object_pose")
 
 
 def _joint_order(record: GraspRecord, hand: HandDescription) -> np.ndarray:

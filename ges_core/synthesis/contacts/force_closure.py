@@ -20,8 +20,9 @@ import numpy as np
 from pydantic import Field
 from scipy.spatial import ConvexHull, QhullError
 
+from ges_core.arrays import checked_array
 from ges_core.config import ConfigModel
-from ges_core.errors import SynthesisError
+from ges_core.errors import ArrayError
 
 __all__ = [
     "ForceClosureConfig",
@@ -117,7 +118,7 @@ def ferrari_canny(
     positions, normals: (n, 3), object frame, metres, outward unit normals. See the module
     docstring for the model and :func:`primitive_wrenches` for ``center`` and ``radius``.
     Translating contacts and centre together leaves epsilon unchanged; so does scaling them together
-    when ``torque_scale`` is None. Raises SynthesisError(reason="bad_input") for malformed input.
+    when ``torque_scale`` is None. Raises ArrayError for malformed input.
     """
     pos, nrm = _checked(positions, normals)
     wrenches = primitive_wrenches(pos, nrm, config, center=center, radius=radius)
@@ -125,19 +126,11 @@ def ferrari_canny(
 
 
 def _checked(positions, normals) -> tuple[np.ndarray, np.ndarray]:
-    """float64 (n, 3) copies; SynthesisError(reason="bad_input") for wrong shapes or non-finite values."""
-    pos, nrm = np.asarray(positions, dtype=np.float64), np.asarray(normals, dtype=np.float64)
-    if pos.ndim != 2 or pos.shape[1:] != (3,) or nrm.shape != pos.shape or len(pos) == 0:
-        raise SynthesisError(
-            f"ferrari_canny needs contact positions and normals of one shape (n, 3), n >= 1; got {pos.shape} and "
-            f"{nrm.shape}",
-            reason="bad_input",
-        )
-    if not (np.isfinite(pos).all() and np.isfinite(nrm).all()) or np.any(np.linalg.norm(nrm, axis=1) < 1e-12):
-        raise SynthesisError(
-            "ferrari_canny got NaN/inf contact positions or normals, or a zero normal; pass finite outward normals",
-            reason="bad_input",
-        )
+    """float64 (n, 3) positions and normals, n >= 1; ArrayError for wrong shapes, NaN/inf or a zero normal."""
+    pos = checked_array(positions, (None, 3), "ferrari_canny: contact positions", layout="object frame, metres")
+    nrm = checked_array(normals, (len(pos), 3), "ferrari_canny: contact normals", layout="outward, one per position")
+    if len(pos) == 0 or np.any(np.linalg.norm(nrm, axis=1) < 1e-12):
+        raise ArrayError("ferrari_canny: give at least one contact, each with a non-zero outward normal")
     return pos, nrm
 
 

@@ -20,8 +20,9 @@ from __future__ import annotations
 import numpy as np
 from pydantic import Field
 
+from ges_core.arrays import checked_array
 from ges_core.config import ConfigModel
-from ges_core.errors import ConfigError
+from ges_core.errors import ArrayError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.synthesis.physics.scene import check_grasp
 from ges_core.synthesis.types import Grasp
@@ -80,11 +81,8 @@ def open_joint_mask(description: HandDescription, thumb_keep: int) -> np.ndarray
 
 
 def _unit(approach: np.ndarray) -> np.ndarray:
-    """``approach`` as a (3,) unit vector, or a ConfigError saying what is wrong with it."""
-    v = np.asarray(approach, dtype=np.float64)
-    if v.shape != (3,) or not np.all(np.isfinite(v)) or np.linalg.norm(v) < 1e-9:
-        raise ConfigError(
-            f"pregrasp: approach must be a finite, non-zero (3,) direction in the object frame, got {v.tolist()}; "
-            "pass ContactResult.approach"
-        )
+    """``approach`` as a (3,) unit vector, or an ArrayError saying what is wrong with it."""
+    v = checked_array(approach, (3,), "pregrasp: approach", layout="a direction in the object frame")
+    if np.linalg.norm(v) < 1e-9:
+        raise ArrayError("pregrasp: approach is a zero vector; pass ContactResult.approach")
     return v / np.linalg.norm(v)

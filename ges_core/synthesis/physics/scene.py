@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ges_core.arrays import checked_array, checked_poses
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
@@ -63,21 +64,12 @@ def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset, *, fixed: bo
 
 
 def check_grasp(description: HandDescription, grasp: Grasp, what: str) -> None:
-    """ConfigError unless ``grasp`` belongs to this hand and holds a finite (7,) pose and (K,) joints."""
-    q, pose = np.asarray(grasp.q, dtype=np.float64), np.asarray(grasp.wrist_pose, dtype=np.float64)
-    problems = []
+    """ConfigError unless ``grasp`` belongs to this hand; ArrayError unless it holds a finite (7,) pose with a
+    non-zero quaternion and (K,) joints."""
     if grasp.hand != description.name:
-        problems.append(f"it is for hand '{grasp.hand}', not '{description.name}'")
-    if q.shape != (description.num_joints,):
-        problems.append(f"q has shape {q.shape}, expected ({description.num_joints},) in joint_names order")
-    if pose.shape != (7,):
-        problems.append(f"wrist_pose has shape {pose.shape}, expected (7,) x, y, z, qw, qx, qy, qz")
-    if not (np.all(np.isfinite(q)) and np.all(np.isfinite(pose))):
-        problems.append("it holds NaN or inf values")
-    elif pose.shape == (7,) and np.linalg.norm(pose[3:]) < 1e-9:
-        problems.append("its wrist quaternion is zero")
-    if problems:
-        raise ConfigError(f"{what}: bad grasp: {'; '.join(problems)}; check the step that produced it")
+        raise ConfigError(f"{what}: bad grasp: it is for hand '{grasp.hand}', not '{description.name}'")
+    checked_array(grasp.q, (description.num_joints,), f"{what}: grasp q", layout="hand joint_names order")
+    checked_poses(grasp.wrist_pose, None, f"{what}: grasp wrist_pose")
 
 
 def closing_direction(q_from: np.ndarray, q_to: np.ndarray) -> np.ndarray:

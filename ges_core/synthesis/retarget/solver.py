@@ -30,9 +30,10 @@ import numpy as np
 import torch
 from pydantic import Field
 
+from ges_core.arrays import checked_array
 from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS
-from ges_core.errors import AssetError
+from ges_core.errors import ArrayError, AssetError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.kinematics import HandKinematics
 
@@ -199,28 +200,18 @@ class VectorRetargeter:
 
     # -- input checks -----------------------------------------------------------------------
     def _check_targets(self, targets: torch.Tensor | np.ndarray, what: str = "targets") -> torch.Tensor:
-        t = torch.as_tensor(targets).to(self.dtype)
-        n = len(FINGER_SLOTS)
-        if t.ndim != 3 or t.shape[1:] != (n, 3) or t.shape[0] == 0:
-            raise ValueError(
-                f"retargeting {what} must have shape (B, {n}, 3): one per slot "
-                f"({', '.join(FINGER_SLOTS)}), base-link frame; got {tuple(t.shape)}"
-            )
-        if not torch.isfinite(t).all():
-            bad = sorted({int(b) for b in torch.nonzero(~torch.isfinite(t))[:, 0]})[:5]
-            raise ValueError(f"retargeting {what} contain NaN or inf (grasps {bad}); check the contact generator")
-        return t
+        layout = f"one per slot ({', '.join(FINGER_SLOTS)}), base-link frame; check the contact generator"
+        t = checked_array(targets, (None, len(FINGER_SLOTS), 3), f"retargeting: {what}", layout=layout)
+        if len(t) == 0:
+            raise ArrayError(f"retargeting: {what} is empty; give at least one grasp (B >= 1)")
+        return torch.from_numpy(t).to(self.dtype)
 
     def _check_q(self, q: torch.Tensor | np.ndarray | None, batch: int, what: str) -> torch.Tensor:
         k = self.description.num_joints
         if q is None:
             return self.open_pose.expand(batch, k).clone()
-        q = torch.as_tensor(q).to(self.dtype)
-        if q.shape != (batch, k) or not torch.isfinite(q).all():
-            raise ValueError(
-                f"{what} must be a finite ({batch}, {k}) tensor in '{self.description.name}' joint order; "
-                f"got shape {tuple(q.shape)}" + ("" if q.shape != (batch, k) else " with NaN or inf")
-            )
+        layout = f"one row per grasp, '{self.description.name}' joint order"
+        q = torch.from_numpy(checked_array(q, (batch, k), f"retargeting: {what}", layout=layout)).to(self.dtype)
         return q.clamp(self.limits[:, 0], self.limits[:, 1])
 
     # -- problem pieces ---------------------------------------------------------------------

@@ -23,8 +23,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from ges_core.arrays import checked_array
 from ges_core.contact import FINGER_SLOTS
-from ges_core.errors import AssetError, SynthesisError
+from ges_core.errors import ArrayError, AssetError, SynthesisError
 from ges_core.hand import HandDescription
 
 __all__ = [
@@ -89,19 +90,13 @@ class HandFrame:
 
 
 def check_contact_array(positions: np.ndarray) -> np.ndarray:
-    """(B, 5, 3) float64 copy of ``positions`` (or (5, 3) -> (1, 5, 3)); ValueError on shape or NaN."""
-    pos = np.asarray(positions, dtype=np.float64)
-    if pos.ndim == 2:
-        pos = pos[None]
-    n = len(FINGER_SLOTS)
-    if pos.ndim != 3 or pos.shape[1:] != (n, 3) or pos.shape[0] == 0:
-        raise ValueError(
-            f"contact positions must have shape (B, {n}, 3) or ({n}, 3), slots {', '.join(FINGER_SLOTS)}; "
-            f"got {np.shape(positions)}"
-        )
-    if not np.isfinite(pos).all():
-        bad = sorted(set(np.nonzero(~np.isfinite(pos))[0].tolist()))[:5]
-        raise ValueError(f"contact positions contain NaN or inf (contact sets {bad}); check the contact generator")
+    """(B, 5, 3) float64 ``positions`` (or (5, 3) -> (1, 5, 3)); ArrayError on shape or NaN."""
+    shape = (len(FINGER_SLOTS), 3) if np.ndim(positions) == 2 else (None, len(FINGER_SLOTS), 3)
+    layout = f"slots {', '.join(FINGER_SLOTS)}, object frame; check the contact generator"
+    pos = checked_array(positions, shape, "contact positions", layout=layout)
+    pos = pos[None] if pos.ndim == 2 else pos
+    if len(pos) == 0:
+        raise ArrayError("contact positions: no contact set given (B = 0)")
     return pos
 
 
