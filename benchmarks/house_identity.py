@@ -33,21 +33,14 @@ from typing import Any
 
 import numpy as np
 
+from ges_core.synthesis.run.demo import DEMO_OBJECTS
+
 from _results import code_state, write_results
 
 RESULTS = Path(__file__).resolve().parent / "results" / "house_identity.json"
 TIMING_KEYS = {"seconds", "setup_seconds", "time", "updated", "created", "versions", "picture"}
 """Keys left out of the comparison: wall-clock times, software versions, absolute picture paths."""
-SYNTH_OBJECTS = (
-    "procedural/plate/000",
-    "pybullet/classic/cylinder",
-    "pybullet/classic/prism",
-    "pybullet/classic/domino",
-    "pybullet/random_urdfs/000",
-    "pybullet/random_urdfs/001",
-    "pybullet/random_urdfs/002",
-    "procedural/can/001",
-)
+SYNTH_OBJECTS = DEMO_OBJECTS[10:18]
 """Demo objects 10..17, refined and validated in PyBullet."""
 BASELINES = [
     ("allegro", "sapien", 1),

@@ -15,7 +15,7 @@ from pathlib import Path
 from types import ModuleType
 
 from ges_core import __version__
-from ges_core.errors import PluginError
+from ges_core.errors import PluginError, naming_plugin
 
 __all__ = ["BUILTIN_PACKAGE", "BUILTIN_PLUGINS", "CHECKOUT_FOLDER", "builtin_source", "import_builtin"]
 
@@ -42,17 +42,10 @@ def builtin_source(name: str) -> str:
 def import_builtin(name: str) -> ModuleType:
     """Import the registration module of the built-in plugin ``name``; failures name the plugin."""
     module_name = BUILTIN_PLUGINS[name]
-    try:
+    failed = f"built-in plugin '{name}' ({module_name}) failed to import"
+    with naming_plugin(name, failed, f"Reinstall ges-unigrasp, or skip it with --no-plugin {name}"):
         _ensure_package()
         return importlib.import_module(module_name)
-    except PluginError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
-        raise PluginError(
-            f"built-in plugin '{name}' ({module_name}) failed to import: {type(exc).__name__}: {exc}. "
-            f"Reinstall ges-unigrasp, or skip it with --no-plugin {name}",
-            plugin=name,
-        ) from exc
 
 
 def _ensure_package() -> None:

@@ -7,7 +7,8 @@ Every message says who failed, what went wrong and how to fix it. The CLI prints
 from __future__ import annotations
 
 import difflib
-from collections.abc import Iterable
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
 
 __all__ = [
     "ArrayError",
@@ -20,6 +21,7 @@ __all__ = [
     "SimulationError",
     "SynthesisError",
     "UnknownNameError",
+    "naming_plugin",
 ]
 
 
@@ -33,6 +35,23 @@ class PluginError(GesError):
     def __init__(self, message: str, *, plugin: str | None = None) -> None:
         super().__init__(message)
         self.plugin = plugin
+
+
+@contextmanager
+def naming_plugin(
+    plugin: str, failed: str, fix: str, *, keep: tuple[type[Exception], ...] = (PluginError,)
+) -> Iterator[None]:
+    """Turn any exception raised inside the block into one PluginError naming ``plugin``.
+
+    The message reads ``"{failed}: {Type}: {message}. {fix}"``; the original is chained (``--debug`` shows its
+    traceback). Exceptions of the types in ``keep`` pass unchanged (they already say who failed).
+    """
+    try:
+        yield
+    except keep:
+        raise
+    except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
+        raise PluginError(f"{failed}: {type(exc).__name__}: {exc}. {fix}", plugin=plugin) from exc
 
 
 class ConfigError(GesError):

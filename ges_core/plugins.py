@@ -26,7 +26,7 @@ import pluggy
 
 from ges_core import hookspecs
 from ges_core.builtins import BUILTIN_PLUGINS, builtin_source, import_builtin
-from ges_core.errors import PluginError
+from ges_core.errors import PluginError, naming_plugin
 
 __all__ = ["AUTOLOAD_ENV", "ENTRY_POINT_GROUP", "OWN_DISTRIBUTION", "get_plugin_manager", "plugin_sources"]
 
@@ -101,14 +101,9 @@ def _load_entry_points(pm: pluggy.PluginManager) -> None:
         _check_name(ep.name, dist, seen)
         if pm.is_blocked(ep.name):
             continue
-        try:
+        failed = f"plugin '{ep.name}' (package {dist}) failed to import"
+        with naming_plugin(ep.name, failed, f"Fix or uninstall it, or skip it with --no-plugin {ep.name}", keep=()):
             pm.load_setuptools_entrypoints(ENTRY_POINT_GROUP, name=ep.name)
-        except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
-            raise PluginError(
-                f"plugin '{ep.name}' (package {dist}) failed to import: {type(exc).__name__}: {exc}. "
-                f"Fix or uninstall it, or skip it with --no-plugin {ep.name}",
-                plugin=ep.name,
-            ) from exc
 
 
 def _check_name(name: str, dist: str, seen: dict[str, str]) -> None:
@@ -130,16 +125,9 @@ def _load_local_plugin(pm: pluggy.PluginManager, ref: str, base_dir: Path) -> No
     name = f"local:{ref}"
     if pm.is_blocked(ref) or pm.has_plugin(name):
         return
-    try:
+    failed = f"local plugin '{ref}' from registry.yaml failed to import"
+    with naming_plugin(ref, failed, "Fix it, or remove it from registry.yaml's plugins"):
         module = _import_file(ref, base_dir) if ref.endswith(".py") else importlib.import_module(ref)
-    except PluginError:
-        raise
-    except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
-        raise PluginError(
-            f"local plugin '{ref}' from registry.yaml failed to import: {type(exc).__name__}: {exc}. "
-            f"Fix it, or remove it from registry.yaml's plugins",
-            plugin=ref,
-        ) from exc
     pm.register(module, name=name)
 
 

@@ -17,7 +17,7 @@ from typing import Any
 import pluggy
 
 from ges_core.config import RegistryConfig, apply_overrides, parse_model, read_yaml
-from ges_core.errors import GesError, PluginError, RegistrationError, UnknownNameError
+from ges_core.errors import GesError, PluginError, RegistrationError, UnknownNameError, naming_plugin
 from ges_core.hand import HandModel
 from ges_core.plugins import get_plugin_manager, plugin_sources
 from ges_core.sim import SceneConfig, SimBackend
@@ -157,16 +157,10 @@ class Registry:
     def _call(spec: PluginSpec, factory: Any, *args: Any, **kwargs: Any) -> Any:
         """``factory(*args, **kwargs)``; settings it cannot take, and any non-GesError it raises, name the plugin."""
         _check_settings(spec, factory, args, kwargs)
-        try:
+        failed = f"{spec.kind} plugin '{spec.name}' ({spec.source}) failed while building"
+        fix = "This is a bug in the plugin; report it to its authors (--debug shows the traceback)"
+        with naming_plugin(spec.name, failed, fix, keep=(GesError,)):
             return factory(*args, **kwargs)
-        except GesError:
-            raise
-        except Exception as exc:  # noqa: BLE001 - a plugin may raise anything; we name it
-            raise PluginError(
-                f"{spec.kind} plugin '{spec.name}' ({spec.source}) failed while building: {type(exc).__name__}: {exc}. "
-                f"This is a bug in the plugin; report it to its authors (--debug shows the traceback)",
-                plugin=spec.name,
-            ) from exc
 
 
 def _callers_per_plugin(pm: pluggy.PluginManager, hook_name: str) -> list[tuple[object, Callable[..., Any]]]:
