@@ -9,8 +9,6 @@ torch ``compute_reward`` and the success tracker's former where-chain.
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 import numpy as np
 import pytest
 import torch
@@ -31,6 +29,8 @@ from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import SimulationError
 from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig, SimBackend
+from ges_core.transforms import euler_xyz_to_quat
 from ges_core.transforms_torch import quat_conj, quat_mul, quat_rotate, quat_to_rotvec, rotvec_to_quat
 
 N = 5
@@ -42,20 +42,24 @@ def _unit_quats(rng: np.random.Generator, shape: tuple[int, ...]) -> np.ndarray:
     return q / np.linalg.norm(q, axis=-1, keepdims=True)
 
 
-class _RandomBackend:
+class _RandomBackend(SimBackend):
     """Test double of a SimBackend: a fresh random state after every ``step``; reads return copies of it.
 
     Env 0 holds the same wrist orientation for two states in a row (a zero turn: the small-angle branch);
-    ``nan_env`` reads NaN everywhere after the step it is set for.
+    ``nan_env`` reads NaN everywhere after the step it is set for. Commands go through the core's checks
+    (a real SimBackend subclass, so ``tests/test_sim_conformance.py`` holds it to the interface too); the
+    hooks record the targets: ``targets["q"]`` (n, K), ``targets["wrist"]`` (n, 6) wrist joint values.
     """
 
+    name = "random"
+
     def __init__(self, hand, n: int, seed: int) -> None:
-        self.num_envs, self.config = n, SimpleNamespace(timestep=1 / 120)
+        super().__init__(SceneConfig(num_envs=n))
         d = hand.description
         self.k, self.tips = d.num_joints, list(d.tip_links)
         self.rng = np.random.default_rng(seed)
         self.nan_env: int | None = None
-        self.targets: dict[str, np.ndarray] = {}
+        self.targets: dict[str, np.ndarray] = {"wrist": np.zeros((n, 6))}
         self.state: dict[str, np.ndarray] = {}
         self._draw()
 
@@ -80,46 +84,62 @@ class _RandomBackend:
             for value in self.state.values():
                 value[self.nan_env] = np.nan
 
-    # the SimBackend methods GraspEnv uses
-    def load_hand(self, hand, floating: bool = True) -> None:
+    # the engine hooks (building and teleports do nothing: every read is the drawn state)
+    def _load_hand(self, hand, floating):
         pass
 
-    def load_object(self, obj) -> None:
+    def _load_object(self, obj, ids, fixed):
         pass
 
-    def reset(self) -> None:
+    def _rest_height(self, obj, env_id):
+        return 0.0
+
+    def _set_hand_state(self, q, base, ids):
         pass
 
-    def set_hand_state(self, q, wrist_pose, env_ids=None) -> None:
+    def _set_object_pose(self, pose, ids):
         pass
 
-    def set_object_pose(self, pose, env_ids=None) -> None:
-        pass
-
-    def set_joint_targets(self, q: np.ndarray) -> None:
+    def _set_joint_targets(self, q):
         self.targets["q"] = np.array(q)
 
-    def set_wrist_targets(self, pose: np.ndarray) -> None:
-        self.targets["wrist"] = np.array(pose)
+    def _set_wrist_targets(self, coords):
+        self.targets["wrist"] = np.array(coords)
 
-    def step(self, n: int = 1) -> None:
+    def _wrist_rotation_targets(self):
+        return self.targets["wrist"][:, 3:]
+
+    def _step(self, n):
         self._draw()
+        return {}
 
-    def joint_state(self) -> tuple[np.ndarray, np.ndarray]:
+    def _joint_state(self):
         return self.state["q"].copy(), self.state["dq"].copy()
 
-    def wrist_pose(self) -> np.ndarray:
+    def _wrist_pose(self):
         return self.state["wrist"].copy()
 
-    def contact_forces(self, links, partner="object") -> np.ndarray:
+    def _contact_forces(self, links, partner):
         return self.state["forces"].copy()
 
-    def link_poses(self, links) -> np.ndarray:
+    def _link_poses(self, links):
         assert list(links) == self.tips
         return self.state["tips"].copy()
 
-    def object_pose(self) -> np.ndarray:
+    def _object_pose(self):
         return self.state["obj"].copy()
+
+    def _contact_pairs(self, env_id):
+        return []
+
+    def _close(self):
+        pass
+
+
+def _wrist_target_pose(coords: np.ndarray) -> torch.Tensor:
+    """(n, 7) base poses of (n, 6) wrist joint values (x, y, z, rx, ry, rz with R = Rx Ry Rz), w >= 0."""
+    quat = euler_xyz_to_quat(coords[:, 3:])
+    return torch.as_tensor(np.concatenate([coords[:, :3], quat * np.sign(quat[:, :1])], axis=1))
 
 
 # -- references: the torch code the numpy path replaced -------------------------------------------
@@ -231,7 +251,8 @@ def test_grasp_env_steps_match_the_torch_reference(goal_prior: bool) -> None:
         before = sim.state
         unstable = env.apply_action(action)
         target = _ref_wrist_target(target, action.double(), env)
-        _close(torch.as_tensor(sim.targets["wrist"]), target, "wrist targets")
+        canonical = torch.cat([target[:, :3], target[:, 3:] * torch.sign(target[:, 3:4])], dim=1)
+        _close(_wrist_target_pose(sim.targets["wrist"]), canonical, "wrist targets")
         _close(torch.as_tensor(sim.targets["q"]), env.act_layout.joint_targets(action.double()), "joint targets")
         obs, state = env.observe()
         want_obs, want_state = _ref_observe(sim.state, prev, action.double().clamp(-1, 1), env)

@@ -67,7 +67,7 @@ BACKENDS = sorted(_subclasses(SimBackend), key=lambda c: f"{c.__module__}.{c.__q
 
 
 def test_the_builtins_and_the_doubles_are_found():
-    assert {SapienBackend, PybulletBackend, ExplodingBackend} <= set(BACKENDS)
+    assert {SapienBackend, PybulletBackend, ExplodingBackend, _RandomBackend} <= set(BACKENDS)
 
 
 @pytest.mark.parametrize("cls", BACKENDS, ids=lambda c: c.__name__)
