@@ -12,6 +12,7 @@ import inspect
 
 import numpy as np
 import pytest
+from test_env_fast_path import _RandomBackend  # a test double
 from test_synthesis_refine import ExplodingBackend  # a test double
 
 from ges_core.errors import ArrayError, ConfigError
