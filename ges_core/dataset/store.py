@@ -166,8 +166,9 @@ class DatasetWriter:
         if not allow_change:
             raise ConfigError(
                 f"dataset {self.root} was written with another run config ({'; '.join(diffs)}). "
-                "Write to a new folder, rerun with the stored config, or allow the change explicitly "
-                "(allow_config_change=True; the old config is kept in the manifest's config_history)",
+                "Rerun with the stored values, or write to a new folder (ges: --out DIR; ges demo --fresh moves "
+                "this one aside); in Python, DatasetWriter(..., allow_config_change=True) continues it and keeps "
+                "the old config in the manifest's config_history",
                 problems=diffs,
             )
         history = [*manifest.get("config_history", []), {"until": utc_now(), "run_config": old}]
