@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ges_core.cli.args import positive_int
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ges env baseline``."""
@@ -20,7 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bp.add_argument("dataset", type=Path, metavar="DATASET", help="Stage 1 dataset folder (ges synth / ges demo)")
     bp.add_argument("--hand", metavar="NAME", help="hand (default: registry.yaml defaults.hand)")
     bp.add_argument("--sim", metavar="NAME", help="simulator of the episodes (default: registry.yaml defaults.sim)")
-    bp.add_argument("--envs", type=int, default=1, metavar="N", help="episodes (envs) per object (default 1)")
+    bp.add_argument("--envs", type=positive_int, default=1, metavar="N", help="episodes (envs) per object (default 1)")
     bp.add_argument(
         "--select",
         default="validated",

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ges_core.cli.args import positive_int
 from ges_core.errors import ConfigError
 
 
@@ -24,7 +25,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     _common(sp)
     sp.add_argument("--hands", nargs="+", default=["shadow", "allegro"], metavar="HAND", help="hands (default both)")
     sp.add_argument("--objects", nargs="+", metavar="ID", help="object ids (default: the whole library)")
-    sp.add_argument("--limit", type=int, metavar="N", help="only the first N objects")
+    sp.add_argument("--limit", type=positive_int, metavar="N", help="only the first N objects (N >= 1)")
     sp.add_argument("--sim", metavar="NAME", help="simulator of refinement and validation (sets both)")
     sp.add_argument("--pictures", type=Path, metavar="DIR", help="also draw a PNG per grasp into DIR")
     sp.add_argument("--out", type=Path, required=True, metavar="DIR", help="dataset folder (created or resumed)")
@@ -35,14 +36,14 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--from", dest="source_hand", required=True, metavar="HAND", help="hand whose contacts to reuse")
     rp.add_argument("--to", dest="target_hand", required=True, metavar="HAND", help="hand to produce grasps for")
     rp.add_argument("--out", type=Path, metavar="DIR", help="write the new records here (default: DATASET)")
-    rp.add_argument("--workers", type=int, default=1, metavar="N", help="worker processes (default 1)")
+    rp.add_argument("--workers", type=positive_int, default=1, metavar="N", help="worker processes (default 1)")
     rp.add_argument("--no-progress", action="store_true", help="no progress bar")
     rp.set_defaults(func=run_retarget_cmd)
 
 
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides", help="override a value")
-    p.add_argument("--workers", type=int, metavar="N", help="worker processes")
+    p.add_argument("--workers", type=positive_int, metavar="N", help="worker processes (N >= 1)")
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -69,7 +70,7 @@ def run_demo_cmd(args: argparse.Namespace) -> int:
 
     overrides = list(args.overrides)
     overrides += [f"out={args.out}"] if args.out else []
-    overrides += [f"workers={args.workers}"] if args.workers else []
+    overrides += [f"workers={args.workers}"] if args.workers is not None else []
     config = default_demo_config(args.config, tuple(overrides))
     _check_objects(config.synthesis, config.object_ids())
     if args.fresh:
@@ -87,7 +88,7 @@ def run_synth_cmd(args: argparse.Namespace) -> int:
     overrides += [f"refine_sim={args.sim}", f"validate_sims=[{args.sim}]"] if args.sim else []
     config = load_config(SynthesisConfig, args.config, overrides)
     ids = args.objects or [o.object_id for o in config.library.build().list()]
-    ids = ids[: args.limit] if args.limit else ids
+    ids = ids if args.limit is None else ids[: args.limit]
     _check_objects(config, ids)
     run_synthesis(
         ids, args.hands, config, args.out, workers=args.workers or 1, progress=not args.no_progress,

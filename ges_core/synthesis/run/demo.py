@@ -13,7 +13,7 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
-from pydantic import Field
+from pydantic import Field, field_validator
 
 from ges_core.config import ConfigModel, load_config
 from ges_core.dataset import open_dataset
@@ -63,6 +63,18 @@ class DemoConfig(ConfigModel):
     workers: int = Field(1, ge=1, description="worker processes")
     pictures: bool = Field(True, description="draw a PNG per grasp and a contact sheet")
     synthesis: SynthesisConfig = Field(default_factory=SynthesisConfig)
+
+    @field_validator("objects", mode="before")
+    @classmethod
+    def _some_objects(cls, objects: object) -> object:
+        """A count from 1 to len(DEMO_OBJECTS) or a non-empty list (a slice would take ``-2`` as "all but two")."""
+        count = isinstance(objects, int) and not isinstance(objects, bool) and 1 <= objects <= len(DEMO_OBJECTS)
+        if not (count or (isinstance(objects, list) and objects)):
+            raise ValueError(
+                f"{objects!r}: give a count from 1 to {len(DEMO_OBJECTS)} (the first N demo objects) "
+                "or a non-empty list of object ids"
+            )
+        return objects
 
     def object_ids(self) -> list[str]:
         """The objects of this demo run."""
