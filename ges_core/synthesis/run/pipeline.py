@@ -30,7 +30,7 @@ from pathlib import Path
 from ges_core.dataset import DatasetWriter
 from ges_core.errors import ConfigError
 from ges_core.synthesis.run.config import SynthesisConfig
-from ges_core.synthesis.run.tasks import RegistrySpec, RunContext, Task, plan_tasks
+from ges_core.synthesis.run.tasks import RegistrySpec, RunContext, Task, check_plugin_names, plan_tasks
 from ges_core.synthesis.run.worker import run_task
 
 __all__ = ["RunReport", "run_synthesis"]
@@ -70,6 +70,7 @@ def run_synthesis(
     """
     _check_run(object_ids, hands, workers)
     registry = registry or RegistrySpec()
+    check_plugin_names(hands, config, registry)  # before the dataset folder exists
     with DatasetWriter(out, config.dump()) as writer:
         report = RunReport(Path(out), recovered=list(writer.recovered))
         tasks, report.skipped = plan_tasks(list(object_ids), list(hands), config.chunk_size, writer.has)

@@ -10,9 +10,10 @@ import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+from ges_core.errors import UnknownNameError
 from ges_core.synthesis.run.config import SynthesisConfig
 
-__all__ = ["RegistrySpec", "RunContext", "Task", "object_seed", "plan_tasks"]
+__all__ = ["RegistrySpec", "RunContext", "Task", "check_plugin_names", "object_seed", "plan_tasks"]
 
 
 def object_seed(seed: int, object_id: str) -> int:
@@ -64,6 +65,21 @@ class RegistrySpec:
         from ges_core.registry import load_registry
 
         return load_registry(self.path, overrides=self.overrides, blocked=self.blocked)
+
+
+def check_plugin_names(hands: Sequence[str], config: SynthesisConfig, registry: RegistrySpec) -> None:
+    """UnknownNameError ("did you mean") for a hand or simulator of the run that the registry does not hold.
+
+    Called before the dataset folder is created: a manifest naming an unknown simulator would make the corrected
+    run look like a change of config.
+    """
+    loaded = registry.load()
+    for hand in hands:
+        loaded.spec("hand", hand)
+    for field, sims in (("refine_sim", [config.refine_sim]), ("validate_sims", config.validate_sims)):
+        for sim in sims:
+            if sim not in loaded.names("sim"):
+                raise UnknownNameError("sim", sim, loaded.names("sim"), where=f" ({field})")
 
 
 @dataclass(frozen=True)
