@@ -9,15 +9,18 @@ from __future__ import annotations
 
 import inspect
 import os
+import types
+import typing
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
 import pluggy
+from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from ges_core.config import RegistryConfig, apply_overrides, parse_model, read_yaml
-from ges_core.errors import GesError, PluginError, RegistrationError, UnknownNameError, naming_plugin
+from ges_core.errors import ConfigError, GesError, PluginError, RegistrationError, UnknownNameError, naming_plugin
 from ges_core.hand import HandModel
 from ges_core.plugins import get_plugin_manager, plugin_sources
 from ges_core.sim import SceneConfig, SimBackend
@@ -91,11 +94,19 @@ class Registry:
         return specs[name]
 
     def default(self, kind: str) -> str:
-        """The default name of ``kind`` from registry.yaml."""
+        """The default name of ``kind`` from registry.yaml; UnknownNameError if none is set or it names nothing."""
         name = getattr(self.config.defaults, kind, None)
         if not name:
             raise UnknownNameError(kind, "<default>", self.names(kind))
+        if name not in self._kind(kind):
+            raise UnknownNameError(kind, name, self.names(kind), where=f" in registry.yaml defaults.{kind}")
         return name
+
+    def check_defaults(self, kinds: tuple[str, ...] = tuple(KINDS)) -> None:
+        """UnknownNameError for the first default of ``kinds`` that is set but names no registered plugin."""
+        for kind in kinds:
+            if getattr(self.config.defaults, kind, None):
+                self.default(kind)
 
     def settings(self, kind: str, name: str) -> dict[str, Any]:
         """Factory keyword arguments of one plugin: its spec's tuned defaults, then registry.yaml ``settings``."""
@@ -156,7 +167,7 @@ class Registry:
     @staticmethod
     def _call(spec: PluginSpec, factory: Any, *args: Any, **kwargs: Any) -> Any:
         """``factory(*args, **kwargs)``; settings it cannot take, and any non-GesError it raises, name the plugin."""
-        _check_settings(spec, factory, args, kwargs)
+        kwargs = _check_settings(spec, factory, args, kwargs)
         failed = f"{spec.kind} plugin '{spec.name}' ({spec.source}) failed while building"
         fix = "This is a bug in the plugin; report it to its authors (--debug shows the traceback)"
         with naming_plugin(spec.name, failed, fix, keep=(GesError,)):
@@ -173,20 +184,78 @@ def _callers_per_plugin(pm: pluggy.PluginManager, hook_name: str) -> list[tuple[
     return [(p, pm.subset_hook_caller(hook_name, [o for o in plugins if o is not p])) for p in plugins]
 
 
-def _check_settings(spec: PluginSpec, factory: Any, args: tuple, kwargs: dict[str, Any]) -> None:
-    """A ``PluginError`` naming the registry.yaml entry when the settings do not fit the factory's signature."""
+def _check_settings(spec: PluginSpec, factory: Any, args: tuple, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """``kwargs`` checked against the factory's signature and converted to its annotations (as a config model's
+    fields are: a YAML list becomes a tuple); a setting that does not fit is one error naming its registry entry."""
+    signature = _signature(factory)
+    if signature is None:  # no signature to check (some builtins); the call will tell
+        return kwargs
     try:
-        signature = inspect.signature(factory)
-    except (TypeError, ValueError):  # no signature to check (some builtins); the call will tell
-        return
-    try:
-        signature.bind(*args, **kwargs)
+        bound = signature.bind(*args, **kwargs)
     except TypeError as exc:
         raise PluginError(
             f"{spec.kind} '{spec.name}' rejected its settings {sorted(kwargs)}: {exc}. "
             f"Check settings.{spec.kind}.{spec.name} in registry.yaml (or --set)",
             plugin=spec.name,
         ) from exc
+    annotations = _setting_annotations(signature, bound)
+    return {key: _typed_setting(spec, key, value, annotations.get(key)) for key, value in kwargs.items()}
+
+
+def _signature(factory: Any) -> inspect.Signature | None:
+    """The factory's signature with its annotations evaluated (left as text where they cannot be); None: none."""
+    try:
+        signature = inspect.signature(factory)
+    except (TypeError, ValueError):
+        return None
+    try:
+        return inspect.signature(factory, eval_str=True)
+    except Exception:  # noqa: BLE001 - e.g. an annotation naming what is imported only while type checking
+        return signature
+
+
+def _setting_annotations(signature: inspect.Signature, bound: inspect.BoundArguments) -> dict[str, Any]:
+    """Keyword -> annotation of the parameter that takes it (a ``**settings: T`` parameter gives T to each)."""
+    out: dict[str, Any] = {}
+    for name, value in bound.arguments.items():
+        param = signature.parameters[name]
+        if param.kind is inspect.Parameter.VAR_KEYWORD:
+            out.update(dict.fromkeys(value, param.annotation))
+        elif param.kind is not inspect.Parameter.VAR_POSITIONAL:
+            out[name] = param.annotation
+    return out
+
+
+def _typed_setting(spec: PluginSpec, key: str, value: Any, annotation: Any) -> Any:
+    """``value`` validated against ``annotation`` (unchanged where there is none, or it is not a type)."""
+    if annotation in (None, inspect.Parameter.empty, Any) or isinstance(annotation, str):
+        return value
+    try:
+        adapter = TypeAdapter(annotation, config=ConfigDict(arbitrary_types_allowed=True))
+    except Exception:  # noqa: BLE001 - an annotation pydantic cannot check; the factory will
+        return value
+    try:
+        return adapter.validate_python(value)
+    except ValidationError as exc:
+        why = "; ".join(dict.fromkeys(err["msg"] for err in exc.errors()))
+        raise ConfigError(
+            f"{spec.kind} '{spec.name}': setting {key}={value!r} is not {_type_name(annotation)} ({why}). "
+            f"Fix settings.{spec.kind}.{spec.name}.{key} in registry.yaml (or --set)"
+        ) from None
+
+
+def _type_name(annotation: Any) -> str:
+    """``float | None`` for the annotation ``float | None`` (or ``Optional[float]``), ``int`` for ``int``."""
+    if annotation is type(None):
+        return "None"
+    if isinstance(annotation, type) and not typing.get_args(annotation):
+        return annotation.__name__
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin in (typing.Union, types.UnionType):
+        return " | ".join(_type_name(a) for a in args)
+    if origin is typing.Annotated:
+        return _type_name(args[0])
+    return str(annotation).replace("typing.", "")
 
 
 def load_registry(

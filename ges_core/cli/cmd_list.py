@@ -24,11 +24,12 @@ def _available(spec: PluginSpec) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Print one line per spec, grouped by kind."""
+    """Print one line per spec, grouped by kind; then fail if a listed kind's registry.yaml default names nothing."""
     from ges_core.cli import registry_from_args
 
     registry = registry_from_args(args)
-    for kind in [args.kind] if args.kind else list(KINDS):
+    kinds = [args.kind] if args.kind else list(KINDS)
+    for kind in kinds:
         specs = registry.specs(kind)
         print(f"{kind}s:")
         if not specs:
@@ -37,4 +38,5 @@ def run(args: argparse.Namespace) -> int:
         for spec in specs:
             mark = "*" if spec.name == default else " "
             print(f" {mark}{spec.name:<14} {spec.description}  <{spec.source}>{_available(spec)}")
+    registry.check_defaults(tuple(kinds))
     return 0
