@@ -148,3 +148,57 @@ def test_broken_hand_urdf(capsys, tmp_path):
     (tmp_path / "hand.urdf").write_text("<robot name='x'><link name='palm'>")
     code, _, err = run(capsys, "hand", "lint", str(tmp_path / "hand.yaml"))
     assert code == 1 and "URDF is not valid XML" in err
+
+
+def _options(parser, path=()):
+    """(command path, option, action) of every option of every sub-command."""
+    import argparse
+
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield from _options(sub, (*path, name))
+        elif action.option_strings:
+            yield path, action.option_strings[-1], action
+
+
+NUMBERS_CHECKED_ELSEWHERE = {("objects", "list"), ("objects", "prepare")}
+"""Commands whose numeric options are not yet on ges_core.cli.args (owned by the object-library work)."""
+
+
+def test_every_numeric_option_is_checked_in_one_place():
+    """A bare ``type=int`` takes 0 and negatives silently (``--limit 0`` started the whole library)."""
+    from ges_core.cli import args, build_parser
+
+    bare = [
+        f"ges {' '.join(path)} {option}"
+        for path, option, action in _options(build_parser())
+        if action.type in (int, float) and path not in NUMBERS_CHECKED_ELSEWHERE
+    ]
+    assert bare == [], f"use a type from ges_core.cli.args: {bare}"
+    checked = {(path, option): action.type for path, option, action in _options(build_parser())}
+    assert checked[("synth",), "--limit"] is checked[("env", "baseline"), "--envs"] is args.positive_int
+
+
+@pytest.mark.parametrize(
+    "check, text, value",
+    [("positive_int", "3", 3), ("non_negative_int", "0", 0), ("positive_float", "0.001", 0.001)],
+)
+def test_count_types_take_good_values(check, text, value):
+    from ges_core.cli import args
+
+    assert getattr(args, check)(text) == value
+
+
+@pytest.mark.parametrize(
+    "check, text",
+    [("positive_int", "0"), ("positive_int", "1e3"), ("non_negative_int", "-1"), ("positive_float", "nan"),
+     ("positive_float", "inf"), ("positive_float", "0"), ("positive_float", "x")],
+)  # fmt: skip
+def test_count_types_refuse_bad_values(check, text):
+    import argparse
+
+    from ges_core.cli import args
+
+    with pytest.raises(argparse.ArgumentTypeError, match=rf"^'{text}' is not a"):
+        getattr(args, check)(text)

@@ -92,3 +92,19 @@ def test_builtin_sims_carry_their_tuned_settings(write_registry, registry_yaml):
     registry = load_registry(path, autoload=False)
     assert registry.settings("sim", "pybullet") == {"solver_iterations": 100}
     assert registry.settings("sim", "sapien") == {"contact_offset": 0.002}
+
+
+BUILTINS = [("hand", "allegro"), ("hand", "shadow"), ("sim", "pybullet"), ("sim", "sapien")]
+
+
+@pytest.mark.parametrize("kind, name", BUILTINS)
+def test_builtin_tuned_settings_fit_their_factories_annotations(kind, name):
+    """Settings are validated against the factory's annotations before the call: the shipped values pass unchanged."""
+    from ges_core.registry import _check_settings
+    from ges_core.sim import SceneConfig
+
+    registry = load_registry(REPO / "registry.yaml", autoload=False)
+    spec = registry.spec(kind, name)
+    settings = registry.settings(kind, name)
+    args = (SceneConfig(),) if kind == "sim" else ()
+    assert _check_settings(spec, spec.load(), args, dict(settings)) == settings
