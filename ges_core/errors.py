@@ -16,9 +16,11 @@ __all__ = [
     "BackendUnavailable",
     "ConfigError",
     "GesError",
+    "LockError",
     "PluginError",
     "RegistrationError",
     "SimulationError",
+    "StorageError",
     "SynthesisError",
     "UnknownNameError",
     "naming_plugin",
@@ -122,3 +124,32 @@ class SynthesisError(GesError):
         super().__init__(message)
         self.reason = reason
         """Short machine-readable failure code, e.g. ``no_graspable_width`` or ``degenerate_cloud``."""
+
+
+class StorageError(GesError, OSError):
+    """A file or folder cannot be written: no space left, a quota, no permission, a read-only file system.
+
+    Raised where GES-UniGrasp writes (:mod:`ges_core.paths`), with a message naming the path, the cause and what
+    to do. Also an ``OSError`` (``errno`` and ``filename`` kept), so ``except OSError`` keeps working.
+    """
+
+    def __init__(self, message: str, *, path: str | None = None, errno: int | None = None) -> None:
+        super().__init__(message)
+        self.filename, self.errno = path, errno
+
+    def __str__(self) -> str:  # OSError would otherwise format errno and filename itself
+        return str(self.args[0])
+
+    def __reduce__(self):  # keep errno and the path through pickling (a worker process raises it)
+        return (type(self), self.args, {"filename": self.filename, "errno": self.errno})
+
+
+class LockError(GesError):
+    """Another process holds the lock of a folder this one wants to write (e.g. a dataset being written).
+
+    ``holder``: what the lock file says about its holder (pid, host, started, command), {} when unreadable.
+    """
+
+    def __init__(self, message: str, *, holder: dict | None = None) -> None:
+        super().__init__(message)
+        self.holder = holder or {}

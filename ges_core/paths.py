@@ -1,24 +1,46 @@
-"""Where GES-UniGrasp keeps caches, and how it writes files atomically."""
+"""Where GES-UniGrasp keeps caches, and how it writes files: atomically, and failing with one clear error.
+
+Every write of the project (dataset records and manifest, pictures, the object and hand caches) goes through
+:func:`atomic_write_bytes` and :func:`make_dirs`. An ``OSError`` there (no space, a quota, no permission, a
+read-only file system) becomes one :class:`~ges_core.errors.StorageError` naming the path, the cause and what
+to do; the temporary file is removed, so a failed write leaves the old file or none, never half of one.
+"""
 
 from __future__ import annotations
 
+import errno
 import hashlib
 import os
 import tempfile
 from pathlib import Path
 
-__all__ = ["CACHE_ENV", "atomic_write_bytes", "atomic_write_text", "cache_dir", "cached_text_file", "file_sha256"]
+from ges_core.errors import StorageError
+
+__all__ = [
+    "CACHE_ENV",
+    "atomic_write_bytes",
+    "atomic_write_text",
+    "cache_dir",
+    "cache_root",
+    "cached_text_file",
+    "describe_os_error",
+    "file_sha256",
+    "make_dirs",
+    "storage_error",
+]
 
 CACHE_ENV = "GES_CACHE_DIR"
 """Environment variable overriding the cache folder."""
 
 
+def cache_root() -> Path:
+    """``$GES_CACHE_DIR``, default ``~/.cache/ges-unigrasp`` (not created)."""
+    return Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "ges-unigrasp")
+
+
 def cache_dir(*parts: str) -> Path:
-    """``$GES_CACHE_DIR`` (default ``~/.cache/ges-unigrasp``) joined with ``parts``, created."""
-    root = Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "ges-unigrasp")
-    path = root.joinpath(*parts)
-    path.mkdir(parents=True, exist_ok=True)
-    return path
+    """:func:`cache_root` joined with ``parts``, created (StorageError if it cannot be)."""
+    return make_dirs(cache_root().joinpath(*parts))
 
 
 def file_sha256(path: str | Path, *, length: int = 16) -> str:
@@ -35,30 +57,102 @@ def cached_text_file(text: str, *folder: str, stem: str, suffix: str = ".urdf") 
     return path
 
 
-def atomic_write_bytes(path: str | Path, data: bytes) -> Path:
+def make_dirs(path: str | Path, *, fix: str | None = None) -> Path:
+    """Create the folder ``path`` and its parents if missing; StorageError (with ``fix``) if that fails."""
+    path = Path(path)
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise storage_error(path, exc, fix=fix) from exc
+    return path
+
+
+def atomic_write_bytes(path: str | Path, data: bytes, *, fix: str | None = None) -> Path:
     """Write ``data`` to ``path`` through a temporary file in the same folder and a rename.
 
-    A reader sees the old file or the new one, never half of one; a kill leaves no partial file.
+    A reader sees the old file or the new one, never half of one; a kill leaves no partial file. A failed
+    write (full disk, read-only folder, ...) removes its temporary file and raises StorageError naming
+    ``path``; ``fix`` replaces the default advice on what to do.
     """
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    make_dirs(path.parent, fix=fix)
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
             fh.flush()
             os.fsync(fh.fileno())
         os.chmod(tmp, 0o666 & ~_umask())  # mkstemp makes 0600 files; give the usual permissions
         os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
+    except BaseException as exc:
+        if tmp is not None:
+            Path(tmp).unlink(missing_ok=True)
+        if isinstance(exc, OSError) and not isinstance(exc, StorageError):
+            raise storage_error(path, exc, fix=fix) from exc
         raise
     return path
 
 
-def atomic_write_text(path: str | Path, text: str) -> Path:
+def atomic_write_text(path: str | Path, text: str, *, fix: str | None = None) -> Path:
     """:func:`atomic_write_bytes` for UTF-8 text."""
-    return atomic_write_bytes(path, text.encode("utf-8"))
+    return atomic_write_bytes(path, text.encode("utf-8"), fix=fix)
+
+
+_CAUSES = {
+    errno.ENOSPC: "no space left on device",
+    errno.EDQUOT: "disk quota exceeded",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.EROFS: "read-only file system",
+    errno.ENOENT: "no such file or folder",
+}
+_FULL = (errno.ENOSPC, errno.EDQUOT)
+_DENIED = (errno.EACCES, errno.EPERM, errno.EROFS)
+
+
+def describe_os_error(
+    exc: OSError, path: str | Path | None = None, *, doing: str = "writing", fix: str | None = None
+) -> str:
+    """One line for an OSError: the cause, what was being done to which path, and what to do.
+
+    >>> describe_os_error(OSError(errno.ENOSPC, "No space left on device"), "runs/x/manifest.json")
+    'no space left on device writing runs/x/manifest.json; free space there or write to another folder'
+    """
+    path = path if path is not None else exc.filename
+    cause = _CAUSES.get(exc.errno) or exc.strerror or f"{type(exc).__name__}: {exc}"
+    where = f" {doing} {path}".rstrip() if path is not None else ""
+    return f"{cause}{where}; {fix or _advice(exc.errno, path)}"
+
+
+def storage_error(path: str | Path, exc: OSError, *, fix: str | None = None) -> StorageError:
+    """The StorageError of a failed write of ``path`` (see :func:`describe_os_error`)."""
+    return StorageError(describe_os_error(exc, path, fix=fix), path=str(path), errno=exc.errno)
+
+
+def _advice(code: int | None, path: str | Path | None) -> str:
+    """What to do about an OSError of errno ``code`` at ``path`` (the cache folder gets its own advice)."""
+    in_cache = path is not None and _inside(Path(path), cache_root())
+    if code in _FULL:
+        return (
+            f"free space there or set {CACHE_ENV} to another disk"
+            if in_cache
+            else ("free space there or write to another folder")
+        )
+    if code in _DENIED:
+        return (
+            f"make it writable or set {CACHE_ENV} to a writable folder"
+            if in_cache
+            else ("make it writable or write to another folder")
+        )
+    return "check that path and the disk it is on"
+
+
+def _inside(path: Path, folder: Path) -> bool:
+    try:
+        return path.resolve().is_relative_to(folder.resolve())
+    except OSError:  # a path that cannot be resolved is not known to be inside
+        return False
 
 
 def _umask() -> int:

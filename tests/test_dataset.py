@@ -7,6 +7,7 @@ import signal
 import subprocess
 import sys
 import zlib
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
@@ -32,7 +33,7 @@ from ges_core.dataset import (
     validate_dataset,
 )
 from ges_core.dataset.checks import record_problems
-from ges_core.dataset.layout import DATASET_VERSION, normalize_config
+from ges_core.dataset.layout import DATASET_VERSION, config_hash, normalize_config
 from ges_core.dataset.record import (
     RECORD_VERSION,
     raw_to_bytes,
@@ -44,6 +45,7 @@ from ges_core.dataset.record import (
 )
 from ges_core.dataset.record_v1 import upgraded
 from ges_core.dataset.store import load_record
+from ges_core.dataset.timing import record_timing
 from ges_core.errors import AssetError, ConfigError
 from ges_core.paths import atomic_write_bytes
 
@@ -127,12 +129,15 @@ def _notes(hand: str, fail_at: str | None) -> dict:
     }
 
 
-def assert_same(a: GraspRecord, b: GraspRecord) -> None:
+def assert_same(a: GraspRecord, b: GraspRecord, *, times: bool = True) -> None:
     """Field-by-field equality, arrays exactly (float64 storage loses nothing) except the normals, which
-    ContactSet normalizes again when it is built (a unit vector may move by one ulp)."""
-    meta_a, arrays_a = record_to_raw(a)
-    meta_b, arrays_b = record_to_raw(b)
+    ContactSet normalizes again when it is built (a unit vector may move by one ulp); the run-config hash the
+    writer stamps is left out, the times compared when ``times``."""
+    meta_a, arrays_a = record_to_raw(replace(a, run_config_hash=None))
+    meta_b, arrays_b = record_to_raw(replace(b, run_config_hash=None))
     assert meta_a == meta_b
+    if times:
+        assert record_timing(a) == record_timing(b)
     assert sorted(arrays_a) == sorted(arrays_b)
     for name in arrays_a:
         atol = 1e-15 if name == "contact_normals" else 0.0
@@ -168,7 +173,9 @@ def test_round_trip_keeps_every_field(tmp_path, records):
     ds = open_dataset(tmp_path / "ds")
     assert len(ds) == 4 and ds.run_config == normalize_config(CONFIG)
     for r in records:
-        assert_same(ds.get(r.object_id, r.hand), r)
+        stored = ds.get(r.object_id, r.hand)
+        assert_same(stored, r)
+        assert stored.run_config_hash == config_hash(normalize_config(CONFIG)) == writer.config_hash
     assert [e["object_id"] for e in ds.entries] == sorted(o for o, h, _ in RECORDS if h == "allegro") + sorted(
         o for o, h, _ in RECORDS if h == "shadow"
     )
@@ -186,7 +193,9 @@ def test_record_file_reads_with_plain_numpy_and_json(tmp_path, records):
         meta = json.loads(str(npz["record_json"]))
         q, normals = npz["q"], npz["contact_normals"]
     assert meta["hand"] == "allegro" and len(meta["joint_names"]) == q.shape[0] == 16
-    assert meta["steps"]["validation"] == {"ok": False, "reason": "validation_failed", "seconds": 0.01}
+    assert meta["steps"]["validation"] == {"ok": False, "reason": "validation_failed"}  # times: the timing file
+    timing = json.loads(path.with_name(path.name.replace(".npz", ".timing.json")).read_text())
+    assert timing["steps"]["validation"] == 0.01 and timing["validations"]["sapien"] == 0.2
     np.testing.assert_array_equal(q, records[2].grasp.q)
     np.testing.assert_allclose(np.linalg.norm(normals, axis=1), 1.0, atol=1e-12)
     assert meta["versions"]["ges"] and meta["versions"]["sapien"] != "missing"
@@ -274,7 +283,7 @@ def test_reader_errors_name_the_problem(tmp_path, records):
     with pytest.raises(AssetError, match="is not a grasp dataset: it has no manifest.json"):
         open_dataset(tmp_path)
     (tmp_path / "manifest.json").write_text("{broken")
-    with pytest.raises(AssetError, match="cannot read .*manifest.json.*the index is rebuilt from the record files"):
+    with pytest.raises(AssetError, match="cannot read .*manifest.json.*rebuilds the index from the record files"):
         open_dataset(tmp_path)
     (tmp_path / "manifest.json").write_text(json.dumps({"format": "something_else"}))
     with pytest.raises(AssetError, match="format 'something_else', expected 'ges.contactgrasp_dataset'"):
@@ -284,13 +293,16 @@ def test_reader_errors_name_the_problem(tmp_path, records):
         open_dataset(tmp_path)
 
 
-def test_damaged_record_raises_on_read_and_missing_key_is_a_keyerror(tmp_path, records):
+def test_damaged_record_is_left_out_raises_on_read_and_missing_key_is_a_keyerror(tmp_path, records):
     with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
         path = writer.add(records[0])
     path.write_bytes(path.read_bytes()[:100])
     ds = open_dataset(tmp_path / "ds")
+    file = path.relative_to(tmp_path / "ds").as_posix()
+    assert list(ds) == [] and ds.damaged == (file,)
+    assert any(n.startswith(f"{file} cannot be used (left out): unreadable record") for n in ds.notes)
     with pytest.raises(AssetError, match=r"cannot read grasp record .*Run 'ges dataset validate"):
-        list(ds)
+        load_record(tmp_path / "ds", file)
     with pytest.raises(KeyError, match="holds no record of object 'x' with hand 'shadow'"):
         ds.get("x", "shadow")
     with pytest.raises(AssetError, match="cannot read grasp record"):
@@ -316,6 +328,7 @@ def test_resume_after_a_kill_between_record_and_manifest(tmp_path, records, monk
     with pytest.raises(KeyboardInterrupt):
         writer.add(records[1])
     monkeypatch.setattr(store, "write_manifest", real)
+    del writer  # the killed run's lock goes with it
     listed = [e["object_id"] for e in json.loads((root / "manifest.json").read_text())["records"]]
     assert listed == ["procedural/box/000"]
     ds = open_dataset(root)  # the reader adopts the unlisted file in memory
@@ -332,20 +345,21 @@ def test_resume_after_a_kill_between_record_and_manifest(tmp_path, records, monk
         assert_same(open_dataset(root).get(*r.key), r)
 
 
-def test_damaged_unlisted_record_is_left_out_by_the_reader_and_stops_the_writer(tmp_path, records, capsys):
+def test_damaged_unlisted_record_is_left_out_by_the_reader_and_moved_aside_by_the_writer(tmp_path, records, capsys):
     root = tmp_path / "ds"
     writer = DatasetWriter(root, CONFIG, manifest_interval=3600)
     good, bad = writer.add(records[0]), writer.add(records[1])  # neither listed yet
+    del writer  # killed
     bad.write_bytes(bad.read_bytes()[:50])
+    rel = bad.relative_to(root).as_posix()
     ds = open_dataset(root)
-    assert [e["object_id"] for e in ds.entries] == ["procedural/box/000"] and ds.damaged == (
-        bad.relative_to(root).as_posix(),
-    )
+    assert [e["object_id"] for e in ds.entries] == ["procedural/box/000"] and ds.damaged == (rel,)
     code, out, _ = run_cli(capsys, "dataset", "info", str(root))
-    assert code == 0 and "is not listed in the manifest and cannot be read (left out)" in out
-    with pytest.raises(AssetError, match=r"cannot read grasp record .*procedural__mug__001.*delete the file"):
-        DatasetWriter(root, CONFIG)
-    assert good.exists()
+    assert code == 0 and f"{rel} cannot be used (left out): unreadable record" in out
+    writer = DatasetWriter(root, CONFIG)
+    assert not writer.has(*records[1].key) and writer.has(*records[0].key) and good.exists() and not bad.exists()
+    assert (root / ".damaged" / rel).is_file() and not (root / ".damaged" / rel).with_suffix("").exists()
+    assert any(n.startswith(f"moved {rel} to .damaged/{rel}: unreadable record") for n in writer.recovered)
 
 
 def test_manifest_interval_batches_index_writes_without_losing_records(tmp_path, records):
@@ -354,6 +368,7 @@ def test_manifest_interval_batches_index_writes_without_losing_records(tmp_path,
     for r in records:
         writer.add(r)
     assert json.loads((root / "manifest.json").read_text())["records"] == []  # as if killed now
+    del writer
     assert len(open_dataset(root)) == 4 and len(DatasetWriter(root, CONFIG)) == 4
     with DatasetWriter(tmp_path / "ds2", CONFIG, manifest_interval=3600) as writer:
         for r in records:
@@ -381,13 +396,17 @@ def test_listed_but_missing_file_is_generated_again(tmp_path, records):
     with DatasetWriter(root, CONFIG) as writer:
         paths = [writer.add(r) for r in records[:2]]
     paths[1].unlink()
+    timing = record_relpath("procedural/mug/001", "shadow").replace(".npz", ".timing.json")
     assert validate_dataset(root) == [
-        f"manifest.json: lists {record_relpath('procedural/mug/001', 'shadow')}, which does not exist"
+        f"manifest.json: lists {record_relpath('procedural/mug/001', 'shadow')}, which does not exist",
+        f"{timing}: timing file whose record is not there (the writer removes it)",
     ]
     ds = open_dataset(root)
     assert len(ds) == 1 and ds.missing and "missing" in summarize(ds).format()
     resumed = DatasetWriter(root, CONFIG)
     assert not resumed.has("procedural/mug/001", "shadow") and "will be generated again" in resumed.recovered[0]
+    assert resumed.recovered[1] == f"removed {timing}: timing file whose record is gone"
+    assert not (root / timing).exists()
 
 
 _KILL_SCRIPT = """
@@ -411,24 +430,28 @@ for i in range(8):
 
 
 @pytest.mark.parametrize(
-    "kill_at", [4, 7]
-)  # renames: 1 manifest, then record, manifest, ...: 4 = a record, 7 = a manifest
-def test_resume_after_sigkill_loses_nothing(tmp_path, kill_at):
+    ("kill_at", "survivors"), [(5, 1), (6, 2), (7, 2)]
+)  # renames: 1 manifest, then record, its timing file, manifest, ...: 5 = a record, 6 = a timing file, 7 = a manifest
+def test_resume_after_sigkill_loses_nothing(tmp_path, kill_at, survivors):
     root = tmp_path / "ds"
     script = _KILL_SCRIPT.format(tests=str(Path(__file__).parent), kill_at=kill_at, root=str(root))
     proc = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60)
     assert proc.returncode == -signal.SIGKILL, proc.stderr
-    assert list(root.rglob(".*.tmp"))  # the kill left a temporary file behind
+    assert list(root.rglob(".*.tmp")) and (root / ".lock").exists()  # the kill left a temporary file and its lock
     survived = {e["object_id"] for e in open_dataset(root).entries}
-    assert len(survived) == (kill_at - 1) // 2  # every record whose file was renamed into place
+    assert len(survived) == survivors  # every record whose file was renamed into place
     with DatasetWriter(root, CONFIG) as writer:
+        assert writer.recovered[0].startswith(f"took over {root / '.lock'}: it was left by pid ")
         for i in range(8):
             if not writer.has(f"procedural/box/{i:03d}", "shadow"):
                 writer.add(make_record(f"procedural/box/{i:03d}", "shadow", seed=i))
-    assert validate_dataset(root) == [] and not list(root.rglob(".*.tmp"))
+    assert validate_dataset(root) == [] and not list(root.rglob(".*.tmp")) and not (root / ".lock").exists()
+    untimed = "procedural/box/001" if kill_at == 6 else None  # whole record, its times lost with the kill
     for i in range(8):
         expected = make_record(f"procedural/box/{i:03d}", "shadow", seed=i)
-        assert_same(open_dataset(root).get(expected.object_id, "shadow"), expected)
+        stored = open_dataset(root).get(expected.object_id, "shadow")
+        assert_same(stored, expected, times=expected.object_id != untimed)
+        assert (stored.total_seconds is None) == (expected.object_id == untimed)
 
 
 # --- validation of damaged records --------------------------------------------------------------
@@ -466,33 +489,33 @@ CORRUPTIONS = {
         "arrays pregrasp_wrist_pose and pregrasp_q: one is stored without the other",
     ),
     "ok_with_reason": (
-        lambda m, a: _steps(m, contacts={"ok": True, "reason": "x", "seconds": 0.1}),
+        lambda m, a: _steps(m, contacts={"ok": True, "reason": "x"}),
         "steps.contacts: ok=True with reason 'x' (a success has no reason, a failure has one)",
     ),
     "failure_without_reason": (
-        lambda m, a: _steps(m, validation={"ok": False, "reason": "", "seconds": 0.1}),
+        lambda m, a: _steps(m, validation={"ok": False, "reason": ""}),
         "steps.validation: ok=False with reason ''",
     ),
     "not_skipped": (
-        lambda m, a: _steps(m, retargeting={"ok": False, "reason": "r", "seconds": 0.0}),
+        lambda m, a: _steps(m, retargeting={"ok": False, "reason": "r"}),
         "steps.refinement: is 'ok' but the earlier step retargeting failed",
     ),
     "skipped_after_success": (
-        lambda m, a: _steps(m, validation={"ok": False, "reason": "skipped", "seconds": 0.0}),
+        lambda m, a: _steps(m, validation={"ok": False, "reason": "skipped"}),
         "steps.validation: is 'skipped' but no earlier step failed",
     ),
     "missing_step": (
         lambda m, a: m["steps"].pop("validation"),
         "steps: must hold exactly ['contacts', 'retargeting', 'refinement', 'validation']",
     ),
-    "step_shape": (lambda m, a: _steps(m, contacts=3), "steps.contacts: must be {ok, reason, seconds}, got 3"),
+    "step_shape": (lambda m, a: _steps(m, contacts=3), "steps.contacts: must be {ok, reason} (its time lives"),
     "step_types": (
-        lambda m, a: _steps(m, contacts={"ok": 1, "reason": "", "seconds": 0.0}),
+        lambda m, a: _steps(m, contacts={"ok": 1, "reason": ""}),
         "steps.contacts: ok must be a bool and reason a string",
     ),
-    "negative_time": (
-        lambda m, a: _steps(m, contacts={"ok": True, "reason": "", "seconds": -1}),
-        "steps.contacts.seconds: must be a finite number >= 0, got -1",
+    "time_inside": (
+        lambda m, a: _steps(m, contacts={"ok": True, "reason": "", "seconds": 0.1}),
+        "steps.contacts: must be {ok, reason} (its time lives in the timing file)",
     ),
     "empty_hand": (lambda m, a: m.update(hand=""), "hand: must be a non-empty string, got ''"),
     "strategy": (
@@ -526,9 +549,13 @@ CORRUPTIONS = {
     ),
     "symmetric": (lambda m, a: m.update(symmetric="no"), "symmetric: must be true, false or null, got 'no'"),
     "errors": (lambda m, a: m["errors"].update(contacts=3), "errors: must be an object of messages"),
-    "setup_seconds": (
-        lambda m, a: m["setup_seconds"].update(sapien=-1),
-        "setup_seconds: must be an object of seconds >= 0",
+    "config_hash": (
+        lambda m, a: m.update(run_config_hash="xyz"),
+        "run_config_hash: must be 16 hex digits or null, got 'xyz'",
+    ),
+    "setup_seconds_inside": (
+        lambda m, a: m.update(setup_seconds={"sapien": 0.1}),
+        "setup_seconds: not a key of a version-2 record",
     ),
     "attempts": (lambda m, a: m["attempts"].append({"refinement": "ok"}), "attempts: must be a list of"),
     "attempt": (
@@ -548,7 +575,7 @@ CORRUPTIONS = {
     "verdict_keys": (lambda m, a: m["validations"]["sapien"].pop("flags"), "validations.sapien: must be {flags,"),
     "verdict_types": (
         lambda m, a: m["validations"]["sapien"].update(success="yes"),
-        "validations.sapien: success must be a bool, reason a string, seconds >= 0",
+        "validations.sapien: success must be a bool and reason a string",
     ),
     "verdict_flags": (
         lambda m, a: m["validations"]["sapien"]["flags"].update(held=1),
@@ -579,7 +606,7 @@ CORRUPTIONS = {
         "grasp_stage: 'refinement' but no grasp is stored (expected '')",
     ),
     "stage_not_run": (
-        lambda m, a: _steps(m, refinement={"ok": False, "reason": "not_run", "seconds": 0.0}),
+        lambda m, a: _steps(m, refinement={"ok": False, "reason": "not_run"}),
         "grasp_stage: 'refinement' but the refinement step did not run",
     ),
     "no_pregrasp": (
@@ -751,7 +778,10 @@ def test_version_1_record_written_again_is_version_2_and_reads_the_same(path):
     record = load_record(DATASET_V1, path.relative_to(DATASET_V1).as_posix())
     meta, arrays = record_to_raw(record)
     assert meta["version"] == RECORD_VERSION == 2 and record_problems(meta, arrays) == []
-    assert_same(record_from_bytes(raw_to_bytes(meta, arrays)), record)
+    assert record.total_seconds > 0  # a version-1 record holds its own times
+    again = record_from_bytes(raw_to_bytes(meta, arrays))
+    assert_same(again, record, times=False)
+    assert again.total_seconds is None and all(v.seconds is None for v in again.validations.values())
 
 
 def test_version_1_unknown_extra_keys_stay_in_extra():

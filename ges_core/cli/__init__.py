@@ -2,7 +2,9 @@
 
 Each sub-command lives in its own module with ``add_parser(subparsers)``; the handler receives
 the parsed arguments and a lazily built :class:`~ges_core.registry.Registry`. Errors derived
-from :class:`~ges_core.errors.GesError` print one line and exit 1; ``--debug`` shows the traceback.
+from :class:`~ges_core.errors.GesError` print one line and exit 1; ``--debug`` shows the traceback. An
+``OSError`` that no writer turned into a :class:`~ges_core.errors.StorageError` (a file a command writes
+itself, a file it cannot read) prints one line too: its cause, its path and what to do.
 """
 
 from __future__ import annotations
@@ -71,6 +73,13 @@ def main(argv: Sequence[str] | None = None) -> int:
         if args.debug:
             raise
         print(f"ges: error: {exc}", file=sys.stderr)
+        return 1
+    except OSError as exc:  # the last resort: a disk error outside the project's writers is one line too
+        if args.debug:
+            raise
+        from ges_core.paths import describe_os_error
+
+        print(f"ges: error: {describe_os_error(exc, doing='at')}", file=sys.stderr)
         return 1
     except KeyboardInterrupt:
         print("ges: interrupted", file=sys.stderr)

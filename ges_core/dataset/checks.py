@@ -22,7 +22,8 @@ from ges_core.dataset.record import (
     RefinementInfo,
     SimVerdict,
 )
-from ges_core.dataset.record_v1 import upgraded
+from ges_core.dataset.record_v1 import timing_v1, upgraded
+from ges_core.dataset.timing import timing_problems
 
 __all__ = ["READABLE_RECORD_VERSIONS", "UNIT_TOLERANCE", "record_problems"]
 
@@ -48,12 +49,13 @@ def record_problems(meta: object, arrays: Mapping[str, np.ndarray]) -> list[str]
         found = f"{meta.get('format')!r} version {meta.get('version')!r}"
         expected = " or ".join(str(v) for v in READABLE_RECORD_VERSIONS)
         return [f"not a grasp record: format {found}, expected {RECORD_FORMAT!r} version {expected}"]
+    problems = [f"times: {p}" for p in timing_problems(timing_v1(meta), header=False)] if meta["version"] == 1 else []
     meta = upgraded(meta)
-    problems = _text_problems(meta) + _joint_name_problems(meta.get("joint_names"))
+    problems += _text_problems(meta) + _joint_name_problems(meta.get("joint_names"))
     problems += _step_problems(meta.get("steps"))
     problems += _array_problems(arrays, _joint_count(meta))
     problems += _quality_problems(meta.get("quality"))
-    problems += _misc_problems(meta) + _note_problems(meta)
+    problems += _misc_problems(meta) + _note_problems(meta) + _unknown_key_problems(meta)
     if not any(p.startswith("steps") for p in problems):
         problems += _presence_problems(meta, arrays)
     return problems
@@ -88,17 +90,14 @@ def _step_problems(steps: object) -> list[str]:
 
 
 def _one_step_problems(name: str, step: object) -> list[str]:
-    if not isinstance(step, dict) or sorted(step) != ["ok", "reason", "seconds"]:
-        return [f"steps.{name}: must be {{ok, reason, seconds}}, got {step!r}"]
-    ok, reason, seconds = step["ok"], step["reason"], step["seconds"]
-    problems = []
+    if not isinstance(step, dict) or sorted(step) != ["ok", "reason"]:
+        return [f"steps.{name}: must be {{ok, reason}} (its time lives in the timing file), got {step!r}"]
+    ok, reason = step["ok"], step["reason"]
     if not isinstance(ok, bool) or not isinstance(reason, str):
-        problems.append(f"steps.{name}: ok must be a bool and reason a string, got {ok!r}, {reason!r}")
-    elif ok == bool(reason):
-        problems.append(f"steps.{name}: ok={ok} with reason {reason!r} (a success has no reason, a failure has one)")
-    if not _is_number(seconds) or not math.isfinite(seconds) or seconds < 0:
-        problems.append(f"steps.{name}.seconds: must be a finite number >= 0, got {seconds!r}")
-    return problems
+        return [f"steps.{name}: ok must be a bool and reason a string, got {ok!r}, {reason!r}"]
+    if ok == bool(reason):
+        return [f"steps.{name}: ok={ok} with reason {reason!r} (a success has no reason, a failure has one)"]
+    return []
 
 
 def _order_problems(steps: dict) -> list[str]:
@@ -189,8 +188,8 @@ _NOTE_KEYS = (
     "refinement",
     "validations",
     "errors",
-    "setup_seconds",
     "picture",
+    "run_config_hash",
 )
 
 
@@ -208,11 +207,26 @@ def _note_problems(meta: dict) -> list[str]:
             ("contacts_from", "a hand name or null", meta["contacts_from"] is None or _text(meta["contacts_from"])),
             ("picture", "a path or null", meta["picture"] is None or _text(meta["picture"])),
             ("errors", "an object of messages", _mapping_of(meta["errors"], lambda m: isinstance(m, str))),
-            ("setup_seconds", "an object of seconds >= 0", _mapping_of(meta["setup_seconds"], _seconds)),
+            (
+                "run_config_hash",
+                "16 hex digits or null",
+                meta["run_config_hash"] is None or _hex16(meta["run_config_hash"]),
+            ),
         )
         if not ok
     ]
     return problems + _attempt_problems(meta) + _refinement_problems(meta["refinement"]) + _verdict_problems(meta)
+
+
+_KEYS = {
+    "format", "version", *_TEXT_FIELDS, "joint_names", "steps", "contacts", "strategy", "grasp_stage", "quality",
+    "validation_flags", "versions", "seed", "extra", *_NOTE_KEYS,
+}  # fmt: skip
+"""The scalars of a version-2 record (a version-1 record's, once upgraded)."""
+
+
+def _unknown_key_problems(meta: dict) -> list[str]:
+    return [f"{k}: not a key of a version-2 record" for k in sorted(set(meta) - _KEYS)]
 
 
 def _attempt_problems(meta: dict) -> list[str]:
@@ -246,15 +260,15 @@ def _refinement_problems(refinement: object) -> list[str]:
 
 
 def _verdict_problems(meta: dict) -> list[str]:
-    verdicts, fields = meta["validations"], sorted(SimVerdict.__dataclass_fields__)
+    verdicts, fields = meta["validations"], sorted(set(SimVerdict.__dataclass_fields__) - {"seconds"})
     if not isinstance(verdicts, dict):
         return [f"validations: must map simulators to verdicts, got {verdicts!r}"]
     problems = []
     for sim, v in verdicts.items():
         if not isinstance(v, dict) or sorted(v) != fields:
             problems.append(f"validations.{sim}: must be {{{', '.join(fields)}}}, got {v!r}")
-        elif not (isinstance(v["success"], bool) and _text(v["reason"]) and _seconds(v["seconds"])):
-            problems.append(f"validations.{sim}: success must be a bool, reason a string, seconds >= 0, got {v!r}")
+        elif not (isinstance(v["success"], bool) and _text(v["reason"])):
+            problems.append(f"validations.{sim}: success must be a bool and reason a string, got {v!r}")
         elif not _mapping_of(v["flags"], lambda f: isinstance(f, bool)):
             problems.append(f"validations.{sim}.flags: must map names to true/false, got {v['flags']!r}")
     return problems
@@ -303,6 +317,10 @@ def _seconds(value: object) -> bool:
 
 def _index(value: object) -> bool:
     return isinstance(value, int) and not isinstance(value, bool) and value >= 0
+
+
+def _hex16(value: object) -> bool:
+    return isinstance(value, str) and len(value) == 16 and all(c in "0123456789abcdef" for c in value)
 
 
 def _text(value: object) -> bool:

@@ -7,6 +7,10 @@ building the hand or the simulator that produced it.
 Frames and units: every position, normal, direction and pose is in the **object frame** (the
 object's resting frame: z up, table plane z = 0), metres; poses are (7,) position + unit
 quaternion w, x, y, z; joint angles radians (metres for prismatic joints); times seconds.
+
+Times are not stored in the record file (the same run gives byte-identical files): the dataset keeps them
+beside it (:mod:`ges_core.dataset.timing`). A record read without them has ``None`` for every
+``seconds`` and ``{}`` for ``setup_seconds``.
 """
 
 from __future__ import annotations
@@ -21,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from ges_core.contact import ContactSet
-from ges_core.dataset.record_v1 import upgraded
+from ges_core.dataset.record_v1 import timing_v1, upgraded
 
 __all__ = [
     "NOT_RUN",
@@ -47,8 +51,10 @@ __all__ = [
 
 RECORD_FORMAT = "ges.grasp_record"
 RECORD_VERSION = 2
-"""Version 2: the Stage 1 notes are typed fields (``validations``, ``attempts``, ``refinement``, ``errors``, ...);
-version 1 kept them in the free-form ``extra`` and is still read (:mod:`ges_core.dataset.record_v1`)."""
+"""Version 2: the Stage 1 notes are typed fields (``validations``, ``attempts``, ``refinement``, ``errors``, ...),
+the times live beside the record (:mod:`ges_core.dataset.timing`) and ``run_config_hash`` names the settings it
+was made with; version 1 kept the notes in the free-form ``extra`` and the times inside, and is still read
+(:mod:`ges_core.dataset.record_v1`)."""
 
 STEPS: tuple[str, ...] = ("contacts", "retargeting", "refinement", "validation")
 """The Stage 1 steps, in pipeline order; every record holds one :class:`StepOutcome` per step."""
@@ -70,8 +76,8 @@ class StepOutcome:
     """True when the step succeeded."""
     reason: str = ""
     """'' when ok; otherwise a short failure code, or SKIPPED / NOT_RUN when not attempted."""
-    seconds: float = 0.0
-    """Wall time the step took, seconds (0 when not attempted)."""
+    seconds: float | None = 0.0
+    """Wall time the step took, seconds (0 when not attempted; None: unknown, the record's timing file is missing)."""
 
     @property
     def attempted(self) -> bool:
@@ -79,7 +85,7 @@ class StepOutcome:
         return self.ok or self.reason not in (SKIPPED, NOT_RUN)
 
     @classmethod
-    def failed(cls, reason: str, seconds: float = 0.0) -> StepOutcome:
+    def failed(cls, reason: str, seconds: float | None = 0.0) -> StepOutcome:
         """A failed step with its reason code."""
         return cls(ok=False, reason=reason, seconds=seconds)
 
@@ -126,8 +132,8 @@ class SimVerdict:
     """'success' or why not: 'no_contact', 'palm_only', 'dropped', 'not_lifted', 'unstable'."""
     flags: Mapping[str, bool] = field(default_factory=dict)
     """Per-phase flags, e.g. reached_grasp, fingertips_touching, lifted, held ({} when the simulator failed)."""
-    seconds: float = 0.0
-    """Wall time of the validation in this simulator, seconds."""
+    seconds: float | None = 0.0
+    """Wall time of the validation in this simulator, seconds (None: unknown)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -190,6 +196,9 @@ class GraspRecord:
     versions: Mapping[str, str] = field(default_factory=dict)
     """Software versions (see :func:`software_versions`)."""
     seed: int = 0
+    run_config_hash: str | None = None
+    """The run config the record was made with: 16 hex digits of the SHA-256 of its JSON
+    (:func:`ges_core.dataset.layout.config_hash`); the dataset writer fills it. None: unknown (version 1)."""
     symmetric: bool | None = None
     """Whether contact generation found the object rotationally symmetric about z (None: no contacts generated)."""
     contacts_from: str | None = None
@@ -205,7 +214,8 @@ class GraspRecord:
     errors: Mapping[str, str] = field(default_factory=dict)
     """Error message per failed step: 'contacts', 'retargeting', 'refinement' or 'validation_<simulator>'."""
     setup_seconds: Mapping[str, float] = field(default_factory=dict)
-    """Per simulator, the one-time build + hand load for this record (not in the step times), seconds."""
+    """Per simulator, the one-time build + hand load for this record (not in the step times), seconds ({}:
+    unknown)."""
     picture: str | None = None
     """Path of the record's picture (POSIX), when pictures were drawn."""
     extra: Mapping[str, Any] = field(default_factory=dict)
@@ -234,9 +244,10 @@ class GraspRecord:
         return all(self.steps[s].ok or self.steps[s].reason == NOT_RUN for s in STEPS)
 
     @property
-    def total_seconds(self) -> float:
-        """Sum of the step times, seconds."""
-        return float(sum(self.steps[s].seconds for s in STEPS))
+    def total_seconds(self) -> float | None:
+        """Sum of the step times, seconds; None when a time is unknown."""
+        times = [self.steps[s].seconds for s in STEPS]
+        return None if None in times else float(sum(times))
 
 
 def software_versions(*packages: str) -> dict[str, str]:
@@ -256,7 +267,7 @@ def software_versions(*packages: str) -> dict[str, str]:
 
 
 def record_to_raw(record: GraspRecord) -> tuple[dict, dict[str, np.ndarray]]:
-    """The record as (JSON-ready scalars, named float64 arrays): the on-disk layout."""
+    """The record as (JSON-ready scalars, named float64 arrays): the on-disk layout, times left out."""
     arrays: dict[str, np.ndarray] = {}
     contacts = None
     if record.contacts is not None:
@@ -281,6 +292,7 @@ def record_to_raw(record: GraspRecord) -> tuple[dict, dict[str, np.ndarray]]:
         "validation_flags": dict(record.validation_flags),
         "versions": dict(record.versions),
         "seed": record.seed,
+        "run_config_hash": record.run_config_hash,
         **_notes_to_raw(record),
         "extra": dict(record.extra),
     }
@@ -297,14 +309,12 @@ def _notes_to_raw(record: GraspRecord) -> dict:
         "refinement": None if record.refinement is None else asdict(record.refinement),
         "validations": {sim: _verdict_to_dict(v) for sim, v in record.validations.items()},
         "errors": dict(record.errors),
-        "setup_seconds": dict(record.setup_seconds),
         "picture": record.picture,
     }
 
 
 def _verdict_to_dict(verdict: SimVerdict) -> dict:
-    return {"success": verdict.success, "reason": verdict.reason, "flags": dict(verdict.flags),
-            "seconds": verdict.seconds}  # fmt: skip
+    return {"success": verdict.success, "reason": verdict.reason, "flags": dict(verdict.flags)}
 
 
 def _plain(value: Any) -> Any:
@@ -317,7 +327,7 @@ def _plain(value: Any) -> Any:
 
 
 def _step_to_dict(step: StepOutcome) -> dict:
-    return {"ok": step.ok, "reason": step.reason, "seconds": step.seconds}
+    return {"ok": step.ok, "reason": step.reason}
 
 
 def _quality_to_dict(quality: Quality) -> dict:
@@ -327,9 +337,12 @@ def _quality_to_dict(quality: Quality) -> dict:
 def record_from_raw(meta: dict, arrays: Mapping[str, np.ndarray]) -> GraspRecord:
     """Inverse of :func:`record_to_raw` (no checks beyond what the types need; see ``validate``).
 
-    A version-1 record is read through :func:`ges_core.dataset.record_v1.upgraded` first.
+    Times unknown (None) but for a version-1 record, which held them; it is read through
+    :func:`ges_core.dataset.record_v1.upgraded` first.
     """
+    timing = timing_v1(meta)
     meta = upgraded(meta)
+    steps = timing.get("steps", {})
     contacts = None
     if meta.get("contacts") is not None:
         data = dict(meta["contacts"], positions=arrays["contact_positions"], normals=arrays["contact_normals"])
@@ -337,7 +350,7 @@ def record_from_raw(meta: dict, arrays: Mapping[str, np.ndarray]) -> GraspRecord
     return GraspRecord(
         **{k: meta[k] for k in ("object_id", "category", "split", "hand", "simulator", "strategy", "seed")},
         joint_names=tuple(meta["joint_names"]),
-        steps={name: StepOutcome(**step) for name, step in meta["steps"].items()},
+        steps={name: StepOutcome(**step, seconds=steps.get(name)) for name, step in meta["steps"].items()},
         contacts=contacts,
         approach=arrays.get("approach"),
         grasp=_pose(arrays, ""),
@@ -346,23 +359,26 @@ def record_from_raw(meta: dict, arrays: Mapping[str, np.ndarray]) -> GraspRecord
         quality=Quality(**meta.get("quality", {})),
         validation_flags=meta.get("validation_flags", {}),
         versions=meta.get("versions", {}),
-        **_notes_from_raw(meta),
+        run_config_hash=meta.get("run_config_hash"),
+        **_notes_from_raw(meta, timing),
         extra=meta.get("extra", {}),
     )
 
 
-def _notes_from_raw(meta: dict) -> dict:
+def _notes_from_raw(meta: dict, timing: dict) -> dict:
     """The typed Stage 1 notes of a version-2 record's scalars (absent keys: the fields' defaults)."""
-    refinement = meta.get("refinement")
+    refinement, seconds = meta.get("refinement"), timing.get("validations", {})
     return {
         "symmetric": meta.get("symmetric"),
         "contacts_from": meta.get("contacts_from"),
         "attempt": meta.get("attempt"),
         "attempts": tuple(AttemptVerdict(**a) for a in meta.get("attempts", ())),
         "refinement": None if refinement is None else RefinementInfo(**refinement),
-        "validations": {sim: SimVerdict(**v) for sim, v in meta.get("validations", {}).items()},
+        "validations": {
+            sim: SimVerdict(**v, seconds=seconds.get(sim)) for sim, v in meta.get("validations", {}).items()
+        },
         "errors": meta.get("errors", {}),
-        "setup_seconds": meta.get("setup_seconds", {}),
+        "setup_seconds": timing.get("setup_seconds", {}),
         "picture": meta.get("picture"),
     }
 

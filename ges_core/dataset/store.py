@@ -3,42 +3,51 @@
 >>> writer = DatasetWriter("runs/demo", run_config={"hands": ["shadow"], "sim": "sapien"})
 >>> for obj in objects:
 ...     if not writer.has(obj.object_id, "shadow"):      # resume: skip what is stored
-...         writer.add(synthesize(obj))                  # one atomic file, then the manifest
+...         writer.add(synthesize(obj))                  # one atomic file (and its times), then the manifest
 >>> for record in open_dataset("runs/demo"):
 ...     print(record.object_id, record.hand, record.success)
 
-Each record is one file written atomically; the manifest is rewritten atomically after it (at most
-every ``manifest_interval`` seconds, and on close). A run killed at any moment therefore leaves
-whole records only; records written before the kill but missing from the manifest are adopted when
-the folder is opened again (by the writer, which rewrites the manifest, and by the reader, in
-memory). One writer per folder at a time.
+Each record is one file written atomically, its times another beside it (:mod:`.timing`); the manifest is
+rewritten atomically after them (at most every ``manifest_interval`` seconds, and on close). A run killed at
+any moment therefore leaves whole records only. Records are the truth and the manifest's index a cache of
+them: opening a folder reads every record and rebuilds the index from them (:mod:`.reconcile`); the writer
+also repairs the folder and rewrites the manifest, the reader keeps the repair in memory. One writer per
+folder at a time: the writer holds the folder's lock (:mod:`.lock`) until it is closed.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ges_core.dataset.checks import record_problems
 from ges_core.dataset.layout import (
+    DAMAGED_DIR,
     DATASET_FORMAT,
     DATASET_VERSION,
     MANIFEST,
     RECORDS_DIR,
+    WRITE_FIX,
     config_differences,
+    config_hash,
     index_entry,
+    known_config_hashes,
+    move_aside,
     normalize_config,
     read_manifest,
     record_relpath,
-    scan_folder,
+    try_read_manifest,
     utc_now,
     write_manifest,
 )
-from ges_core.dataset.record import GraspRecord, raw_to_bytes, record_from_bytes, record_to_raw, software_versions
-from ges_core.errors import AssetError, ConfigError
-from ges_core.paths import atomic_write_bytes
+from ges_core.dataset.lock import LOCK_FILE, FolderLock
+from ges_core.dataset.reconcile import FolderIndex, index_folder, read_record_file
+from ges_core.dataset.record import GraspRecord, raw_to_bytes, record_to_raw, software_versions
+from ges_core.dataset.timing import sha256_hex, timing_relpath, timing_text
+from ges_core.errors import AssetError, ConfigError, StorageError
+from ges_core.paths import atomic_write_bytes, atomic_write_text, make_dirs, storage_error
 
 __all__ = ["MANIFEST_INTERVAL_S", "Dataset", "DatasetWriter", "load_record", "open_dataset"]
 
@@ -48,23 +57,27 @@ index every other record or so, and a kill costs at most the adoption of the few
 
 
 def load_record(root: Path, file: str) -> GraspRecord:
-    """Read the record stored at ``root / file``; AssetError naming the file if it is damaged."""
+    """Read the record stored at ``root / file`` with its times; AssetError naming the file if it is damaged."""
     path = root / file
     try:
-        return record_from_bytes(path.read_bytes())
-    except Exception as exc:  # zip, JSON, key and type errors of a damaged file alike
+        return read_record_file(root, file)
+    except (AssetError, OSError) as exc:
+        why = str(exc).removeprefix(f"{file}: ")
         raise AssetError(
-            f"cannot read grasp record {path}: {type(exc).__name__}: {exc}. Run 'ges dataset validate {root}'; "
-            "delete the file to have the next run regenerate it"
+            f"cannot read grasp record {path}: {why}. Run 'ges dataset validate {root}'; resuming the run that "
+            "wrote it moves it aside and makes it again"
         ) from exc
 
 
 class DatasetWriter:
-    """Adds records to a dataset folder, creating it or resuming it.
+    """Adds records to a dataset folder, creating it or resuming it; holds the folder's lock until closed.
 
-    path: the dataset folder (created if missing; must be empty or a dataset).
-    run_config: the run's settings (dict, pydantic model or dataclass; stored as JSON). Resuming
-        a folder written with other settings raises ConfigError unless ``allow_config_change``.
+    path: the dataset folder (created if missing; must be empty or a dataset). Another process writing it
+        raises LockError naming that process.
+    run_config: the run's settings (dict, pydantic model or dataclass; stored as JSON, and its hash in every
+        record). Resuming a folder written with other settings raises ConfigError unless ``allow_config_change``;
+        so does resuming one whose records were made with settings its manifest does not name (a deleted or
+        replaced manifest).
     manifest_interval: seconds between manifest rewrites (0: after every record). Records added in
         between are safe on disk and adopted on the next open; :meth:`close` (or leaving a ``with``
         block) writes the manifest. Rewriting an index of N records after each of N records would
@@ -81,28 +94,50 @@ class DatasetWriter:
     ) -> None:
         self.root = Path(path)
         self.run_config = normalize_config(run_config)
+        self.config_hash = config_hash(self.run_config)
+        """What :meth:`add` stamps on records that carry no run-config hash."""
         self.manifest_interval = manifest_interval
         self.recovered: list[str] = []
-        """What opening repaired: leftover temporary files, adopted or vanished record files."""
-        self._manifest = self._open(allow_config_change)
-        self._entries = self._reconcile()
-        self.flush()
+        """What opening repaired: a lock left behind, leftover files, adopted, damaged or moved records, manifest
+        entries that disagreed with their records, a rebuilt manifest."""
+        self._lock = FolderLock.acquire(make_dirs(self.root, fix=WRITE_FIX), fix=WRITE_FIX)
+        self._closed = False
+        try:
+            self.recovered += self._lock.notes
+            self._manifest, self._entries = self._open(allow_config_change)
+            self.flush()
+        except BaseException:
+            self._lock.release()
+            raise
 
     def __enter__(self) -> DatasetWriter:
         return self
 
-    def __exit__(self, *exc: object) -> None:
-        self.close()
+    def __exit__(self, exc_type: object, exc: BaseException | None, tb: object) -> None:
+        if exc is None:
+            self.close()
+            return
+        try:  # keep what was added; a manifest that cannot be written now is rebuilt on the next open
+            self.close()
+        except StorageError:
+            pass  # the error in flight (often the same full disk) is the one to report
+        finally:
+            self._lock.release()
 
     def flush(self) -> None:
         """Rewrite the manifest (atomically) with every record added so far."""
-        write_manifest(self.root, self._manifest, list(self._entries.values()))
+        manifest = dict(self._manifest, run_config_hash=self.config_hash)
+        write_manifest(self.root, manifest, list(self._entries.values()))
         self._dirty, self._last_flush = False, time.monotonic()
 
     def close(self) -> None:
-        """Write the manifest if records were added since the last write."""
-        if self._dirty:
-            self.flush()
+        """Write the manifest if records were added since the last write; give the folder's lock back."""
+        try:
+            if self._dirty and not self._closed:
+                self.flush()
+        finally:
+            self._closed = True
+            self._lock.release()
 
     def __len__(self) -> int:
         return len(self._entries)
@@ -116,42 +151,63 @@ class DatasetWriter:
         return (object_id, hand) in self._entries
 
     def add(self, record: GraspRecord, *, overwrite: bool = False) -> Path:
-        """Check ``record``, write its file atomically, then rewrite the manifest; returns the file."""
+        """Check ``record``, write its file and then its timing file atomically, then the manifest (at most every
+        ``manifest_interval`` s); returns the record's file. A record without a run-config hash gets this
+        writer's."""
+        if self._closed:
+            raise ValueError(f"the writer of dataset {self.root} is closed; open a new DatasetWriter to add records")
         if self.has(*record.key) and not overwrite:
             raise ValueError(
                 f"dataset {self.root} already holds the record of object '{record.object_id}' with hand "
                 f"'{record.hand}'; check writer.has() first to skip it, or pass overwrite=True"
             )
+        if record.run_config_hash is None:
+            record = replace(record, run_config_hash=self.config_hash)
         meta, arrays = record_to_raw(record)
         problems = record_problems(meta, arrays)
         if problems:
             raise ValueError(f"record of ({record.object_id}, {record.hand}) is invalid: " + "; ".join(problems))
         file = record_relpath(record.object_id, record.hand)
-        path = atomic_write_bytes(self.root / file, raw_to_bytes(meta, arrays))
+        data = raw_to_bytes(meta, arrays)
+        path = atomic_write_bytes(self.root / file, data, fix=WRITE_FIX)
+        atomic_write_text(self.root / timing_relpath(file), timing_text(record, sha256_hex(data)), fix=WRITE_FIX)
         self._entries[record.key] = index_entry(record, file)
         self._dirty = True
         if time.monotonic() - self._last_flush >= self.manifest_interval:
             self.flush()
         return path
 
-    def _open(self, allow_config_change: bool) -> dict:
-        if (self.root / MANIFEST).is_file():
-            manifest = read_manifest(self.root)
-            return dict(self._check_config(manifest, allow_config_change), version=DATASET_VERSION)
-        if self.root.exists() and any(self._foreign_files()):
+    def _open(self, allow_config_change: bool) -> tuple[dict, dict[tuple[str, str], dict]]:
+        """The manifest to keep and the index, from the records; the folder repaired (checks first, then moves)."""
+        manifest, why = try_read_manifest(self.root)
+        if manifest is None and any(self._foreign_files()):
             raise AssetError(
                 f"{self.root} is not empty and holds no {MANIFEST}: it is not a grasp dataset. "
                 "Choose a new or empty folder for the dataset"
             )
-        if (self.root / RECORDS_DIR).is_dir():
-            self.recovered.append(f"{MANIFEST} was missing: rebuilt from the record files with this run's config")
-        return self._new_manifest()
+        index = index_folder(self.root, manifest)
+        if manifest is None:
+            rebuilt = self._new_manifest()
+            kept = self._check_records_config(rebuilt, index, allow_config_change, why=why)
+        else:
+            kept = self._check_config(dict(manifest, version=DATASET_VERSION), allow_config_change)
+            kept = self._check_records_config(kept, index, allow_config_change)
+        if manifest is None and (self.root / MANIFEST).exists():
+            aside = move_aside(self.root, MANIFEST)
+            self.recovered.append(f"{MANIFEST} could not be read ({why}): moved to {aside}")
+        if manifest is None and index.records:
+            self.recovered.append(f"{MANIFEST} rebuilt from the {len(index.records)} record files (this run's config)")
+        return kept, _repair(self.root, index, self.recovered)
 
     def _foreign_files(self) -> Iterator[Path]:
-        """Files that are neither records, nor temporary files, nor folders of records."""
+        """Files that are neither records, nor the manifest, the lock, files moved aside or temporary files."""
         for p in self.root.rglob("*"):
-            rel = p.relative_to(self.root)
-            if p.is_file() and rel.parts[0] != RECORDS_DIR and not p.name.endswith(".tmp"):
+            top = p.relative_to(self.root).parts[0]
+            if (
+                p.is_file()
+                and top not in (RECORDS_DIR, DAMAGED_DIR, LOCK_FILE, MANIFEST)
+                and not p.name.endswith(".tmp")
+            ):
                 yield p
 
     def _new_manifest(self) -> dict:
@@ -166,43 +222,118 @@ class DatasetWriter:
         if not allow_change:
             raise ConfigError(
                 f"dataset {self.root} was written with another run config ({'; '.join(diffs)}). "
-                "Rerun with the stored values, or write to a new folder (ges: --out DIR; ges demo --fresh moves "
-                "this one aside); in Python, DatasetWriter(..., allow_config_change=True) continues it and keeps "
-                "the old config in the manifest's config_history",
+                "Write to a new folder, rerun with the stored config, or allow the change explicitly "
+                "(allow_config_change=True; the old config is kept in the manifest's config_history)",
                 problems=diffs,
             )
         history = [*manifest.get("config_history", []), {"until": utc_now(), "run_config": old}]
         return dict(manifest, run_config=self.run_config, config_history=history)
 
-    def _reconcile(self) -> dict[tuple[str, str], dict]:
-        scan = scan_folder(self.root, self._manifest)
-        for rel in scan.temp_files:
-            (self.root / rel).unlink(missing_ok=True)
-            self.recovered.append(f"removed {rel}: temporary file of an interrupted write")
-        for rel in scan.missing:
-            self.recovered.append(f"{rel}: listed in {MANIFEST} but missing; its pair will be generated again")
-        entries = {(e["object_id"], e["hand"]): e for e in scan.listed.values()}
-        for rel in scan.unlisted:
-            record = load_record(self.root, rel)
-            entries[record.key] = index_entry(record, rel)
-            self.recovered.append(f"adopted {rel}: written before the last run stopped, not yet in {MANIFEST}")
-        return entries
+    def _check_records_config(self, manifest: dict, index: FolderIndex, allow_change: bool, *, why: str = "") -> dict:
+        """Refuse records made with a run config the manifest does not name (records without a hash, version 1,
+        count as unknown only when the manifest is being rebuilt); allowed, their hashes join config_history."""
+        known = known_config_hashes(manifest)
+        unknown = {h: n for h, n in index.config_hashes().items() if h not in known and (h is not None or why)}
+        if not unknown:
+            return manifest
+        problems = [_made_with(h, n) for h, n in sorted(unknown.items(), key=lambda kv: str(kv[0]))]
+        if not allow_change:
+            ours = self.config_hash if why else config_hash(manifest["run_config"])
+            whose = f"this run's ({ours})" if why else f"the one {MANIFEST} names ({ours})"
+            where = f"has no usable {MANIFEST} ({why}) and holds" if why else "holds"
+            raise ConfigError(
+                f"dataset {self.root} {where} records made with another run config than {whose}: "
+                f"{'; '.join(problems)}. Rerun with the settings the records were made with, write to a new folder, "
+                "or allow the change explicitly (allow_config_change=True; their config hashes go to config_history)",
+                problems=problems,
+            )
+        now = utc_now()
+        history = [{"until": now, "run_config": None, "run_config_hash": h, "records": n} for h, n in unknown.items()]
+        return dict(manifest, config_history=[*manifest.get("config_history", []), *history])
+
+
+def _made_with(config: str | None, count: int) -> str:
+    if config is None:
+        return f"{count} record(s) carry no run-config hash (version 1: made with settings no longer known)"
+    return f"{count} record(s) made with run config {config}"
+
+
+def _repair(root: Path, index: FolderIndex, notes: list[str]) -> dict[tuple[str, str], dict]:
+    """Make the folder match ``index`` (leftovers removed, damaged and duplicate records moved aside, misplaced ones
+    moved home); say each in ``notes``; return the index entries by key."""
+    scan = index.scan
+    for rel in scan.temp_files:
+        _unlink(root / rel)
+        notes.append(f"removed {rel}: temporary file of an interrupted write")
+    for rel in scan.missing:
+        notes.append(f"{rel}: listed in {MANIFEST} but missing; its pair will be generated again")
+    for rel, why in index.damaged.items():
+        notes.append(f"moved {rel} to {_move_with_timing(root, rel)}: {why}; its pair will be generated again")
+    for rel, other in index.duplicates.items():
+        notes.append(f"moved {rel} to {_move_with_timing(root, rel)}: a second record of the pair stored at {other}")
+    for rel in scan.orphan_timings:
+        if (root / rel).exists():
+            _unlink(root / rel)
+            notes.append(f"removed {rel}: timing file whose record is gone")
+    notes += index.disagreements
+    entries = {}
+    for key, stored in index.records.items():
+        entry = dict(stored.entry)
+        if stored.file in index.misplaced:
+            entry["file"] = _move_home(root, stored.file, index.misplaced[stored.file])
+            notes.append(f"moved {stored.file} to {entry['file']}: it holds that pair's record")
+        elif stored.file in scan.unlisted:
+            notes.append(f"adopted {stored.file}: written before the last run stopped, not yet in {MANIFEST}")
+        entries[key] = entry
+    untimed = index.untimed()
+    if untimed:
+        notes.append(
+            f"{len(untimed)} record(s) have no usable timing file (e.g. {untimed[0]}): their times are unknown"
+        )
+    return entries
+
+
+def _move_with_timing(root: Path, rel: str) -> str:
+    """Move a record file and its timing file (if any) into .damaged/; returns where the record went."""
+    if (root / timing_relpath(rel)).exists():
+        move_aside(root, timing_relpath(rel))
+    return move_aside(root, rel)
+
+
+def _move_home(root: Path, rel: str, home: str) -> str:
+    for src, dst in ((timing_relpath(rel), timing_relpath(home)), (rel, home)):
+        if (root / src).exists():
+            make_dirs((root / dst).parent, fix=WRITE_FIX)
+            try:
+                (root / src).replace(root / dst)
+            except OSError as exc:
+                raise storage_error(root / dst, exc, fix=WRITE_FIX) from exc
+    return home
+
+
+def _unlink(path: Path) -> None:
+    try:
+        path.unlink(missing_ok=True)
+    except OSError as exc:
+        raise storage_error(path, exc, fix=WRITE_FIX) from exc
 
 
 @dataclass(frozen=True)
 class Dataset:
-    """A dataset folder opened for reading; iterating yields :class:`GraspRecord` (read lazily)."""
+    """A dataset folder opened for reading; iterating yields :class:`GraspRecord` (read lazily, with their times)."""
 
     root: Path
     manifest: dict
     entries: tuple[dict, ...]
-    """Index entries (manifest entries whose file exists, plus adopted unlisted files), sorted."""
+    """Index entries rebuilt from the records (every usable record file, listed or not), sorted."""
     unlisted: tuple[str, ...]
     """Record files the manifest does not list (adopted into ``entries``)."""
     missing: tuple[str, ...]
     """Files the manifest lists that do not exist (left out of ``entries``)."""
     damaged: tuple[str, ...] = ()
-    """Unlisted record files that cannot be read (left out of ``entries``; see ``ges dataset validate``)."""
+    """Record files that cannot be read or fail the record checks (left out; see ``ges dataset validate``)."""
+    notes: tuple[str, ...] = ()
+    """Where the folder differs from its manifest, one line each (what :func:`open_dataset` did about it)."""
 
     @property
     def run_config(self) -> dict:
@@ -232,18 +363,30 @@ class Dataset:
 def open_dataset(path: str | Path) -> Dataset:
     """Open a dataset folder for reading (the folder is not modified).
 
-    Record files missing from the manifest (a run stopped before its last manifest write) are
-    adopted in memory; unreadable ones are listed in ``damaged`` and left out.
+    The index is rebuilt in memory from the record files (:mod:`.reconcile`): files the manifest does not list
+    are adopted, entries that disagree with their record take the record's fields, damaged files are left out
+    (``damaged``); ``notes`` says each. The manifest must be readable (the writer rebuilds a broken one).
     """
     root = Path(path)
     manifest = read_manifest(root)
-    scan = scan_folder(root, manifest)
-    entries, damaged = list(scan.listed.values()), []
-    for rel in scan.unlisted:
-        try:
-            entries.append(index_entry(load_record(root, rel), rel))
-        except AssetError:
-            damaged.append(rel)
-    entries.sort(key=lambda e: (e.get("hand", ""), e.get("object_id", "")))
-    adopted = tuple(f for f in scan.unlisted if f not in damaged)
-    return Dataset(root, manifest, tuple(entries), adopted, scan.missing, tuple(damaged))
+    index = index_folder(root, manifest)
+    used = {r.file for r in index.records.values()}
+    adopted = tuple(f for f in index.scan.unlisted if f in used)
+    return Dataset(
+        root, manifest, tuple(index.entries()), adopted, index.scan.missing, tuple(index.damaged), _notes(index)
+    )
+
+
+def _notes(index: FolderIndex) -> tuple[str, ...]:
+    """What the reader found, one line each."""
+    used = {r.file for r in index.records.values()}
+    notes = [f"{f} is not listed in the manifest (adopted)" for f in index.scan.unlisted if f in used]
+    notes += [f"{f} is listed in the manifest but missing" for f in index.scan.missing]
+    notes += [f"{f} cannot be used (left out): {why}" for f, why in index.damaged.items()]
+    notes += [f"{f} holds the record that belongs at {home} (used)" for f, home in index.misplaced.items()]
+    notes += [f"{f} is a second record of the pair stored at {o} (left out)" for f, o in index.duplicates.items()]
+    notes += index.disagreements
+    untimed = index.untimed()
+    if untimed:
+        notes.append(f"{len(untimed)} record(s) have no usable timing file: their times are unknown")
+    return tuple(notes)

@@ -1,4 +1,7 @@
-"""``ges dataset info``: counts, per-step success rates and timing medians, from the manifest index."""
+"""``ges dataset info``: counts, per-step success rates and timing medians, from the index rebuilt from the records.
+
+Times come from the records' timing files; a record whose times are unknown counts for the rates, not the times.
+"""
 
 from __future__ import annotations
 
@@ -23,7 +26,7 @@ class StepStats:
     ok: int
     attempted: int
     mean: float | None
-    """Mean wall time of the attempted steps, seconds (None if none was attempted)."""
+    """Mean wall time of the attempted steps whose time is known, seconds (None if there is none)."""
     std: float | None
     median: float | None
 
@@ -36,9 +39,9 @@ class StepStats:
 def step_stats(outcomes: Iterable[StepOutcome]) -> StepStats:
     """Successes, attempts and times (seconds) of the attempted ones among ``outcomes``."""
     tried = [o for o in outcomes if o.attempted]
-    if not tried:
-        return StepStats(0, 0, None, None, None)
-    times = np.array([o.seconds for o in tried], dtype=np.float64)
+    times = np.array([o.seconds for o in tried if o.seconds is not None], dtype=np.float64)
+    if not times.size:
+        return StepStats(sum(o.ok for o in tried), len(tried), None, None, None)
     return StepStats(
         sum(o.ok for o in tried), len(tried), float(times.mean()), float(times.std()), float(np.median(times))
     )
@@ -54,7 +57,7 @@ class GroupStats:
     """Records whose every step succeeded."""
     steps: dict[str, StepStats]
     median_total_seconds: float | None
-    """Median over records of the summed step times, seconds."""
+    """Median over records whose times are known of the summed step times, seconds."""
 
 
 @dataclass(frozen=True)
@@ -68,7 +71,7 @@ class DatasetSummary:
     groups: tuple[GroupStats, ...]
     """One per (hand, simulator), then one over all records."""
     notes: tuple[str, ...]
-    """Unlisted or missing record files."""
+    """Where the folder differs from its manifest (:attr:`Dataset.notes`)."""
 
     def format(self) -> str:
         """Human-readable text, one table row per group."""
@@ -94,26 +97,25 @@ def _row(group: GroupStats) -> str:
 def _step_cell(stats: StepStats) -> str:
     if not stats.attempted:
         return "-"
-    return f"{stats.ok}/{stats.attempted} {100 * stats.rate:5.1f}% {stats.median:.3f} s"
+    time = "-" if stats.median is None else f"{stats.median:.3f} s"
+    return f"{stats.ok}/{stats.attempted} {100 * stats.rate:5.1f}% {time}"
 
 
 def summarize(dataset: Dataset) -> DatasetSummary:
-    """Summary of ``dataset`` read from its index (record files are not opened)."""
+    """Summary of ``dataset`` from its index (rebuilt from the records when it was opened)."""
     entries = dataset.entries
     counts = {f: dict(Counter(str(e.get(f)) for e in entries)) for f in COUNT_FIELDS}
     pairs = sorted({(e["hand"], e["simulator"]) for e in entries})
     groups = [_group(f"{h} / {s}", [e for e in entries if (e["hand"], e["simulator"]) == (h, s)]) for h, s in pairs]
     if len(pairs) != 1:
         groups.append(_group("all", list(entries)))
-    notes = [f"{f} is not listed in the manifest (adopted)" for f in dataset.unlisted]
-    notes += [f"{f} is listed in the manifest but missing" for f in dataset.missing]
-    notes += [f"{f} is not listed in the manifest and cannot be read (left out)" for f in dataset.damaged]
-    return DatasetSummary(str(dataset.root), len(entries), counts, tuple(groups), tuple(notes))
+    return DatasetSummary(str(dataset.root), len(entries), counts, tuple(groups), dataset.notes)
 
 
 def _group(label: str, entries: list[dict]) -> GroupStats:
     steps = {name: _step_stats([e["steps"][name] for e in entries]) for name in STEPS}
-    totals = [sum(e["steps"][s][2] for s in STEPS) for e in entries]
+    times = ([e["steps"][s][2] for s in STEPS] for e in entries)
+    totals = [sum(t) for t in times if None not in t]
     median = float(np.median(totals)) if totals else None
     return GroupStats(label, len(entries), sum(bool(e["success"]) for e in entries), steps, median)
 

@@ -10,11 +10,14 @@ from ges_core.dataset.layout import (
     INDEX_FIELDS,
     MANIFEST,
     index_entry,
+    known_config_hashes,
     read_manifest,
     record_relpath,
     scan_folder,
 )
+from ges_core.dataset.reconcile import read_timing
 from ges_core.dataset.record import read_raw, record_from_raw
+from ges_core.dataset.timing import sha256_hex, timing_relpath, with_timing
 from ges_core.errors import AssetError
 
 __all__ = ["validate_dataset"]
@@ -37,10 +40,12 @@ def validate_dataset(path: str | Path) -> list[str]:
     problems += [
         f"{f}: leftover temporary file from an interrupted write (the writer removes it)" for f in scan.temp_files
     ]
+    problems += [f"{f}: timing file whose record is not there (the writer removes it)" for f in scan.orphan_timings]
+    known = known_config_hashes(manifest) if isinstance(manifest.get("run_config"), dict) else set()
     for file, entry in scan.listed.items():
-        problems += _file_problems(root, file, entry)
+        problems += _file_problems(root, file, entry, known)
     for file in scan.unlisted:
-        problems += _file_problems(root, file, None)
+        problems += _file_problems(root, file, None, known)
     return problems
 
 
@@ -66,9 +71,10 @@ def _manifest_problems(manifest: dict) -> list[str]:
     return problems
 
 
-def _file_problems(root: Path, file: str, entry: dict | None) -> list[str]:
+def _file_problems(root: Path, file: str, entry: dict | None, known: set[str]) -> list[str]:
+    data = (root / file).read_bytes()
     try:
-        meta, arrays = read_raw((root / file).read_bytes())
+        meta, arrays = read_raw(data)
     except Exception as exc:  # damaged zip, bad CRC, bad JSON: all mean an unreadable record
         return [f"{file}: unreadable record ({type(exc).__name__}: {exc})"]
     problems = record_problems(meta, arrays)
@@ -82,6 +88,16 @@ def _file_problems(root: Path, file: str, entry: dict | None) -> list[str]:
     if file != expected_file:
         what = f"object {record.object_id!r} with hand {record.hand!r}"
         problems.append(f"{file}: holds {what}, which belongs at {expected_file}")
+    if record.run_config_hash is not None and known and record.run_config_hash not in known:
+        problems.append(
+            f"{file}: made with run config {record.run_config_hash}, which {MANIFEST} does not name (its run_config "
+            "and config_history)"
+        )
+    if meta.get("version") != 1:
+        timing, why = read_timing(root, file, sha256_hex(data))
+        if timing is None and why != "no timing file":
+            problems.append(f"{timing_relpath(file)}: {why} (the record's times are unknown)")
+        record = with_timing(record, timing)
     if entry is not None:
         expected = json.loads(json.dumps(index_entry(record, file)))
         wrong = sorted(k for k in _ENTRY_KEYS if entry.get(k) != expected.get(k))

@@ -2,7 +2,9 @@
 
 Success rates count attempted steps only (a step skipped after an earlier failure does not count), as
 the paper's per-step rates do; ``validated`` is the share of *all* objects whose grasp passed the
-physics lift-and-hold test. ``total`` is contacts + retargeting + refinement time per object.
+physics lift-and-hold test. ``total`` is contacts + retargeting + refinement time per object. Times come
+from the records' timing files (:mod:`ges_core.dataset.timing`); records whose times are unknown count for the
+rates only.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ class TableRow:
     """Records whose grasp passed physics validation."""
     validation_median: float | None
     total_median: float | None
-    """Median over objects of contacts + retargeting + refinement seconds."""
+    """Median over objects whose times are known of contacts + retargeting + refinement seconds."""
     failures: dict[str, int]
     """'step:reason' -> count."""
 
@@ -50,8 +52,10 @@ def table_rows(records: Iterable[GraspRecord]) -> list[TableRow]:
 
 def _row(hand: str, sim: str, records: list[GraspRecord]) -> TableRow:
     steps = {name: step_stats(r.steps[name] for r in records) for name in TIMED_STEPS}
-    validation = [r.steps["validation"] for r in records if r.steps["validation"].attempted]
-    totals = [sum(r.steps[s].seconds for s in TIMED_STEPS) for r in records]
+    validation = [r.steps["validation"].seconds for r in records if r.steps["validation"].attempted]
+    validation = [s for s in validation if s is not None]
+    times = ([r.steps[s].seconds for s in TIMED_STEPS] for r in records)
+    totals = [sum(t) for t in times if None not in t]
     failures: dict[str, int] = {}
     for r in records:
         if r.failed_step is not None:
@@ -63,7 +67,7 @@ def _row(hand: str, sim: str, records: list[GraspRecord]) -> TableRow:
         objects=len(records),
         steps=steps,
         validated=sum(bool(r.steps["validation"].ok) for r in records),
-        validation_median=float(np.median([v.seconds for v in validation])) if validation else None,
+        validation_median=float(np.median(validation)) if validation else None,
         total_median=float(np.median(totals)) if totals else None,
         failures=dict(sorted(failures.items())),
     )
@@ -100,7 +104,8 @@ def format_table(rows: list[TableRow]) -> str:
 def _fmt_cell(cell: StepStats) -> str:
     if not cell.attempted:
         return "-"
-    return f"{_pct(cell.rate)} ({cell.ok}/{cell.attempted}), {cell.median:.3f} s"
+    time = "-" if cell.median is None else f"{cell.median:.3f} s"
+    return f"{_pct(cell.rate)} ({cell.ok}/{cell.attempted}), {time}"
 
 
 def _pct(rate: float | None) -> str:

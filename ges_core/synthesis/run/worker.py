@@ -14,13 +14,14 @@ or another chunk size changed it. A fresh Allegro scene costs about 30-60 ms (th
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ges_core.dataset import NOT_RUN, AttemptVerdict, GraspRecord, SimVerdict, StepOutcome, software_versions
-from ges_core.errors import ArrayError, AssetError, SimulationError, SynthesisError
+from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
 from ges_core.synthesis.contacts.generate import generate_contacts
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
@@ -36,6 +37,7 @@ __all__ = ["run_task"]
 
 _STATES: dict[int, _State] = {}
 """Per-process cache: id of the run context -> built hands, retargeters and library."""
+_LOG = logging.getLogger(__name__)
 
 
 def run_task(task: Task, context: RunContext) -> list[GraspRecord]:
@@ -67,6 +69,8 @@ class _State:
     renderer: object | None = None
     source: object | None = None
     versions: dict = field(default_factory=dict)
+    picture_failed: bool = False
+    """Whether a picture could not be written (reported once per process)."""
 
     def hand(self, name: str):
         if name not in self.hands:
@@ -298,7 +302,12 @@ class _Sims:
 
 
 def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
-    """``record`` with ``picture`` set after drawing it (no picture folder: unchanged)."""
+    """``record`` with ``picture`` set after drawing it (no picture folder: unchanged).
+
+    A picture that cannot be written (full disk, read-only folder) costs the picture, never the record: the
+    record keeps ``picture`` None and says why in ``errors["picture"]``; the first such failure of a process is
+    logged (once: the next pictures likely fail alike).
+    """
     root = state.context.pictures
     if root is None:
         return record
@@ -311,7 +320,13 @@ def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
         asset = state.library.get(record.object_id)
     except AssetError:
         asset = None  # no collision model: the picture shows the contacts and the hand only
-    render_record(record, state.hand(record.hand), asset, path, renderer=state.renderer)
+    try:
+        render_record(record, state.hand(record.hand), asset, path, renderer=state.renderer)
+    except StorageError as error:
+        if not state.picture_failed:
+            state.picture_failed = True
+            _LOG.warning("ges: warning: %s (the records are saved without their pictures)", error)
+        return replace(record, errors={**record.errors, "picture": str(error)})
     return replace(record, picture=path.as_posix())
 
 
