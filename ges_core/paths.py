@@ -74,10 +74,9 @@ def atomic_write_bytes(path: str | Path, data: bytes, *, fix: str | None = None)
     write (full disk, read-only folder, ...) removes its temporary file and raises StorageError naming
     ``path``; ``fix`` replaces the default advice on what to do.
     """
-    path = Path(path)
-    make_dirs(path.parent, fix=fix)
-    tmp = None
+    path, tmp = Path(path), None
     try:
+        path.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         with os.fdopen(fd, "wb") as fh:
             fh.write(data)
@@ -122,7 +121,7 @@ def describe_os_error(
     path = path if path is not None else exc.filename
     cause = _CAUSES.get(exc.errno) or exc.strerror or f"{type(exc).__name__}: {exc}"
     where = f" {doing} {path}".rstrip() if path is not None else ""
-    return f"{cause}{where}; {fix or _advice(exc.errno, path)}"
+    return f"{cause}{where}; {fix or _advice(exc.errno, path, writing=doing == 'writing')}"
 
 
 def storage_error(path: str | Path, exc: OSError, *, fix: str | None = None) -> StorageError:
@@ -130,21 +129,14 @@ def storage_error(path: str | Path, exc: OSError, *, fix: str | None = None) -> 
     return StorageError(describe_os_error(exc, path, fix=fix), path=str(path), errno=exc.errno)
 
 
-def _advice(code: int | None, path: str | Path | None) -> str:
+def _advice(code: int | None, path: str | Path | None, *, writing: bool) -> str:
     """What to do about an OSError of errno ``code`` at ``path`` (the cache folder gets its own advice)."""
     in_cache = path is not None and _inside(Path(path), cache_root())
+    elsewhere = f"set {CACHE_ENV} to another folder" if in_cache else "write to another folder"
     if code in _FULL:
-        return (
-            f"free space there or set {CACHE_ENV} to another disk"
-            if in_cache
-            else ("free space there or write to another folder")
-        )
+        return f"free space there or {elsewhere}" if writing else "free space on that disk"
     if code in _DENIED:
-        return (
-            f"make it writable or set {CACHE_ENV} to a writable folder"
-            if in_cache
-            else ("make it writable or write to another folder")
-        )
+        return f"make it writable or {elsewhere}" if writing else "check its permissions"
     return "check that path and the disk it is on"
 
 

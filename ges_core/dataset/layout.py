@@ -61,8 +61,7 @@ MANIFEST = "manifest.json"
 RECORDS_DIR = "records"
 DAMAGED_DIR = ".damaged"
 """Where the writer moves files it cannot use (kept for a look, never read): ``.damaged/<their path>``."""
-WRITE_FIX = "free space or make the folder writable, or write the dataset to another folder"
-"""What to do when a dataset file cannot be written."""
+
 INDEX_FIELDS = ("object_id", "hand", "simulator", "category", "split")
 """Record fields copied into each manifest index entry (with file, success, failed_step, steps)."""
 
@@ -178,7 +177,7 @@ def write_manifest(root: Path, manifest: dict, entries: list[dict]) -> None:
     index = sorted(entries, key=lambda e: (e["hand"], e["object_id"]))
     rows = ",\n".join("  " + json.dumps(e, sort_keys=True) for e in index)
     text = json.dumps(header, indent=1, sort_keys=True)[:-2] + f',\n "records": [\n{rows}\n ]\n}}\n'
-    atomic_write_text(root / MANIFEST, text, fix=WRITE_FIX)
+    atomic_write_text(root / MANIFEST, text)
 
 
 def move_aside(root: Path, rel: str) -> str:
@@ -188,11 +187,11 @@ def move_aside(root: Path, rel: str) -> str:
     while (root / target).exists():
         n += 1
         target = Path(DAMAGED_DIR) / f"{rel}-{n}"
-    make_dirs((root / target).parent, fix=WRITE_FIX)
+    make_dirs((root / target).parent)
     try:
         os.replace(root / rel, root / target)
     except OSError as exc:
-        raise storage_error(root / target, exc, fix=WRITE_FIX) from exc
+        raise storage_error(root / target, exc) from exc
     return target.as_posix()
 
 

@@ -45,17 +45,15 @@ class FolderLock:
         """What taking the lock found: a lock file left by a holder that is gone."""
 
     @classmethod
-    def acquire(cls, folder: Path, *, fix: str = "") -> FolderLock:
-        """Lock ``folder`` (which must exist); LockError naming the holder if another process has it.
-
-        ``fix``: advice appended to the StorageError raised when the lock file cannot be written.
-        """
+    def acquire(cls, folder: Path) -> FolderLock:
+        """Lock ``folder`` (which must exist); LockError naming the holder if another process has it, StorageError
+        if the lock file cannot be written."""
         path = folder / LOCK_FILE
         for _ in range(_ATTEMPTS):
-            fd = _open(path, fix)
+            fd = _open(path)
             try:
                 if _locked(fd, path):
-                    return cls(path, fd, _take_over(fd, path, fix))
+                    return cls(path, fd, _take_over(fd, path))
             except BaseException:
                 os.close(fd)
                 raise
@@ -92,11 +90,11 @@ def holder_info() -> dict:
     }
 
 
-def _open(path: Path, fix: str) -> int:
+def _open(path: Path) -> int:
     try:
         return os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     except OSError as exc:
-        raise storage_error(path, exc, fix=fix or None) from exc
+        raise storage_error(path, exc) from exc
 
 
 def _locked(fd: int, path: Path) -> bool:
@@ -114,7 +112,7 @@ def _locked(fd: int, path: Path) -> bool:
     return _same_file(fd, path)
 
 
-def _take_over(fd: int, path: Path, fix: str) -> list[str]:
+def _take_over(fd: int, path: Path) -> list[str]:
     """Write this process into the locked file; a note when it named an earlier holder (gone: we hold the lock)."""
     before = _read(fd)
     data = (json.dumps(holder_info(), sort_keys=True) + "\n").encode()
@@ -123,7 +121,7 @@ def _take_over(fd: int, path: Path, fix: str) -> list[str]:
         os.pwrite(fd, data, 0)
         os.fsync(fd)
     except OSError as exc:
-        raise storage_error(path, exc, fix=fix or None) from exc
+        raise storage_error(path, exc) from exc
     if not before:
         return []
     where = "" if before.get("host") == socket.gethostname() else f" on host {before.get('host', '?')}"

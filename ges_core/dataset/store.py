@@ -29,7 +29,6 @@ from ges_core.dataset.layout import (
     DATASET_VERSION,
     MANIFEST,
     RECORDS_DIR,
-    WRITE_FIX,
     config_differences,
     config_hash,
     index_entry,
@@ -100,7 +99,7 @@ class DatasetWriter:
         self.recovered: list[str] = []
         """What opening repaired: a lock left behind, leftover files, adopted, damaged or moved records, manifest
         entries that disagreed with their records, a rebuilt manifest."""
-        self._lock = FolderLock.acquire(make_dirs(self.root, fix=WRITE_FIX), fix=WRITE_FIX)
+        self._lock = FolderLock.acquire(make_dirs(self.root))
         self._closed = False
         try:
             self.recovered += self._lock.notes
@@ -169,8 +168,8 @@ class DatasetWriter:
             raise ValueError(f"record of ({record.object_id}, {record.hand}) is invalid: " + "; ".join(problems))
         file = record_relpath(record.object_id, record.hand)
         data = raw_to_bytes(meta, arrays)
-        path = atomic_write_bytes(self.root / file, data, fix=WRITE_FIX)
-        atomic_write_text(self.root / timing_relpath(file), timing_text(record, sha256_hex(data)), fix=WRITE_FIX)
+        path = atomic_write_bytes(self.root / file, data)
+        atomic_write_text(self.root / timing_relpath(file), timing_text(record, sha256_hex(data)))
         self._entries[record.key] = index_entry(record, file)
         self._dirty = True
         if time.monotonic() - self._last_flush >= self.manifest_interval:
@@ -303,11 +302,11 @@ def _move_with_timing(root: Path, rel: str) -> str:
 def _move_home(root: Path, rel: str, home: str) -> str:
     for src, dst in ((timing_relpath(rel), timing_relpath(home)), (rel, home)):
         if (root / src).exists():
-            make_dirs((root / dst).parent, fix=WRITE_FIX)
+            make_dirs((root / dst).parent)
             try:
                 (root / src).replace(root / dst)
             except OSError as exc:
-                raise storage_error(root / dst, exc, fix=WRITE_FIX) from exc
+                raise storage_error(root / dst, exc) from exc
     return home
 
 
@@ -315,7 +314,7 @@ def _unlink(path: Path) -> None:
     try:
         path.unlink(missing_ok=True)
     except OSError as exc:
-        raise storage_error(path, exc, fix=WRITE_FIX) from exc
+        raise storage_error(path, exc) from exc
 
 
 @dataclass(frozen=True)
