@@ -1,4 +1,4 @@
-"""Run-to-run determinism of Stage 1: the same object gives the same record in two fresh processes.
+"""Run-to-run determinism of Stage 1: the same object gives the same record, byte for byte, in two fresh processes.
 
 The two runs differ in everything that must not matter: the hash seed (PYTHONHASHSEED), the objects
 before it in its chunk (a simulator reused across objects once made ``procedural/can/001`` depend on
@@ -23,14 +23,15 @@ its Allegro grasp stops at retargeting (unreachable), so it no longer exercises 
 
 _SCRIPT = textwrap.dedent(
     """
-    import pickle, sys
-    from ges_core.dataset import open_dataset
+    import hashlib, pathlib, pickle, sys
+    from ges_core.dataset import open_dataset, record_relpath
     from ges_core.synthesis import SynthesisConfig, run_synthesis
     out, ids = sys.argv[1], sys.argv[2].split(",")
     config = SynthesisConfig.model_validate({"validate": {"hold_steps": 60}})
     run_synthesis(ids, ["allegro"], config, out)
     record = open_dataset(out).get(sys.argv[3], "allegro")
-    sys.stdout.buffer.write(pickle.dumps(record))
+    data = (pathlib.Path(out) / record_relpath(sys.argv[3], "allegro")).read_bytes()
+    sys.stdout.buffer.write(pickle.dumps((record, hashlib.sha256(data).hexdigest())))
     """
 )
 
@@ -66,8 +67,9 @@ def _outcomes(record) -> dict:
 
 @pytest.mark.sim
 def test_same_record_in_two_processes_whatever_ran_before(tmp_path):
-    alone = _record(tmp_path, "alone", [TARGET], "1")
-    after = _record(tmp_path, "after", ["pybullet/random_urdfs/002", TARGET], "2")
+    alone, alone_sha = _record(tmp_path, "alone", [TARGET], "1")
+    after, after_sha = _record(tmp_path, "after", ["pybullet/random_urdfs/002", TARGET], "2")
+    assert alone_sha == after_sha  # the same file: its times live beside it (issue 10, point 8)
     assert alone.steps["refinement"].attempted  # the simulator part ran, so the comparison covers it
     for name, array in _arrays(alone).items():
         np.testing.assert_array_equal(array, _arrays(after)[name], err_msg=name)

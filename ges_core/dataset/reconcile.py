@@ -26,7 +26,7 @@ from ges_core.dataset.record import GraspRecord, read_raw, record_from_raw
 from ges_core.dataset.timing import parse_timing, sha256_hex, timing_relpath, with_timing
 from ges_core.errors import AssetError
 
-__all__ = ["FolderIndex", "StoredRecord", "index_folder", "read_record_file"]
+__all__ = ["FolderIndex", "StoredRecord", "entry_differences", "index_folder", "read_record_file"]
 
 
 def read_record_file(root: Path, file: str, *, check: bool = False) -> GraspRecord:
@@ -156,12 +156,30 @@ def _disagreements(scan: FolderScan, stored: dict[str, StoredRecord]) -> tuple[s
                 f"but it holds object {entry['object_id']!r} with hand {entry['hand']!r}: indexed as what it holds"
             )
             continue
-        wrong = sorted(k for k in set(entry) | set(listed) if listed.get(k) != entry.get(k))
+        wrong = entry_differences(listed, entry, timed=stored[file].timed)
         if wrong:
             lines.append(
                 f"{MANIFEST} entry of {file} disagreed with its record on {wrong}: the record's values are used"
             )
     return tuple(lines)
+
+
+def entry_differences(listed: dict, entry: dict, *, timed: bool, keys: tuple[str, ...] | None = None) -> list[str]:
+    """Keys (of ``keys``, default all) where a manifest entry differs from the one built from its record; the step
+    times only when the record's times are known (lost times do not make the manifest's wrong)."""
+    keys = keys or tuple(set(entry) | set(listed))
+    wrong = {k for k in keys if k != "steps" and listed.get(k) != entry.get(k)}
+    steps = listed.get("steps"), entry.get("steps")
+    if "steps" in keys and (steps[0] != steps[1] if timed else _untimed(steps[0]) != _untimed(steps[1])):
+        wrong.add("steps")
+    return sorted(wrong)
+
+
+def _untimed(steps: object) -> object:
+    """Index steps ``{step: [ok, reason, seconds]}`` without the seconds (anything else unchanged)."""
+    if not isinstance(steps, dict):
+        return steps
+    return {k: v[:2] if isinstance(v, list) else v for k, v in steps.items()}
 
 
 def _plain(entry: dict) -> dict:

@@ -15,7 +15,7 @@ from ges_core.dataset.layout import (
     record_relpath,
     scan_folder,
 )
-from ges_core.dataset.reconcile import read_timing
+from ges_core.dataset.reconcile import entry_differences, read_timing
 from ges_core.dataset.record import read_raw, record_from_raw
 from ges_core.dataset.timing import sha256_hex, timing_relpath, with_timing
 from ges_core.errors import AssetError
@@ -93,14 +93,15 @@ def _file_problems(root: Path, file: str, entry: dict | None, known: set[str]) -
             f"{file}: made with run config {record.run_config_hash}, which {MANIFEST} does not name (its run_config "
             "and config_history)"
         )
-    if meta.get("version") != 1:
+    timed = meta.get("version") == 1
+    if not timed:
         timing, why = read_timing(root, file, sha256_hex(data))
         if timing is None and why != "no timing file":
             problems.append(f"{timing_relpath(file)}: {why} (the record's times are unknown)")
-        record = with_timing(record, timing)
+        record, timed = with_timing(record, timing), timing is not None
     if entry is not None:
         expected = json.loads(json.dumps(index_entry(record, file)))
-        wrong = sorted(k for k in _ENTRY_KEYS if entry.get(k) != expected.get(k))
+        wrong = entry_differences(entry, expected, timed=timed, keys=_ENTRY_KEYS)
         if wrong:
             problems.append(f"{file}: {MANIFEST} index disagrees with the record on {wrong}")
     return problems
