@@ -40,6 +40,9 @@ from _results import code_state, write_results
 RESULTS = Path(__file__).resolve().parent / "results" / "house_identity.json"
 TIMING_KEYS = {"seconds", "setup_seconds", "time", "updated", "created", "versions", "picture"}
 """Keys left out of the comparison: wall-clock times, software versions, absolute picture paths."""
+PROVENANCE_KEYS = {"run_config_hash"}
+"""Also left out: the hash of the run config a record was made with, which version-1 records (the "before" of a
+comparison across that change) do not carry; the configs themselves are the same by construction."""
 SYNTH_OBJECTS = DEMO_OBJECTS[10:18]
 """Demo objects 10..17, refined and validated in PyBullet."""
 BASELINES = [
@@ -78,7 +81,9 @@ def canonical(value: Any) -> Any:
         value = {f.name: getattr(value, f.name) for f in dataclasses.fields(value)}
     if isinstance(value, Mapping):
         return {
-            str(k): canonical(v) for k, v in sorted(value.items(), key=lambda kv: str(kv[0])) if k not in TIMING_KEYS
+            str(k): canonical(v)
+            for k, v in sorted(value.items(), key=lambda kv: str(kv[0]))
+            if k not in TIMING_KEYS | PROVENANCE_KEYS
         }
     if isinstance(value, np.ndarray):
         data = np.ascontiguousarray(value)
