@@ -15,6 +15,12 @@ Per-env resets (:meth:`GraspEnv.reset_envs`) teleport that env's hand straight t
 its object to its rest pose, through the backend's per-env teleports: the other envs are untouched. See
 ``docs/env.md``.
 
+Faults at the inputs: a wrongly shaped or non-numeric action is one ArrayError, raised before anything reaches
+the backend; a NaN or inf in an env's action row ends that env's step as ``unstable`` (its targets stay where
+they were, nothing non-finite is stored or sent, the other envs step as if it were not there); bad ``env_ids``
+are a ConfigError; every call after :meth:`GraspEnv.close` (or the backend's own ``close()``) is a
+SimulationError saying the environment is closed.
+
 The per-control-step maths (wrist target, observation, reward, success) runs in numpy float64 over the
 batch and converts to torch once per result: on a few envs, torch's per-op dispatch cost several times the
 physics (benchmarks/env_throughput.py). tests/test_env_fast_path.py checks it against the torch helpers.
@@ -37,6 +43,7 @@ from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
+from ges_core.sim_args import env_id_list
 from ges_core.transforms import (
     matrix_to_pose,
     quat_conj,
@@ -128,13 +135,21 @@ class GraspEnv:
         self.obs_layout = ObservationLayout.for_hand(d, tuple(self.contact_links), goal=cfg.goal_prior)
         lim = torch.as_tensor(d.limits_array)
         self.act_layout = ActionLayout(lim[:, 0], lim[:, 1], cfg.max_wrist_step, cfg.max_wrist_turn)
+        self._action_shape, self._action_doc = (self.n, self.act_layout.size), self.act_layout.describe()
         self.finger_joints = [torch.as_tensor(d.joint_index(f.joints)) for f in d.fingers]
         self.groups = consistency_groups(d)
         self._reward = RewardFunction(cfg.reward, self.finger_joints, self.groups, d.num_joints)
         self.tracker = SuccessTracker(cfg.success, self.n, cfg.sim_steps)
         self.control_dt = cfg.sim_steps * sim.config.timestep
         self.prev_action = np.zeros((self.n, self.act_layout.size))
-        """(n, K + 6) float64, the last action clipped to [-1, 1] (zeros at an episode start)."""
+        """(n, K + 6) float64, the last action clipped to [-1, 1] (zeros at an episode start and for a bad row)."""
+        self.wrist_target = np.zeros((self.n, 7))
+        """(n, 7) float64 wrist (base-link) targets, world: integrated by :meth:`apply_action`."""
+        self.joint_target = np.zeros((self.n, d.num_joints))
+        """(n, K) float64 joint targets last sent, rad (the episode's start joints after a reset)."""
+        self.bad_actions: np.ndarray | None = None
+        """(n,) bool, the envs whose row of the last :meth:`apply_action` held NaN or inf; None: none did."""
+        self._closed = False
         self._last_terms: tuple[dict | None, np.ndarray | None] = (None, None)  # see terms_array
         self._last_state: tuple = (None, None, None)  # see _state_arrays
         self._quat_buf = (np.empty((2, self.n, 4)), np.empty((2, self.n, 4)), np.empty((3, self.n, 4)))
@@ -154,6 +169,7 @@ class GraspEnv:
         Init: the hand starts ``reach_offset`` above the pre-grasp and stage one (PD reaching) takes it
         there. NoInit: the open hand is teleported to its fixed start above the object; no reaching.
         """
+        self._check_open("reset_all")
         sim, cfg = self.sim, self.cfg
         sim.reset()
         self.rest_pose = sim.object_pose()
@@ -166,7 +182,7 @@ class GraspEnv:
         else:
             sim.set_hand_state(q.numpy(), pose.numpy())
         sim.step(cfg.sim_steps * cfg.settle_steps)
-        self._begin(torch.arange(self.n))
+        self._begin(np.arange(self.n), q.numpy())
 
     def _reach(self, q: torch.Tensor, pose: torch.Tensor) -> None:
         """Stage one: from ``reach_offset`` above ``pose`` (n, 7), PD-drive the wrist there, fingers held at q."""
@@ -189,46 +205,63 @@ class GraspEnv:
         q_open = torch.as_tensor(self.hand.description.open_pose, dtype=torch.float64)
         return q_open.expand(len(env_ids), -1).clone(), self.noinit_start[env_ids]
 
-    def reset_envs(self, env_ids: torch.Tensor) -> None:
+    def reset_envs(self, env_ids) -> None:
         """Envs ``env_ids``: object back at rest, hand at its episode start (:meth:`start_state`); others untouched.
 
-        No stage one here: the hand is teleported straight to where the policy takes over.
+        No stage one here: the hand is teleported straight to where the policy takes over. env_ids: distinct
+        env indices as the backends take them: a list or tuple of ints, a 1-D numpy or torch integer array
+        (``[]``: none; None: every env). A float, out-of-range, negative or repeated id, a boolean mask (give
+        ``mask.nonzero()``) or a scalar is one ConfigError, raised before any env changes.
         """
-        ids = env_ids.tolist()
+        self._check_open("reset_envs")
+        ids = env_id_list(env_ids, self.n, "GraspEnv.reset_envs")
         if not ids:
             return
-        q, pose = self.start_state(env_ids)
+        q, pose = self.start_state(torch.tensor(ids))
         self.sim.set_hand_state(q.numpy(), pose.numpy(), env_ids=ids)  # also restores a blown-up env
         self.sim.set_object_pose(self.rest_pose[ids], env_ids=ids)  # not load_object: SAPIEN segfaults reading
-        self._begin(env_ids)  # contacts of a removed body
+        self._begin(np.array(ids), q.numpy())  # contacts of a removed body
 
-    def _begin(self, env_ids: torch.Tensor) -> None:
+    def _begin(self, ids: np.ndarray, q: np.ndarray) -> None:
+        """Start episodes in envs ``ids`` (m,) whose hands were just put at joints ``q`` (m, K): targets there."""
         wrist = self.sim.wrist_pose()
-        ids = env_ids.numpy()
-        if len(ids) == self.n:
-            self.wrist_target = wrist.copy()
-            """(n, 7) float64 wrist (base-link) targets, world: integrated by :meth:`apply_action`."""
         self.wrist_target[ids] = wrist[ids]
+        self.joint_target[ids] = q
         self.wrist_prev = wrist
         """(n, 7) the wrist pose at the last observation (for the finite-difference velocity)."""
         self.prev_action[ids] = 0.0
-        self.tracker.reset(env_ids, self.sim.object_pose()[ids, :3])
+        self.tracker.reset(ids, self.sim.object_pose()[ids, :3])
 
     # -- stepping --------------------------------------------------------------------------
-    def apply_action(self, action: torch.Tensor) -> torch.Tensor:
-        """Set targets from ``action`` (n, K + 6) and step; returns (n,) bool, envs whose state blew up."""
-        a = as_numpy(action).astype(np.float64)  # a copy: clipped in place
-        np.minimum(np.maximum(a, -1.0, out=a), 1.0, out=a)
+    def apply_action(self, action: torch.Tensor, *, what: str = "GraspEnv.apply_action: action") -> torch.Tensor:
+        """Set targets from ``action`` (n, K + 6) and step; returns (n,) bool, the envs to end ``unstable``.
+
+        action: torch or numpy, :class:`~ges_core.env.layout.ActionLayout` order, clipped to [-1, 1]. A wrong
+        shape or a non-numeric value is one ArrayError (``what`` names the argument), raised before anything
+        reaches the backend. An env whose row holds NaN or inf keeps its wrist and joint targets for this step
+        (its ``prev_action`` row becomes zeros), is listed in :attr:`bad_actions` and returned as unstable,
+        like an env whose state blew up (:meth:`_step_physics`); the other envs step as if it were not there.
+        """
+        self._check_open("apply_action")
+        raw = checked_array(action, self._action_shape, what, layout=self._action_doc, finite=False)
+        a = np.maximum(raw, -1.0)  # a new array: raw may share the caller's memory
+        np.minimum(a, 1.0, out=a)
+        bad = None if np.isfinite(raw).all() else ~np.isfinite(raw).all(axis=1)  # inf clips to +-1: test raw
+        if bad is not None:
+            a[bad] = 0.0
         delta = self.act_layout.wrist_deltas_np(a)  # (n, 6): metres, then a rotation vector (world, rad)
         wt = self.wrist_target
         target = np.empty_like(wt)
         np.add(wt[:, :3], delta[:, :3], out=target[:, :3])
         quat_mul(rotvec_to_quat(delta[:, 3:]), wt[:, 3:], out=target[:, 3:])
-        self.wrist_target = target
+        joints = self.act_layout.joint_targets_np(a)
+        if bad is not None:
+            target[bad], joints[bad] = wt[bad], self.joint_target[bad]
         self.sim.set_wrist_targets(target)
-        self.sim.set_joint_targets(self.act_layout.joint_targets_np(a))
-        self.prev_action = a
-        return self._step_physics()
+        self.sim.set_joint_targets(joints)
+        self.wrist_target, self.joint_target, self.prev_action, self.bad_actions = target, joints, a, bad
+        unstable = self._step_physics()
+        return unstable if bad is None else unstable | torch.from_numpy(bad)
 
     def _step_physics(self) -> torch.Tensor:
         """Step ``sim_steps``; on SimulationError mark its ``env_ids`` (every env if it names none) unstable.
@@ -248,6 +281,7 @@ class GraspEnv:
         object origin, world, m; ``wrist_vel`` (n, 6). Each call advances the wrist velocity's finite
         difference (a second call without physics in between reads zero).
         """
+        self._check_open("observe")
         sim = self.sim
         q, dq = sim.joint_state()
         wrist = sim.wrist_pose()
@@ -326,6 +360,28 @@ class GraspEnv:
         if terms is self._last_terms[0]:
             return self._last_terms[1]
         return torch.stack([terms[name] for name in TERMS]).numpy()
+
+    # -- lifetime ------------------------------------------------------------------------------
+    @property
+    def closed(self) -> bool:
+        """True after :meth:`close`, or once the backend itself was closed."""
+        return self._closed or bool(getattr(self.sim, "_closed", False))  # a test double may lack it
+
+    def close(self) -> None:
+        """Close the backend; every later call raises SimulationError. Calling twice is harmless."""
+        self._closed = True
+        self.sim.close()
+
+    def check_open(self, who: str) -> None:
+        """SimulationError (no ``env_ids``) naming ``who`` once the environment is :attr:`closed`."""
+        if self.closed:
+            raise SimulationError(
+                f"{who}: the environment is closed; build a new one (a GraspEnv over a new backend from "
+                "registry.build_sim) instead of reusing it"
+            )
+
+    def _check_open(self, method: str) -> None:
+        self.check_open(f"GraspEnv.{method}")
 
     def end_reasons(self, state: dict[str, torch.Tensor], timeout: torch.Tensor, unstable: torch.Tensor):
         """(n,) int64 EndReason codes after a control step; timeout and unstable: (n,) bool, torch or numpy."""

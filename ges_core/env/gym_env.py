@@ -5,6 +5,10 @@ order; action: ``Box(-1, 1, (K + 6,), float32)`` in :class:`~ges_core.env.layout
 ``reset()`` is a full reset (stage one included, :meth:`GraspEnv.reset_all`). An episode ends
 ``terminated`` on success, dropped or unstable and ``truncated`` on not_lifted or timeout (the episode
 limit). The environment draws no random numbers yet: ``seed`` only seeds ``self.np_random``.
+
+A NaN or inf in the action ends the episode ``terminated`` as ``unstable`` (reward 0, ``info["nan_action"]``
+True); a non-numeric action is an ArrayError; after :meth:`GraspGymEnv.close` ``step`` and ``reset`` raise
+SimulationError.
 """
 
 from __future__ import annotations
@@ -16,6 +20,7 @@ import numpy as np
 import torch
 from gymnasium import spaces
 
+from ges_core.arrays import checked_array
 from ges_core.env.grasp_env import GraspEnv
 from ges_core.env.metrics import EpisodeMetrics
 from ges_core.env.success import EndReason
@@ -34,7 +39,8 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
 
     ``info`` of every step: ``end_reason`` (EndReason name, lower case; ``"running"`` mid-episode),
     ``reward_terms`` (term -> float, before weighting), ``success_paper``, ``success_peers``,
-    ``is_success`` (= ``success_paper``); at the episode's end also ``metrics`` (the Table 3 metrics of
+    ``is_success`` (= ``success_paper``), ``nan_action`` (the action held NaN or inf: the episode ended
+    unstable); at the episode's end also ``metrics`` (the Table 3 metrics of
     the episode, :mod:`~ges_core.env.metrics`, plus ``steps``).
     """
 
@@ -56,6 +62,7 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
         """Full reset; returns the first observation (obs size,) float32 and an empty info dict."""
         super().reset(seed=seed)
+        self.env.check_open("GraspGymEnv.reset")
         if options:
             raise ConfigError(f"GraspGymEnv.reset: unknown options {sorted(options)}; it takes none")
         self.env.reset_all()
@@ -68,7 +75,9 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
         """Apply ``action`` (K + 6,) in [-1, 1] (clipped); observation, reward, terminated, truncated, info."""
         self._check_can_step(action)
         env = self.env
-        unstable = env.apply_action(torch.as_tensor(np.asarray(action, dtype=np.float32)).reshape(1, -1))
+        what = "GraspGymEnv.step: action"
+        a = checked_array(action, self.action_space.shape, what, dtype=np.float32, finite=False)  # the space's dtype
+        unstable = env.apply_action(a.reshape(1, -1), what=what)
         self._t += 1
         obs, state = env.observe()
         reward, terms = env.reward(state)
@@ -77,6 +86,7 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
         reason = EndReason(int(env.end_reasons(state, timeout, unstable)[0]))
         terminated, truncated = reason in TERMINATED, reason in TRUNCATED
         info = self._info(reason, terms)
+        info["nan_action"] = env.bad_actions is not None
         if terminated or truncated:
             self._ended = reason
             info["metrics"] = {name: float(v[0]) for name, v in self.metrics.read(torch.arange(1)).items()}
@@ -84,10 +94,11 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
         return self._to_numpy(obs), r, terminated, truncated, info
 
     def close(self) -> None:
-        """Release the simulator (calling twice is harmless)."""
-        self.env.sim.close()
+        """Release the simulator; ``step`` and ``reset`` then raise SimulationError (calling twice is harmless)."""
+        self.env.close()
 
     def _check_can_step(self, action: np.ndarray) -> None:
+        self.env.check_open("GraspGymEnv.step")
         if self._t is None:
             raise ConfigError("GraspGymEnv.step before reset(); call reset() first")
         if self._ended is not None:

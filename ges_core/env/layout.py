@@ -166,6 +166,14 @@ class ActionLayout:
         """K + 6."""
         return WRIST_DOF + self.lower.shape[0]
 
+    def describe(self) -> str:
+        """What a row holds, for messages: ``"6 wrist values (...), then K=16 joint targets, each in [-1, 1]"``."""
+        k = self.size - WRIST_DOF
+        return (
+            f"one row per env: {WRIST_DOF} wrist values (3 position steps, 3 rotation-vector steps), "
+            f"then K={k} joint targets, each in [-1, 1]"
+        )
+
     def joint_targets(self, action: torch.Tensor) -> torch.Tensor:
         """(n, K) joint targets, rad, from actions (n, K + 6) (clipped to [-1, 1] first)."""
         a = action[:, WRIST_DOF:].clamp(-1.0, 1.0).to(self.lower.dtype)

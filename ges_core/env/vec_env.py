@@ -9,6 +9,13 @@ each end reason, of both success protocols and the mean Table 3 metrics (``/metr
 the (n,) EndReason codes, ``extras["peer_success"]`` (n,) bool and ``extras["max_rise"]`` (n,) metres: the
 peers' protocol and the object's highest rise so far in each env's episode, read before finished envs
 restart (so an ended episode's values survive its reset).
+
+Faults: an env whose action row holds NaN or inf (a diverging policy) ends that step ``unstable`` with reward 0
+and restarts like any finished env; the batch goes on. ``extras["log"]["/faults/nan_actions"]`` is, at every
+step, the number of such envs (rsl-rl logs its mean per step over an iteration) and :attr:`GraspVecEnv.fault_counts`
+keeps the running total. A wrongly shaped or non-numeric action is one ArrayError before anything is sent; after
+:meth:`GraspVecEnv.close` every call is a SimulationError (rsl-rl's ``VecEnv`` declares no ``close``; this one
+adds it, as gymnasium and Isaac Lab environments have).
 """
 
 from __future__ import annotations
@@ -43,22 +50,36 @@ class GraspVecEnv(VecEnv):
         self.cfg = env.cfg
         self.metrics = EpisodeMetrics(env.n, env.groups, env.control_dt)
         """Table 3 metrics of the running episodes (the step a SimulationError hit is not recorded)."""
+        self.fault_counts = {"nan_actions": 0}
+        """Running totals since construction: ``nan_actions``, env steps whose action row held NaN or inf."""
         torch.manual_seed(seed)
         env.reset_all()
         self._obs = self._observe()[0]
 
     def get_observations(self) -> TensorDict:
         """Observations of the current step: {"policy": (num_envs, obs size) float32}."""
+        self.env.check_open("GraspVecEnv.get_observations")
         return TensorDict({"policy": self._obs}, batch_size=[self.num_envs])
+
+    def close(self) -> None:
+        """Close the environment and its backend; every later call raises SimulationError. Twice is harmless."""
+        self.env.close()
 
     def step(self, actions: torch.Tensor) -> tuple[TensorDict, torch.Tensor, torch.Tensor, dict]:
         """Apply actions (num_envs, num_actions) in [-1, 1]; rewards (n,), dones (n,) long, extras.
 
+        A row holding NaN or inf ends that env ``unstable`` (:meth:`GraspEnv.apply_action`); it is counted in
+        ``extras["log"]["/faults/nan_actions"]`` and :attr:`fault_counts`.
+
         The bookkeeping between the env's calls is numpy on views of the tensors; the only torch ops per
-        step copy the tracker's peers flags and highest rises into ``extras`` before the auto-reset.
+        step copy the tracker's peers flags and highest rises into ``extras`` before the auto-reset and make
+        the fault count's log value.
         """
         env = self.env
-        unstable = env.apply_action(actions)
+        env.check_open("GraspVecEnv.step")
+        unstable = env.apply_action(actions, what="GraspVecEnv.step: actions")
+        nan_actions = 0 if env.bad_actions is None else int(env.bad_actions.sum())
+        self.fault_counts["nan_actions"] += nan_actions
         bad = unstable.numpy()
         any_bad = bool(bad.any())
         steps = self.episode_length_buf.numpy()  # a view: rsl-rl may replace the tensor, never on another device
@@ -71,6 +92,7 @@ class GraspVecEnv(VecEnv):
         done = code != _RUNNING
         any_done = bool(done.any())
         extras = self._extras(code, done if any_done else None, terms, bad if any_bad else None)
+        extras["log"]["/faults/nan_actions"] = torch.tensor(float(nan_actions))
         extras["end_reason"] = reason
         extras["peer_success"] = env.tracker.peer_success.clone()  # before the reset below clears them
         extras["max_rise"] = env.tracker.max_rise.clone()
