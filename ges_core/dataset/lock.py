@@ -26,6 +26,7 @@ import socket
 import sys
 from pathlib import Path
 
+from ges_core.dataset.layout import utc_now
 from ges_core.errors import LockError
 from ges_core.paths import storage_error
 
@@ -80,8 +81,6 @@ class FolderLock:
 
 def holder_info() -> dict:
     """What this process writes into a lock file it holds."""
-    from ges_core.dataset.layout import utc_now
-
     return {
         "pid": os.getpid(),
         "host": socket.gethostname(),
