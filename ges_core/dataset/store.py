@@ -221,8 +221,9 @@ class DatasetWriter:
         if not allow_change:
             raise ConfigError(
                 f"dataset {self.root} was written with another run config ({'; '.join(diffs)}). "
-                "Write to a new folder, rerun with the stored config, or allow the change explicitly "
-                "(allow_config_change=True; the old config is kept in the manifest's config_history)",
+                "Rerun with the stored values, or write to a new folder (ges: --out DIR; ges demo --fresh moves "
+                "this one aside); in Python, DatasetWriter(..., allow_config_change=True) continues it and keeps "
+                "the old config in the manifest's config_history",
                 problems=diffs,
             )
         history = [*manifest.get("config_history", []), {"until": utc_now(), "run_config": old}]
@@ -242,8 +243,9 @@ class DatasetWriter:
             where = f"has no usable {MANIFEST} ({why}) and holds" if why else "holds"
             raise ConfigError(
                 f"dataset {self.root} {where} records made with another run config than {whose}: "
-                f"{'; '.join(problems)}. Rerun with the settings the records were made with, write to a new folder, "
-                "or allow the change explicitly (allow_config_change=True; their config hashes go to config_history)",
+                f"{'; '.join(problems)}. Rerun with the settings the records were made with, or write to a new "
+                "folder (ges: --out DIR; ges demo --fresh moves this one aside); in Python, DatasetWriter(..., "
+                "allow_config_change=True) continues it and keeps their config hashes in config_history",
                 problems=problems,
             )
         now = utc_now()
