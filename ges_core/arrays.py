@@ -55,7 +55,10 @@ def checked_array(
     hold (``"one row per env, hand joint_names order"``); finite: False skips the NaN/inf check.
     """
     try:
-        array = as_numpy(value, dtype)
+        array = as_numpy(value)
+        if array.dtype.kind in "bcSU":  # bool, complex, text: not the numbers asked for (no silent 0/1 or real part)
+            raise TypeError(f"got {array.dtype} values")
+        array = np.asarray(array, dtype=dtype)
     except (TypeError, ValueError) as exc:
         raise ArrayError(f"{what} must be a numeric array of shape {_show(shape)}{_paren(layout)}; {exc}") from None
     if array.ndim != len(shape) or any(w is not None and w != g for w, g in zip(shape, array.shape, strict=True)):

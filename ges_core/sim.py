@@ -133,6 +133,11 @@ class SimBackend(ABC):
         """Number of independent scenes."""
         return self.config.num_envs
 
+    @property
+    def closed(self) -> bool:
+        """True once :meth:`close` was called (every other call then raises SimulationError)."""
+        return self._closed
+
     # -- building -------------------------------------------------------------------------
     def load_hand(self, hand: HandModel, *, floating: bool = True) -> None:
         """Add the hand to every scene, PD drives on every joint, at its open pose.

@@ -60,7 +60,8 @@ def env_id_list(env_ids: Sequence[int] | None, num_envs: int, who: str) -> list[
     bad = [i for i in out if not 0 <= i < num_envs]
     if bad:
         raise ConfigError(f"{who}: env ids {bad} out of range for num_envs={num_envs} (valid: 0..{num_envs - 1})")
-    repeated = sorted({i for i in out if out.count(i) > 1})
+    values, counts = np.unique(ids, return_counts=True)
+    repeated = values[counts > 1].tolist()
     if repeated:
         raise ConfigError(f"{who}: env_ids {out} repeat {repeated}; name each env once")
     return out

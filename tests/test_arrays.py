@@ -47,3 +47,9 @@ def test_tensors_are_read_without_a_copy_and_with_grad():
     t = torch.arange(3.0)
     assert np.shares_memory(as_numpy(t), t.numpy())
     assert np.array_equal(as_numpy(torch.ones(2, requires_grad=True)), np.ones(2))
+
+
+@pytest.mark.parametrize("value", [np.ones(3, bool), np.ones(3, complex), ["a", "b", "c"]])
+def test_bools_complex_numbers_and_text_are_not_taken_for_numbers(value):
+    with pytest.raises(ArrayError, match=r"x must be a numeric array of shape \(3,\); got (bool|complex128|<U1) "):
+        checked_array(value, (3,), "x")

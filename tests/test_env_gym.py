@@ -14,7 +14,7 @@ from ges_core.env.baseline import ScriptedExpert
 from ges_core.env.grasp_env import prior_preset
 from ges_core.env.gym_env import GraspGymEnv
 from ges_core.env.reward import TERMS
-from ges_core.errors import ConfigError
+from ges_core.errors import ArrayError, ConfigError
 
 pytestmark = pytest.mark.sim
 
@@ -100,6 +100,6 @@ def test_needs_exactly_one_env() -> None:
 def test_wrong_action_shape_is_rejected() -> None:
     env = _gym(reach_steps=0, settle_steps=0)
     env.reset()
-    with pytest.raises(ConfigError, match=r"action shape \(16,\), expected \(22,\)"):
+    with pytest.raises(ArrayError, match=r"GraspGymEnv.step: action has shape \(16,\), expected \(22,\)"):
         env.step(np.zeros(16, dtype=np.float32))
     env.close()

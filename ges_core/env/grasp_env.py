@@ -365,7 +365,7 @@ class GraspEnv:
     @property
     def closed(self) -> bool:
         """True after :meth:`close`, or once the backend itself was closed."""
-        return self._closed or bool(getattr(self.sim, "_closed", False))  # a test double may lack it
+        return self._closed or self.sim.closed
 
     def close(self) -> None:
         """Close the backend; every later call raises SimulationError. Calling twice is harmless."""

@@ -105,11 +105,8 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ConfigError(
                 f"GraspGymEnv.step after the episode ended ({self._ended.name.lower()}); call reset() first"
             )
-        if np.shape(action) != self.action_space.shape:
-            raise ConfigError(
-                f"GraspGymEnv.step: action shape {np.shape(action)}, expected {self.action_space.shape} "
-                "(6 wrist + K joints)"
-            )
+        layout = self.env.act_layout.describe()  # NaN passes here: step ends that episode as unstable
+        checked_array(action, self.action_space.shape, "GraspGymEnv.step: action", layout=layout, finite=False)
 
     def _info(self, reason: EndReason, terms: dict[str, torch.Tensor]) -> dict[str, Any]:
         paper = reason is EndReason.SUCCESS
