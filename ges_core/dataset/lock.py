@@ -24,6 +24,7 @@ import os
 import shlex
 import socket
 import sys
+import time
 from pathlib import Path
 
 from ges_core.dataset.layout import utc_now
@@ -33,6 +34,9 @@ from ges_core.paths import storage_error
 __all__ = ["LOCK_FILE", "FolderLock"]
 
 LOCK_FILE = ".lock"
+HOLDER_WAIT_S = 1.0
+"""How long a refused writer waits for the holder's name: it writes it right after taking the lock (microseconds),
+so only a refusal in that instant waits at all."""
 _ATTEMPTS = 5
 """Tries when the lock file is replaced between opening and locking it (its holder removing it on close)."""
 
@@ -101,7 +105,7 @@ def _locked(fd: int, path: Path) -> bool:
     try:
         fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
     except BlockingIOError:
-        holder = _read(fd)
+        holder = _read_soon(fd)
         raise LockError(_held_message(path, holder), holder=holder) from None
     except OSError as exc:  # ENOLCK, EOPNOTSUPP: a file system without locks
         raise LockError(
@@ -153,6 +157,15 @@ def _read(fd: int) -> dict:
     except (OSError, ValueError):
         return {}
     return data if isinstance(data, dict) else {}
+
+
+def _read_soon(fd: int) -> dict:
+    """The holder named in the lock file, waiting up to HOLDER_WAIT_S for a holder that has just taken the lock to
+    write its name ({} if it has not by then)."""
+    deadline = time.monotonic() + HOLDER_WAIT_S
+    while not (holder := _read(fd)) and time.monotonic() < deadline:
+        time.sleep(0.005)
+    return holder
 
 
 def _same_file(fd: int, path: Path) -> bool:

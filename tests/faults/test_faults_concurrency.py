@@ -40,12 +40,13 @@ _HOLD = textwrap.dedent(
 
 _WRITE = textwrap.dedent(
     """
-    import sys, time
+    import os, sys, time
     sys.path.insert(0, {tests!r})
     from test_dataset import CONFIG, make_record
     from ges_core.dataset import DatasetWriter
     from ges_core.errors import LockError
-    while time.time() < {start}:  # both processes start writing together
+    print("ready", flush=True)
+    while not os.path.exists({go!r}):  # both processes open the folder together
         time.sleep(0.001)
     try:
         writer = DatasetWriter({root!r}, CONFIG, manifest_interval=0)
@@ -55,8 +56,8 @@ _WRITE = textwrap.dedent(
     with writer:
         for i in range({first}, {first} + 20):
             writer.add(make_record(f"procedural/box/{{i:03d}}", seed=i))
-            time.sleep(0.01)
-    print("wrote 20", flush=True)
+        print("wrote 20", flush=True)
+        sys.stdin.read()  # a long run: still writing when the other one starts
     """
 )
 
@@ -96,23 +97,26 @@ def test_a_second_writer_fails_at_once_naming_the_holder(tmp_path):
 
 def test_two_runs_on_disjoint_objects_do_not_lose_records(tmp_path):
     """The issue's probe: both ran, and the manifest listed 20 of the 40 records (the last writer's)."""
-    root = tmp_path / "ds"
+    root, go = tmp_path / "ds", tmp_path / "go"
     DatasetWriter(root, CONFIG).close()
-    start = time.time() + 3  # both past their imports
     procs = [
         subprocess.Popen(
-            [sys.executable, "-c", _WRITE.format(tests=TESTS, root=str(root), start=start, first=first)],
+            [sys.executable, "-c", _WRITE.format(tests=TESTS, root=str(root), go=str(go), first=first)],
+            stdin=subprocess.PIPE,
             stdout=subprocess.PIPE,
-            stderr=subprocess.PIPE,
             text=True,
         )
         for first in (0, 20)
     ]
-    results = [(p.wait(timeout=120), p.stdout.read(), p.stderr.read()) for p in procs]
-    codes = sorted(code for code, _, _ in results)
-    assert codes == [0, 3], results  # one wrote, the other was refused at once
-    refused = next(out for code, out, _ in results if code == 3)
-    assert "is being written by another process (pid " in refused
+    assert [p.stdout.readline().strip() for p in procs] == ["ready", "ready"]
+    go.touch()
+    said = sorted(p.stdout.readline().strip() for p in procs)  # each one's outcome, the writer still open
+    for p in procs:
+        p.stdin.close()
+    assert sorted(p.wait(timeout=60) for p in procs) == [0, 3], said  # one wrote, the other was refused at once
+    assert said[0].startswith(f"refused: dataset {root} is being written by another process (pid ") and said[1] == (
+        "wrote 20"
+    )
     assert validate_dataset(root) == []  # the manifest lists every record on disk
     assert len(open_dataset(root)) == 20
 
