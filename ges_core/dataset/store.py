@@ -17,6 +17,7 @@ folder at a time: the writer holds the folder's lock (:mod:`.lock`) until it is 
 
 from __future__ import annotations
 
+import logging
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass, replace
@@ -50,6 +51,7 @@ from ges_core.paths import atomic_write_bytes, atomic_write_text, make_dirs, sto
 
 __all__ = ["MANIFEST_INTERVAL_S", "Dataset", "DatasetWriter", "load_record", "open_dataset"]
 
+_LOG = logging.getLogger(__name__)
 MANIFEST_INTERVAL_S = 2.0
 """Default seconds between manifest rewrites: with Stage 1 at about 1 s per record this rewrites the
 index every other record or so, and a kill costs at most the adoption of the few newest files."""
@@ -98,7 +100,7 @@ class DatasetWriter:
         self.manifest_interval = manifest_interval
         self.recovered: list[str] = []
         """What opening repaired: a lock left behind, leftover files, adopted, damaged or moved records, manifest
-        entries that disagreed with their records, a rebuilt manifest."""
+        entries that disagreed with their records, a rebuilt manifest; each is also logged as a warning."""
         self._lock = FolderLock.acquire(make_dirs(self.root))
         self._closed = False
         try:
@@ -108,6 +110,8 @@ class DatasetWriter:
         except BaseException:
             self._lock.release()
             raise
+        for note in self.recovered:  # logged (shown on stderr when nothing else handles it) and kept
+            _LOG.warning("ges: note: %s", note)
 
     def __enter__(self) -> DatasetWriter:
         return self

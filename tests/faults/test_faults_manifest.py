@@ -186,3 +186,21 @@ def test_a_record_at_another_pairs_path_is_moved_home_or_aside(root):
         assert writer.has("procedural/box/000", "shadow") and len(writer) == 3
     assert (root / box).is_file() and not (root / lost).exists() and not (root / "records/shadow/x.npz").exists()
     assert len(list((root / ".damaged").rglob("*.npz"))) == 1 and validate_dataset(root) == []
+
+
+@pytest.mark.sim
+def test_ges_synth_resumes_over_a_truncated_record_and_says_so(tmp_path, caplog):
+    """The issue's probe: the resume stopped with an instruction to delete the file by hand."""
+    out = tmp_path / "ds"
+    argv = ["synth", "--objects", "procedural/box/000", "procedural/cube/000", "--hands", "allegro"]
+    argv += ["--sim", "pybullet", "--no-progress", "-o", "validate.hold_steps=60", "--out", str(out)]
+    assert cli.main(argv) == 0
+    file = out / record_relpath("procedural/cube/000", "allegro")
+    data = file.read_bytes()
+    file.write_bytes(data[: len(data) // 2])
+    caplog.clear()
+    assert cli.main(argv) == 0
+    assert file.read_bytes() == data  # made again, byte for byte
+    notes = [r.getMessage() for r in caplog.records if r.getMessage().startswith("ges: note: ")]
+    assert len(notes) == 1 and notes[0].startswith(f"ges: note: moved {file.relative_to(out)} to .damaged/")
+    assert "unreadable record" in notes[0] and validate_dataset(out) == []
