@@ -1,7 +1,8 @@
 """The ContactGrasp-style grasp dataset: records, the on-disk folder, checks and summaries.
 
 See ``docs/dataset.md`` for the format. Writers and readers:
-:class:`DatasetWriter` (incremental, atomic, resumable) and :func:`open_dataset`.
+:class:`DatasetWriter` (incremental, atomic, resumable, one per folder) and :func:`open_dataset`; both rebuild
+the index from the records. Record files are byte-reproducible; their times live beside them (:mod:`.timing`).
 """
 
 from __future__ import annotations

@@ -206,3 +206,24 @@ def test_the_same_process_cannot_open_two_writers(tmp_path):
     DatasetWriter(root, CONFIG).close()
     with pytest.raises(ValueError, match="is closed; open a new DatasetWriter"):
         first.add(make_record("procedural/box/000"))
+
+
+def test_a_file_system_without_locks_asks_for_a_local_folder(tmp_path, monkeypatch):
+    import errno
+    import fcntl
+
+    def no_locks(fd, op):
+        raise OSError(errno.ENOLCK, os.strerror(errno.ENOLCK))
+
+    monkeypatch.setattr(fcntl, "flock", no_locks)
+    with pytest.raises(LockError, match=r"cannot lock .*\.lock: No locks available; the file system does not support"):
+        DatasetWriter(tmp_path / "ds", CONFIG)
+    assert not (tmp_path / "ds" / ".lock").exists() or (tmp_path / "ds" / ".lock").read_text() == ""
+
+
+def test_a_lock_file_that_keeps_being_replaced_is_refused(tmp_path, monkeypatch):
+    import ges_core.dataset.lock as lock
+
+    monkeypatch.setattr(lock, "_same_file", lambda fd, path: False)  # as if deleted after each flock
+    with pytest.raises(LockError, match=r"cannot lock .*\.lock: the file keeps being replaced"):
+        DatasetWriter(tmp_path / "ds", CONFIG)
