@@ -91,8 +91,12 @@ def test_user_folder_errors(tmp_path):
     (tmp_path / "cat").mkdir()
     trimesh.creation.box().export(tmp_path / "cat" / "a.obj")
     trimesh.creation.box().export(tmp_path / "cat" / "a.stl")
-    with pytest.raises(AssetError, match=r"a\.stl and .*a\.obj both give object id user/cat/a; rename one of them"):
-        list_user(tmp_path)
+    trimesh.creation.box().export(tmp_path / "cat" / "b.obj")
+    dup, other = list_user(tmp_path)  # two files with one id: that id is unusable, the folder is not
+    assert (dup.object_id, other.object_id, other.problem) == ("user/cat/a", "user/cat/b", None)
+    assert dup.problem.endswith("both give this object id; rename or remove all but one of them")
+    with pytest.raises(AssetError, match=r"^user/cat/a: a\.obj and a\.stl in .* both give this object id"):
+        process_entry(dup)
 
 
 def test_unknown_procedural_category():

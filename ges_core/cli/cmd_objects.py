@@ -38,6 +38,7 @@ def _library_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="procedural seed")
     p.add_argument("--split-seed", type=int, default=0, help="seed of the splits")
     p.add_argument("--normalize", type=float, metavar="M", help="scale each object's largest extent to M metres")
+    p.add_argument("--max-faces", type=int, metavar="N", help="simplify meshes with more faces to N (default 200000)")
 
 
 def library_from_args(args: argparse.Namespace, **extra):
@@ -54,6 +55,7 @@ def library_from_args(args: argparse.Namespace, **extra):
         "user_scale": args.user_scale,
         "normalize_size": args.normalize,
         "split_seed": args.split_seed,
+        **({"max_faces": args.max_faces} if args.max_faces is not None else {}),
         **extra,
     }
     return ObjectLibrary(parse_model(LibraryConfig, settings, where="object library options"))
@@ -66,7 +68,11 @@ def run_list(args: argparse.Namespace) -> int:
     invalid = 0
     for info in rows:
         line = f"{info.object_id:<34} {info.category:<14} {info.source:<10} {info.split}"
-        if args.sizes:
+        problem = library.entry(info.object_id).problem
+        if problem is not None:  # found while listing (two files give one id): no mesh to read
+            invalid += 1
+            line += f"  INVALID: {problem}"
+        elif args.sizes:
             try:
                 ext, width = library.extents(info.object_id) * 100, library.min_width(info.object_id) * 100
                 line += f"  {ext[0]:5.1f} x {ext[1]:5.1f} x {ext[2]:5.1f} cm  min width {width:5.1f} cm"
@@ -94,6 +100,7 @@ def run_prepare(args: argparse.Namespace) -> int:
         settings,
         workers=args.workers,
         normalize_size=library.config.normalize_size,
+        max_faces=library.config.max_faces,
         progress=not args.no_progress,
     )
     return _report(results)

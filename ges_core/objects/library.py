@@ -19,6 +19,7 @@ from pydantic import Field, field_validator, model_validator
 from ges_core.config import ConfigModel, parse_model
 from ges_core.errors import ConfigError, UnknownNameError
 from ges_core.objects.asset import ObjectAsset
+from ges_core.objects.bounds import DEFAULT_MAX_FACES
 from ges_core.objects.decompose import FAST, CoacdSettings
 from ges_core.objects.pointcloud import sample_surface
 from ges_core.objects.processing import ProcessedObject, collision_shapes, min_width, process_entry
@@ -42,6 +43,12 @@ class LibraryConfig(ConfigModel):
     user_scale: float = Field(1.0, gt=0, description="factor taking the user files' units to metres")
     normalize_size: float | None = Field(
         None, gt=0, description="if set, every object is scaled uniformly so its largest extent is this many metres"
+    )
+    max_faces: int = Field(
+        DEFAULT_MAX_FACES,
+        ge=100,
+        description="faces; a loaded mesh with more is simplified to this many before repair (bounds the time and "
+        "memory one object costs: a 1.3M-face scan otherwise hangs every command)",
     )
     split_seed: int = Field(0, description="seed of the train / unseen splits")
     coacd: CoacdSettings = Field(default_factory=lambda: FAST, description="decomposition settings (cache key)")
@@ -146,7 +153,11 @@ class ObjectLibrary:
     def processed(self, object_id: str) -> ProcessedObject:
         """Repaired, placed geometry of ``object_id`` (memoized per library)."""
         if object_id not in self._processed:
-            self._processed[object_id] = process_entry(self.entry(object_id), normalize_size=self.config.normalize_size)
+            cfg = self.config
+            entry = self.entry(object_id)
+            self._processed[object_id] = process_entry(
+                entry, normalize_size=cfg.normalize_size, max_faces=cfg.max_faces
+            )
         return self._processed[object_id]
 
     def get(self, object_id: str, *, decompose: bool | None = None) -> ObjectAsset:

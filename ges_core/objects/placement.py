@@ -12,14 +12,29 @@ import trimesh
 from scipy.spatial.transform import Rotation
 
 from ges_core.objects.asset import PrimitiveShape
+from ges_core.objects.bounds import HULL_FACES, reduce_hull
 
 __all__ = ["place_on_table", "stable_rotation", "support_margin", "transform_primitive"]
 
 
 def stable_rotation(mesh: trimesh.Trimesh) -> np.ndarray:
     """(4, 4) transform of the most probable quasi-static resting pose (trimesh's
-    ``compute_stable_poses``, deterministic with ``sigma = 0``); only its rotation is used."""
-    transforms, _probs = trimesh.poses.compute_stable_poses(mesh, n_samples=1, sigma=0.0, threshold=0.0)
+    ``compute_stable_poses``, deterministic with ``sigma = 0``); only its rotation is used.
+
+    The pose depends on the convex hull and the centre of mass only. A hull of more than
+    :data:`.bounds.HULL_FACES` faces is simplified to that many first (the cost grows with the square of the
+    hull's faces). A centre of mass not strictly inside the hull (a degenerate mesh) keeps the orientation:
+    trimesh would look for a centre of mass inside it forever.
+    """
+    com = mesh.center_mass
+    hull = mesh.convex_hull
+    if len(hull.faces) > HULL_FACES:
+        mesh = hull = reduce_hull(hull)  # trimesh takes the hull of what it is given: the same hull
+    if not np.all(np.einsum("ij,ij->i", com - hull.triangles_center, hull.face_normals) < 0):
+        return np.eye(4)
+    transforms, _probs = trimesh.poses.compute_stable_poses(
+        mesh, center_mass=com, n_samples=1, sigma=0.0, threshold=0.0
+    )
     if len(transforms) == 0:
         return np.eye(4)
     out = np.eye(4)

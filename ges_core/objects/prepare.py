@@ -14,6 +14,7 @@ from multiprocessing import get_context
 from typing import Literal
 
 from ges_core.errors import GesError
+from ges_core.objects.bounds import DEFAULT_MAX_FACES
 from ges_core.objects.decompose import CoacdSettings, cached_parts
 from ges_core.objects.processing import collision_shapes, process_entry
 from ges_core.objects.sources import ObjectEntry
@@ -35,11 +36,16 @@ class PrepareResult:
     """Number of parts, or the one-line error."""
 
 
-def prepare_one(entry: ObjectEntry, settings: CoacdSettings, normalize_size: float | None = None) -> PrepareResult:
+def prepare_one(
+    entry: ObjectEntry,
+    settings: CoacdSettings,
+    normalize_size: float | None = None,
+    max_faces: int = DEFAULT_MAX_FACES,
+) -> PrepareResult:
     """Process one entry and decompose it if concave and not cached; never raises a GesError."""
     start = time.perf_counter()
     try:
-        obj = process_entry(entry, normalize_size=normalize_size)
+        obj = process_entry(entry, normalize_size=normalize_size, max_faces=max_faces)
         was_cached = obj.kind == "concave" and cached_parts(obj.mesh_hash, settings) is not None
         shapes = collision_shapes(obj, settings, compute=True)
     except GesError as exc:
@@ -54,15 +60,19 @@ def prepare(
     *,
     workers: int = 1,
     normalize_size: float | None = None,
+    max_faces: int = DEFAULT_MAX_FACES,
     progress: bool = True,
 ) -> list[PrepareResult]:
-    """:func:`prepare_one` for every entry, ``workers`` at a time; results in the entries' order."""
+    """:func:`prepare_one` for every entry, ``workers`` at a time; results in the entries' order.
+
+    Each object's decomposition is cached as soon as it is done, so a run stopped midway keeps every finished
+    object (rerunning finds them cached)."""
     from tqdm import tqdm
 
     bar = tqdm(total=len(entries), desc="prepare", unit="obj", disable=not progress)
     results: dict[str, PrepareResult] = {}
     try:
-        for result in _run(entries, settings, workers, normalize_size):
+        for result in _run(entries, settings, workers, (normalize_size, max_faces)):
             results[result.object_id] = result
             bar.update()
             if result.status == "failed":
@@ -72,14 +82,15 @@ def prepare(
     return [results[e.object_id] for e in entries]
 
 
-def _run(entries, settings, workers, normalize_size):
+def _run(entries, settings, workers, processing):
+    """Results as each object finishes (``processing``: normalize_size, max_faces)."""
     if workers <= 1 or len(entries) <= 1:
         for entry in entries:
-            yield prepare_one(entry, settings, normalize_size)
+            yield prepare_one(entry, settings, *processing)
         return
     # spawn, not fork: the parent may hold threads (tqdm, torch) that a fork would copy half-locked
     with ProcessPoolExecutor(max_workers=workers, mp_context=get_context("spawn")) as pool:
-        futures = [pool.submit(prepare_one, e, settings, normalize_size) for e in entries]
+        futures = [pool.submit(prepare_one, e, settings, *processing) for e in entries]
         try:
             for future in as_completed(futures):
                 yield future.result()

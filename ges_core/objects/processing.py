@@ -1,6 +1,7 @@
 """From an :class:`ObjectEntry` to a repaired, placed mesh and its collision shapes.
 
-Steps: build (procedural) or load (file, URDF scale) → repair and validate → optional scale
+Steps: build (procedural) or load (file, URDF scale) → size checks and face limit (:mod:`.bounds`) → repair
+and validate → optional scale
 normalization → resting placement (lowest point at z = 0, centre of mass above the origin) →
 write the mesh, content-addressed, under ``<cache_dir>/objects/meshes`` → collision shapes.
 """
@@ -17,11 +18,12 @@ import trimesh
 
 from ges_core.errors import AssetError
 from ges_core.objects.asset import ConvexPart, PrimitiveShape
+from ges_core.objects.bounds import DEFAULT_MAX_FACES, bounded_hull, check_extent, limit_faces
 from ges_core.objects.decompose import CoacdSettings, cached_parts, decompose, mesh_to_obj_bytes
 from ges_core.objects.placement import place_on_table, transform_primitive
 from ges_core.objects.procedural import build_shape, shape_seed
 from ges_core.objects.sources import ObjectEntry
-from ges_core.objects.validate import CONVEX_RATIO, load_mesh_file, repair_mesh
+from ges_core.objects.validate import CONVEX_RATIO, check_finite, load_mesh_file, repair_mesh
 from ges_core.paths import atomic_write_bytes, cache_dir
 
 __all__ = ["CollisionKind", "ProcessedObject", "collision_shapes", "min_width", "process_entry", "solid_volume"]
@@ -29,6 +31,10 @@ __all__ = ["CollisionKind", "ProcessedObject", "collision_shapes", "min_width", 
 CollisionKind = Literal["primitive", "convex", "convex_parts", "concave"]
 """``primitive``: exact shapes; ``convex``: the mesh's own hull; ``convex_parts``: the mesh is several
 convex bodies (pybullet's random_urdfs, VHACD files), each its own part; ``concave``: needs CoACD."""
+
+WIDTH_BLOCK = 4_000_000
+"""Most entries of one block of :func:`min_width`'s vertex x face-normal projections (32 MB): a hull of
+4,000 vertices and 8,000 faces would otherwise take 256 MB at once."""
 
 VOLUME_SAMPLES = 100_000
 """Monte-Carlo points for the overlap volume of overlapping bodies (teddy's 15 hulls overlap by a
@@ -52,10 +58,19 @@ class ProcessedObject:
     """m^3 of the solid (overlapping bodies counted once)."""
 
 
-def process_entry(entry: ObjectEntry, *, normalize_size: float | None = None) -> ProcessedObject:
+def process_entry(
+    entry: ObjectEntry, *, normalize_size: float | None = None, max_faces: int = DEFAULT_MAX_FACES
+) -> ProcessedObject:
     """Build or load ``entry``'s mesh, repair it, optionally scale its largest extent to
-    ``normalize_size`` (m), place it at rest, and write it to the mesh cache."""
-    mesh, kind, primitives = _raw_geometry(entry)
+    ``normalize_size`` (m), place it at rest, and write it to the mesh cache.
+
+    max_faces: a loaded mesh with more faces is simplified to this many first (:func:`.bounds.limit_faces`).
+    Raises AssetError naming the object when it cannot be used: ``entry.problem``, an unreadable, broken or
+    flat mesh, or (without ``normalize_size``) one larger than :data:`.bounds.MAX_EXTENT`.
+    """
+    if entry.problem is not None:
+        raise AssetError(f"{entry.object_id}: {entry.problem}")
+    mesh, kind, primitives = _raw_geometry(entry, max_faces=max_faces, check_size=normalize_size is None)
     placed, transform = place_on_table(mesh, rotate=entry.source != "procedural")
     primitives = tuple(transform_primitive(p, transform) for p in primitives)
     if normalize_size is not None:  # after placement: scaling about the origin keeps the rest pose
@@ -73,13 +88,25 @@ def process_entry(entry: ObjectEntry, *, normalize_size: float | None = None) ->
     )
 
 
-def _raw_geometry(entry: ObjectEntry) -> tuple[trimesh.Trimesh, CollisionKind, tuple[PrimitiveShape, ...]]:
+def _raw_geometry(
+    entry: ObjectEntry, *, max_faces: int, check_size: bool
+) -> tuple[trimesh.Trimesh, CollisionKind, tuple[PrimitiveShape, ...]]:
     if entry.source == "procedural":
         shape = build_shape(entry.category, shape_seed(entry.seed, entry.category, entry.index))
         return repair_mesh(shape.mesh, name=entry.object_id), shape.kind, shape.primitives
-    name = f"{entry.object_id} ({entry.path})"
-    mesh = repair_mesh(load_mesh_file(entry.path, scale=entry.scale), name=name)
+    mesh = _load_file(entry, max_faces=max_faces, check_size=check_size)
     return mesh, _classify(mesh), ()
+
+
+def _load_file(entry: ObjectEntry, *, max_faces: int, check_size: bool) -> trimesh.Trimesh:
+    """The repaired mesh of a file entry; the cheap checks (finite, size) run before the face limit and repair."""
+    name = f"{entry.object_id} ({entry.path})"
+    mesh = load_mesh_file(entry.path, scale=entry.scale)
+    check_finite(mesh, name=name)
+    if check_size:
+        check_extent(mesh, name=name, user=entry.source == "user")
+    mesh, name = limit_faces(mesh, max_faces, name=name)
+    return repair_mesh(mesh, name=name)
 
 
 def _classify(mesh: trimesh.Trimesh) -> CollisionKind:
@@ -172,8 +199,9 @@ def collision_shapes(
 
 
 def _write_hull(mesh: trimesh.Trimesh) -> Path:
-    """Convex hull of ``mesh`` written content-addressed under ``<cache_dir>/objects/hulls``."""
-    data = mesh_to_obj_bytes(mesh.convex_hull)
+    """Convex hull of ``mesh`` (at most :data:`.bounds.HULL_FACES` faces) written content-addressed under
+    ``<cache_dir>/objects/hulls``."""
+    data = mesh_to_obj_bytes(bounded_hull(mesh))
     path = cache_dir("objects", "hulls") / f"{hashlib.sha256(data).hexdigest()[:16]}.obj"
     if not path.is_file():
         atomic_write_bytes(path, data)
@@ -182,7 +210,13 @@ def _write_hull(mesh: trimesh.Trimesh) -> Path:
 
 def min_width(mesh: trimesh.Trimesh) -> float:
     """Smallest width (m) of the convex hull over its face normals: the narrowest opening a
-    parallel-jaw or thumb-finger grasp across the object needs (an upper bound on the exact width)."""
-    hull = mesh.convex_hull
-    proj = hull.vertices @ hull.face_normals.T  # (n_vertices, n_faces)
-    return float(np.min(proj.max(axis=0) - proj.min(axis=0)))
+    parallel-jaw or thumb-finger grasp across the object needs (an upper bound on the exact width). The hull
+    has at most :data:`.bounds.HULL_FACES` faces; the projections are taken in blocks of :data:`WIDTH_BLOCK`."""
+    hull = bounded_hull(mesh)
+    vertices, normals = hull.vertices, hull.face_normals
+    step = max(1, WIDTH_BLOCK // len(vertices))
+    widths = []
+    for start in range(0, len(normals), step):
+        proj = vertices @ normals[start : start + step].T  # (n_vertices, step)
+        widths.append(np.min(proj.max(axis=0) - proj.min(axis=0)))
+    return float(min(widths))

@@ -47,6 +47,10 @@ class ObjectEntry:
     """Instance number within the category (procedural)."""
     seed: int = 0
     """Library seed (procedural)."""
+    problem: str | None = None
+    """Why this object cannot be used, found while listing (two files give its id); processing it raises an
+    AssetError with this reason. Listed rather than dropped, so that the rest of its folder stays usable and
+    the problem is reported where the object is asked for."""
 
 
 def list_procedural(*, count: int, seed: int, categories: tuple[str, ...] | None = None) -> list[ObjectEntry]:
@@ -135,17 +139,24 @@ def list_user(folder: str | Path, *, scale: float = 1.0) -> list[ObjectEntry]:
     """Meshes laid out ``folder/<category>/<instance>.{obj,stl,ply,glb}``, ids ``user/<category>/<instance>``.
 
     scale: factor taking the files' units to metres (e.g. 0.001 for millimetre STL files).
+    Two files giving one id (``mug.obj`` and ``mug.stl``) make that one entry unusable (its ``problem``
+    names both files); the rest of the folder is listed as usual.
     """
     folder = Path(folder).expanduser()
     if not folder.is_dir():
         raise AssetError(f"user object folder {folder} does not exist; lay it out as <category>/<instance>.obj")
-    entries, seen = [], {}
+    by_id: dict[str, list[Path]] = {}
     for path in sorted(p for p in folder.glob("*/*") if p.suffix.lower() in MESH_SUFFIXES and p.is_file()):
-        oid = f"user/{path.parent.name}/{path.stem}"
-        if oid in seen:
-            raise AssetError(f"{path} and {seen[oid]} both give object id {oid}; rename one of them")
-        seen[oid] = path
-        entries.append(
-            ObjectEntry(object_id=oid, category=path.parent.name, source="user", path=path, scale=(scale,) * 3)
-        )
-    return entries
+        by_id.setdefault(f"user/{path.parent.name}/{path.stem}", []).append(path)
+    return [_user_entry(oid, paths, scale) for oid, paths in by_id.items()]
+
+
+def _user_entry(object_id: str, paths: list[Path], scale: float) -> ObjectEntry:
+    problem = None
+    if len(paths) > 1:
+        names = " and ".join(p.name for p in paths)
+        problem = f"{names} in {paths[0].parent} both give this object id; rename or remove all but one of them"
+    category = paths[0].parent.name
+    return ObjectEntry(
+        object_id=object_id, category=category, source="user", path=paths[0], scale=(scale,) * 3, problem=problem
+    )

@@ -13,7 +13,7 @@ import trimesh
 
 from ges_core.errors import AssetError
 
-__all__ = ["MESH_SUFFIXES", "is_convex", "load_mesh_file", "repair_mesh"]
+__all__ = ["MESH_SUFFIXES", "check_finite", "is_convex", "load_mesh_file", "repair_mesh"]
 
 MESH_SUFFIXES = (".obj", ".stl", ".ply", ".glb")
 """File types the library reads (anything trimesh reads works; these are the ones discovered)."""
@@ -54,10 +54,8 @@ def repair_mesh(mesh: trimesh.Trimesh, *, name: str) -> trimesh.Trimesh:
     Steps: reject non-finite vertices; merge duplicate vertices; drop degenerate and duplicate
     faces; fill holes; fix winding and inversion per body; reject flat, open or inside-out results.
     """
+    check_finite(mesh, name=name)
     vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    bad = int((~np.isfinite(vertices)).any(axis=1).sum())
-    if bad:
-        raise AssetError(f"{name}: {bad} vertices are NaN or infinite; re-export the mesh")
     original = trimesh.Trimesh(vertices, np.asarray(mesh.faces), process=False)
     fixed = original.copy()
     _clean(fixed)
@@ -68,6 +66,13 @@ def repair_mesh(mesh: trimesh.Trimesh, *, name: str) -> trimesh.Trimesh:
     trimesh.repair.fix_normals(fixed, multibody=True)
     _check_closed(fixed, name)
     return fixed
+
+
+def check_finite(mesh: trimesh.Trimesh, *, name: str) -> None:
+    """AssetError naming ``name`` if a vertex of ``mesh`` is NaN or infinite."""
+    bad = int((~np.isfinite(np.asarray(mesh.vertices, dtype=np.float64))).any(axis=1).sum())
+    if bad:
+        raise AssetError(f"{name}: {bad} vertices are NaN or infinite; re-export the mesh")
 
 
 def _clean(mesh: trimesh.Trimesh) -> None:

@@ -16,14 +16,14 @@ Objects are cut into fixed chunks of ``chunk_size`` (in the order given) whateve
 workers; each (object, hand) gets fresh simulators (a reused scene carries the previous object's
 history, see :mod:`.worker`), so a record does not depend on its chunk mates, on resuming or on
 ``workers``. The parent process alone writes the dataset (atomic, resumable:
-stored (object, hand) pairs are skipped).
+stored (object, hand) pairs are skipped), each task's records as soon as that task finishes.
 """
 
 from __future__ import annotations
 
 import multiprocessing
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -107,17 +107,24 @@ def _check_run(object_ids: Sequence[str], hands: Sequence[str], workers: int) ->
         raise ConfigError("cannot start the synthesis run: " + "; ".join(problems), problems=problems)
 
 
-def _results(tasks: list[Task], context: RunContext, workers: int) -> Iterator[list]:
-    """Records of each task, in task order (so the dataset is written in the same order for any N)."""
+def _results(tasks: list[Task], context: RunContext, workers: int, runner: Callable = run_task) -> Iterator[list]:
+    """Records of each task as soon as it finishes, so that a slow task holds back no other task's records and
+    a stopped run keeps every finished task. The dataset does not depend on this order: one file per
+    (object, hand), and the manifest's index is sorted. ``runner``: a test double of :func:`run_task`
+    (picklable: a module-level function)."""
     if workers == 1 or len(tasks) <= 1:
         for task in tasks:
-            yield run_task(task, context)
+            yield runner(task, context)
         return
     ctx = multiprocessing.get_context("spawn")  # fork would copy engine state (SAPIEN, PyBullet clients, torch threads)
     with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
-        futures = [pool.submit(run_task, task, context) for task in tasks]
-        for future in futures:
-            yield future.result()
+        futures = [pool.submit(runner, task, context) for task in tasks]
+        try:
+            for future in as_completed(futures):
+                yield future.result()
+        except BaseException:  # stopped (Ctrl-C, a failing write): start no queued task
+            pool.shutdown(wait=False, cancel_futures=True)
+            raise
 
 
 def _progress_bar(total: int, enabled: bool):
