@@ -202,3 +202,15 @@ def test_count_types_refuse_bad_values(check, text):
 
     with pytest.raises(argparse.ArgumentTypeError, match=rf"^'{text}' is not a"):
         getattr(args, check)(text)
+
+
+def test_a_closed_output_pipe_ends_quietly():
+    """``ges list | head -1``: the reader closing the pipe is no error of ours (no line, no traceback)."""
+    import subprocess
+    import sys
+
+    script = "import sys; from ges_core.cli import main; sys.exit(main(['list']))"
+    ges = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    ges.stdout.close()  # the reader goes away before ges writes
+    err = ges.stderr.read().decode()
+    assert ges.wait(timeout=60) == 141 and "error" not in err and "Traceback" not in err

@@ -10,6 +10,7 @@ itself, a file it cannot read) prints one line too: its cause, its path and what
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from collections.abc import Sequence
 
@@ -74,6 +75,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             raise
         print(f"ges: error: {exc}", file=sys.stderr)
         return 1
+    except BrokenPipeError:  # `ges ... | head` closed our output: stop quietly, as other command-line tools do
+        sys.stdout = open(os.devnull, "w")  # noqa: SIM115 - the interpreter flushes stdout at exit
+        return 141
     except OSError as exc:  # the last resort: a disk error outside the project's writers is one line too
         if args.debug:
             raise

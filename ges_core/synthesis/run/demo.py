@@ -17,6 +17,7 @@ from pydantic import Field, field_validator
 
 from ges_core.config import ConfigModel, load_config
 from ges_core.dataset import open_dataset
+from ges_core.paths import atomic_write_text
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.pipeline import run_synthesis
 from ges_core.synthesis.run.table import format_table, table_rows
@@ -103,7 +104,7 @@ def run_demo(config: DemoConfig, *, registry: RegistrySpec | None = None, progre
     wanted = {(o, h) for o in ids for h in hands}
     records = [r for r in open_dataset(out / "dataset") if r.key in wanted]
     table = format_table(table_rows(records))
-    (out / "table.md").write_text(table + "\n")
+    atomic_write_text(out / "table.md", table + "\n")
     lines = [table, "", _failures(records)]
     if pictures is not None:
         lines.append(f"contact sheet: {_sheet(records, out / 'contact_sheet.png')}")
