@@ -22,7 +22,7 @@ stored (object, hand) pairs are skipped), each task's records as soon as that ta
 from __future__ import annotations
 
 import multiprocessing
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Generator, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -76,8 +76,9 @@ def run_synthesis(
         tasks, report.skipped = plan_tasks(list(object_ids), list(hands), config.chunk_size, writer.has)
         context = RunContext(config, registry, str(pictures) if pictures else None, _source(source))
         bar = _progress_bar(sum(t.size for t in tasks), progress)
+        results = _results(tasks, context, workers)
         try:
-            for records in _results(tasks, context, workers):
+            for records in results:
                 for record in records:
                     writer.add(record)
                     report.written.append(record.key)
@@ -85,6 +86,7 @@ def run_synthesis(
                         on_record(record)
                 bar.update(len(records))
         finally:
+            results.close()  # a stopped run cancels the queued tasks now, not when the generator is collected
             bar.close()
     return report
 
@@ -107,7 +109,9 @@ def _check_run(object_ids: Sequence[str], hands: Sequence[str], workers: int) ->
         raise ConfigError("cannot start the synthesis run: " + "; ".join(problems), problems=problems)
 
 
-def _results(tasks: list[Task], context: RunContext, workers: int, runner: Callable = run_task) -> Iterator[list]:
+def _results(
+    tasks: list[Task], context: RunContext, workers: int, runner: Callable = run_task
+) -> Generator[list, None, None]:
     """Records of each task as soon as it finishes, so that a slow task holds back no other task's records and
     a stopped run keeps every finished task. The dataset does not depend on this order: one file per
     (object, hand), and the manifest's index is sorted. ``runner``: a test double of :func:`run_task`
