@@ -162,10 +162,6 @@ def _options(parser, path=()):
             yield path, action.option_strings[-1], action
 
 
-NUMBERS_CHECKED_ELSEWHERE = {("objects", "list"), ("objects", "prepare")}
-"""Commands whose numeric options are not yet on ges_core.cli.args (owned by the object-library work)."""
-
-
 def test_every_numeric_option_is_checked_in_one_place():
     """A bare ``type=int`` takes 0 and negatives silently (``--limit 0`` started the whole library)."""
     from ges_core.cli import args, build_parser
@@ -173,7 +169,7 @@ def test_every_numeric_option_is_checked_in_one_place():
     bare = [
         f"ges {' '.join(path)} {option}"
         for path, option, action in _options(build_parser())
-        if action.type in (int, float) and path not in NUMBERS_CHECKED_ELSEWHERE
+        if action.type in (int, float)
     ]
     assert bare == [], f"use a type from ges_core.cli.args: {bare}"
     checked = {(path, option): action.type for path, option, action in _options(build_parser())}

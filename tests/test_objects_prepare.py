@@ -100,5 +100,7 @@ def test_cli_prepare_with_two_workers(user_dir, capsys):
 
 
 def test_cli_prepare_rejects_bad_workers(user_dir, capsys):
-    assert main(["objects", "prepare", "--source", "user", "--user-dir", str(user_dir), "--workers", "0"]) == 1
-    assert "ges: error: --workers must be at least 1, got 0" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:
+        main(["objects", "prepare", "--source", "user", "--user-dir", str(user_dir), "--workers", "0"])
+    assert exit_.value.code == 2  # argparse's usage error, as for every count (ges_core.cli.args)
+    assert "argument --workers: '0' is not a whole number >= 1" in capsys.readouterr().err

@@ -5,7 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ges_core.errors import AssetError, ConfigError
+from ges_core.cli.args import non_negative_int, positive_float, positive_int
+from ges_core.errors import AssetError
 
 SOURCE_CHOICES = ("procedural", "pybullet", "user")
 SPLIT_CHOICES = ("train", "unseen_object", "unseen_category")
@@ -22,8 +23,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lp.set_defaults(func=run_list)
     pp = osub.add_parser("prepare", help="validate objects and cache convex decompositions (CoACD)")
     _library_options(pp)
-    pp.add_argument("--workers", type=int, default=1, metavar="N", help="parallel processes (default 1)")
-    pp.add_argument("--limit", type=int, metavar="N", help="only the first N objects")
+    pp.add_argument("--workers", type=positive_int, default=1, metavar="N", help="parallel processes (default 1)")
+    pp.add_argument("--limit", type=positive_int, metavar="N", help="only the first N objects")
     pp.add_argument("--ids", nargs="+", metavar="ID", help="only these object ids")
     pp.add_argument("--coacd", choices=("fast", "default"), default="fast", help="CoACD settings (default fast)")
     pp.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -33,12 +34,16 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _library_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source", choices=SOURCE_CHOICES, action="append", help="only this source (repeatable)")
     p.add_argument("--user-dir", type=Path, metavar="PATH", help="user objects laid out <category>/<instance>.obj")
-    p.add_argument("--user-scale", type=float, default=1.0, help="user files' unit in metres (0.001 for mm)")
-    p.add_argument("--count", type=int, default=10, metavar="N", help="procedural objects per category")
-    p.add_argument("--seed", type=int, default=0, help="procedural seed")
-    p.add_argument("--split-seed", type=int, default=0, help="seed of the splits")
-    p.add_argument("--normalize", type=float, metavar="M", help="scale each object's largest extent to M metres")
-    p.add_argument("--max-faces", type=int, metavar="N", help="simplify meshes with more faces to N (default 200000)")
+    p.add_argument("--user-scale", type=positive_float, default=1.0, help="user files' unit in metres (0.001 for mm)")
+    p.add_argument("--count", type=non_negative_int, default=10, metavar="N", help="procedural objects per category")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="procedural seed")
+    p.add_argument("--split-seed", type=non_negative_int, default=0, help="seed of the splits")
+    p.add_argument(
+        "--normalize", type=positive_float, metavar="M", help="scale each object's largest extent to M metres"
+    )
+    p.add_argument(
+        "--max-faces", type=positive_int, metavar="N", help="simplify meshes with more faces to N (default 200000)"
+    )
 
 
 def library_from_args(args: argparse.Namespace, **extra):
@@ -89,8 +94,6 @@ def run_prepare(args: argparse.Namespace) -> int:
     from ges_core.objects.decompose import DEFAULT, FAST
     from ges_core.objects.prepare import prepare
 
-    if args.workers < 1:
-        raise ConfigError(f"--workers must be at least 1, got {args.workers}")
     settings = FAST if args.coacd == "fast" else DEFAULT
     library = library_from_args(args, coacd=settings)
     entries = [library.entry(i) for i in args.ids] if args.ids else library.entries()
