@@ -114,7 +114,9 @@ def test_two_runs_on_disjoint_objects_do_not_lose_records(tmp_path):
     for p in procs:
         p.stdin.close()
     assert sorted(p.wait(timeout=60) for p in procs) == [0, 3], said  # one wrote, the other was refused at once
-    assert said[0].startswith(f"refused: dataset {root} is being written by another process (pid ") and said[1] == (
+    # the holder's name may not be in its lock file yet when both start together (a loaded machine took over the
+    # 1 s the refused one waits for it): naming it is test_a_second_writer_fails_at_once_naming_the_holder's job
+    assert said[0].startswith(f"refused: dataset {root} is being written by another process (") and said[1] == (
         "wrote 20"
     )
     assert validate_dataset(root) == []  # the manifest lists every record on disk
