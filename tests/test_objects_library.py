@@ -116,8 +116,9 @@ def test_config_problems_are_listed_together(tmp_path, capsys):
         assert part in msg
     with pytest.raises(ValidationError, match="user_dir: required when sources include 'user'"):
         LibraryConfig(sources=("user",))
-    assert main(["objects", "list", "--count", "-1"]) == 1
-    assert "invalid object library options: procedural_count: Input should be greater" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # the command line refuses it first (ges_core.cli.args)
+        main(["objects", "list", "--count", "-1"])
+    assert exit_.value.code == 2 and "argument --count: '-1' is not a whole number >= 0" in capsys.readouterr().err
 
 
 def test_user_dir_is_a_str_or_a_path(tmp_path):
