@@ -17,7 +17,14 @@ from types import ModuleType
 from ges_core import __version__
 from ges_core.errors import PluginError, naming_plugin
 
-__all__ = ["BUILTIN_PACKAGE", "BUILTIN_PLUGINS", "CHECKOUT_FOLDER", "builtin_source", "import_builtin"]
+__all__ = [
+    "BUILTIN_PACKAGE",
+    "BUILTIN_PLUGINS",
+    "CHECKOUT_FOLDER",
+    "builtin_source",
+    "import_builtin",
+    "module_from_file",
+]
 
 BUILTIN_PLUGINS: dict[str, str] = {
     "shadow": "ges_plugins.hands.shadow",
@@ -58,12 +65,22 @@ def _ensure_package() -> None:
             f"the built-in plugins are missing: no package '{BUILTIN_PACKAGE}' is installed and there is no "
             f"{init}; reinstall ges-unigrasp (pip install 'ges-unigrasp[all]')"
         )
-    spec = importlib.util.spec_from_file_location(BUILTIN_PACKAGE, init, submodule_search_locations=[str(init.parent)])
+    module_from_file(BUILTIN_PACKAGE, init, package=True)
+
+
+def module_from_file(name: str, path: Path, *, package: bool = False) -> ModuleType:
+    """Import the file ``path`` as the module ``name`` (a package rooted at its folder if ``package``).
+
+    The module is in ``sys.modules`` while it runs (so it can import itself) and taken out again if it fails.
+    """
+    search = [str(path.parent)] if package else None
+    spec = importlib.util.spec_from_file_location(name, path, submodule_search_locations=search)
     assert spec is not None and spec.loader is not None
     module = importlib.util.module_from_spec(spec)
-    sys.modules[BUILTIN_PACKAGE] = module
+    sys.modules[name] = module
     try:
         spec.loader.exec_module(module)
     except BaseException:
-        sys.modules.pop(BUILTIN_PACKAGE, None)
+        sys.modules.pop(name, None)
         raise
+    return module

@@ -17,7 +17,6 @@ import importlib
 import importlib.metadata
 import importlib.util
 import os
-import sys
 from collections.abc import Iterable
 from pathlib import Path
 from types import ModuleType
@@ -25,7 +24,7 @@ from types import ModuleType
 import pluggy
 
 from ges_core import hookspecs
-from ges_core.builtins import BUILTIN_PLUGINS, builtin_source, import_builtin
+from ges_core.builtins import BUILTIN_PLUGINS, builtin_source, import_builtin, module_from_file
 from ges_core.errors import PluginError, naming_plugin
 
 __all__ = ["AUTOLOAD_ENV", "ENTRY_POINT_GROUP", "OWN_DISTRIBUTION", "get_plugin_manager", "plugin_sources"]
@@ -136,13 +135,4 @@ def _import_file(ref: str, base_dir: Path) -> ModuleType:
     if not path.is_file():
         raise PluginError(f"local plugin file '{ref}' not found (looked at {path})", plugin=ref)
     module_name = f"ges_local_plugin_{path.stem}_{abs(hash(str(path.resolve()))):x}"
-    spec = importlib.util.spec_from_file_location(module_name, path)
-    assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    sys.modules[module_name] = module
-    try:
-        spec.loader.exec_module(module)
-    except BaseException:
-        sys.modules.pop(module_name, None)
-        raise
-    return module
+    return module_from_file(module_name, path)
