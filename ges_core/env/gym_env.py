@@ -32,6 +32,8 @@ TERMINATED = (EndReason.SUCCESS, EndReason.DROPPED, EndReason.UNSTABLE)
 """End reasons that are a terminal state of the task."""
 TRUNCATED = (EndReason.NOT_LIFTED, EndReason.TIMEOUT)
 """End reasons that only cut the episode (the length limit)."""
+_ACTION = "GraspGymEnv.step: action"
+"""Who and what an action error names."""
 
 
 class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
@@ -73,11 +75,9 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def step(self, action: np.ndarray) -> tuple[np.ndarray, float, bool, bool, dict[str, Any]]:
         """Apply ``action`` (K + 6,) in [-1, 1] (clipped); observation, reward, terminated, truncated, info."""
-        self._check_can_step(action)
+        a = self._checked_action(action)
         env = self.env
-        what = "GraspGymEnv.step: action"
-        a = checked_array(action, self.action_space.shape, what, dtype=np.float32, finite=False)  # the space's dtype
-        unstable = env.apply_action(a.reshape(1, -1), what=what)
+        unstable = env.apply_action(a.reshape(1, -1), what=_ACTION)
         self._t += 1
         obs, state = env.observe()
         reward, terms = env.reward(state)
@@ -97,7 +97,8 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
         """Release the simulator; ``step`` and ``reset`` then raise SimulationError (calling twice is harmless)."""
         self.env.close()
 
-    def _check_can_step(self, action: np.ndarray) -> None:
+    def _checked_action(self, action: np.ndarray) -> np.ndarray:
+        """``action`` as the space's float32 array, once the env may step; NaN passes (the episode ends unstable)."""
         self.env.check_open("GraspGymEnv.step")
         if self._t is None:
             raise ConfigError("GraspGymEnv.step before reset(); call reset() first")
@@ -105,8 +106,8 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
             raise ConfigError(
                 f"GraspGymEnv.step after the episode ended ({self._ended.name.lower()}); call reset() first"
             )
-        layout = self.env.act_layout.describe()  # NaN passes here: step ends that episode as unstable
-        checked_array(action, self.action_space.shape, "GraspGymEnv.step: action", layout=layout, finite=False)
+        layout = self.env.act_layout.describe()
+        return checked_array(action, self.action_space.shape, _ACTION, layout=layout, dtype=np.float32, finite=False)
 
     def _info(self, reason: EndReason, terms: dict[str, torch.Tensor]) -> dict[str, Any]:
         paper = reason is EndReason.SUCCESS
