@@ -54,7 +54,7 @@ from ges_core.sim_args import (
     wrist_coordinates,
 )
 
-__all__ = ["ContactPair", "ContactPartner", "SceneConfig", "SimBackend", "check_env_rows", "env_id_list"]
+__all__ = ["ContactPair", "ContactPartner", "SceneConfig", "SimBackend"]
 
 ContactPartner = Literal["object", "table", "any"]
 """Whose contacts :meth:`SimBackend.contact_forces` sums: the object's, the table's or all."""
