@@ -3,25 +3,16 @@
 GES-UniGrasp poses are ``(..., 7)``: position (m) then a unit quaternion **w, x, y, z**.
 PyBullet speaks **x, y, z, w**; every conversion between the two happens here, so the backend
 never hands a raw PyBullet quaternion to its caller (the order swaps themselves are
-:mod:`ges_core.transforms`'s, re-exported here).
+:mod:`ges_core.transforms`'s).
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from ges_core.transforms import wxyz_to_xyzw, xyzw_to_wxyz
+from ges_core.transforms import wxyz_to_xyzw
 
-__all__ = [
-    "IDENTITY_POSE",
-    "to_pybullet",
-    "from_pybullet",
-    "wxyz_to_xyzw",
-    "xyzw_to_wxyz",
-]
-
-IDENTITY_POSE = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
-"""(7,) the identity pose, wxyz."""
+__all__ = ["from_pybullet", "to_pybullet"]
 
 
 def to_pybullet(pose: np.ndarray) -> tuple[list[float], list[float]]:

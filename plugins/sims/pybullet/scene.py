@@ -15,12 +15,12 @@ from ges_core.errors import AssetError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SceneConfig
+from ges_core.transforms import wxyz_to_xyzw
 from ges_core.urdf import WRIST_JOINTS, neighbour_link_pairs, root_link
 
 from .drive import ImplicitPD
 from .engine import BulletClient, connect_direct, p
 from .hand_urdf import pybullet_hand_urdf
-from .poses import wxyz_to_xyzw
 from .shapes import MassProperties, mass_properties, shape_arrays
 
 __all__ = [
