@@ -17,10 +17,7 @@ from ges_core.errors import UnknownNameError
 from ges_core.sim import ContactPair, ContactPartner
 from ges_plugins.sims.sapien.engine import sapien
 
-__all__ = ["PARTNERS", "TOUCH_DISTANCE", "ContactReader"]
-
-PARTNERS: tuple[str, ...] = ("object", "table", "any")
-"""Accepted ``partner`` values of :meth:`ContactReader.forces`."""
+__all__ = ["TOUCH_DISTANCE", "ContactReader"]
 
 TOUCH_DISTANCE = 5e-4
 """Pairs closer than this (m) count as touching in :meth:`ContactReader.pairs`. A resting box shows
