@@ -20,7 +20,15 @@ import pluggy
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
 from ges_core.config import RegistryConfig, apply_overrides, parse_model, read_yaml
-from ges_core.errors import ConfigError, GesError, PluginError, RegistrationError, UnknownNameError, naming_plugin
+from ges_core.errors import (
+    BackendUnavailable,
+    ConfigError,
+    GesError,
+    PluginError,
+    RegistrationError,
+    UnknownNameError,
+    naming_plugin,
+)
 from ges_core.hand import HandModel
 from ges_core.plugins import get_plugin_manager, plugin_sources
 from ges_core.sim import SceneConfig, SimBackend
@@ -141,7 +149,6 @@ class Registry:
     def build_renderer(self, name: str | None = None, config: Any = None) -> Any:
         """A grasp-picture renderer (:class:`ges_core.render.Renderer`) from simulator ``name``'s plugin, or
         from the first simulator, by name, that offers one (``SimSpec.renderer``); config: a RenderConfig or None."""
-        from ges_core.errors import BackendUnavailable
         from ges_core.render.base import Renderer
 
         offering = [spec.name for spec in self.specs("sim") if spec.renderer]
