@@ -166,7 +166,7 @@ def unit_quat_to_matrix(q: np.ndarray) -> np.ndarray:
 
 
 def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
-    """(..., 4) unit wxyz -> (..., 3) rotation vector, angle in [0, pi] .
+    """(..., 4) unit wxyz -> (..., 3) rotation vector, angle in [0, pi].
 
     q and -q are one rotation: the angle comes from |w| and the sign of w flips the vector, as flipping q
     does (``w + 0.0`` turns -0.0 into +0.0, which the torch twin does not flip either). ``angle / s`` tends
@@ -180,7 +180,7 @@ def quat_to_rotvec(q: np.ndarray) -> np.ndarray:
 
 
 def rotvec_to_quat(r: np.ndarray) -> np.ndarray:
-    """(..., 3) rotation vector -> (..., 4) unit wxyz .
+    """(..., 3) rotation vector -> (..., 4) unit wxyz.
 
     ``sin(x/2) / x`` keeps full precision for tiny x (the torch twin's series differs by ~1e-18 relative
     below 1e-9); x = 0 gives the identity.

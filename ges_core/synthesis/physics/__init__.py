@@ -2,8 +2,9 @@
 
 ``refine`` (:func:`refine_grasp`: close the hand on the object, freezing fingers on contact), ``pregrasp``
 (:func:`pregrasp`: back off and open, no simulator; the opened hand's ``THUMB_KEEP``), ``validate``
-(:func:`validate_grasp`: lift and hold). Shared by them: ``scene`` (staging the hand and the object, pose
-algebra, contact queries) and ``squeeze`` (closing targets from fingertip forces, Jacobian transpose).
+(:func:`validate_grasp`: lift and hold). Shared by them: ``scene`` (staging the hand and the object, contact
+queries) and ``squeeze`` (closing targets from fingertip forces, Jacobian transpose); the pose algebra
+(``compose``, ``relative``, ``interpolate_pose``) is :mod:`ges_core.transforms`.
 """
 
 from __future__ import annotations
