@@ -377,15 +377,13 @@ def open_dataset(path: str | Path) -> Dataset:
     index = index_folder(root, manifest)
     used = {r.file for r in index.records.values()}
     adopted = tuple(f for f in index.scan.unlisted if f in used)
-    return Dataset(
-        root, manifest, tuple(index.entries()), adopted, index.scan.missing, tuple(index.damaged), _notes(index)
-    )
+    notes = _notes(index, adopted)
+    return Dataset(root, manifest, tuple(index.entries()), adopted, index.scan.missing, tuple(index.damaged), notes)
 
 
-def _notes(index: FolderIndex) -> tuple[str, ...]:
-    """What the reader found, one line each."""
-    used = {r.file for r in index.records.values()}
-    notes = [f"{f} is not listed in the manifest (adopted)" for f in index.scan.unlisted if f in used]
+def _notes(index: FolderIndex, adopted: tuple[str, ...]) -> tuple[str, ...]:
+    """What the reader found, one line each (``adopted``: the unlisted record files it uses)."""
+    notes = [f"{f} is not listed in the manifest (adopted)" for f in adopted]
     notes += [f"{f} is listed in the manifest but missing" for f in index.scan.missing]
     notes += [f"{f} cannot be used (left out): {why}" for f, why in index.damaged.items()]
     notes += [f"{f} holds the record that belongs at {home} (used)" for f, home in index.misplaced.items()]
