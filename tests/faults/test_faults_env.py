@@ -198,14 +198,20 @@ def test_reset_envs_bad_ids_is_one_config_error(sim_name: str, ids, message: str
 
 @pytest.mark.parametrize("sim_name", SIMS)
 def test_reset_envs_accepts_int_sequences(sim_name: str) -> None:
+    """Each accepted form resets env 1 (and only it); an empty one resets nothing. Stepping before each reset
+    makes every call show its effect: an id list read as empty would leave env 1's last action in place."""
     venv = _venv(sim_name)
     env = venv.env
-    for _ in range(3):
-        venv.step(_actions(1)[0])
-    for ids in ([1], (1,), np.array([1]), torch.tensor([1], dtype=torch.int32), [], torch.tensor([], dtype=torch.long)):
+    q_start = env.start_state(torch.tensor([1]))[0].numpy()[0]
+    forms = [[1], (1,), np.array([1]), torch.tensor([1], dtype=torch.int32), [], torch.tensor([], dtype=torch.long)]
+    for ids, action in zip(forms, _actions(len(forms)), strict=True):
+        venv.step(action)
+        assert (env.prev_action != 0).any(axis=1).all()  # both envs moved on from their start
         env.reset_envs(ids)
-    q_start = env.start_state(torch.tensor([1]))[0].numpy()
-    assert np.array_equal(env.joint_target[1], q_start[0]) and (env.prev_action[1] == 0).all()
+        reset = len(ids) > 0
+        assert bool((env.prev_action[1] == 0).all()) is reset, f"reset_envs({ids!r})"
+        assert np.array_equal(env.joint_target[1], q_start) is reset, f"reset_envs({ids!r})"
+        assert (env.prev_action[0] != 0).any()  # env 0 untouched
     venv.close()
 
 
