@@ -204,11 +204,10 @@ FACTORY = """
 from typing import Annotated
 from pydantic import Field
 
-class Hand:
-    pass
+CALLS = []
 
 def typed(*, width: Annotated[float, Field(gt=0)] = 1.0, fingers: tuple[str, ...] = (), name: str = "h", **rest):
-    assert isinstance(fingers, tuple)
+    CALLS.append((width, fingers, name, rest))
     return (width, fingers, name, rest)
 """
 
@@ -246,3 +245,8 @@ def test_settings_reach_the_factory_as_annotated(typed_registry):
     registry = typed_registry("settings: {hand: {typed: {fingers: [a, b], width: 2, other: x}}}\n")
     with pytest.raises(PluginError, match=r"returned tuple, not a HandModel"):  # it built, with a tuple
         registry.build_hand("typed")
+    import faults_factories
+
+    ((width, fingers, name, rest),) = faults_factories.CALLS  # what the factory received
+    assert (width, type(width), fingers, name) == (2.0, float, ("a", "b"), "h")  # as its annotations say
+    assert rest == {"other": "x"}  # **rest: passed on unchecked
