@@ -124,6 +124,9 @@ def test_config_problems_are_listed_together(tmp_path, capsys):
 def test_user_dir_is_a_str_or_a_path(tmp_path):
     assert LibraryConfig(user_dir=str(tmp_path)) == LibraryConfig(user_dir=tmp_path)
     assert LibraryConfig(user_dir=str(tmp_path)).model_dump(mode="json")["user_dir"] == str(tmp_path)
+
+
+def test_unknown_split_is_refused():
     with pytest.raises(ConfigError, match="unknown split 'test'"):
         ObjectLibrary(sources=("procedural",)).list(split="test")
 
