@@ -149,7 +149,6 @@ class GraspEnv:
         """(n, K) float64 joint targets last sent, rad (the episode's start joints after a reset)."""
         self.bad_actions: np.ndarray | None = None
         """(n,) bool, the envs whose row of the last :meth:`apply_action` held NaN or inf; None: none did."""
-        self._closed = False
         self._last_terms: tuple[dict | None, np.ndarray | None] = (None, None)  # see terms_array
         self._last_state: tuple = (None, None, None)  # see _state_arrays
         self._quat_buf = (np.empty((2, self.n, 4)), np.empty((2, self.n, 4)), np.empty((3, self.n, 4)))
@@ -364,12 +363,11 @@ class GraspEnv:
     # -- lifetime ------------------------------------------------------------------------------
     @property
     def closed(self) -> bool:
-        """True after :meth:`close`, or once the backend itself was closed."""
-        return self._closed or self.sim.closed
+        """True after :meth:`close`, or once the backend itself was closed (the backend's flag is the one state)."""
+        return self.sim.closed
 
     def close(self) -> None:
         """Close the backend; every later call raises SimulationError. Calling twice is harmless."""
-        self._closed = True
         self.sim.close()
 
     def check_open(self, who: str) -> None:
