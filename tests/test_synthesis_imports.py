@@ -85,3 +85,17 @@ def test_step_entry_points_are_exported_at_the_top():
         assert name in ges_core.synthesis.__all__ and callable(getattr(ges_core.synthesis, name))
     for name in ("SynthesisConfig", "run_synthesis", "run_demo", "table_rows"):
         assert name in ges_core.synthesis.__all__
+
+
+def test_one_step_module_does_not_import_the_whole_stage():
+    """The env's scripted expert imports physics.squeeze; that must not pull in the run, the dataset or trimesh."""
+    import subprocess
+    import sys
+
+    script = (
+        "import sys, ges_core.synthesis.physics.squeeze, ges_core.synthesis as s;"
+        "print(sorted(m for m in ('ges_core.synthesis.run', 'ges_core.dataset', 'trimesh') if m in sys.modules));"
+        "s.run_synthesis; print('ges_core.synthesis.run' in sys.modules)"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert out[:2] == ["[]", "True"]  # nothing heavy until a run name is asked for, then it is there
