@@ -31,7 +31,7 @@ from ges_core.dataset.layout import utc_now
 from ges_core.errors import LockError
 from ges_core.paths import storage_error
 
-__all__ = ["LOCK_FILE", "FolderLock"]
+__all__ = ["LOCK_FILE", "FolderLock", "holder_info"]
 
 LOCK_FILE = ".lock"
 HOLDER_WAIT_S = 1.0

@@ -9,9 +9,13 @@ from __future__ import annotations
 import hashlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from ges_core.errors import UnknownNameError
 from ges_core.synthesis.run.config import SynthesisConfig
+
+if TYPE_CHECKING:
+    from ges_core.registry import Registry
 
 __all__ = ["RegistrySpec", "RunContext", "Task", "check_plugin_names", "object_seed", "plan_tasks"]
 
@@ -61,7 +65,8 @@ class RegistrySpec:
     overrides: tuple[str, ...] = ()
     blocked: tuple[str, ...] = ()
 
-    def load(self):
+    def load(self) -> Registry:
+        """The registry these settings describe (read in each worker process: a registry does not pickle)."""
         from ges_core.registry import load_registry
 
         return load_registry(self.path, overrides=self.overrides, blocked=self.blocked)

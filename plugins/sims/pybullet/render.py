@@ -62,7 +62,7 @@ class PybulletRenderer(Renderer):
         try:
             from .engine import p, silenced
         except ImportError as exc:
-            raise BackendUnavailable("grasp pictures need PyBullet: pip install pybullet") from exc
+            raise BackendUnavailable("grasp pictures need PyBullet: pip install 'ges-unigrasp[pybullet]'") from exc
         self._p = p
         with silenced(1):  # PyBullet prints "argv[0]=" for every client
             self._cid = p.connect(p.DIRECT)
