@@ -145,7 +145,10 @@ def compare(before: Path, after: Path) -> int:
         print(f"{name:40s} {len(a):4d} items  {'identical' if not diffs else f'{len(diffs)} differences'}")
     for line in lines[:50]:
         print("  ", line)
-    write_results(RESULTS, {"before": str(before), "after": str(after), "parts": summary, "code": code_state()})
+    made_by = before / "COMMIT"  # the commit that wrote BEFORE, if whoever ran it noted it there
+    before_commit = made_by.read_text().strip() if made_by.is_file() else None
+    data = {"before": str(before), "before_commit": before_commit, "after": str(after), "parts": summary}
+    write_results(RESULTS, {**data, "code": code_state()})
     print(f"{'IDENTICAL' if not lines else 'DIFFERENT'}; written to {RESULTS}")
     return 1 if lines else 0
 
