@@ -40,7 +40,10 @@ def ids(lib_ids: str) -> list[str]:
 ALL = ids(
     "box/000 box/001 cube/000 cube/001 plate/000 plate/001 can/000 can/001 sphere/000 sphere/001 capsule/000 "
     "capsule/001 l_bracket/000 l_bracket/001 wedge/000 wedge/001 cone/000 cone/001 ellipsoid/000 ellipsoid/001 "
-    "bottle/000 bottle/001 bowl/000 bowl/001 mug/000 mug/001 torus/000 torus/001"
+    "bottle/000 bottle/001 bowl/000 bowl/001 mug/000 mug/001 torus/000 torus/001 "
+    "hammer/000 hammer/001 dumbbell/000 dumbbell/001 rod/000 rod/001 spray_can/000 spray_can/001 puck/000 puck/001 "
+    "remote/000 remote/001 hex_prism/000 hex_prism/001 pyramid/000 pyramid/001 tri_prism/000 tri_prism/001 "
+    "frustum/000 frustum/001"
 )
 
 
@@ -121,7 +124,9 @@ def test_layout_is_a_right_hand_with_a_thumb_index_pinch(results, oid):
     assert np.cross(d, u) @ r.approach > 0
 
 
-@pytest.mark.parametrize("oid", [i for i in ALL if i not in ids("cone/000 bowl/000")])
+# tri_prism/000: an equilateral prism lying on a face; its slanted faces' normals are 30 deg above horizontal,
+# steeper than atan(0.5) = 27 deg, so (like the wide cone below) a contact set across them has no force closure.
+@pytest.mark.parametrize("oid", [i for i in ALL if i not in ids("cone/000 bowl/000 tri_prism/000")])
 def test_contacts_are_in_force_closure(results, oid):
     assert results[oid].quality > 0.0
 

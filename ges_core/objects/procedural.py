@@ -6,9 +6,15 @@ person would set it down) in metres. Dimensions are drawn so that the object fit
 
 Collision, by kind:
 
-- ``primitive``: exact :class:`PrimitiveShape` set (box, cube, plate, can, sphere, capsule, L-bracket);
-- ``convex``: the mesh is its own convex hull, used as one convex part (cone, wedge, ellipsoid);
+- ``primitive``: exact :class:`PrimitiveShape` set (box, cube, plate, can, sphere, capsule, L-bracket,
+  hammer, dumbbell, rod, spray can, puck, remote);
+- ``convex``: the mesh is its own convex hull, used as one convex part (cone, wedge, ellipsoid, hexagonal
+  prism, pyramid, triangular prism, frustum);
 - ``concave``: needs a CoACD decomposition (mug, bowl, bottle, torus).
+
+The categories after ``torus`` were added for the whole-library dataset (more categories for the
+unseen-category split; thin handles and compound shapes the first fourteen lack); they are appended so
+that the earlier categories' objects and listing order are unchanged.
 """
 
 from __future__ import annotations
@@ -270,6 +276,168 @@ def torus(rng: np.random.Generator) -> Shape:
     return Shape(mesh=mesh, kind="concave", params=p)
 
 
+def _extrude_around(outline: np.ndarray, centre: tuple[float, float], width: float) -> trimesh.Trimesh:
+    """Prism of an (n, 2) counter-clockwise x-z outline that is star-shaped from the interior point
+    ``centre`` (caps fanned around it, so the outline need not be star-shaped from a vertex), extruded
+    along y over ``[-width/2, width/2]``; watertight, one body."""
+    n = len(outline)
+    ring = np.vstack([outline, centre])
+    front = np.column_stack([ring[:, 0], np.full(n + 1, -width / 2), ring[:, 1]])
+    back = front + [0.0, width, 0.0]
+    fan = np.array([[n, i, (i + 1) % n] for i in range(n)])
+    sides = [[i, (i + 1) % n, n + 1 + (i + 1) % n] for i in range(n)] + [
+        [i, n + 1 + (i + 1) % n, n + 1 + i] for i in range(n)
+    ]
+    faces = np.vstack([fan, fan[:, ::-1] + n + 1, np.array(sides)])
+    mesh = trimesh.Trimesh(np.vstack([front, back]), faces, process=True)
+    trimesh.repair.fix_normals(mesh)
+    return mesh
+
+
+def _lying(mesh: trimesh.Trimesh) -> trimesh.Trimesh:
+    """``mesh`` turned +90 degrees about x (its y axis onto z): an x-z outline extruded along y lies flat."""
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (1, 0, 0)))
+    mesh.apply_translation((0.0, 0.0, -mesh.bounds[0, 2]))
+    return mesh
+
+
+def hammer(rng: np.random.Generator) -> Shape:
+    """Hammer-like T lying flat: a 2.5-3.5 cm square handle and a head across its end (two exact boxes).
+
+    The thin-handle case of Stage 1: the hand must close on the handle, not across the whole T."""
+    p = {
+        "handle_length": _u(rng, 0.10, 0.14),
+        "handle_width": _u(rng, 0.025, 0.035),
+        "head_length": _u(rng, 0.07, 0.10),
+        "head_width": _u(rng, 0.025, 0.035),
+    }
+    length, hw, head, hd = p["handle_length"], p["handle_width"], p["head_length"], p["head_width"]
+    thickness = hw  # a square handle; the head is as thick as the handle
+    x0, x1 = -(length + hd) / 2, (length + hd) / 2 - hd  # handle from x0 to x1, head from x1 to x1 + hd
+    outline = np.array(
+        [
+            [x0, -hw / 2],
+            [x1, -hw / 2],
+            [x1, -head / 2],
+            [x1 + hd, -head / 2],
+            [x1 + hd, head / 2],
+            [x1, head / 2],
+            [x1, hw / 2],
+            [x0, hw / 2],
+        ]
+    )  # x-z outline, counter-clockwise
+    mesh = _lying(_extrude_around(outline, (x1 + hd / 2, 0.0), thickness))
+    _, handle = _box_at((length, hw, thickness), ((x0 + x1) / 2, 0.0, thickness / 2))
+    _, top = _box_at((hd, head, thickness), (x1 + hd / 2, 0.0, thickness / 2))
+    return Shape(mesh=mesh, kind="primitive", primitives=(handle, top), params=p)
+
+
+def _cylinder_x(radius: float, x0: float, x1: float, z: float) -> PrimitiveShape:
+    """A cylinder primitive along x from ``x0`` to ``x1`` at height ``z`` (its axis)."""
+    return PrimitiveShape(kind="cylinder", size=(radius, (x1 - x0) / 2), pose=_pose(((x0 + x1) / 2, 0.0, z)))
+
+
+def _revolve_x(profile: list[tuple[float, float]]) -> trimesh.Trimesh:
+    """:func:`_revolve` of an (r, s) profile turned so its axis runs along x, centred at x = 0, resting on z = 0."""
+    mesh = _revolve(profile)
+    mesh.apply_transform(trimesh.transformations.rotation_matrix(np.pi / 2, (0, 1, 0)))  # z axis -> x axis
+    mesh.apply_translation((-mesh.bounds[:, 0].mean(), 0.0, -mesh.bounds[0, 2]))
+    return mesh
+
+
+def dumbbell(rng: np.random.Generator) -> Shape:
+    """Dumbbell lying on its two weights: a 2.4-3.6 cm handle between two discs (three exact cylinders)."""
+    p = {
+        "weight_radius": _u(rng, 0.03, 0.04),
+        "weight_length": _u(rng, 0.02, 0.035),
+        "handle_radius": _u(rng, 0.012, 0.018),
+        "handle_length": _u(rng, 0.08, 0.11),
+    }
+    rw, lw, rh, lh = p["weight_radius"], p["weight_length"], p["handle_radius"], p["handle_length"]
+    profile = [(0, 0), (rw, 0), (rw, lw), (rh, lw), (rh, lw + lh), (rw, lw + lh), (rw, 2 * lw + lh), (0, 2 * lw + lh)]
+    mesh = _revolve_x(profile)
+    half = lw + lh / 2
+    z = mesh.bounds[1, 2] / 2  # the axis: halfway up (the weights are the widest part)
+    prims = (
+        _cylinder_x(rw, -half, -half + lw, z),
+        _cylinder_x(rh, -half + lw, half - lw, z),
+        _cylinder_x(rw, half - lw, half, z),
+    )
+    return Shape(mesh=mesh, kind="primitive", primitives=prims, params=p)
+
+
+def rod(rng: np.random.Generator) -> Shape:
+    """Thin rod lying along x (a broom handle, a rolling pin), 2-3.5 cm in diameter, 12-18 cm long."""
+    p = {"radius": _u(rng, 0.01, 0.0175), "length": _u(rng, 0.12, 0.18)}
+    mesh = _revolve_x([(0, 0), (p["radius"], 0), (p["radius"], p["length"]), (0, p["length"])])
+    z = mesh.bounds[1, 2] / 2
+    prim = _cylinder_x(p["radius"], -p["length"] / 2, p["length"] / 2, z)
+    return Shape(mesh=mesh, kind="primitive", primitives=(prim,), params=p)
+
+
+def spray_can(rng: np.random.Generator) -> Shape:
+    """Standing can with a narrower cap on top (two exact cylinders)."""
+    p = {
+        "radius": _u(rng, 0.025, 0.035),
+        "height": _u(rng, 0.10, 0.15),
+        "cap_ratio": _u(rng, 0.6, 0.8),
+        "cap_height": _u(rng, 0.02, 0.03),
+    }
+    r, h, rc, hc = p["radius"], p["height"], p["radius"] * p["cap_ratio"], p["cap_height"]
+    mesh = _revolve([(0, 0), (r, 0), (r, h), (rc, h), (rc, h + hc), (0, h + hc)])
+    body = PrimitiveShape(kind="cylinder", size=(r, h / 2), pose=_pose((0, 0, h / 2), X_TO_Z))
+    cap = PrimitiveShape(kind="cylinder", size=(rc, hc / 2), pose=_pose((0, 0, h + hc / 2), X_TO_Z))
+    return Shape(mesh=mesh, kind="primitive", primitives=(body, cap), params=p)
+
+
+def puck(rng: np.random.Generator) -> Shape:
+    """Short wide disc lying flat (a jar lid, a hockey puck), 6-10 cm across, 1.5-3 cm tall."""
+    p = {"radius": _u(rng, 0.03, 0.05), "height": _u(rng, 0.015, 0.03)}
+    mesh = trimesh.creation.cylinder(radius=p["radius"], height=p["height"], sections=SECTIONS)
+    mesh.apply_translation((0.0, 0.0, p["height"] / 2))
+    prim = PrimitiveShape(
+        kind="cylinder", size=(p["radius"], p["height"] / 2), pose=_pose((0, 0, p["height"] / 2), X_TO_Z)
+    )
+    return Shape(mesh=mesh, kind="primitive", primitives=(prim,), params=p)
+
+
+def remote(rng: np.random.Generator) -> Shape:
+    """Long flat bar lying flat (a remote control, a phone), 14-19 cm long."""
+    p = {"length": _u(rng, 0.14, 0.19), "width": _u(rng, 0.04, 0.055), "thickness": _u(rng, 0.015, 0.025)}
+    return _box_shape((p["length"], p["width"], p["thickness"]), p)
+
+
+def hex_prism(rng: np.random.Generator) -> Shape:
+    """Standing hexagonal prism (a nut, a pencil holder), convex."""
+    p = {"radius": _u(rng, 0.025, 0.04), "height": _u(rng, 0.05, 0.12)}
+    mesh = trimesh.creation.cylinder(radius=p["radius"], height=p["height"], sections=6)
+    mesh.apply_translation((0.0, 0.0, p["height"] / 2))
+    return Shape(mesh=mesh, kind="convex", params=p)
+
+
+def pyramid(rng: np.random.Generator) -> Shape:
+    """Square pyramid on its base, convex."""
+    p = {"base": _u(rng, 0.05, 0.09), "height": _u(rng, 0.05, 0.09)}
+    b = p["base"] / 2
+    corners = [(-b, -b, 0.0), (b, -b, 0.0), (b, b, 0.0), (-b, b, 0.0), (0.0, 0.0, p["height"])]
+    return Shape(mesh=trimesh.Trimesh(corners).convex_hull, kind="convex", params=p)
+
+
+def tri_prism(rng: np.random.Generator) -> Shape:
+    """Equilateral triangular prism lying on a side face (a chocolate bar box), convex."""
+    p = {"side": _u(rng, 0.04, 0.07), "length": _u(rng, 0.08, 0.14)}
+    s = p["side"]
+    outline = np.array([[-s / 2, 0.0], [s / 2, 0.0], [0.0, s * np.sqrt(3) / 2]])
+    return Shape(mesh=_extrude_star_polygon(outline, p["length"]), kind="convex", params=p)
+
+
+def frustum(rng: np.random.Generator) -> Shape:
+    """Truncated cone standing on its narrow end (a tumbler, a flower pot), convex."""
+    p = {"bottom_radius": _u(rng, 0.025, 0.035), "top_radius": _u(rng, 0.035, 0.05), "height": _u(rng, 0.07, 0.12)}
+    mesh = _revolve([(0, 0), (p["bottom_radius"], 0), (p["top_radius"], p["height"]), (0, p["height"])])
+    return Shape(mesh=mesh, kind="convex", params=p)
+
+
 CATEGORIES: dict[str, Callable[[np.random.Generator], Shape]] = {
     "box": box,
     "cube": cube,
@@ -285,5 +453,15 @@ CATEGORIES: dict[str, Callable[[np.random.Generator], Shape]] = {
     "bowl": bowl,
     "mug": mug,
     "torus": torus,
+    "hammer": hammer,
+    "dumbbell": dumbbell,
+    "rod": rod,
+    "spray_can": spray_can,
+    "puck": puck,
+    "remote": remote,
+    "hex_prism": hex_prism,
+    "pyramid": pyramid,
+    "tri_prism": tri_prism,
+    "frustum": frustum,
 }
 """Category name → builder, in listing order."""
