@@ -108,6 +108,10 @@ class HandDescription:
     """(K,) PD stiffness per joint (N·m/rad)."""
     pd_damping: tuple[float, ...]
     """(K,) PD damping per joint (N·m·s/rad)."""
+    effort_limits: tuple[float, ...] = ()
+    """(K,) largest torque (N·m; N for a prismatic joint) each joint's real actuator gives, ``joint_names``
+    order; () when the hand declares none. Simulators apply them on request
+    (:meth:`ges_core.sim.SimBackend.set_drive_limits`); robust validation runs its trials with them."""
     slot_fill: dict[str, str] = field(default_factory=dict, hash=False)
     """Slot -> finger name for slots no physical finger fills (e.g. Allegro's little finger)."""
     couplings: tuple[JointCoupling, ...] = ()
@@ -124,6 +128,11 @@ class HandDescription:
     def limits_array(self) -> np.ndarray:
         """(K, 2) float64 joint limits."""
         return np.asarray(self.joint_limits, dtype=np.float64).reshape(-1, 2)
+
+    @property
+    def effort_limits_array(self) -> np.ndarray | None:
+        """(K,) float64 :attr:`effort_limits`, or None when the hand declares none."""
+        return np.asarray(self.effort_limits, dtype=np.float64) if self.effort_limits else None
 
     def finger_for_slot(self, slot: str) -> FingerSpec:
         """The physical finger that serves ``slot`` (directly or through ``slot_fill``)."""

@@ -17,6 +17,7 @@ Example::
     open_pose: {default: 0.0, "joint_12.0": 0.3}
     pd_stiffness: {default: 5.0}
     pd_damping: {default: 0.1}
+    effort_limit: {default: 0.5}     # optional: the real actuators' torque limits, N·m
 """
 
 from __future__ import annotations
@@ -82,6 +83,7 @@ class _HandFile(ConfigModel):
     open_pose: PerJoint = 0.0
     pd_stiffness: PerJoint
     pd_damping: PerJoint
+    effort_limit: PerJoint | None = None
     couplings: list[_Coupling] = Field(default_factory=list)
 
 
@@ -156,6 +158,20 @@ def _check_references(data: _HandFile, names: list[str]) -> None:
         )
 
 
+def _effort_limits(data: _HandFile, names: list[str]) -> tuple[float, ...]:
+    """(K,) ``effort_limit`` per joint, N·m (N), or () when the file gives none; AssetError unless each is > 0."""
+    if data.effort_limit is None:
+        return ()
+    limits = expand_per_joint(data.effort_limit, names, f"{data.name}.effort_limit")
+    bad = [f"{n}={v}" for n, v in zip(names, limits, strict=True) if not (v > 0 and v < float("inf"))]
+    if bad:
+        raise AssetError(
+            f"hand '{data.name}': effort_limit must be a finite torque > 0 N·m per joint, got {', '.join(bad)}; "
+            "give the actuator's data-sheet value or leave effort_limit out"
+        )
+    return limits
+
+
 def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True, **overrides: Any) -> HandDescription:
     """Build a HandDescription; ``overrides`` replace top-level YAML keys (registry settings).
 
@@ -197,6 +213,7 @@ def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True
         open_pose=expand_per_joint(data.open_pose, names, f"{data.name}.open_pose"),
         pd_stiffness=expand_per_joint(data.pd_stiffness, names, f"{data.name}.pd_stiffness"),
         pd_damping=expand_per_joint(data.pd_damping, names, f"{data.name}.pd_damping"),
+        effort_limits=_effort_limits(data, names),
         slot_fill=dict(data.slot_fill),
         couplings=tuple(JointCoupling(**c.model_dump()) for c in data.couplings),
         base_link=root_link(urdf_text),

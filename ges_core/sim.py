@@ -24,7 +24,7 @@ same in every backend:
 
 * a bad ``env_ids``, ``partner`` or step count: :class:`~ges_core.errors.ConfigError`;
 * a wrongly shaped array (rows that do not match ``env_ids`` included), NaN or inf, a zero
-  quaternion: :class:`~ges_core.errors.ArrayError`;
+  quaternion, a drive limit that is not > 0: :class:`~ges_core.errors.ArrayError`;
 * a call the backend's state does not allow (closed, no hand, no object, a fixed hand asked to fly, a
   second hand): :class:`~ges_core.errors.SimulationError` without ``env_ids``;
 * a state that blew up while stepping: :class:`~ges_core.errors.SimulationError` with ``env_ids``.
@@ -42,7 +42,7 @@ from pydantic import Field
 
 from ges_core.arrays import checked_array, checked_poses
 from ges_core.config import ConfigModel
-from ges_core.errors import ConfigError, SimulationError
+from ges_core.errors import ArrayError, ConfigError, SimulationError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim_args import (
@@ -193,6 +193,32 @@ class SimBackend(ABC):
         """PD position targets, (num_envs, K), hand joint order, radians."""
         self._need_hand("set_joint_targets")
         self._set_joint_targets(self._joints(q, self.num_envs, "set_joint_targets"))
+
+    def set_drive_limits(self, limits: np.ndarray | Sequence[float] | None) -> None:
+        """Cap the force of each hand joint's drive in every env: ``limits`` (K,) hand joint order, N·m (N for a
+        prismatic joint), each > 0 (``inf``: no cap on that joint); None lifts every cap (the default).
+
+        A joint whose drive asks for more (a finger blocked against the object) pushes with at most its limit,
+        as a real actuator would (``HandDescription.effort_limits``). The floating wrist is never capped. Stays
+        until the next call, through :meth:`reset` and teleports.
+        """
+        self._need_hand("set_drive_limits")
+        if limits is not None:
+            k = self._hand.description.num_joints
+            limits = checked_array(
+                limits,
+                (k,),
+                f"{self.name}.set_drive_limits: limits",
+                layout="hand joint_names order, N·m",
+                finite=False,
+            )
+            if np.isnan(limits).any() or (limits <= 0).any():
+                bad = [n for n, v in zip(self._hand.description.joint_names, limits, strict=True) if not v > 0]
+                raise ArrayError(
+                    f"{self.name}.set_drive_limits: limits must be > 0 N·m (inf: no cap), not for {bad}; give each "
+                    "joint's actuator torque (HandDescription.effort_limits) or None to lift the caps"
+                )
+        self._set_drive_limits(limits)
 
     def set_wrist_targets(self, pose: np.ndarray) -> None:
         """PD targets of the floating wrist, (num_envs, 7) base-link pose, world frame.
@@ -359,6 +385,11 @@ class SimBackend(ABC):
     @abstractmethod
     def _set_joint_targets(self, q: np.ndarray) -> None:
         """PD targets of the hand joints: q (num_envs, K) float64, hand joint order, rad."""
+
+    @abstractmethod
+    def _set_drive_limits(self, limits: np.ndarray | None) -> None:
+        """Cap every env's hand-joint drive forces at ``limits`` (K,) float64 > 0, hand joint order (``inf``: no
+        cap), or lift the caps (None). The wrist's drives stay as they are."""
 
     @abstractmethod
     def _set_wrist_targets(self, coords: np.ndarray) -> None:

@@ -18,6 +18,7 @@ from ges_core.contact import ContactSet
 from ges_core.dataset import (
     NOT_RUN,
     STEPS,
+    TOTAL_STEPS,
     AttemptVerdict,
     DatasetWriter,
     GraspRecord,
@@ -208,7 +209,7 @@ def test_record_properties():
     assert failed.steps["validation"].reason == "skipped" and not failed.steps["validation"].attempted
     no_validation = make_record("procedural/box/0", steps=dict(ok.steps, validation=StepOutcome.failed(NOT_RUN)))
     assert no_validation.success and no_validation.failed_step is None
-    assert ok.total_seconds == pytest.approx(sum(ok.steps[s].seconds for s in STEPS))
+    assert ok.total_seconds == pytest.approx(sum(ok.steps[s].seconds for s in TOTAL_STEPS))  # robust apart
 
 
 def test_numpy_scalars_are_stored_as_plain_json(tmp_path):
@@ -506,7 +507,7 @@ CORRUPTIONS = {
     ),
     "missing_step": (
         lambda m, a: m["steps"].pop("validation"),
-        "steps: must hold exactly ['contacts', 'retargeting', 'refinement', 'validation']",
+        "steps: must hold exactly ['contacts', 'retargeting', 'refinement', 'validation', 'robust']",
     ),
     "step_shape": (lambda m, a: _steps(m, contacts=3), "steps.contacts: must be {ok, reason} (its time lives"),
     "step_types": (
@@ -545,7 +546,7 @@ CORRUPTIONS = {
     "extra": (lambda m, a: m.update(extra=[]), "extra: must be an object, got []"),
     "note_missing": (
         lambda m, a: m.pop("picture"),
-        "picture: missing (a version-2 record stores it, null or empty when there is none)",
+        "picture: missing (a version-2+ record stores it, null or empty when there is none)",
     ),
     "symmetric": (lambda m, a: m.update(symmetric="no"), "symmetric: must be true, false or null, got 'no'"),
     "errors": (lambda m, a: m["errors"].update(contacts=3), "errors: must be an object of messages"),
@@ -555,7 +556,7 @@ CORRUPTIONS = {
     ),
     "setup_seconds_inside": (
         lambda m, a: m.update(setup_seconds={"sapien": 0.1}),
-        "setup_seconds: not a key of a version-2 record",
+        "setup_seconds: not a key of a version-3 record",
     ),
     "attempts": (lambda m, a: m["attempts"].append({"refinement": "ok"}), "attempts: must be a list of"),
     "attempt": (
@@ -614,8 +615,8 @@ CORRUPTIONS = {
         "steps.validation: attempted but the grasp or the pre-grasp is missing",
     ),
     "format": (
-        lambda m, a: m.update(version=3),
-        "not a grasp record: format 'ges.grasp_record' version 3, expected 'ges.grasp_record' version 1 or 2",
+        lambda m, a: m.update(version=4),
+        "not a grasp record: format 'ges.grasp_record' version 4, expected 'ges.grasp_record' version 1 or 2 or 3",
     ),
     "contact_format": (
         lambda m, a: m["contacts"].update(format="x"),
@@ -774,10 +775,10 @@ def test_version_1_extra_becomes_the_typed_fields(path):
 
 
 @pytest.mark.parametrize("path", _v1_files(), ids=lambda p: p.stem)
-def test_version_1_record_written_again_is_version_2_and_reads_the_same(path):
+def test_version_1_record_written_again_is_the_current_version_and_reads_the_same(path):
     record = load_record(DATASET_V1, path.relative_to(DATASET_V1).as_posix())
     meta, arrays = record_to_raw(record)
-    assert meta["version"] == RECORD_VERSION == 2 and record_problems(meta, arrays) == []
+    assert meta["version"] == RECORD_VERSION == 3 and record_problems(meta, arrays) == []
     assert record.total_seconds > 0  # a version-1 record holds its own times
     again = record_from_bytes(raw_to_bytes(meta, arrays))
     assert_same(again, record, times=False)

@@ -103,6 +103,9 @@ class _RandomBackend(SimBackend):
     def _set_joint_targets(self, q):
         self.targets["q"] = np.array(q)
 
+    def _set_drive_limits(self, limits):
+        self.targets["limits"] = None if limits is None else np.array(limits)
+
     def _set_wrist_targets(self, coords):
         self.targets["wrist"] = np.array(coords)
 

@@ -79,6 +79,9 @@ class ExplodingBackend(SimBackend):
     def _set_joint_targets(self, q):
         pass
 
+    def _set_drive_limits(self, limits):
+        pass
+
     def _set_wrist_targets(self, coords):
         pass
 

@@ -12,6 +12,7 @@ from ges_core.dataset.record import (
     NOT_RUN,
     SKIPPED,
     STEPS,
+    TOTAL_STEPS,
     AttemptVerdict,
     GraspRecord,
     HandPose,
@@ -19,6 +20,7 @@ from ges_core.dataset.record import (
     RefinementInfo,
     SimVerdict,
     StepOutcome,
+    TrialVerdict,
     software_versions,
 )
 from ges_core.dataset.store import Dataset, DatasetWriter, load_record, open_dataset
@@ -31,6 +33,7 @@ __all__ = [
     "NOT_RUN",
     "SKIPPED",
     "STEPS",
+    "TOTAL_STEPS",
     "AttemptVerdict",
     "Dataset",
     "DatasetWriter",
@@ -40,6 +43,7 @@ __all__ = [
     "RefinementInfo",
     "SimVerdict",
     "StepOutcome",
+    "TrialVerdict",
     "load_record",
     "open_dataset",
     "record_relpath",

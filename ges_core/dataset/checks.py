@@ -22,13 +22,14 @@ from ges_core.dataset.record import (
     RefinementInfo,
     SimVerdict,
 )
-from ges_core.dataset.record_v1 import timing_v1, upgraded
+from ges_core.dataset.record_v1 import timing_v1
+from ges_core.dataset.record_v2 import upgraded
 from ges_core.dataset.timing import timing_problems
 
 __all__ = ["READABLE_RECORD_VERSIONS", "UNIT_TOLERANCE", "record_problems"]
 
-READABLE_RECORD_VERSIONS = (1, RECORD_VERSION)
-"""Record versions that are read: version 1 through :func:`ges_core.dataset.record_v1.upgraded`."""
+READABLE_RECORD_VERSIONS = (1, 2, RECORD_VERSION)
+"""Record versions that are read: versions 1 and 2 through :func:`ges_core.dataset.record_v2.upgraded`."""
 
 UNIT_TOLERANCE = 1e-6
 """Largest accepted | |v| - 1 | of a stored normal, direction or quaternion: float64 storage keeps
@@ -199,7 +200,7 @@ def _note_problems(meta: dict) -> list[str]:
         return []  # a version-1 record whose extra is no object: _misc_problems says so
     missing = [k for k in _NOTE_KEYS if k not in meta]
     if missing:
-        return [f"{k}: missing (a version-2 record stores it, null or empty when there is none)" for k in missing]
+        return [f"{k}: missing (a version-2+ record stores it, null or empty when there is none)" for k in missing]
     problems = [
         f"{k}: must be {what}, got {meta[k]!r}"
         for k, what, ok in (
@@ -222,18 +223,22 @@ _KEYS = {
     "format", "version", *_TEXT_FIELDS, "joint_names", "steps", "contacts", "strategy", "grasp_stage", "quality",
     "validation_flags", "versions", "seed", "extra", *_NOTE_KEYS,
 }  # fmt: skip
-"""The scalars of a version-2 record (a version-1 record's, once upgraded)."""
+"""The scalars of a version-3 record (an older record's, once upgraded)."""
 
 
 def _unknown_key_problems(meta: dict) -> list[str]:
-    return [f"{k}: not a key of a version-2 record" for k in sorted(set(meta) - _KEYS)]
+    return [f"{k}: not a key of a version-{RECORD_VERSION} record" for k in sorted(set(meta) - _KEYS)]
 
 
 def _attempt_problems(meta: dict) -> list[str]:
     attempts, attempt = meta["attempts"], meta["attempt"]
     fields = sorted(AttemptVerdict.__dataclass_fields__)
     if not isinstance(attempts, list) or not all(
-        isinstance(a, dict) and sorted(a) == fields and all(_text(v) for v in a.values()) for a in attempts
+        isinstance(a, dict)
+        and sorted(a) == fields
+        and all(_text(a[k]) for k in ("refinement", "validation", "robust"))
+        and _score(a["robustness"])
+        for a in attempts
     ):
         return [f"attempts: must be a list of {{{', '.join(fields)}}} verdicts, got {attempts!r}"]
     if attempt is not None and (not _index(attempt) or attempt >= len(attempts)):
@@ -260,7 +265,8 @@ def _refinement_problems(refinement: object) -> list[str]:
 
 
 def _verdict_problems(meta: dict) -> list[str]:
-    verdicts, fields = meta["validations"], sorted(set(SimVerdict.__dataclass_fields__) - {"seconds"})
+    verdicts = meta["validations"]
+    fields = sorted(set(SimVerdict.__dataclass_fields__) - {"seconds", "robust_seconds"})
     if not isinstance(verdicts, dict):
         return [f"validations: must map simulators to verdicts, got {verdicts!r}"]
     problems = []
@@ -271,7 +277,30 @@ def _verdict_problems(meta: dict) -> list[str]:
             problems.append(f"validations.{sim}: success must be a bool and reason a string, got {v!r}")
         elif not _mapping_of(v["flags"], lambda f: isinstance(f, bool)):
             problems.append(f"validations.{sim}.flags: must map names to true/false, got {v['flags']!r}")
+        else:
+            problems += _trial_problems(sim, v)
     return problems
+
+
+def _trial_problems(sim: str, verdict: dict) -> list[str]:
+    """A verdict's perturbation trials and robustness score: a list of {name, reason, success}, the score their
+    share held (null with no trials)."""
+    trials, score = verdict["trials"], verdict["robustness"]
+    if not isinstance(trials, list) or not all(
+        isinstance(t, dict)
+        and sorted(t) == ["name", "reason", "success"]
+        and _text(t["name"])
+        and _text(t["reason"])
+        and isinstance(t["success"], bool)
+        for t in trials
+    ):
+        return [f"validations.{sim}.trials: must be a list of {{name, reason, success}}, got {trials!r}"]
+    if not trials:
+        return [] if score is None else [f"validations.{sim}.robustness: {score!r} but no trial is stored (null)"]
+    held = sum(t["success"] for t in trials) / len(trials)
+    if not (_score(score) and score is not None and abs(score - held) < 1e-9):
+        return [f"validations.{sim}.robustness: must be the share of trials held ({held:g}), got {score!r}"]
+    return []
 
 
 def _presence_problems(meta: dict, arrays: Mapping[str, np.ndarray]) -> list[str]:
@@ -313,6 +342,11 @@ def _is_number(value: object) -> bool:
 def _seconds(value: object) -> bool:
     """A finite number >= 0."""
     return _is_number(value) and math.isfinite(value) and value >= 0
+
+
+def _score(value: object) -> bool:
+    """A fraction in [0, 1], or None."""
+    return value is None or (_is_number(value) and 0.0 <= value <= 1.0)
 
 
 def _index(value: object) -> bool:

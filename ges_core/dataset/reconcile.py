@@ -169,10 +169,21 @@ def entry_differences(listed: dict, entry: dict, *, timed: bool, keys: tuple[str
     times only when the record's times are known (lost times do not make the manifest's wrong)."""
     keys = keys or tuple(set(entry) | set(listed))
     wrong = {k for k in keys if k != "steps" and listed.get(k) != entry.get(k)}
-    steps = listed.get("steps"), entry.get("steps")
+    steps = listed.get("steps"), _as_listed(entry.get("steps"), listed.get("steps"))
     if "steps" in keys and (steps[0] != steps[1] if timed else _untimed(steps[0]) != _untimed(steps[1])):
         wrong.add("steps")
     return sorted(wrong)
+
+
+def _as_listed(steps: object, listed: object) -> object:
+    """A record's index steps without the ``robust`` step when the manifest's entry predates it (a record of
+    version 1 or 2, whose robust step reads ``not_run``); anything else unchanged."""
+    if not (isinstance(steps, dict) and isinstance(listed, dict)) or "robust" in listed:
+        return steps
+    robust = steps.get("robust")
+    if isinstance(robust, list) and robust[:2] == [False, "not_run"]:
+        return {k: v for k, v in steps.items() if k != "robust"}
+    return steps
 
 
 def _untimed(steps: object) -> object:

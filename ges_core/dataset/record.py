@@ -25,7 +25,8 @@ from typing import Any
 import numpy as np
 
 from ges_core.contact import ContactSet
-from ges_core.dataset.record_v1 import timing_v1, upgraded
+from ges_core.dataset.record_v1 import timing_v1
+from ges_core.dataset.record_v2 import upgraded
 
 __all__ = [
     "NOT_RUN",
@@ -33,6 +34,7 @@ __all__ = [
     "RECORD_VERSION",
     "SKIPPED",
     "STEPS",
+    "TOTAL_STEPS",
     "AttemptVerdict",
     "GraspRecord",
     "HandPose",
@@ -40,6 +42,7 @@ __all__ = [
     "RefinementInfo",
     "SimVerdict",
     "StepOutcome",
+    "TrialVerdict",
     "record_from_bytes",
     "record_from_raw",
     "raw_to_bytes",
@@ -50,14 +53,21 @@ __all__ = [
 ]
 
 RECORD_FORMAT = "ges.grasp_record"
-RECORD_VERSION = 2
-"""Version 2: the Stage 1 notes are typed fields (``validations``, ``attempts``, ``refinement``, ``errors``, ...),
-the times live beside the record (:mod:`ges_core.dataset.timing`) and ``run_config_hash`` names the settings it
-was made with; version 1 kept the notes in the free-form ``extra`` and the times inside, and is still read
-(:mod:`ges_core.dataset.record_v1`)."""
+RECORD_VERSION = 3
+"""Version 3: robust validation, a fifth step ``robust`` and, per simulator, the perturbation trials' verdicts and
+the robustness score (``SimVerdict.trials``, ``.robustness``); each attempt's ``robust`` verdict. Version 2: the
+Stage 1 notes are typed fields (``validations``, ``attempts``, ``refinement``, ``errors``, ...), the times live
+beside the record (:mod:`ges_core.dataset.timing`) and ``run_config_hash`` names the settings it was made with;
+version 1 kept the notes in the free-form ``extra`` and the times inside. Both are still read
+(:mod:`ges_core.dataset.record_v1`, :mod:`ges_core.dataset.record_v2`)."""
 
-STEPS: tuple[str, ...] = ("contacts", "retargeting", "refinement", "validation")
-"""The Stage 1 steps, in pipeline order; every record holds one :class:`StepOutcome` per step."""
+STEPS: tuple[str, ...] = ("contacts", "retargeting", "refinement", "validation", "robust")
+"""The Stage 1 steps, in pipeline order; every record holds one :class:`StepOutcome` per step. ``validation`` is
+the paper's single nominal trial; ``robust`` the perturbation trials of a grasp that passed it."""
+
+TOTAL_STEPS: tuple[str, ...] = ("contacts", "retargeting", "refinement", "validation")
+"""The steps whose times make up "total time" everywhere (:attr:`GraspRecord.total_seconds`, ``ges dataset info``,
+the run table): the paper's pipeline up to its single validation trial. The robust trials are counted apart."""
 
 SKIPPED = "skipped"
 """Reason of a step that was not attempted because an earlier step failed."""
@@ -124,16 +134,44 @@ class Quality:
 
 
 @dataclass(frozen=True, kw_only=True)
+class TrialVerdict:
+    """One perturbation trial of robust validation (:mod:`ges_core.synthesis.physics.robust`)."""
+
+    name: str
+    """The perturbation: 'limits', 'mass_x0.5', 'friction_0.5', 'pose_1', ..."""
+    success: bool
+    reason: str
+    """'success' or why not, as :attr:`SimVerdict.reason`."""
+
+
+@dataclass(frozen=True, kw_only=True)
 class SimVerdict:
-    """One simulator's physics validation (lift and hold) of the record's grasp."""
+    """One simulator's physics validation (lift and hold) of the record's grasp: the nominal (paper's) trial,
+    and the perturbation trials when they ran."""
 
     success: bool
+    """The nominal trial held (the paper's single-trial verdict)."""
     reason: str
     """'success' or why not: 'no_contact', 'palm_only', 'dropped', 'not_lifted', 'unstable'."""
     flags: Mapping[str, bool] = field(default_factory=dict)
     """Per-phase flags, e.g. reached_grasp, fingertips_touching, lifted, held ({} when the simulator failed)."""
     seconds: float | None = 0.0
-    """Wall time of the validation in this simulator, seconds (None: unknown)."""
+    """Wall time of the nominal validation in this simulator, seconds (None: unknown)."""
+    trials: tuple[TrialVerdict, ...] = ()
+    """The perturbation trials, in order; () when robust validation did not run (off, or the nominal failed)."""
+    robustness: float | None = None
+    """Fraction of ``trials`` held, in [0, 1]; None when robust validation did not run."""
+    robust_seconds: float | None = 0.0
+    """Wall time of the perturbation trials, seconds (0 when none ran; None: unknown)."""
+
+    def __post_init__(self) -> None:
+        trials = tuple(t if isinstance(t, TrialVerdict) else TrialVerdict(**t) for t in self.trials)
+        object.__setattr__(self, "trials", trials)
+
+    @property
+    def robust(self) -> bool:
+        """The nominal trial and every perturbation trial held (False when the trials did not run)."""
+        return self.success and self.robustness is not None and all(t.success for t in self.trials)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -144,6 +182,10 @@ class AttemptVerdict:
     """'ok' or the refinement step's failure reason."""
     validation: str
     """'ok', the primary simulator's failure reason, 'skipped' (refinement failed) or 'not_run'."""
+    robust: str = NOT_RUN
+    """'ok', the primary simulator's first failed perturbation, 'skipped' (validation failed) or 'not_run'."""
+    robustness: float | None = None
+    """The primary simulator's robustness score of this attempt, or None when its trials did not run."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -244,9 +286,20 @@ class GraspRecord:
         return all(self.steps[s].ok or self.steps[s].reason == NOT_RUN for s in STEPS)
 
     @property
+    def robust(self) -> bool:
+        """The grasp passed robust validation (every perturbation held in the primary simulator)."""
+        return self.steps["robust"].ok
+
+    @property
+    def robustness(self) -> float | None:
+        """The primary simulator's robustness score (fraction of trials held), or None when none ran."""
+        verdict = self.validations.get(self.simulator) or next(iter(self.validations.values()), None)
+        return None if verdict is None else verdict.robustness
+
+    @property
     def total_seconds(self) -> float | None:
-        """Sum of the step times, seconds; None when a time is unknown."""
-        times = [self.steps[s].seconds for s in STEPS]
+        """Sum of the :data:`TOTAL_STEPS` times (the robust trials not included), seconds; None when one is unknown."""
+        times = [self.steps[s].seconds for s in TOTAL_STEPS]
         return None if None in times else float(sum(times))
 
 
@@ -314,7 +367,13 @@ def _notes_to_raw(record: GraspRecord) -> dict:
 
 
 def _verdict_to_dict(verdict: SimVerdict) -> dict:
-    return {"success": verdict.success, "reason": verdict.reason, "flags": dict(verdict.flags)}
+    return {
+        "success": verdict.success,
+        "reason": verdict.reason,
+        "flags": dict(verdict.flags),
+        "trials": [asdict(t) for t in verdict.trials],
+        "robustness": verdict.robustness,
+    }
 
 
 def _plain(value: Any) -> Any:
@@ -337,8 +396,8 @@ def _quality_to_dict(quality: Quality) -> dict:
 def record_from_raw(meta: dict, arrays: Mapping[str, np.ndarray]) -> GraspRecord:
     """Inverse of :func:`record_to_raw` (no checks beyond what the types need; see ``validate``).
 
-    Times unknown (None) but for a version-1 record, which held them; it is read through
-    :func:`ges_core.dataset.record_v1.upgraded` first.
+    Times unknown (None) but for a version-1 record, which held them. Older versions are read through
+    :func:`ges_core.dataset.record_v2.upgraded` first.
     """
     timing = timing_v1(meta)
     meta = upgraded(meta)
@@ -367,7 +426,7 @@ def record_from_raw(meta: dict, arrays: Mapping[str, np.ndarray]) -> GraspRecord
 
 def _notes_from_raw(meta: dict, timing: dict) -> dict:
     """The typed Stage 1 notes of a version-2 record's scalars (absent keys: the fields' defaults)."""
-    refinement, seconds = meta.get("refinement"), timing.get("validations", {})
+    refinement, seconds, robust = meta.get("refinement"), timing.get("validations", {}), timing.get("robust", {})
     return {
         "symmetric": meta.get("symmetric"),
         "contacts_from": meta.get("contacts_from"),
@@ -375,7 +434,8 @@ def _notes_from_raw(meta: dict, timing: dict) -> dict:
         "attempts": tuple(AttemptVerdict(**a) for a in meta.get("attempts", ())),
         "refinement": None if refinement is None else RefinementInfo(**refinement),
         "validations": {
-            sim: SimVerdict(**v, seconds=seconds.get(sim)) for sim, v in meta.get("validations", {}).items()
+            sim: SimVerdict(**v, seconds=seconds.get(sim), robust_seconds=robust.get(sim) if v["trials"] else 0.0)
+            for sim, v in meta.get("validations", {}).items()
         },
         "errors": meta.get("errors", {}),
         "setup_seconds": timing.get("setup_seconds", {}),

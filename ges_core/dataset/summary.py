@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ges_core.dataset.record import STEPS, StepOutcome
+from ges_core.dataset.record import STEPS, TOTAL_STEPS, StepOutcome
 from ges_core.dataset.store import Dataset
 
 __all__ = ["DatasetSummary", "GroupStats", "StepStats", "step_stats", "summarize"]
@@ -114,7 +114,7 @@ def summarize(dataset: Dataset) -> DatasetSummary:
 
 def _group(label: str, entries: list[dict]) -> GroupStats:
     steps = {name: _step_stats([e["steps"][name] for e in entries]) for name in STEPS}
-    times = ([e["steps"][s][2] for s in STEPS] for e in entries)
+    times = ([e["steps"][s][2] for s in TOTAL_STEPS] for e in entries)
     totals = [sum(t) for t in times if None not in t]
     median = float(np.median(totals)) if totals else None
     return GroupStats(label, len(entries), sum(bool(e["success"]) for e in entries), steps, median)

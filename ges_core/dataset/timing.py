@@ -10,7 +10,11 @@ record files and a dataset can be checked by hash; the times of a run differ eve
 
     {"format": "ges.grasp_timing", "version": 1, "record_sha256": "<SHA-256 of the record file>",
      "steps": {"contacts": 0.016, "retargeting": 0.051, "refinement": 0.022, "validation": 0.086},
-     "validations": {"sapien": 0.086, "pybullet": 0.246}, "setup_seconds": {"sapien": 0.013}}
+     "validations": {"sapien": 0.086, "pybullet": 0.246}, "setup_seconds": {"sapien": 0.013},
+     "robust": {"sapien": 0.61, "pybullet": 1.72}}
+
+``robust`` (the perturbation trials' seconds per simulator) is optional: files written before robust validation
+have none.
 
 Seconds, ``null`` where unknown. The writer writes the record, then this file (both atomically); a run killed
 between the two, or a timing file of an older record at the same place (``record_sha256`` differs), leaves the
@@ -43,6 +47,8 @@ TIMING_FORMAT = "ges.grasp_timing"
 TIMING_VERSION = 1
 TIMING_SUFFIX = ".timing.json"
 _TIMING_KEYS = ("steps", "validations", "setup_seconds")
+_OPTIONAL_KEYS = ("robust",)
+"""Keys a timing file may lack (written before they existed)."""
 
 
 def timing_relpath(record_file: str) -> str:
@@ -51,11 +57,13 @@ def timing_relpath(record_file: str) -> str:
 
 
 def record_timing(record: GraspRecord) -> dict:
-    """The times of ``record``: ``{"steps": {step: s}, "validations": {sim: s}, "setup_seconds": {sim: s}}``."""
+    """The times of ``record``: ``{"steps": {step: s}, "validations": {sim: s}, "setup_seconds": {sim: s},
+    "robust": {sim: s}}``."""
     return {
         "steps": {name: step.seconds for name, step in record.steps.items()},
         "validations": {sim: verdict.seconds for sim, verdict in record.validations.items()},
         "setup_seconds": dict(record.setup_seconds),
+        "robust": {sim: verdict.robust_seconds for sim, verdict in record.validations.items()},
     }
 
 
@@ -68,11 +76,14 @@ def timing_text(record: GraspRecord, record_sha256: str) -> str:
 def with_timing(record: GraspRecord, timing: dict | None) -> GraspRecord:
     """``record`` with the times of ``timing`` (as :func:`record_timing` gives them); None: times unknown."""
     timing = timing or {}
-    steps, verdicts = timing.get("steps", {}), timing.get("validations", {})
+    steps, verdicts, robust = timing.get("steps", {}), timing.get("validations", {}), timing.get("robust", {})
     return replace(
         record,
         steps={name: replace(step, seconds=steps.get(name)) for name, step in record.steps.items()},
-        validations={sim: replace(v, seconds=verdicts.get(sim)) for sim, v in record.validations.items()},
+        validations={
+            sim: replace(v, seconds=verdicts.get(sim), robust_seconds=robust.get(sim) if v.trials else 0.0)
+            for sim, v in record.validations.items()
+        },
         setup_seconds=dict(timing.get("setup_seconds", {})),
     )
 
@@ -89,7 +100,7 @@ def parse_timing(text: str, record_sha256: str) -> tuple[dict | None, str]:
         return None, "; ".join(problems)
     if data["record_sha256"] != record_sha256:
         return None, "belongs to another version of the record (record_sha256 differs)"
-    return {k: data[k] for k in _TIMING_KEYS}, ""
+    return {k: data[k] for k in _TIMING_KEYS + _OPTIONAL_KEYS if k in data}, ""
 
 
 def timing_problems(data: object, *, header: bool = True) -> list[str]:
@@ -102,7 +113,7 @@ def timing_problems(data: object, *, header: bool = True) -> list[str]:
         problems.append(f"not a timing file: format {found}, expected {TIMING_FORMAT!r} version {TIMING_VERSION}")
     if header and not (isinstance(data.get("record_sha256"), str) and len(data["record_sha256"]) == 64):
         problems.append(f"record_sha256: must be 64 hex digits, got {data.get('record_sha256')!r}")
-    for key in _TIMING_KEYS:
+    for key in _TIMING_KEYS + tuple(k for k in _OPTIONAL_KEYS if k in data):
         times = data.get(key)
         if not isinstance(times, dict) or not all(isinstance(k, str) and _seconds(v) for k, v in times.items()):
             problems.append(f"{key}: must map names to seconds (finite, >= 0) or null, got {times!r}")

@@ -37,6 +37,7 @@ from dataclasses import dataclass
 import numpy as np
 from pydantic import Field
 
+from ges_core.arrays import checked_poses
 from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
@@ -50,9 +51,9 @@ from ges_core.synthesis.physics.scene import (
 )
 from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 from ges_core.synthesis.types import Grasp, ValidationResult
-from ges_core.transforms import compose, interpolate_pose
+from ges_core.transforms import compose, interpolate_pose, quat_mul
 
-__all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "validate_grasp"]
+__all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "shifted", "validate_grasp"]
 
 REASONS = ("success", "no_contact", "palm_only", "dropped", "not_lifted", "unstable")
 """Every reason :func:`validate_grasp` can give."""
@@ -105,11 +106,18 @@ def validate_grasp(
     grasp: Grasp,
     pregrasp_grasp: Grasp,
     config: ValidateConfig | None = None,
+    *,
+    object_shift: np.ndarray | None = None,
+    drive_limits: np.ndarray | None = None,
 ) -> ValidationResult:
     """Approach, close, lift and hold ``obj`` with ``hand`` in ``sim``; success or failure with a reason.
 
     grasp, pregrasp_grasp: base poses in the object frame, joints (K,). sim: ``num_envs == 1``, fresh
     or used before by these functions with the same hand. SimulationError -> reason ``unstable``.
+    object_shift: (7,) or None; a perturbation (:mod:`ges_core.synthesis.physics.robust`): the object is put
+    ``object_shift[:3]`` m (world frame) from its resting pose and turned by the quaternion ``object_shift[3:]``
+    about its own origin, while the hand still aims at the resting pose. drive_limits: (K,) N·m or None; the
+    hand's drives are capped there (:meth:`ges_core.sim.SimBackend.set_drive_limits`) for this trial only.
     """
     config = config or ValidateConfig()
     start = time.perf_counter()
@@ -117,10 +125,15 @@ def validate_grasp(
     check_grasp(d, grasp, "validate_grasp grasp")
     check_grasp(d, pregrasp_grasp, "validate_grasp pregrasp")
     flags = dict.fromkeys(("reached_grasp", "fingertips_touching", "lifted", "held"), False)
+    shift = None if object_shift is None else checked_poses(object_shift, None, "validate_grasp object_shift")
+    capped: list[bool] = []
     try:
-        record = _run(sim, hand, obj, grasp, pregrasp_grasp, config, flags)
+        record = _run(sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped)
     except SimulationError:
         return ValidationResult(False, "unstable", flags, time.perf_counter() - start)
+    finally:
+        if capped and not sim.closed:
+            sim.set_drive_limits(None)  # undone after the trial
     reason = classify(record, config)
     flags["held"] = reason == "success"
     return ValidationResult(reason == "success", reason, flags, time.perf_counter() - start)
@@ -155,11 +168,20 @@ def _run(
     pre: Grasp,
     config: ValidateConfig,
     flags: dict[str, bool],
+    shift: np.ndarray | None = None,
+    limits: np.ndarray | None = None,
+    capped: list[bool] | None = None,
 ) -> HoldRecord:
-    """The four phases; fills ``flags`` as it goes and returns the measurements."""
+    """The four phases; fills ``flags`` as it goes and returns the measurements (``capped`` gets an entry once
+    the drive limits are set)."""
     d = hand.description
     object_pose = stage_scene(sim, hand, obj)
+    if limits is not None:
+        sim.set_drive_limits(limits)
+        capped.append(True)
     z0 = float(object_pose[2])
+    if shift is not None:
+        sim.set_object_pose(shifted(object_pose, shift)[None])
     start, goal = compose(object_pose, pre.wrist_pose), compose(object_pose, grasp.wrist_pose)
     q_pre = d.apply_couplings(pre.q)
     sim.set_hand_state(q_pre[None], start[None])
@@ -178,6 +200,15 @@ def _run(
     _lift(sim, goal, probe, config)
     flags["lifted"] = bool(sim.object_pose()[0, 2] - z0 >= config.lift_height - config.lift_tolerance)
     return _hold(sim, probe, z0, flags["lifted"], config)
+
+
+def shifted(pose: np.ndarray, shift: np.ndarray) -> np.ndarray:
+    """(7,) ``pose`` moved by ``shift[:3]`` (world frame, m) and turned by ``shift[3:]`` about its own origin."""
+    rotation = np.asarray(shift[3:], dtype=np.float64) / np.linalg.norm(shift[3:])
+    out = np.asarray(pose, dtype=np.float64).copy()
+    out[:3] += shift[:3]
+    out[3:] = quat_mul(rotation, out[3:])
+    return out
 
 
 def _hold(sim: SimBackend, probe: _Probe, z0: float, lifted: bool, config: ValidateConfig) -> HoldRecord:

@@ -12,6 +12,7 @@ from ges_core.sim import SceneConfig
 from ges_core.synthesis.contacts.generate import ContactConfig
 from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, PregraspConfig
 from ges_core.synthesis.physics.refine import RefineConfig
+from ges_core.synthesis.physics.robust import RobustConfig
 from ges_core.synthesis.physics.validate import ValidateConfig
 from ges_core.synthesis.retarget.retargeter import RetargetConfig
 
@@ -47,6 +48,14 @@ class SynthesisConfig(ConfigModel):
         description="proximal thumb joints the opened hand keeps at the grasp's values (refinement's start, "
         "the pre-grasp, the wrist search's clearance check)",
     )
+    # threads: how the run executes, not what it computes (records are bit-identical across counts), so it is
+    # left out of dump() and of the dataset's run_config hash; ges_core.threads says why one is the default.
+    threads: int | None = Field(
+        None,
+        ge=1,
+        exclude=True,
+        description="torch threads per process (the parent and each worker); None: $GES_THREADS, else 1",
+    )
     library: LibraryConfig = Field(default_factory=LibraryConfig)
     scene: SceneConfig = Field(default_factory=SceneConfig)
     contacts: ContactConfig = Field(default_factory=ContactConfig)
@@ -54,6 +63,10 @@ class SynthesisConfig(ConfigModel):
     refine: RefineConfig = Field(default_factory=RefineConfig)
     pregrasp: PregraspConfig = Field(default_factory=PregraspConfig)
     validate_: ValidateConfig = Field(default_factory=ValidateConfig, alias="validate")
+    robust: RobustConfig = Field(
+        default_factory=RobustConfig,
+        description="perturbation trials of every grasp whose nominal validation passed, in every validating simulator",
+    )
 
     @field_validator("validate_sims")
     @classmethod
@@ -66,6 +79,17 @@ class SynthesisConfig(ConfigModel):
     def _one_env(self) -> SynthesisConfig:
         if self.scene.num_envs != 1:
             raise ValueError("scene.num_envs must be 1: refinement and validation run one grasp per scene")
+        return self
+
+    @model_validator(mode="after")
+    def _reachable_friction_floor(self) -> SynthesisConfig:
+        floor, hand = self.robust.friction_floor, self.scene.hand_friction
+        if self.robust.enabled and floor is not None and floor < hand / 2:
+            raise ValueError(
+                f"robust.friction_floor={floor} cannot be reached with scene.hand_friction={hand}: both engines "
+                f"average the hand's and the object's coefficients, so the lowest is {hand / 2:g}; raise the floor "
+                "or lower scene.hand_friction"
+            )
         return self
 
     @property

@@ -20,11 +20,20 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-from ges_core.dataset import NOT_RUN, AttemptVerdict, GraspRecord, SimVerdict, StepOutcome, software_versions
+from ges_core.dataset import (
+    NOT_RUN,
+    AttemptVerdict,
+    GraspRecord,
+    SimVerdict,
+    StepOutcome,
+    TrialVerdict,
+    software_versions,
+)
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
 from ges_core.synthesis.contacts.generate import generate_contacts
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
+from ges_core.synthesis.physics.robust import robust_validate
 from ges_core.synthesis.physics.scene import stage_scene
 from ges_core.synthesis.physics.validate import validate_grasp
 from ges_core.synthesis.retarget.retargeter import GraspRetargeter
@@ -148,16 +157,17 @@ def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[lis
 def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> GraspRecord:
     steps = {"contacts": work.step}
     if result is None:
-        return build_record(state, hand, work, PairResult(steps | _skipped("retargeting", "refinement", "validation")))
+        skipped = _skipped("retargeting", "refinement", "validation", "robust")
+        return build_record(state, hand, work, PairResult(steps | skipped))
     if isinstance(result, SynthesisError):
         steps["retargeting"] = StepOutcome.failed(result.reason)
-        pair = PairResult(steps | _skipped("refinement", "validation"), errors={"retargeting": str(result)})
+        pair = PairResult(steps | _skipped("refinement", "validation", "robust"), errors={"retargeting": str(result)})
         return build_record(state, hand, work, pair)
     best = result[0]
     seconds = float(best.meta.get("seconds", 0.0))
     if not bool(best.meta.get("reached", True)):
         steps["retargeting"] = StepOutcome.failed("unreachable", seconds)
-        pair = PairResult(steps | _skipped("refinement", "validation"), grasp=best, stage="retargeting")
+        pair = PairResult(steps | _skipped("refinement", "validation", "robust"), grasp=best, stage="retargeting")
         return build_record(state, hand, work, pair)
     steps["retargeting"] = StepOutcome(ok=True, seconds=seconds)
     return build_record(state, hand, work, _attempts(state, sims, hand, work, result, steps))
@@ -176,38 +186,61 @@ class _Attempt:
     refinement: StepOutcome
     pre: Grasp
     validation: StepOutcome
+    robust: StepOutcome
+    """The primary simulator's perturbation trials (skipped unless the nominal validation passed)."""
     validations: dict[str, SimVerdict]
     """Per validating simulator, its verdict ({} when validation did not run)."""
     errors: dict[str, str]
     """Error message per failed step of this attempt."""
+    primary: SimVerdict | None = None
+    """The primary simulator's verdict, or None."""
 
     @property
     def passed(self) -> bool:
+        """Refinement and the nominal (single-trial) validation passed."""
         return self.refinement.ok and (self.validation.ok or self.validation.reason == NOT_RUN)
 
     @property
+    def robust_ok(self) -> bool:
+        """Passed, and every perturbation held (or robust validation is off)."""
+        return self.passed and (self.robust.ok or self.robust.reason == NOT_RUN)
+
+    @property
+    def robustness(self) -> float | None:
+        """The primary simulator's robustness score, or None when its trials did not run."""
+        return self.primary.robustness if self.primary is not None else None
+
+    @property
     def verdict(self) -> AttemptVerdict:
-        return AttemptVerdict(refinement=self.refinement.reason or "ok", validation=self.validation.reason or "ok")
+        return AttemptVerdict(
+            refinement=self.refinement.reason or "ok",
+            validation=self.validation.reason or "ok",
+            robust=self.robust.reason or "ok",
+            robustness=self.robustness,
+        )
 
 
 def _attempts(
     state: _State, sims: _Sims, hand: str, work: ObjectWork, grasps: list[Grasp], steps: dict[str, StepOutcome]
 ) -> PairResult:
-    """Take ``grasps`` (best wrist placement first) through refinement and validation until one passes both.
+    """Take ``grasps`` (best wrist placement first) through refinement and validation until one passes both, and
+    its perturbation trials too when ``robust.retry``.
 
-    The result is the passing attempt's; none passing, the first that refined, else the first. It lists every
-    attempt's verdicts and the passing one's index; its refinement and validation times are the sums over the
+    The result is the first robust attempt's; else the passing attempt with the highest robustness score (the
+    first of equals); none passing, the first that refined, else the first. It lists every attempt's verdicts
+    and the chosen one's index when it passed; its refinement, validation and robust times are the sums over the
     attempts."""
+    retry = state.context.config.robust.retry
     tries = []
     for grasp in grasps:
         tries.append(_attempt(state, sims, hand, work, grasp))
-        if tries[-1].passed:
+        if tries[-1].robust_ok or (tries[-1].passed and not retry):
             break
-    index = len(tries) - 1 if tries[-1].passed else next((i for i, t in enumerate(tries) if t.refinement.ok), 0)
+    index = _chosen(tries)
     chosen = tries[index]
     steps = steps | {
-        "refinement": replace(chosen.refinement, seconds=sum(t.refinement.seconds for t in tries)),
-        "validation": replace(chosen.validation, seconds=sum(t.validation.seconds for t in tries)),
+        name: replace(getattr(chosen, name), seconds=sum(getattr(t, name).seconds for t in tries))
+        for name in ("refinement", "validation", "robust")
     }
     return PairResult(
         steps,
@@ -223,15 +256,28 @@ def _attempts(
     )
 
 
+def _chosen(tries: list[_Attempt]) -> int:
+    """Index of the attempt a record keeps (see :func:`_attempts`)."""
+    robust = [i for i, t in enumerate(tries) if t.robust_ok]
+    if robust:
+        return robust[0]
+    passed = [i for i, t in enumerate(tries) if t.passed]
+    if passed:
+        return max(passed, key=lambda i: (tries[i].robustness or 0.0, -i))
+    return next((i for i, t in enumerate(tries) if t.refinement.ok), 0)
+
+
 def _attempt(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp) -> _Attempt:
     cfg = state.context.config
     refined, refinement, errors = _refine(state, sims, hand, work, grasp)
     settled = refined.grasp if refined is not None else grasp
     pre = pregrasp(state.hand(hand), settled, work.result.approach, cfg.pregrasp, thumb_keep=cfg.thumb_keep)
     if not refinement.ok:
-        return _Attempt(grasp, refined, refinement, pre, StepOutcome.skipped(), {}, errors)
-    validation, verdicts, failures = _validate(state, sims, hand, work, refined.grasp, pre)
-    return _Attempt(grasp, refined, refinement, pre, validation, verdicts, errors | failures)
+        skipped = StepOutcome.skipped()
+        return _Attempt(grasp, refined, refinement, pre, skipped, skipped, {}, errors)
+    validation, robust, verdicts, failures = _validate(state, sims, hand, work, refined.grasp, pre)
+    primary = verdicts.get(cfg.primary_sim) if cfg.primary_sim else None
+    return _Attempt(grasp, refined, refinement, pre, validation, robust, verdicts, errors | failures, primary)
 
 
 def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp):
@@ -254,26 +300,50 @@ def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gras
 
 
 def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, pre: Grasp):
-    """Validate in every configured simulator: (the primary one's verdict as the step's outcome, the verdict per
+    """Validate in every configured simulator, then run the perturbation trials where the nominal trial passed:
+    (the primary one's nominal verdict as the validation step, its trials as the robust step, the verdict per
     simulator, {"validation_<sim>": error message} of the simulators that failed to run)."""
-    cfg, model = state.context.config, state.hand(hand)
+    cfg = state.context.config
     if not cfg.validate_sims:
-        return StepOutcome(ok=False, reason=NOT_RUN), {}, {}
+        return StepOutcome(ok=False, reason=NOT_RUN), StepOutcome(ok=False, reason=NOT_RUN), {}, {}
     asset = state.library.get(work.object_id)
     verdicts, errors = {}, {}
     for name in cfg.validate_sims:
         try:
-            result = validate_grasp(sims.get(hand, name, asset), model, asset, grasp, pre, cfg.validate_)
+            verdicts[name] = _sim_verdict(state, sims.get(hand, name, asset), hand, work, asset, grasp, pre)
         except (SimulationError, ArrayError) as error:  # failing to build or load, or a NaN command: a blow-up
             errors[f"validation_{name}"] = str(error)
             verdicts[name] = SimVerdict(success=False, reason="unstable")
-            continue
-        flags = {k: bool(v) for k, v in result.flags.items()}
-        verdicts[name] = SimVerdict(success=result.success, reason=result.reason, flags=flags, seconds=result.seconds)
     main = verdicts[cfg.primary_sim]
-    if main.success:
-        return StepOutcome(ok=True, seconds=main.seconds), verdicts, errors
-    return StepOutcome.failed(main.reason, main.seconds), verdicts, errors
+    validation = (
+        StepOutcome(ok=True, seconds=main.seconds) if main.success else StepOutcome.failed(main.reason, main.seconds)
+    )
+    return validation, _robust_step(main, cfg.robust.enabled), verdicts, errors
+
+
+def _sim_verdict(state: _State, sim, hand: str, work: ObjectWork, asset, grasp: Grasp, pre: Grasp) -> SimVerdict:
+    """The nominal trial in ``sim`` and, if it passed and robust validation is on, the perturbation trials."""
+    cfg, model = state.context.config, state.hand(hand)
+    result = validate_grasp(sim, model, asset, grasp, pre, cfg.validate_)
+    flags = {k: bool(v) for k, v in result.flags.items()}
+    verdict = SimVerdict(success=result.success, reason=result.reason, flags=flags, seconds=result.seconds)
+    if not (result.success and cfg.robust.enabled):
+        return verdict
+    robust = robust_validate(sim, model, asset, grasp, pre, cfg.validate_, cfg.robust, seed=work.seed)
+    trials = tuple(TrialVerdict(name=t.name, success=t.success, reason=t.reason) for t in robust.trials)
+    return replace(verdict, trials=trials, robustness=robust.score, robust_seconds=robust.seconds)
+
+
+def _robust_step(verdict: SimVerdict, enabled: bool) -> StepOutcome:
+    """The robust step from the primary simulator's verdict."""
+    if not enabled:
+        return StepOutcome(ok=False, reason=NOT_RUN)
+    if not verdict.success or verdict.robustness is None:
+        return StepOutcome.skipped()
+    if verdict.robust:
+        return StepOutcome(ok=True, seconds=verdict.robust_seconds)
+    failed = next(t.name for t in verdict.trials if not t.success)
+    return StepOutcome.failed(failed, verdict.robust_seconds)
 
 
 class _Sims:

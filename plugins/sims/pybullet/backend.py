@@ -4,7 +4,7 @@ Choices that make it behave like the SAPIEN backend (details in the helper modul
 
 * joint drives: PyBullet ``POSITION_CONTROL`` motors whose gain and force limit are recomputed
   every physics step from physical Kp/Kd so they act like SAPIEN's implicit spring-damper
-  (:mod:`.drive`);
+  (:mod:`.drive`); ``set_drive_limits`` caps that per-step force limit at the actuator's torque;
 * inertias rewritten in principal axes and made valid, massless links given a tiny mass
   (:mod:`.hand_urdf`); object mass and inertia computed exactly from density (:mod:`.shapes`);
 * friction: per-body coefficients whose Bullet products equal PhysX's pairwise averages;
@@ -90,6 +90,8 @@ class PybulletBackend(SimBackend):
         self._link_ids: dict[tuple[str, ...], list[int]] = {}
         self._motor_args: tuple[list[int], list[float], list[float], list[float]] = ([], [], [], [])
         """PyBullet motor call arguments fixed at load time: joint ids, position and velocity gains, zeros."""
+        self._caps: np.ndarray | None = None
+        """(K,) drive force caps of the hand joints, hand joint order, N·m (set_drive_limits); None: no caps."""
 
     # -- index maps ----------------------------------------------------------------------------
     @property
@@ -141,6 +143,9 @@ class PybulletBackend(SimBackend):
     # -- commands ------------------------------------------------------------------------------
     def _set_joint_targets(self, q: np.ndarray) -> None:
         self._targets[:, self._layout.num_wrist :] = q
+
+    def _set_drive_limits(self, limits: np.ndarray | None) -> None:
+        self._caps = None if limits is None else limits.copy()
 
     def _set_wrist_targets(self, coords: np.ndarray) -> None:
         self._targets[:, :6] = coords
@@ -308,7 +313,10 @@ class PybulletBackend(SimBackend):
         if fresh:  # a cached state was checked when it was read at the end of the last step
             for e, problem in drive_problems(q, v).items():
                 blown.setdefault(e, problem)
-        return self._targets, layout.pd.force_limits(q, v, self._targets)
+        forces = layout.pd.force_limits(q, v, self._targets)
+        if self._caps is not None:  # the hand's actuators: at most their torque (set_drive_limits)
+            forces[:, layout.num_wrist :] = np.minimum(forces[:, layout.num_wrist :], self._caps)
+        return self._targets, forces
 
     def _send_drives(self, scene: Scene, targets: np.ndarray, forces: np.ndarray) -> None:
         ids, position_gains, velocity_gains, zeros = self._motor_args

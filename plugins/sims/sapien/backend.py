@@ -126,6 +126,13 @@ class SapienBackend(SimBackend):
             for joint, target in zip(env.hand_joints, row, strict=True):
                 joint.set_drive_target(target)
 
+    def _set_drive_limits(self, limits: np.ndarray | None) -> None:
+        d = self._hand.description
+        caps = loading.force_limits(limits, d.num_joints)
+        for env in self._envs:
+            for joint, kp, kd, cap in zip(env.hand_joints, d.pd_stiffness, d.pd_damping, caps, strict=True):
+                joint.set_drive_property(kp, kd, cap)
+
     def _set_wrist_targets(self, coords: np.ndarray) -> None:
         for env, row in zip(self._envs, coords.tolist(), strict=True):
             for joint, target in zip(env.wrist_joints, row, strict=True):

@@ -30,6 +30,7 @@ __all__ = [
     "build_hand",
     "build_object",
     "create_scene",
+    "force_limits",
     "pair_exclusion_bits",
     "prepare_urdf",
     "rest_height",
@@ -175,6 +176,17 @@ def set_drives(
     for k, sim_index in enumerate(idx_sim_to_hand):
         joint = joints[n_wrist + int(sim_index)]
         joint.set_drive_property(description.pd_stiffness[k], description.pd_damping[k])
+
+
+NO_FORCE_LIMIT = 3.4028234663852886e38
+"""PhysX's default drive force limit (FLT_MAX): no cap. A limit of ``inf`` is passed as this."""
+
+
+def force_limits(limits: np.ndarray | None, joints: int) -> list[float]:
+    """Per hand joint, the ``force_limit`` of ``set_drive_property``: ``limits`` (K,) N·m, inf or None -> no cap."""
+    if limits is None:
+        return [NO_FORCE_LIMIT] * joints
+    return [min(float(v), NO_FORCE_LIMIT) for v in limits]
 
 
 def build_object(scene: sapien.Scene, obj: ObjectAsset, config: SceneConfig) -> sapien.Entity:
