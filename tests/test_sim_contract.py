@@ -327,3 +327,73 @@ def test_reset_without_a_base_pose_returns_to_the_origin(backend, hand):
     sim.reset()
     np.testing.assert_allclose(sim.wrist_pose()[0], [0, 0, 0, 1, 0, 0, 0], atol=1e-6)
     np.testing.assert_allclose(sim.joint_state()[0], open_q(hand), atol=1e-6)
+
+
+def _tip_lever(sim, hand, joint: str, tip: str) -> tuple[np.ndarray, np.ndarray, float]:
+    """(tip position (3,), unit direction the tip moves when ``joint`` flexes (3,), lever arm m) at the open
+    pose, measured by a 1 mrad teleport of that joint (hand already placed at UP)."""
+    q0, j = open_q(hand), hand.description.joint_names.index(joint)
+    sim.set_hand_state(q0, UP[None])
+    p0 = sim.link_poses([tip])[0, 0, :3]
+    bent = q0.copy()
+    bent[0, j] += 1e-3
+    sim.set_hand_state(bent, UP[None])
+    step = sim.link_poses([tip])[0, 0, :3] - p0
+    sim.set_hand_state(q0, UP[None])
+    return p0, step / np.linalg.norm(step), float(np.linalg.norm(step) / 1e-3)
+
+
+def test_drive_limits_cap_what_a_blocked_finger_pushes(named, hand):
+    """The index finger's MCP flexion (joint_1.0) driven 1.5 rad into a fixed box just ahead of its tip: with every
+    hand joint capped at L, the tip pushes the box with about L / lever (the cap, not the 400 N·m/rad spring, sets
+    the force); the lever is measured, the contact sits within the 12 mm tip radius of it."""
+    _, make_sim, _ = named
+    d = hand.description
+    sim = make_sim(hand, floating=False)
+    tip, u, lever = _tip_lever(sim, hand, "joint_1.0", "link_3.0_tip")
+    half = 0.01
+    box_pose = np.r_[tip + u * (0.012 + half + 0.002), 1.0, 0.0, 0.0, 0.0]  # 2 mm ahead of the tip's surface
+    sim.load_object(box_asset((half, half, half)), pose=box_pose, fixed=True)
+    target = open_q(hand)
+    target[0, d.joint_names.index("joint_1.0")] = 1.5  # Kp = 400: a spring torque of 600 N·m uncapped
+    pushes, bent = {}, {}
+    j = d.joint_names.index("joint_1.0")
+    for limit in (0.05, 0.2):
+        sim.set_hand_state(open_q(hand), UP[None])
+        sim.set_drive_limits(np.full(d.num_joints, limit))
+        sim.set_joint_targets(target)
+        sim.step(60)
+        pushed = [-sim.contact_forces(["link_3.0_tip", "link_3.0", "link_2.0"])[0].sum(axis=0) @ u]
+        for _ in range(30):
+            sim.step()
+            pushed.append(-sim.contact_forces(["link_3.0_tip", "link_3.0", "link_2.0"])[0].sum(axis=0) @ u)
+        pushes[limit], bent[limit] = float(np.mean(pushed)), float(sim.joint_state()[0][0, j])
+        assert max(pushed) <= 1.1 * limit / (lever - 0.012), (limit, lever, pushed)
+        assert min(pushed) >= 0.7 * limit / (lever + 0.012), (limit, lever, pushed)
+    assert 3.2 < pushes[0.2] / pushes[0.05] < 4.8  # the force follows the cap (x4)
+    sim.set_drive_limits(None)  # caps lifted: the 600 N·m drive bends the finger into (or through) the box
+    sim.set_hand_state(open_q(hand), UP[None])
+    sim.set_joint_targets(target)
+    sim.step(60)
+    assert sim.joint_state()[0][0, j] > bent[0.2] + 0.05, (bent, sim.joint_state()[0][0, j])
+
+
+def test_drive_limits_are_checked(named, hand):
+    name, make_sim, _ = named
+    sim = make_sim()
+    with pytest.raises(SimulationError, match=rf"{name}.set_drive_limits: no hand loaded"):
+        sim.set_drive_limits(None)
+    sim.load_hand(hand)
+    k = hand.description.num_joints
+    with pytest.raises(ArrayError, match=rf"{name}.set_drive_limits: limits has shape \(3,\), expected \({k},\)"):
+        sim.set_drive_limits([1.0, 2.0, 3.0])
+    bad = np.full(k, 0.5)
+    bad[2] = 0.0
+    third = hand.description.joint_names[2]
+    with pytest.raises(ArrayError, match=rf"limits must be > 0 N·m \(inf: no cap\), not for \['{third}'\]"):
+        sim.set_drive_limits(bad)
+    bad[2] = np.nan
+    with pytest.raises(ArrayError, match="limits must be > 0"):
+        sim.set_drive_limits(bad)
+    sim.set_drive_limits(np.full(k, np.inf))  # inf: no cap on that joint
+    sim.set_drive_limits(None)
