@@ -14,6 +14,7 @@ import os
 import sys
 from collections.abc import Sequence
 
+from ges_core.cli.args import positive_int
 from ges_core.errors import GesError
 
 __all__ = ["build_parser", "main"]
@@ -42,6 +43,12 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument(
         "--registry", metavar="PATH", help="registry.yaml to use (default: $GES_REGISTRY, ./registry.yaml)"
     )
+    parser.add_argument(
+        "--threads",
+        type=positive_int,
+        metavar="N",
+        help="torch threads per process, workers included (default: $GES_THREADS, else 1)",
+    )
     parser.add_argument("--no-plugin", action="append", default=[], metavar="NAME", help="do not load plugin NAME")
     parser.add_argument(
         "--set",
@@ -69,6 +76,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
     try:
+        from ges_core.threads import configure_threads
+
+        configure_threads(args.threads)  # before any torch work; spawned workers inherit it ($GES_THREADS)
         return int(args.func(args) or 0)
     except GesError as exc:
         if args.debug:

@@ -44,6 +44,9 @@ def run_baseline_cmd(args: argparse.Namespace) -> int:
     from ges_core.cli import registry_from_args
     from ges_core.config import load_config
     from ges_core.env.evaluate import BaselineConfig, evaluate_baseline
+    from ges_core.threads import set_torch_threads
+
+    set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
 
     registry = registry_from_args(args)
     hand = args.hand or registry.default("hand")

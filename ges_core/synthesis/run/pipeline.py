@@ -32,6 +32,7 @@ from ges_core.errors import ConfigError
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.tasks import RegistrySpec, RunContext, Task, check_plugin_names, plan_tasks
 from ges_core.synthesis.run.worker import run_task
+from ges_core.threads import resolve_threads, set_torch_threads
 
 __all__ = ["RunReport", "run_synthesis"]
 
@@ -64,11 +65,14 @@ def run_synthesis(
 ) -> RunReport:
     """Synthesize and validate grasps of ``object_ids`` x ``hands``; write them to the dataset ``out``.
 
-    workers: processes (1 = this process). pictures: folder for one PNG per record (None: none).
+    workers: processes (1 = this process). Torch threads: ``config.threads``, else ``$GES_THREADS``, else 1, set in
+    each worker process, or in this process when it runs the tasks itself (:mod:`ges_core.threads`).
+    pictures: folder for one PNG per record (None: none).
     source: (dataset folder, hand): that hand's stored contacts replace contact generation (cross-hand
     retargeting); every object needs a record of that hand there. on_record: called with each record as it is written.
     """
     _check_run(object_ids, hands, workers)
+    resolve_threads(config.threads)  # a bad $GES_THREADS fails here, before the dataset folder exists
     registry = registry or RegistrySpec()
     check_plugin_names(hands, config, registry)  # before the dataset folder exists
     with DatasetWriter(out, config.dump()) as writer:
@@ -76,7 +80,7 @@ def run_synthesis(
         tasks, report.skipped = plan_tasks(list(object_ids), list(hands), config.chunk_size, writer.has)
         context = RunContext(config, registry, str(pictures) if pictures else None, _source(source))
         bar = _progress_bar(sum(t.size for t in tasks), progress)
-        results = _results(tasks, context, workers)
+        results = _results(tasks, context, workers, threads=config.threads)
         try:
             for records in results:
                 for record in records:
@@ -110,18 +114,23 @@ def _check_run(object_ids: Sequence[str], hands: Sequence[str], workers: int) ->
 
 
 def _results(
-    tasks: list[Task], context: RunContext, workers: int, runner: Callable = run_task
+    tasks: list[Task], context: RunContext, workers: int, runner: Callable = run_task, threads: int | None = None
 ) -> Generator[list, None, None]:
     """Records of each task as soon as it finishes, so that a slow task holds back no other task's records and
     a stopped run keeps every finished task. The dataset does not depend on this order: one file per
     (object, hand), and the manifest's index is sorted. ``runner``: a test double of :func:`run_task`
-    (picklable: a module-level function)."""
+    (picklable: a module-level function). ``threads``: torch threads of the process(es) running the tasks
+    (:func:`~ges_core.threads.set_torch_threads`)."""
     if workers == 1 or len(tasks) <= 1:
+        set_torch_threads(threads)  # this process does the torch work (ges_core.threads: why one by default)
         for task in tasks:
             yield runner(task, context)
         return
     ctx = multiprocessing.get_context("spawn")  # fork would copy engine state (SAPIEN, PyBullet clients, torch threads)
-    with ProcessPoolExecutor(max_workers=min(workers, len(tasks)), mp_context=ctx) as pool:
+    pool = ProcessPoolExecutor(
+        max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=set_torch_threads, initargs=(threads,)
+    )
+    with pool:
         futures = [pool.submit(runner, task, context) for task in tasks]
         try:
             for future in as_completed(futures):
