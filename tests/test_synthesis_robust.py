@@ -1,0 +1,108 @@
+"""Robust validation (ges_core.synthesis.physics.robust): its config, its perturbations, and a real run.
+
+The real run takes one object through the whole pipeline with both engines and a deliberately weak perturbation
+(the object 30 times heavier, every drive at the Allegro's 0.5 N·m): the nominal trial and the drive-limits trial
+hold, the heavy trial fails, and the record stores each verdict beside the paper's single-trial one.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from ges_core.config import parse_model
+from ges_core.dataset import open_dataset
+from ges_core.errors import ConfigError
+from ges_core.objects.asset import ObjectAsset
+from ges_core.synthesis.physics.robust import RobustConfig, object_friction_for, perturbations
+from ges_core.synthesis.run.config import SynthesisConfig
+from ges_core.synthesis.run.pipeline import run_synthesis
+
+
+def _asset(friction: float = 1.0) -> ObjectAsset:
+    return ObjectAsset(object_id="t/box", category="box", mesh_path="x.obj", collision=(), friction=friction)
+
+
+def test_default_trials_and_their_order():
+    names = [p.name for p in perturbations(RobustConfig(), 1.0, _asset(), seed=7)]
+    assert names == ["limits", "mass_x0.5", "mass_x2", "friction_0.5", "pose_1", "pose_2", "pose_3"]
+    assert RobustConfig().trial_count == len(names)
+
+
+def test_pose_offsets_are_seeded_and_sized_as_configured():
+    config = RobustConfig(pose_trials=4, pose_shift=0.004, pose_turn_deg=6.0)
+    shifts = [p.shift for p in perturbations(config, 1.0, _asset(), seed=3) if p.shift is not None]
+    again = [p.shift for p in perturbations(config, 1.0, _asset(), seed=3) if p.shift is not None]
+    other = [p.shift for p in perturbations(config, 1.0, _asset(), seed=4) if p.shift is not None]
+    assert len(shifts) == 4 and all(np.array_equal(a, b) for a, b in zip(shifts, again, strict=True))
+    assert not all(np.array_equal(a, b) for a, b in zip(shifts, other, strict=True))
+    for shift in shifts:
+        assert math.isclose(np.linalg.norm(shift[:3]), 0.004, rel_tol=1e-12) and shift[2] == 0.0  # in the table plane
+        turn = 2 * math.degrees(math.atan2(np.linalg.norm(shift[4:]), shift[3]))
+        assert math.isclose(turn, 6.0, rel_tol=1e-9) and shift[4] == shift[5] == 0.0  # about the vertical
+    directions = {round(math.degrees(math.atan2(s[1], s[0]))) for s in shifts}
+    assert len(directions) == 4  # four headings, not one repeated
+
+
+@pytest.mark.parametrize(("floor", "hand", "obj", "expected"), [(0.5, 1.0, 1.0, 0.0), (0.6, 0.8, 1.0, 0.4)])
+def test_friction_trial_sets_the_effective_coefficient_to_the_floor(floor, hand, obj, expected):
+    mu = object_friction_for(floor, hand, obj)
+    assert math.isclose(mu, expected, abs_tol=1e-12) and math.isclose((hand + mu) / 2, floor)
+
+
+def test_friction_trial_never_raises_the_objects_friction_and_says_when_the_floor_is_out_of_reach():
+    assert object_friction_for(0.5, 0.4, 0.3) == 0.3  # effective 0.35 is below the floor already
+    with pytest.raises(ConfigError, match=r"lowest effective hand-object friction is 0.5 \(the engines average"):
+        object_friction_for(0.3, 1.0, 1.0)
+
+
+@pytest.mark.parametrize(
+    ("data", "message"),
+    [
+        ({"robust": {"mass_scales": [0.5, -1.0]}}, r"robust.mass_scales: .*finite and > 0, got \[-1.0\]"),
+        ({"robust": {"mass_scales": [2.0, 2.0]}}, r"robust.mass_scales: .*lists a density factor twice"),
+        ({"robust": {"pose_shift": 0.2}}, r"robust.pose_shift"),
+        (
+            {"robust": {"mass_scales": [], "friction_floor": None, "pose_trials": 0, "limits_trial": False}},
+            r"robust validation is enabled but runs no trial",
+        ),
+        ({"robust": {"friction_floor": 0.3}}, r"robust.friction_floor=0.3 cannot be reached with scene.hand_friction"),
+        ({"robust": {"retries": True}}, r"robust.retries"),
+    ],
+)
+def test_bad_robust_settings_say_what_to_change(data, message):
+    with pytest.raises(ConfigError, match=message):
+        parse_model(SynthesisConfig, data, where="test")
+
+
+def test_switched_off_needs_no_trial():
+    off = {"enabled": False, "mass_scales": [], "friction_floor": None, "pose_trials": 0, "limits_trial": False}
+    assert not parse_model(SynthesisConfig, {"robust": off}, where="test").robust.enabled
+
+
+@pytest.mark.sim
+def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(tmp_path):
+    """Allegro on the box, SAPIEN and PyBullet: nominal and drive-limits trials hold, 30 times the mass does not."""
+    config = parse_model(
+        SynthesisConfig,
+        {
+            "validate_sims": ["sapien", "pybullet"],
+            "attempts": 1,
+            "robust": {"mass_scales": [30.0], "friction_floor": None, "pose_trials": 0},
+        },
+        where="test",
+    )
+    run_synthesis(["procedural/box/000"], ["allegro"], config, tmp_path / "ds", progress=False)
+    (record,) = list(open_dataset(tmp_path / "ds"))
+    assert record.steps["validation"].ok and not record.robust
+    assert record.steps["robust"].reason == "mass_x30" and record.robustness == 0.5
+    for sim in ("sapien", "pybullet"):
+        verdict = record.validations[sim]
+        assert verdict.success, (sim, verdict)  # the paper's single trial
+        assert [(t.name, t.success) for t in verdict.trials] == [("limits", True), ("mass_x30", False)], sim
+        assert verdict.trials[1].reason in ("not_lifted", "dropped") and verdict.robustness == 0.5
+        assert verdict.robust_seconds > 0
+    assert record.attempts[0].robust == "mass_x30" and record.attempts[0].robustness == 0.5
+    assert record.total_seconds == pytest.approx(sum(record.steps[s].seconds for s in record.steps if s != "robust"))
