@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import gc
+
 import numpy as np
 import pytest
 import trimesh
@@ -108,3 +110,36 @@ def test_farthest_point_indices_on_a_line():
 def test_nonpositive_count_is_an_error():
     with pytest.raises(AssetError, match="point cloud size must be positive, got 0"):
         sample_surface(trimesh.creation.box(), 0)
+
+
+def test_the_bodies_of_a_mesh_are_found_once_and_forgotten_with_it(library):
+    from ges_core.objects import pointcloud
+
+    mesh = library.processed("pybullet/classic/teddy").mesh.copy()
+    first = pointcloud._bodies(mesh)
+    assert first is not None and first.labels.max() == 14
+    assert pointcloud._bodies(mesh) is first  # cached: the second cloud does not split the mesh again
+    twin = mesh.copy()
+    assert pointcloud._bodies(twin) is not first  # another mesh object, its own entry
+    assert np.array_equal(sample_surface(twin, 300, seed=2)[0], sample_surface(mesh, 300, seed=2)[0])
+    key = id(mesh)
+    del mesh, first
+    gc.collect()  # a trimesh mesh holds reference cycles
+    assert pointcloud._bodies(trimesh.creation.box()) is None  # one body: no hidden-surface test
+    assert key not in pointcloud._CACHE  # that look-up dropped the entry of the freed mesh
+
+
+def test_the_convex_inside_test_agrees_with_ray_parity_despite_a_zero_area_face():
+    from ges_core.objects.pointcloud import _inside_test
+
+    box = trimesh.creation.box((0.04, 0.03, 0.02))
+    u, v, w = box.faces[0]
+    m = len(box.vertices)  # a vertex in the middle of edge u-v splits face 0; the sliver (u, v, m) closes the seam
+    vertices = np.vstack([box.vertices, (box.vertices[u] + box.vertices[v]) / 2])
+    faces = np.vstack([[u, m, w], [m, v, w], box.faces[1:], [u, v, m]])
+    body = trimesh.Trimesh(vertices, faces, process=False)
+    assert body.is_watertight and body.is_winding_consistent and body.is_convex
+    assert np.count_nonzero(np.abs(body.face_normals).sum(axis=1) == 0) == 1  # the sliver's normal is (0, 0, 0)
+    points = np.random.default_rng(0).uniform(-0.025, 0.025, size=(2000, 3))
+    planes = _inside_test(body)(points)
+    assert planes.sum() > 100 and np.array_equal(planes, box.contains(points))

@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import weakref
+from collections.abc import Callable
+from dataclasses import dataclass
+
 import numpy as np
 import trimesh
 
@@ -39,14 +43,13 @@ def sample_surface(mesh: trimesh.Trimesh, n: int, *, seed: int = 0, fps: bool = 
 
 def _outer_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """``count`` area-weighted samples from the outer surface (drawing more rounds if some are hidden)."""
-    labels = _body_labels(mesh)
-    bodies = None if labels.max() == 0 else [mesh.submesh([labels == k], append=True) for k in range(labels.max() + 1)]
+    bodies = _bodies(mesh)
     got_p, got_n, total, round_ = [], [], 0, 0
     while total < count:
         pts, face = trimesh.sample.sample_surface(mesh, max(count, 64), seed=seed + 7919 * round_)
         nrm = mesh.face_normals[face]
         if bodies is not None:
-            keep = _visible(pts, nrm, labels[face], bodies, eps=HIDDEN_EPS * mesh.scale)
+            keep = bodies.visible(pts, nrm, face, eps=HIDDEN_EPS * mesh.scale)
             pts, nrm = pts[keep], nrm[keep]
         got_p.append(pts)
         got_n.append(nrm)
@@ -57,20 +60,66 @@ def _outer_samples(mesh: trimesh.Trimesh, count: int, seed: int) -> tuple[np.nda
     return np.vstack(got_p)[:count], np.vstack(got_n)[:count]
 
 
-def _body_labels(mesh: trimesh.Trimesh) -> np.ndarray:
-    """(n_faces,) index of the connected body each face belongs to."""
-    return trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
+@dataclass(frozen=True)
+class _Bodies:
+    """The connected bodies of a mesh of several, with what the hidden-surface test asks of each, built once
+    per mesh (:func:`_bodies`): a 15-body scan (pybullet's teddy) took 0.4 s per cloud when they were rebuilt
+    and ray-tested on every call, against a few ms now."""
+
+    labels: np.ndarray
+    """(n_faces,) index of the body each face belongs to."""
+    bounds: np.ndarray
+    """(n_bodies, 2, 3) each body's axis-aligned bounds."""
+    inside: tuple[Callable[[np.ndarray], np.ndarray], ...]
+    """Per body, ``points (n, 3) -> (n,) bool`` strictly inside it."""
+
+    def visible(self, points: np.ndarray, normals: np.ndarray, faces: np.ndarray, *, eps: float) -> np.ndarray:
+        """(n,) bool: the point nudged ``eps``, ``eps / 10`` and ``eps / 100`` along its normal is outside every
+        other body (the short probe catches points just under another body's surface). faces: (n,) the face
+        each point lies on."""
+        owner = self.labels[faces]
+        keep = np.ones(len(points), dtype=bool)
+        for k, inside in enumerate(self.inside):
+            lo, hi = self.bounds[k]
+            for probe in (points + eps * normals, points + 0.1 * eps * normals, points + 0.01 * eps * normals):
+                # a point outside the body's box is not strictly inside it: only the others are tested
+                test = (owner != k) & keep & np.all((probe > lo) & (probe < hi), axis=1)
+                keep[test] = ~inside(probe[test])
+        return keep
 
 
-def _visible(points, normals, owner, bodies, *, eps: float) -> np.ndarray:
-    """(n,) bool: the point nudged ``eps``, ``eps / 10`` and ``eps / 100`` along its normal is outside every other
-    body (the short probe catches points just under another body's surface)."""
-    keep = np.ones(len(points), dtype=bool)
-    for k, body in enumerate(bodies):
-        for probe in (points + eps * normals, points + 0.1 * eps * normals, points + 0.01 * eps * normals):
-            test = (owner != k) & keep
-            keep[test] = ~body.contains(probe[test])
-    return keep
+_CACHE: dict[int, tuple[weakref.ref, _Bodies | None]] = {}
+"""id(mesh) -> (weak reference to the mesh, its bodies or None for one body); entries of freed meshes are
+dropped on the next look-up."""
+
+
+def _bodies(mesh: trimesh.Trimesh) -> _Bodies | None:
+    """The bodies of ``mesh`` (None when it is one body), computed once per mesh object. The mesh must not
+    be changed in place afterwards (the library's processed meshes are not)."""
+    hit = _CACHE.get(id(mesh))
+    if hit is not None and hit[0]() is mesh:
+        return hit[1]
+    for key in [k for k, (ref, _) in _CACHE.items() if ref() is None]:
+        del _CACHE[key]
+    labels = trimesh.graph.connected_component_labels(mesh.face_adjacency, node_count=len(mesh.faces))
+    bodies = None
+    if labels.max() > 0:
+        parts = [mesh.submesh([labels == k], append=True) for k in range(labels.max() + 1)]
+        bodies = _Bodies(labels, np.array([b.bounds for b in parts]), tuple(_inside_test(b) for b in parts))
+    _CACHE[id(mesh)] = (weakref.ref(mesh), bodies)
+    return bodies
+
+
+def _inside_test(body: trimesh.Trimesh) -> Callable[[np.ndarray], np.ndarray]:
+    """``points (n, 3) -> (n,) bool`` strictly inside ``body``: the face planes of its hull when it is convex (the
+    same solid; about 100x faster than casting rays), else trimesh's ray-parity ``contains``. The hull, not the
+    body's own faces: a zero-area face has a zero normal, whose plane test no point passes (pybullet's teddy
+    has such faces)."""
+    if not body.is_convex:
+        return body.contains
+    hull = body.convex_hull
+    normals, offsets = hull.face_normals, np.einsum("ij,ij->i", hull.face_normals, hull.triangles[:, 0])
+    return lambda points: np.all(points @ normals.T < offsets, axis=1)
 
 
 def farthest_point_indices(points: np.ndarray, n: int) -> np.ndarray:
