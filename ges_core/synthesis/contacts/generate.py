@@ -144,7 +144,8 @@ def generate_contacts(
     primary = choose_strategy(p, max_tilt_deg=cfg.tall_max_tilt_deg, dominance=cfg.tall_dominance)
     plan = _plan(pts, nrm, ctx, primary)
     idx, eps = _final(pts, nrm, ctx, plan)
-    contacts = ContactSet(pts[idx], nrm[idx], object_id, _meta(plan, ctx, primary, keep[idx]))
+    meta = _meta(plan, ctx, primary, keep[idx], _opening(pts, idx, plan.axes))
+    contacts = ContactSet(pts[idx], nrm[idx], object_id, meta)
     return ContactResult(contacts, plan.axes.strategy, plan.axes.a.copy(), eps, symmetric, time.perf_counter() - t0)
 
 
@@ -245,16 +246,24 @@ def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, primary: str) -> _Pla
     the fingers more room before the other one; within an axis, the layouts in their rank order; for
     each layout, the thumb side that screens better.
     """
-    first, widths, found_layout = None, [], False
+    first, widths, found_layout, openings = None, [], False, []
     for strategy in (primary, "vertical" if primary == "horizontal" else "horizontal"):
-        for col, layouts in _ranked_axes(pts, ctx, strategy, widths):
+        for col, layouts in _ranked_axes(pts, nrm, ctx, strategy, widths):
             found_layout = True
-            for plan in _side_plans(pts, nrm, ctx, strategy, col, layouts):
+            for plan in _side_plans(pts, nrm, ctx, strategy, col, layouts, openings):
                 first = first or plan
                 if plan.screen > 0.0:
                     return plan
     if first is not None:
         return first
+    if openings:
+        lo, hi = ctx.cfg.min_width, ctx.cfg.max_width
+        raise _fail(
+            "no_graspable_width",
+            ctx.object_id,
+            f"the contacts found on the graspable slices would open the hand {min(openings):.3f}-{max(openings):.3f} "
+            f"m along the squeeze axis, outside [{lo}, {hi}] m; the object is too wide or too thin for a hand",
+        )
     if found_layout:
         raise _fail("no_contact_surface", ctx.object_id, "no visible surface point faces the thumb or a finger")
     raise _fail(
@@ -265,12 +274,12 @@ def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, primary: str) -> _Pla
     )
 
 
-def _ranked_axes(pts: np.ndarray, ctx: _Context, strategy: str, widths: list[float]):
+def _ranked_axes(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategy: str, widths: list[float]):
     """(col, {flip: layouts}) for the squeeze axes that fit, the one with more finger room first.
     Appends the narrowest width of an axis that does not fit to ``widths``."""
     found = []
     for col in (1, 0):
-        layouts = {flip: _layouts(pts, ctx, strategy, col, flip=flip) for flip in (False, True)}
+        layouts = {flip: _layouts(pts, nrm, ctx, strategy, col, flip=flip) for flip in (False, True)}
         if layouts[False]:
             found.append((col, layouts))
         else:
@@ -288,13 +297,19 @@ def _profile(pts: np.ndarray, ctx: _Context, strategy: str, col: int, flip: bool
     return sl.slice_profile(_coords(pts, ctx, axes), pts[:, 2], ctx.cfg.slice_thickness)
 
 
-def _layouts(pts: np.ndarray, ctx: _Context, strategy: str, col: int, *, flip: bool) -> list[sl.Layout]:
+def _layouts(
+    pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategy: str, col: int, *, flip: bool
+) -> list[sl.Layout]:
     """The ranked five-contact layouts for one choice of axes (empty when no slice fits the hand)."""
     cfg, top = ctx.cfg, ctx.top
-    prof = _profile(pts, ctx, strategy, col, flip)
+    axes = sl.grasp_axes(strategy, ctx.frame, col, right_hand=cfg.right_hand, flip=flip)
+    coords = _coords(pts, ctx, axes)
+    prof = sl.slice_profile(coords, pts[:, 2], cfg.slice_thickness)
     ok = sl.graspable(prof, cfg.min_width, cfg.max_width)
     if strategy == "vertical":
-        return sl.vertical_layouts(prof, ok, (max(cfg.min_height, top - cfg.vertical_reach), top), ctx.z_pref, cfg)
+        z_range = (max(cfg.min_height, top - cfg.vertical_reach), top)
+        rows = sl.RowWidths.of(coords, nrm @ axes.g, pts[:, 2], prof, cfg)
+        return sl.vertical_layouts(prof, ok, z_range, ctx.z_pref, cfg, rows)
     z_hi = top - max(cfg.top_margin * top, cfg.slice_thickness)
     return sl.horizontal_layouts(prof, ok, (cfg.min_height, z_hi), ctx.z_pref, cfg)
 
@@ -306,9 +321,12 @@ def _narrowest(pts: np.ndarray, ctx: _Context, strategy: str, col: int) -> float
     return float(prof.width[above].min()) if above.any() else float("inf")
 
 
-def _side_plans(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategy: str, col: int, layouts: dict):
+def _side_plans(
+    pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategy: str, col: int, layouts: dict, openings: list[float]
+):
     """For each ranked layout, the better of the two thumb sides (yields nothing where neither side has
-    an eligible point in every contact's band)."""
+    an eligible point in every contact's band, or whose picks open the hand beyond [min_width, max_width]:
+    their openings are appended to ``openings``)."""
     cfg = ctx.cfg
     axes = {f: sl.grasp_axes(strategy, ctx.frame, col, right_hand=cfg.right_hand, flip=f) for f in (False, True)}
     plus, minus = sl.side_masks(_coords(pts, ctx, axes[False]), nrm @ axes[False].g, pts[:, 2], cfg, ctx.rho)
@@ -320,8 +338,12 @@ def _side_plans(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategy: str, 
             thumb_ok, finger_ok = (minus, plus) if flip else (plus, minus)
             allowed = np.vstack([thumb_ok, np.broadcast_to(finger_ok, (4, len(pts)))])
             picks = sl.pick_extremes(_coords(pts, ctx, axes[flip]), allowed, layouts[flip][rank], cfg.extremum_tol)
-            if picks is not None:
+            if picks is None:
+                continue
+            if _fits(_opening(pts, picks, axes[flip]), cfg):
                 plans.append(_optimized(pts, nrm, ctx, axes[flip], layouts[flip][rank], picks, allowed))
+            else:  # a band widened onto another part (a sparse slice's width read too narrow): too wide a hand
+                openings.append(_opening(pts, picks, axes[flip]))
         if plans:
             yield max(plans, key=lambda p: p.screen)
 
@@ -333,9 +355,22 @@ def _optimized(pts, nrm, ctx: _Context, axes, layout: sl.Layout, picks: np.ndarr
         pts, nrm, picks, allowed, center=ctx.center, object_radius=ctx.radius, spacing=layout.spacing,
         radius=cfg.search_radius * layout.spacing, kappa=cfg.coordination_weight, sweeps=cfg.sweeps,
     )  # fmt: skip
+    if not _fits(_opening(pts, opt, axes), cfg):  # moved past the width limit the picks respect: keep the picks
+        opt = picks
     screen_cfg = cfg.force_closure.model_copy(update={"cone_edges": SCREEN_EDGES})
     screen = ferrari_canny(pts[opt], nrm[opt], screen_cfg, center=ctx.center, radius=ctx.radius)
     return _Plan(axes, layout, picks, opt, screen)
+
+
+def _opening(pts: np.ndarray, idx: np.ndarray, axes: sl.GraspAxes) -> float:
+    """Metres the hand opens for the contacts ``pts[idx]`` (thumb first): the largest thumb-to-finger distance
+    along the squeeze axis ``g``, the axis along which the slices' widths were checked against the hand."""
+    g = pts[idx] @ axes.g
+    return float(np.max(g[0] - g[1:]))
+
+
+def _fits(opening: float, cfg: ContactConfig) -> bool:
+    return cfg.min_width <= opening <= cfg.max_width
 
 
 def _final(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, plan: _Plan) -> tuple[np.ndarray, float]:
@@ -349,7 +384,7 @@ def _final(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, plan: _Plan) -> tupl
     return (plan.picks, eps0) if eps0 > 0.0 else (plan.optimized, eps)
 
 
-def _meta(plan: _Plan, ctx: _Context, primary: str, rows: np.ndarray) -> dict:
+def _meta(plan: _Plan, ctx: _Context, primary: str, rows: np.ndarray, opening: float) -> dict:
     """JSON-ready details of how the contacts were found (documented in docs/synthesis/contacts.md)."""
     return {
         "point_indices": rows.tolist(),
@@ -358,6 +393,7 @@ def _meta(plan: _Plan, ctx: _Context, primary: str, rows: np.ndarray) -> dict:
         "spread_axis": plan.axes.s.tolist(),
         "canonical_frame": ctx.frame.tolist(),
         "finger_spacing": plan.layout.spacing,
-        "grasp_width": plan.layout.width,
+        "grasp_width": opening,
+        "slice_width": plan.layout.width,
         "screen_epsilon": plan.screen,
     }

@@ -15,6 +15,7 @@ from scipy.spatial import cKDTree
 __all__ = [
     "GraspAxes",
     "Layout",
+    "RowWidths",
     "SliceProfile",
     "grasp_axes",
     "horizontal_layouts",
@@ -119,23 +120,100 @@ def graspable(profile: SliceProfile, min_width: float, max_width: float) -> np.n
     return (profile.counts >= MIN_SLICE_POINTS) & (w >= min_width) & (w <= max_width)
 
 
-def vertical_layouts(profile: SliceProfile, ok: np.ndarray, z_range: tuple[float, float], z_pref: float, cfg):
-    """Grasps from above, best first (at most ``cfg.layouts_per_axis``): all contacts in one graspable
-    slice in ``z_range``, fingers spread along s. Slices that leave the fingers the widest spacing
-    (within 1 mm) come first, nearest ``z_pref`` first among those."""
-    inside = np.flatnonzero(ok & (profile.centers >= z_range[0]) & (profile.centers <= z_range[1]))
+def vertical_layouts(
+    profile: SliceProfile,
+    ok: np.ndarray,
+    z_range: tuple[float, float],
+    z_pref: float,
+    cfg,
+    rows: RowWidths | None = None,
+):
+    """Grasps from above, best first (at most ``cfg.layouts_per_axis``): all contacts in one slice in
+    ``z_range``, fingers spread along s. Slices that leave the fingers the widest spacing (within 1 mm) come
+    first, nearest ``z_pref`` first among those.
+
+    A graspable slice (``ok``) puts the row at its middle. Another slice may still hold a row where the part
+    under it fits the hand (``rows``: a 3 cm handle beside a 13 cm hammer head): the row is moved along s in
+    half spacings from the middle, nearest the middle first, until the points under it span a graspable width
+    (:meth:`RowWidths.width`). Such rows come after every whole-slice layout."""
+    inside = np.flatnonzero(
+        (profile.counts >= MIN_SLICE_POINTS) & (profile.centers >= z_range[0]) & (profile.centers <= z_range[1])
+    )
     extent = (profile.hi[inside, 1] - profile.lo[inside, 1]) * (1.0 - 2.0 * cfg.edge_margin) / 3.0
     room = np.clip(extent, cfg.min_spacing, cfg.finger_spacing)
     order = np.lexsort((np.abs(profile.centers[inside] - z_pref), -np.round(room / SPACING_TIE)))
-    return [_vertical(profile, int(inside[i]), float(room[i]), cfg) for i in order[: cfg.layouts_per_axis]]
+    ranked = [(int(inside[i]), float(room[i])) for i in order]
+    out = [_vertical(profile, k, spacing, cfg) for k, spacing in ranked if ok[k]][: cfg.layouts_per_axis]
+    for k, spacing in ranked:  # the whole-slice layouts first: they are what fitted before rows were measured
+        if len(out) == cfg.layouts_per_axis or rows is None:
+            break
+        if not ok[k]:
+            out += [layout for layout in [_shifted_row(profile, k, spacing, cfg, rows)] if layout is not None]
+    return out
 
 
-def _vertical(profile: SliceProfile, k: int, spacing: float, cfg) -> Layout:
-    """Layout in slice ``k``: fingers centred on the slice's s-extent, thumb level with the index."""
-    s_f = 0.5 * (profile.lo[k, 1] + profile.hi[k, 1]) + (np.arange(4) - 1.5) * spacing
-    s_all = np.concatenate([[s_f[0] + cfg.thumb_shift * spacing], s_f])
+def _vertical(profile: SliceProfile, k: int, spacing: float, cfg, shift: float = 0.0, width: float | None = None):
+    """Layout in slice ``k``: fingers centred ``shift`` along s from the middle of the slice's s-extent, thumb
+    level with the index; ``width``: the squeeze width under the row (default: the slice's)."""
+    s_all = _row_s(profile, k, spacing, cfg) + shift
     st = np.column_stack([s_all, np.full(5, -profile.centers[k])])  # t = -z for the approach -z
-    return Layout(st, np.array([0.5 * spacing, profile.thickness]), spacing, float(profile.width[k]))
+    width = float(profile.width[k]) if width is None else width
+    return Layout(st, np.array([0.5 * spacing, profile.thickness]), spacing, width)
+
+
+def _row_s(profile: SliceProfile, k: int, spacing: float, cfg) -> np.ndarray:
+    """(5,) s of thumb, index .. little for a row centred on slice ``k``'s s-extent."""
+    s_f = 0.5 * (profile.lo[k, 1] + profile.hi[k, 1]) + (np.arange(4) - 1.5) * spacing
+    return np.concatenate([[s_f[0] + cfg.thumb_shift * spacing], s_f])
+
+
+def _shifted_row(profile: SliceProfile, k: int, spacing: float, cfg, rows: RowWidths) -> Layout | None:
+    """The layout of slice ``k`` whose row lies nearest the middle of the slice and over a graspable width,
+    or None. Every contact's band (+-spacing/4 along s) stays within the slice's s-extent."""
+    s_row = _row_s(profile, k, spacing, cfg)
+    half = BAND_SCALE * 0.5 * spacing
+    lo_shift = profile.lo[k, 1] + half - s_row.min()
+    hi_shift = profile.hi[k, 1] - half - s_row.max()
+    if lo_shift > hi_shift:
+        return None
+    step = 0.5 * spacing
+    shifts = np.arange(np.ceil(lo_shift / step), np.floor(hi_shift / step) + 1) * step
+    for shift in shifts[np.argsort(np.abs(shifts), kind="stable")]:
+        s = s_row + shift
+        width = rows.width(k, s.min() - half, s.max() + half)
+        if cfg.min_width <= width <= cfg.max_width:
+            return _vertical(profile, k, spacing, cfg, shift=float(shift), width=width)
+    return None
+
+
+@dataclass(frozen=True)
+class RowWidths:
+    """Squeeze widths of the part of a slice under a finger row: what the hand spans when the rest of the
+    slice is wider (a hammer's head beside its handle)."""
+
+    coords: np.ndarray
+    """(n, 3) grasp coordinates (g, s, t) of the cloud."""
+    slice_of: np.ndarray
+    """(n,) slice index of each point."""
+    facing: np.ndarray
+    """(n,) +1 where the outward normal is within ``max_normal_angle_deg`` of +g (a thumb could push there), -1
+    within that of -g (a finger could), else 0."""
+
+    @classmethod
+    def of(cls, coords: np.ndarray, n_g: np.ndarray, z: np.ndarray, profile: SliceProfile, cfg) -> RowWidths:
+        """n_g: (n,) each outward normal's component along g; cfg: the ContactConfig."""
+        cos_max = np.cos(np.deg2rad(cfg.max_normal_angle_deg))
+        return cls(coords, profile.index(z), (n_g >= cos_max).astype(np.int8) - (n_g <= -cos_max))
+
+    def width(self, k: int, s_lo: float, s_hi: float) -> float:
+        """Metres between the outermost +g-facing and the outermost -g-facing points of slice ``k`` with s in
+        [s_lo, s_hi]; inf when one side has none. Both sides are required: a sparse slice of a large object
+        may hold points of one wall only, whose extent says nothing about the width (a 60 x 50 cm box's 4 mm
+        slices hold about 0.2 points per wall under a 7 cm row)."""
+        s = self.coords[:, 1]
+        here = (self.slice_of == k) & (s >= s_lo) & (s <= s_hi)
+        plus, minus = self.coords[here & (self.facing > 0), 0], self.coords[here & (self.facing < 0), 0]
+        return float(plus.max() - minus.min()) if len(plus) and len(minus) else float("inf")
 
 
 def horizontal_layouts(profile: SliceProfile, ok: np.ndarray, z_range: tuple[float, float], z_pref: float, cfg):
