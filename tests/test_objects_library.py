@@ -108,7 +108,7 @@ def test_config_problems_are_listed_together(tmp_path, capsys):
     msg = str(info.value)
     for part in (
         "invalid object library config",
-        "sources: Value error, unknown source(s) ['shapenet'] (known: procedural, pybullet, user)",
+        "sources: Value error, unknown source(s) ['shapenet'] (known: procedural, pybullet, real, user)",
         "procedural_count: Input should be greater than or equal to 0",
         "density: Input should be greater than 0",
         "user_scale: Input should be greater than 0",

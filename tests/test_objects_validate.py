@@ -61,6 +61,18 @@ def test_fin_sheet_is_rejected(tmp_path):
         repair_mesh(load_mesh_file(path), name=str(path))
 
 
+def test_tiny_fin_is_dropped_and_the_mesh_kept(tmp_path):
+    """A scanner's sliver (as in 10 of the YCB scans): a face far below FIN_AREA hinged on a box edge."""
+    box = trimesh.creation.box(extents=(0.05, 0.05, 0.05))
+    a, b = box.edges_unique[0]
+    tip = box.vertices[[a, b]].mean(axis=0) + 1e-7  # 0.17 um off the edge: about 4e-9 m^2
+    vertices = np.vstack([box.vertices, [tip]])
+    path = write_obj(tmp_path / "sliver.obj", vertices, np.vstack([box.faces, [[a, b, len(box.vertices)]]]))
+    mesh = repair_mesh(load_mesh_file(path), name=str(path))
+    assert mesh.is_watertight and len(mesh.faces) == len(box.faces)
+    assert mesh.volume == pytest.approx(0.05**3)
+
+
 def test_bodies_sharing_an_edge_are_split_not_welded(tmp_path):
     """Two closed tetrahedra sharing one edge through the same vertex indices become two bodies."""
     tet = np.array([[0, 2, 1], [0, 1, 3], [1, 2, 3], [0, 3, 2]])

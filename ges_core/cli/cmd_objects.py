@@ -8,7 +8,7 @@ from pathlib import Path
 from ges_core.cli.args import non_negative_int, positive_float, positive_int
 from ges_core.errors import AssetError
 
-SOURCE_CHOICES = ("procedural", "pybullet", "user")
+SOURCE_CHOICES = ("procedural", "pybullet", "real", "user")
 SPLIT_CHOICES = ("train", "unseen_object", "unseen_category")
 
 

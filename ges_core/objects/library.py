@@ -22,7 +22,9 @@ from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.bounds import DEFAULT_MAX_FACES
 from ges_core.objects.decompose import FAST, CoacdSettings
 from ges_core.objects.pointcloud import sample_surface
-from ges_core.objects.processing import ProcessedObject, collision_shapes, min_width, process_entry
+from ges_core.objects.processing import ProcessedObject, collision_shapes, collision_volume, min_width, process_entry
+from ges_core.objects.properties import ObjectProperties, merge_properties
+from ges_core.objects.real import list_real
 from ges_core.objects.sources import SOURCES, ObjectEntry, list_procedural, list_pybullet, list_user
 from ges_core.objects.splits import SPLITS, assign_splits
 
@@ -34,7 +36,9 @@ _ASSET_DEFAULTS = ObjectAsset(object_id="", category="", mesh_path=Path(), colli
 class LibraryConfig(ConfigModel):
     """Which objects the library holds and how it processes them (also a Stage 1 run's ``library`` section)."""
 
-    sources: tuple[str, ...] = Field(("procedural", "pybullet"), description="procedural, pybullet and/or user")
+    sources: tuple[str, ...] = Field(
+        ("procedural", "pybullet"), description="procedural, pybullet, real (the YCB scans, extra [real]) and/or user"
+    )
     seed: int = Field(0, description="seed of the procedural dimensions")
     procedural_count: int = Field(10, ge=0, description="objects per procedural category")
     user_dir: Path | None = Field(
@@ -57,6 +61,10 @@ class LibraryConfig(ConfigModel):
     )
     density: float = Field(_ASSET_DEFAULTS.density, gt=0, description="kg/m^3 of every object")
     friction: float = Field(_ASSET_DEFAULTS.friction, description="friction coefficient of every object")
+    object_properties: dict[str, ObjectProperties] = Field(
+        default_factory=dict,
+        description="per object id: mass (kg) or density (kg/m^3), friction; over the source's and objects.yaml's",
+    )
 
     @field_validator("sources")
     @classmethod
@@ -117,9 +125,15 @@ class ObjectLibrary:
             found += list_procedural(count=cfg.procedural_count, seed=cfg.seed)
         if "pybullet" in cfg.sources:
             found += list_pybullet()
+        if "real" in cfg.sources:
+            found += list_real()
         if "user" in cfg.sources:
             found += list_user(cfg.user_dir, scale=cfg.user_scale)
-        return {e.object_id: e for e in found}
+        entries = {e.object_id: e for e in found}
+        unknown = sorted(set(cfg.object_properties) - set(entries))
+        if unknown:
+            raise ConfigError(f"object_properties: {', '.join(unknown)} not in the library (sources {cfg.sources})")
+        return entries
 
     @cached_property
     def splits(self) -> dict[str, str]:
@@ -170,15 +184,25 @@ class ObjectLibrary:
         obj = self.processed(object_id)
         compute = self.config.decompose if decompose is None else decompose
         cfg = self.config
+        collision = collision_shapes(obj, cfg.coacd, compute=compute)
+        props = self.properties(object_id)
+        if props.mass is not None:  # simulators take density x collision volume: this gives them this mass
+            density, mass = props.mass / collision_volume(collision), props.mass
+        else:
+            density = cfg.density if props.density is None else props.density
+            mass = density * obj.volume
+        friction = cfg.friction if props.friction is None else props.friction
         return ObjectAsset(
-            object_id=object_id,
-            category=obj.entry.category,
-            mesh_path=obj.mesh_path,
-            collision=collision_shapes(obj, cfg.coacd, compute=compute),
-            density=cfg.density,
-            mass=cfg.density * obj.volume,
-            friction=cfg.friction,
-        )
+            object_id=object_id, category=obj.entry.category, mesh_path=obj.mesh_path, collision=collision,
+            density=density, mass=mass, friction=friction,
+        )  # fmt: skip
+
+    def properties(self, object_id: str) -> ObjectProperties:
+        """The mass / density / friction given for ``object_id`` (source, objects.yaml, then
+        ``config.object_properties``); unset fields fall back to ``config.density`` and ``config.friction``."""
+        entry = self.entry(object_id)
+        own = ObjectProperties(mass=entry.mass, density=entry.density, friction=entry.friction)
+        return merge_properties(own, self.config.object_properties.get(object_id))
 
     def point_cloud(
         self, object_id: str, n: int = 2048, *, seed: int = 0, fps: bool = False

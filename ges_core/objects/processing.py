@@ -19,18 +19,35 @@ import trimesh
 from ges_core.errors import AssetError
 from ges_core.objects.asset import ConvexPart, PrimitiveShape
 from ges_core.objects.bounds import DEFAULT_MAX_FACES, bounded_hull, check_extent, limit_faces
-from ges_core.objects.decompose import CoacdSettings, cached_parts, decompose, mesh_to_obj_bytes
+from ges_core.objects.decompose import (
+    CoacdSettings,
+    cached_parts,
+    decompose,
+    hull_depth,
+    hull_tolerance,
+    mesh_to_obj_bytes,
+)
 from ges_core.objects.placement import place_on_table, transform_primitive
 from ges_core.objects.procedural import build_shape, shape_seed
 from ges_core.objects.sources import ObjectEntry
 from ges_core.objects.validate import CONVEX_RATIO, check_finite, load_mesh_file, repair_mesh
 from ges_core.paths import atomic_write_bytes, cache_dir
 
-__all__ = ["CollisionKind", "ProcessedObject", "collision_shapes", "min_width", "process_entry", "solid_volume"]
+__all__ = [
+    "CollisionKind",
+    "ProcessedObject",
+    "collision_shapes",
+    "collision_volume",
+    "min_width",
+    "process_entry",
+    "solid_volume",
+]
 
-CollisionKind = Literal["primitive", "convex", "convex_parts", "concave"]
-"""``primitive``: exact shapes; ``convex``: the mesh's own hull; ``convex_parts``: the mesh is several
-convex bodies (pybullet's random_urdfs, VHACD files), each its own part; ``concave``: needs CoACD."""
+CollisionKind = Literal["primitive", "convex", "near_convex", "convex_parts", "concave"]
+"""``primitive``: exact shapes; ``convex``: the mesh's own hull; ``near_convex``: one body whose surface lies
+within :func:`.decompose.hull_tolerance` of its hull, which it collides as (no CoACD); ``convex_parts``: the
+mesh is several convex bodies (pybullet's random_urdfs, VHACD files), each its own part; ``concave``: needs
+CoACD."""
 
 WIDTH_BLOCK = 4_000_000
 """Most entries of one block of :func:`min_width`'s vertex x face-normal projections (32 MB): a hull of
@@ -56,6 +73,8 @@ class ProcessedObject:
     primitives: tuple[PrimitiveShape, ...] = ()
     volume: float
     """m^3 of the solid (overlapping bodies counted once)."""
+    hull_depth: float = 0.0
+    """m, deepest point of the surface below its convex hull (one-body file meshes; 0 otherwise)."""
 
 
 def process_entry(
@@ -83,19 +102,23 @@ def process_entry(
     if not path.is_file():
         atomic_write_bytes(path, data)
     volume = solid_volume(placed)
+    depth = 0.0
+    if kind is None:  # a file mesh, classified at its final size (the hull test is in metres)
+        kind, depth = _classify(placed)
     return ProcessedObject(
-        entry=entry, mesh=placed, mesh_path=path, mesh_hash=digest, kind=kind, primitives=primitives, volume=volume
-    )
+        entry=entry, mesh=placed, mesh_path=path, mesh_hash=digest, kind=kind, primitives=primitives, volume=volume,
+        hull_depth=depth,
+    )  # fmt: skip
 
 
 def _raw_geometry(
     entry: ObjectEntry, *, max_faces: int, check_size: bool
-) -> tuple[trimesh.Trimesh, CollisionKind, tuple[PrimitiveShape, ...]]:
+) -> tuple[trimesh.Trimesh, CollisionKind | None, tuple[PrimitiveShape, ...]]:
+    """The repaired mesh, its collision kind (None for a file mesh: classified once placed) and primitives."""
     if entry.source == "procedural":
         shape = build_shape(entry.category, shape_seed(entry.seed, entry.category, entry.index))
         return repair_mesh(shape.mesh, name=entry.object_id), shape.kind, shape.primitives
-    mesh = _load_file(entry, max_faces=max_faces, check_size=check_size)
-    return mesh, _classify(mesh), ()
+    return _load_file(entry, max_faces=max_faces, check_size=check_size), None, ()
 
 
 def _load_file(entry: ObjectEntry, *, max_faces: int, check_size: bool) -> trimesh.Trimesh:
@@ -109,12 +132,16 @@ def _load_file(entry: ObjectEntry, *, max_faces: int, check_size: bool) -> trime
     return repair_mesh(mesh, name=name)
 
 
-def _classify(mesh: trimesh.Trimesh) -> CollisionKind:
+def _classify(mesh: trimesh.Trimesh) -> tuple[CollisionKind, float]:
+    """The collision kind of a file mesh, and its depth below its hull (m; one body only, else 0)."""
     bodies = mesh.split(only_watertight=False)
     convex = [b.volume >= CONVEX_RATIO * b.convex_hull.volume for b in bodies]
-    if not all(convex):
-        return "concave"
-    return "convex" if len(bodies) == 1 else "convex_parts"
+    if all(convex):
+        return ("convex" if len(bodies) == 1 else "convex_parts"), 0.0
+    if len(bodies) > 1:
+        return "concave", 0.0
+    depth = hull_depth(mesh)
+    return ("near_convex" if depth <= hull_tolerance(min_width(mesh)) else "concave"), depth
 
 
 def _scale_primitive(prim: PrimitiveShape, factor: float) -> PrimitiveShape:
@@ -182,7 +209,7 @@ def collision_shapes(
     ``compute``, else an AssetError saying how to prepare them)."""
     if obj.kind == "primitive":
         return obj.primitives
-    if obj.kind == "convex":
+    if obj.kind in ("convex", "near_convex"):
         return (ConvexPart(path=_write_hull(obj.mesh)),)
     if obj.kind == "convex_parts":
         return tuple(ConvexPart(path=_write_hull(b)) for b in obj.mesh.split(only_watertight=False))
@@ -196,6 +223,24 @@ def collision_shapes(
     if parts is None:
         parts = decompose(obj.mesh, obj.mesh_hash, settings, name=obj.entry.object_id)
     return tuple(ConvexPart(path=p) for p in parts)
+
+
+def collision_volume(shapes: tuple[PrimitiveShape | ConvexPart, ...]) -> float:
+    """m^3: the sum of the shapes' volumes (overlaps counted twice, as SAPIEN and PyBullet count mass)."""
+    return float(sum(_shape_volume(s) for s in shapes))
+
+
+def _shape_volume(shape: PrimitiveShape | ConvexPart) -> float:
+    if isinstance(shape, ConvexPart):
+        return float(trimesh.load(shape.path, force="mesh", process=False).convex_hull.volume)
+    size = shape.size
+    if shape.kind == "box":
+        return 8.0 * size[0] * size[1] * size[2]
+    ball = 4.0 / 3.0 * np.pi * size[0] ** 3
+    if shape.kind == "sphere":
+        return ball
+    tube = np.pi * size[0] ** 2 * 2.0 * size[1]
+    return tube + ball if shape.kind == "capsule" else tube
 
 
 def _write_hull(mesh: trimesh.Trimesh) -> Path:

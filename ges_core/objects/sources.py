@@ -1,4 +1,5 @@
-"""Where objects come from: procedural categories, pybullet_data meshes and a user folder.
+"""Where objects come from: procedural categories, pybullet_data meshes, the real set (:mod:`.real`) and a user
+folder.
 
 Listing reads no mesh: an :class:`ObjectEntry` says how to build or load one object, and the
 library turns it into a mesh on demand.
@@ -14,6 +15,7 @@ from typing import Literal
 
 from ges_core.errors import AssetError, ConfigError
 from ges_core.objects.procedural import CATEGORIES
+from ges_core.objects.properties import ObjectProperties, read_objects_file
 from ges_core.objects.validate import MESH_SUFFIXES
 
 __all__ = [
@@ -27,8 +29,8 @@ __all__ = [
     "urdf_mesh",
 ]
 
-Source = Literal["procedural", "pybullet", "user"]
-SOURCES: tuple[Source, ...] = ("procedural", "pybullet", "user")
+Source = Literal["procedural", "pybullet", "real", "user"]
+SOURCES: tuple[Source, ...] = ("procedural", "pybullet", "real", "user")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -36,7 +38,8 @@ class ObjectEntry:
     """How to obtain one object; no geometry yet."""
 
     object_id: str
-    """Stable id: ``procedural/mug/003``, ``pybullet/random_urdfs/042``, ``user/<category>/<instance>``."""
+    """Stable id: ``procedural/mug/003``, ``pybullet/random_urdfs/042``, ``real/can/tomato_soup_can``,
+    ``user/<category>/<instance>``."""
     category: str
     source: Source
     path: Path | None = None
@@ -47,6 +50,12 @@ class ObjectEntry:
     """Instance number within the category (procedural)."""
     seed: int = 0
     """Library seed (procedural)."""
+    mass: float | None = None
+    """kg, the object's own mass (real set, a user's ``objects.yaml``); None: the library's density decides."""
+    density: float | None = None
+    """kg/m^3 of this object (a user's ``objects.yaml``); None: the library's."""
+    friction: float | None = None
+    """Friction coefficient of this object (a user's ``objects.yaml``); None: the library's."""
     problem: str | None = None
     """Why this object cannot be used, found while listing (two files give its id); processing it raises an
     AssetError with this reason. Listed rather than dropped, so that the rest of its folder stays usable and
@@ -139,6 +148,7 @@ def list_user(folder: str | Path, *, scale: float = 1.0) -> list[ObjectEntry]:
     """Meshes laid out ``folder/<category>/<instance>.{obj,stl,ply,glb}``, ids ``user/<category>/<instance>``.
 
     scale: factor taking the files' units to metres (e.g. 0.001 for millimetre STL files).
+    An ``objects.yaml`` in ``folder`` gives masses, densities and frictions (:mod:`.properties`).
     Two files giving one id (``mug.obj`` and ``mug.stl``) make that one entry unusable (its ``problem``
     names both files); the rest of the folder is listed as usual.
     """
@@ -148,15 +158,18 @@ def list_user(folder: str | Path, *, scale: float = 1.0) -> list[ObjectEntry]:
     by_id: dict[str, list[Path]] = {}
     for path in sorted(p for p in folder.glob("*/*") if p.suffix.lower() in MESH_SUFFIXES and p.is_file()):
         by_id.setdefault(f"user/{path.parent.name}/{path.stem}", []).append(path)
-    return [_user_entry(oid, paths, scale) for oid, paths in by_id.items()]
+    props = read_objects_file(folder, by_id)
+    return [_user_entry(oid, paths, scale, props.get(oid)) for oid, paths in by_id.items()]
 
 
-def _user_entry(object_id: str, paths: list[Path], scale: float) -> ObjectEntry:
+def _user_entry(object_id: str, paths: list[Path], scale: float, props: ObjectProperties | None) -> ObjectEntry:
     problem = None
     if len(paths) > 1:
         names = " and ".join(p.name for p in paths)
         problem = f"{names} in {paths[0].parent} both give this object id; rename or remove all but one of them"
     category = paths[0].parent.name
+    props = props or ObjectProperties()
     return ObjectEntry(
-        object_id=object_id, category=category, source="user", path=paths[0], scale=(scale,) * 3, problem=problem
-    )
+        object_id=object_id, category=category, source="user", path=paths[0], scale=(scale,) * 3, problem=problem,
+        mass=props.mass, density=props.density, friction=props.friction,
+    )  # fmt: skip

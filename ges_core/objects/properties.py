@@ -1,0 +1,104 @@
+"""Per-object physical properties: mass or density, and friction.
+
+Three places give them, the later winning: the source (the real set's published masses), an
+``objects.yaml`` beside a user's meshes, and ``LibraryConfig.object_properties`` (what ``--mass``,
+``--density`` and ``--friction`` on the command line fill). What none of them gives comes from the
+library's ``density`` and ``friction``. A given mass sets the density to mass / collision volume, so
+that every simulator (which computes mass from density and collision shapes) gets that mass.
+
+``objects.yaml``::
+
+    defaults:                 # every object of the folder (optional)
+      friction: 0.8
+    objects:                  # keyed <category>/<instance> (or the full id user/<category>/<instance>)
+      mug/blue:   {mass: 0.35}          # kg
+      fruit/pear: {density: 900, friction: 0.5}
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from pathlib import Path
+
+from pydantic import Field, model_validator
+
+from ges_core.config import ConfigModel, parse_model, read_yaml
+from ges_core.errors import ConfigError
+
+__all__ = [
+    "OBJECTS_FILE",
+    "ObjectProperties",
+    "ObjectsFile",
+    "merge_properties",
+    "parse_assignments",
+    "read_objects_file",
+]
+
+OBJECTS_FILE = "objects.yaml"
+
+
+class ObjectProperties(ConfigModel):
+    """Physical properties of one object; each one unset (None) falls back to the next source."""
+
+    mass: float | None = Field(None, gt=0, description="kg; the density becomes mass / collision volume")
+    density: float | None = Field(None, gt=0, description="kg/m^3")
+    friction: float | None = Field(None, ge=0, description="Coulomb friction coefficient of the object's surface")
+
+    @model_validator(mode="after")
+    def _mass_or_density(self) -> ObjectProperties:
+        if self.mass is not None and self.density is not None:
+            raise ValueError("give mass or density, not both (a mass sets the density)")
+        return self
+
+
+class ObjectsFile(ConfigModel):
+    """The contents of a user folder's ``objects.yaml``."""
+
+    defaults: ObjectProperties = Field(default_factory=ObjectProperties, description="for every object of the folder")
+    objects: dict[str, ObjectProperties] = Field(
+        default_factory=dict, description="per object, keyed <category>/<instance> (or user/<category>/<instance>)"
+    )
+
+
+def merge_properties(base: ObjectProperties | None, top: ObjectProperties | None) -> ObjectProperties | None:
+    """``top`` over ``base``: a mass or density in ``top`` replaces both of ``base``'s; friction field by field."""
+    if base is None or top is None:
+        return top if base is None else base
+    weight = top if (top.mass is not None or top.density is not None) else base
+    friction = top.friction if top.friction is not None else base.friction
+    return ObjectProperties(mass=weight.mass, density=weight.density, friction=friction)
+
+
+def read_objects_file(folder: Path, object_ids: Iterable[str]) -> dict[str, ObjectProperties]:
+    """Properties per object id from ``folder/objects.yaml`` (empty when there is none).
+
+    object_ids: the folder's ids (``user/<category>/<instance>``). ConfigError for unknown keys, bad values
+    or a key naming no mesh of the folder (with the known names)."""
+    path = folder / OBJECTS_FILE
+    if not path.is_file():
+        return {}
+    parsed = parse_model(ObjectsFile, read_yaml(path), where=str(path))
+    known = list(object_ids)
+    found: dict[str, ObjectProperties] = {}
+    for key, props in parsed.objects.items():
+        oid = key if key.startswith("user/") else f"user/{key}"
+        if oid not in known:
+            names = ", ".join(k.removeprefix("user/") for k in known) or "none"
+            raise ConfigError(f"{path}: objects.{key} names no mesh of {folder} (its objects: {names})")
+        found[oid] = props
+    return {oid: merge_properties(parsed.defaults, found.get(oid)) for oid in known}
+
+
+def parse_assignments(items: Iterable[str], field: str, *, option: str) -> dict[str, dict[str, float]]:
+    """``["ID=VALUE", ...]`` (command line) -> ``{ID: {field: VALUE}}``; ConfigError naming ``option``."""
+    out: dict[str, dict[str, float]] = {}
+    for item in items:
+        oid, sep, raw = item.partition("=")
+        try:
+            value = float(raw)
+        except ValueError:
+            value = None
+        if not sep or not oid.strip() or value is None:
+            raise ConfigError(f"{option} '{item}': write OBJECT_ID=NUMBER, e.g. {option} user/mug/blue=0.35")
+        out.setdefault(oid.strip(), {})[field] = value
+    return out
