@@ -27,6 +27,7 @@ from ges_core.dataset import (
     RefinementInfo,
     SimVerdict,
     StepOutcome,
+    TrialVerdict,
     open_dataset,
     record_relpath,
     software_versions,
@@ -74,7 +75,8 @@ def make_record(object_id: str, hand: str = "shadow", *, fail_at: str | None = N
         if failed:
             steps[name] = StepOutcome.skipped()
         elif name == fail_at:
-            steps[name], failed = StepOutcome.failed(f"{name}_failed", 0.01), True
+            reason = "mass_x2" if name == "robust" else f"{name}_failed"
+            steps[name], failed = StepOutcome.failed(reason, 0.01), True
         else:
             steps[name] = StepOutcome(ok=True, seconds=float(rng.uniform(0.01, 0.5)))
     has_contacts, has_grasp = fail_at != "contacts", fail_at not in ("contacts", "retargeting")
@@ -107,14 +109,25 @@ def _notes(hand: str, fail_at: str | None) -> dict:
     """The typed Stage 1 notes of a record failing at ``fail_at`` (None: passing)."""
     refined = fail_at not in ("contacts", "retargeting")
     validated = refined and fail_at != "refinement"
-    verdict = SimVerdict(success=fail_at is None, reason="success" if fail_at is None else "dropped",
-                         flags={"lifted": True, "held": fail_at is None}, seconds=0.2)  # fmt: skip
+    held = fail_at in (None, "robust")  # the nominal trial
+    trials = (
+        TrialVerdict(name="limits", success=True, reason="success"),
+        TrialVerdict(name="mass_x2", success=fail_at is None, reason="success" if fail_at is None else "dropped"),
+    )
+    verdict = SimVerdict(success=held, reason="success" if held else "dropped",
+                         flags={"lifted": True, "held": held}, seconds=0.2,
+                         trials=trials if held else (), robustness=(1.0 if fail_at is None else 0.5) if held else None,
+                         robust_seconds=0.4 if held else 0.0)  # fmt: skip
+    attempt = AttemptVerdict(
+        refinement="ok",
+        validation="ok" if held else "dropped",
+        robust="ok" if fail_at is None else ("mass_x2" if held else "skipped"),
+        robustness=verdict.robustness,
+    )
     return {
         "symmetric": None if fail_at == "contacts" else False,
-        "attempt": 0 if fail_at is None else None,
-        "attempts": (AttemptVerdict(refinement="ok", validation="ok" if fail_at is None else "dropped"),)
-        if refined
-        else (),
+        "attempt": 0 if held else None,
+        "attempts": (attempt,) if refined else (),
         "refinement": RefinementInfo(
             frozen=["thumb", "index"],
             touching_fingers=["thumb", "index", "middle"],
@@ -614,6 +627,22 @@ CORRUPTIONS = {
         lambda m, a: _drop(a, "pregrasp_wrist_pose", "pregrasp_q"),
         "steps.validation: attempted but the grasp or the pre-grasp is missing",
     ),
+    "trials": (
+        lambda m, a: m["validations"]["sapien"].update(trials=[{"name": "limits"}]),
+        "validations.sapien.trials: must be a list of {name, reason, success}",
+    ),
+    "robustness": (
+        lambda m, a: m["validations"]["sapien"].update(robustness=0.2),
+        "validations.sapien.robustness: must be the share of trials held (1), got 0.2",
+    ),
+    "robustness_without_trials": (
+        lambda m, a: m["validations"]["sapien"].update(trials=[], robustness=1.0),
+        "validations.sapien.robustness: 1.0 but no trial is stored (null)",
+    ),
+    "attempt_robustness": (
+        lambda m, a: m["attempts"][0].update(robustness=2),
+        "attempts: must be a list of {refinement, robust, robustness, validation} verdicts",
+    ),
     "format": (
         lambda m, a: m.update(version=4),
         "not a grasp record: format 'ges.grasp_record' version 4, expected 'ges.grasp_record' version 1 or 2 or 3",
@@ -807,3 +836,72 @@ def test_version_1_dataset_resumed_by_the_writer_becomes_version_2(tmp_path, rec
         writer.add(records[0])
     assert json.loads((root / "manifest.json").read_text())["version"] == DATASET_VERSION == 2
     assert validate_dataset(root) == [] and len(open_dataset(root)) == 5
+
+
+DATASET_V2 = Path(__file__).parent / "data" / "dataset_v2"
+"""Four records written by the version-2 code (``ges synth``, Allegro and Shadow, SAPIEN and PyBullet verdicts)."""
+
+
+def test_version_2_dataset_opens_validates_and_reads_as_not_robust_checked():
+    assert json.loads((DATASET_V2 / "manifest.json").read_text())["version"] == 2
+    assert validate_dataset(DATASET_V2) == []
+    records = list(open_dataset(DATASET_V2))
+    assert len(records) == 4 and {r.hand for r in records} == {"allegro", "shadow"}
+    for record in records:
+        meta, _ = read_raw((DATASET_V2 / record_relpath(record.object_id, record.hand)).read_bytes())
+        assert meta["version"] == 2 and "robust" not in meta["steps"]
+        assert record.steps["robust"] == StepOutcome(ok=False, reason=NOT_RUN, seconds=None)
+        assert record.success == all(record.steps[s].ok for s in TOTAL_STEPS) and not record.robust
+        assert record.total_seconds > 0  # the timing file of version 2 still gives the times
+        assert all(
+            v.trials == () and v.robustness is None and v.robust_seconds == 0.0 for v in record.validations.values()
+        )
+        assert all(a.robust == NOT_RUN for a in record.attempts)
+        again = record_from_bytes(record_to_bytes(record))  # written again: version 3, reads the same
+        assert record_to_raw(record)[0]["version"] == 3 and record_problems(*record_to_raw(record)) == []
+        assert_same(again, record, times=False)
+    assert (
+        "robust" in summarize(open_dataset(DATASET_V2)).format()
+        and "not run" in summarize(open_dataset(DATASET_V2)).format()
+    )
+
+
+def test_robust_verdicts_round_trip_with_their_times(tmp_path):
+    record = make_record("procedural/box/000", "allegro", fail_at="robust")
+    assert record.steps["validation"].ok and not record.robust and record.robustness == 0.5
+    with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
+        writer.add(record)
+    back = open_dataset(tmp_path / "ds").get("procedural/box/000", "allegro")
+    assert_same(back, record)
+    verdict = back.validations["sapien"]
+    assert [(t.name, t.success) for t in verdict.trials] == [("limits", True), ("mass_x2", False)]
+    assert verdict.robust_seconds == 0.4 and back.steps["robust"].reason == "mass_x2"
+    assert back.attempts[0].robust == "mass_x2" and back.attempts[0].robustness == 0.5
+    assert back.total_seconds == pytest.approx(sum(back.steps[s].seconds for s in TOTAL_STEPS))
+
+
+def test_info_counts_single_trial_and_robust_per_simulator(tmp_path, capsys):
+    made = [
+        make_record("procedural/box/000", "allegro"),
+        make_record("procedural/box/001", "allegro", fail_at="robust"),
+        make_record("procedural/box/002", "allegro", fail_at="validation"),
+    ]
+    with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
+        for record in made:
+            writer.add(record)
+    summary = summarize(open_dataset(tmp_path / "ds"))
+    stats = {s.simulator: s for s in summary.sims}
+    assert set(stats) == {"sapien", "pybullet"}
+    for s in stats.values():  # counted from the records, one by one
+        assert (s.records, s.validated, s.robust, s.tried) == (3, 2, 1, 2)
+        assert s.mean_robustness == pytest.approx(0.75) and s.trial_failures == {"mass_x2": 1}
+    assert summary.agreement["allegro"] == {"grasps": 3, "single": 3, "robust_grasps": 3, "robust": 3,
+                                            "sims": ["pybullet", "sapien"]}  # fmt: skip
+    (group,) = summary.groups
+    assert group.failures == {"validation": {"validation_failed": 1}, "robust": {"mass_x2": 1}}
+    assert cli.main(["dataset", "info", str(tmp_path / "ds")]) == 0
+    out = capsys.readouterr().out
+    assert "validation: validation_failed x1; robust: mass_x2 x1" in out
+    (row,) = [line.split() for line in out.splitlines() if line.split()[:2] == ["allegro", "sapien"]]
+    assert row[2:7] == ["2/3", "(66.7%)", "1/3", "(33.3%)", "0.750"] and row[-2:] == ["mass_x2", "x1"]
+    assert "total time = contacts + retargeting + refinement + validation" in out

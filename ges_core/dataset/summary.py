@@ -1,20 +1,39 @@
-"""``ges dataset info``: counts, per-step success rates and timing medians, from the index rebuilt from the records.
+"""``ges dataset info``: counts, per-step success rates, failure reasons and timing medians, from the index rebuilt
+from the records, then the validation per simulator (the paper's single trial and robust validation) from the records.
 
 Times come from the records' timing files; a record whose times are unknown counts for the rates, not the times.
+"Total time" is the sum of :data:`~ges_core.dataset.record.TOTAL_STEPS` (contacts + retargeting + refinement +
+validation's nominal trial); the robust trials are counted apart.
 """
 
 from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
-from ges_core.dataset.record import STEPS, TOTAL_STEPS, StepOutcome
+from ges_core.dataset.record import NOT_RUN, STEPS, TOTAL_STEPS, GraspRecord, StepOutcome
 from ges_core.dataset.store import Dataset
 
-__all__ = ["DatasetSummary", "GroupStats", "StepStats", "step_stats", "summarize"]
+__all__ = [
+    "TOTAL_TIME",
+    "DatasetSummary",
+    "GroupStats",
+    "SimStats",
+    "StepStats",
+    "agreement",
+    "failure_reasons",
+    "format_failures",
+    "format_sim_stats",
+    "sim_stats",
+    "step_stats",
+    "summarize",
+]
+
+TOTAL_TIME = "total time = " + " + ".join(TOTAL_STEPS) + " (the nominal trial), median per record; robust trials apart"
+"""What "total time" means wherever it is printed (one meaning everywhere)."""
 
 COUNT_FIELDS = ("hand", "simulator", "split", "category")
 
@@ -57,7 +76,9 @@ class GroupStats:
     """Records whose every step succeeded."""
     steps: dict[str, StepStats]
     median_total_seconds: float | None
-    """Median over records whose times are known of the summed step times, seconds."""
+    """Median over records whose times are known of the summed :data:`TOTAL_STEPS` times, seconds."""
+    failures: dict[str, dict[str, int]] = field(default_factory=dict)
+    """Step -> failure reason -> records whose first failed step it is (:func:`failure_reasons`)."""
 
 
 @dataclass(frozen=True)
@@ -72,18 +93,26 @@ class DatasetSummary:
     """One per (hand, simulator), then one over all records."""
     notes: tuple[str, ...]
     """Where the folder differs from its manifest (:attr:`Dataset.notes`)."""
+    sims: tuple[SimStats, ...] = ()
+    """Per hand and validating simulator: single-trial and robust counts (:func:`sim_stats`)."""
+    agreement: dict[str, dict] = field(default_factory=dict)
+    """Per hand, cross-engine agreement (:func:`agreement`)."""
 
     def format(self) -> str:
         """Human-readable text, one table row per group."""
         lines = [f"dataset {self.root}: {self.records} records"]
-        for field in COUNT_FIELDS:
-            counts = ", ".join(f"{k} {n}" for k, n in sorted(self.counts[field].items()))
-            lines.append(f"  by {field + ':':<10} {counts or '-'}")
+        for name in COUNT_FIELDS:
+            counts = ", ".join(f"{k} {n}" for k, n in sorted(self.counts[name].items()))
+            lines.append(f"  by {name + ':':<10} {counts or '-'}")
         lines += [f"  note: {n}" for n in self.notes]
-        lines.append("success per step (succeeded/attempted, rate, median time):")
+        lines.append(f"success per step (succeeded/attempted, rate, median time); {TOTAL_TIME}:")
         header = f"  {'group':<20}" + "".join(f"{s:>26}" for s in STEPS) + f"{'all steps':>16}{'total time':>12}"
         lines.append(header)
         lines += [_row(g) for g in self.groups]
+        lines.append("failure reasons per step (each record counted at its first failed step):")
+        lines += [f"  {g.label:<20}{format_failures(g.failures)}" for g in self.groups]
+        if self.sims:
+            lines += ["", format_sim_stats(self.sims, self.agreement)]
         return "\n".join(lines)
 
 
@@ -102,22 +131,155 @@ def _step_cell(stats: StepStats) -> str:
 
 
 def summarize(dataset: Dataset) -> DatasetSummary:
-    """Summary of ``dataset`` from its index (rebuilt from the records when it was opened)."""
+    """Summary of ``dataset``: steps from its index (rebuilt from the records when it was opened), validation per
+    simulator from the records themselves."""
     entries = dataset.entries
     counts = {f: dict(Counter(str(e.get(f)) for e in entries)) for f in COUNT_FIELDS}
     pairs = sorted({(e["hand"], e["simulator"]) for e in entries})
     groups = [_group(f"{h} / {s}", [e for e in entries if (e["hand"], e["simulator"]) == (h, s)]) for h, s in pairs]
     if len(pairs) != 1:
         groups.append(_group("all", list(entries)))
-    return DatasetSummary(str(dataset.root), len(entries), counts, tuple(groups), dataset.notes)
+    records = list(dataset)
+    return DatasetSummary(
+        str(dataset.root), len(entries), counts, tuple(groups), dataset.notes, sim_stats(records), agreement(records)
+    )
 
 
 def _group(label: str, entries: list[dict]) -> GroupStats:
-    steps = {name: _step_stats([e["steps"][name] for e in entries]) for name in STEPS}
+    steps = {name: _step_stats([e["steps"][name] for e in entries if name in e["steps"]]) for name in STEPS}
     times = ([e["steps"][s][2] for s in TOTAL_STEPS] for e in entries)
     totals = [sum(t) for t in times if None not in t]
     median = float(np.median(totals)) if totals else None
-    return GroupStats(label, len(entries), sum(bool(e["success"]) for e in entries), steps, median)
+    failed = [(e["failed_step"], e["steps"][e["failed_step"]][1]) for e in entries if e.get("failed_step")]
+    return GroupStats(
+        label, len(entries), sum(bool(e["success"]) for e in entries), steps, median, failure_reasons(failed)
+    )
+
+
+def failure_reasons(failed: Iterable[tuple[str, str]]) -> dict[str, dict[str, int]]:
+    """Step -> reason -> count, steps in pipeline order, reasons by count (then name); ``failed``: one
+    (first failed step, its reason) pair per failed record."""
+    counts = Counter(failed)
+    out: dict[str, dict[str, int]] = {}
+    for step in STEPS:
+        reasons = sorted(((r, n) for (s, r), n in counts.items() if s == step), key=lambda rn: (-rn[1], rn[0]))
+        if reasons:
+            out[step] = dict(reasons)
+    return out
+
+
+def format_failures(failures: dict[str, dict[str, int]]) -> str:
+    """``contacts: no_graspable_width x2; robust: mass_x2 x3, pose_1 x1`` (or ``none``)."""
+    parts = [f"{step}: " + ", ".join(f"{r} x{n}" for r, n in reasons.items()) for step, reasons in failures.items()]
+    return "; ".join(parts) or "none"
+
+
+@dataclass(frozen=True)
+class SimStats:
+    """The validation of one hand's records in one validating simulator."""
+
+    hand: str
+    simulator: str
+    records: int
+    """Records of this hand (every one counts: a grasp that never reached validation was not validated)."""
+    validated: int
+    """The paper's single nominal trial held in this simulator."""
+    robust: int | None
+    """The nominal trial and every perturbation trial held in this simulator; None when robust validation did not
+    run for any of these records (switched off, or records older than it)."""
+    tried: int
+    """Records whose perturbation trials ran in this simulator (their nominal trial held)."""
+    mean_robustness: float | None
+    """Mean robustness score (fraction of trials held) over the ``tried`` records; None if none."""
+    robust_median: float | None
+    """Median seconds of a record's perturbation trials (over ``tried`` records with known times)."""
+    trial_failures: dict[str, int]
+    """Perturbation -> records where it failed (every failed trial, not only the first)."""
+
+
+def sim_stats(records: Iterable[GraspRecord]) -> tuple[SimStats, ...]:
+    """One :class:`SimStats` per (hand, validating simulator) found in the records' ``validations``, sorted."""
+    by_hand: dict[str, list[GraspRecord]] = {}
+    for record in records:
+        by_hand.setdefault(record.hand, []).append(record)
+    out = []
+    for hand, group in sorted(by_hand.items()):
+        for sim in sorted({s for r in group for s in r.validations}):
+            out.append(_sim_stats(hand, sim, group))
+    return tuple(out)
+
+
+def _sim_stats(hand: str, sim: str, records: list[GraspRecord]) -> SimStats:
+    verdicts = [r.validations[sim] for r in records if sim in r.validations]
+    tried = [v for v in verdicts if v.robustness is not None]
+    times = [v.robust_seconds for v in tried if v.robust_seconds is not None]
+    failures = Counter(t.name for v in tried for t in v.trials if not t.success)
+    return SimStats(
+        hand=hand,
+        simulator=sim,
+        records=len(records),
+        validated=sum(v.success for v in verdicts),
+        robust=sum(v.robust for v in verdicts) if any(_robust_ran(r) for r in records) else None,
+        tried=len(tried),
+        mean_robustness=float(np.mean([v.robustness for v in tried])) if tried else None,
+        robust_median=float(np.median(times)) if times else None,
+        trial_failures=dict(sorted(failures.items(), key=lambda kv: (-kv[1], kv[0]))),
+    )
+
+
+def _robust_ran(record: GraspRecord) -> bool:
+    """Robust validation was on for this record (its step is not ``not_run``)."""
+    step = record.steps.get("robust")
+    return step is not None and (step.ok or step.reason != NOT_RUN)
+
+
+def agreement(records: Iterable[GraspRecord]) -> dict[str, dict]:
+    """Per hand, over records validated in 2+ simulators: how many got the same single-trial verdict in all
+    (``single``) and, over those where robust validation ran, the same robust verdict (``robust`` of
+    ``robust_grasps``); ``{"grasps", "single", "robust_grasps", "robust", "sims"}``."""
+    out: dict[str, dict] = {}
+    for record in records:
+        verdicts = record.validations
+        if len(verdicts) < 2:
+            continue
+        keys = {"grasps": 0, "single": 0, "robust_grasps": 0, "robust": 0, "sims": sorted(verdicts)}
+        row = out.setdefault(record.hand, keys)
+        row["grasps"] += 1
+        row["single"] += len({v.success for v in verdicts.values()}) == 1
+        if _robust_ran(record):
+            row["robust_grasps"] += 1
+            row["robust"] += len({v.robust for v in verdicts.values()}) == 1
+    return out
+
+
+def format_sim_stats(stats: Iterable[SimStats], agreements: dict[str, dict]) -> str:
+    """The validation per simulator as text: single trial, robust, mean robustness, trial time, failed trials."""
+    lines = [
+        "validation per simulator (validated = the paper's single nominal trial; robust = it and every perturbation "
+        "trial held):",
+        f"  {'hand':<10}{'simulator':<11}{'validated':>16}{'robust':>16}{'robustness':>12}{'trials (median)':>17}"
+        "  failed trials",
+    ]
+    for s in stats:
+        score = "-" if s.mean_robustness is None else f"{s.mean_robustness:.3f}"
+        time = "-" if s.robust_median is None else f"{s.robust_median:.2f} s"
+        failed = ", ".join(f"{k} x{n}" for k, n in s.trial_failures.items()) or "-"
+        lines.append(
+            f"  {s.hand:<10}{s.simulator:<11}{_share(s.validated, s.records):>16}{_share(s.robust, s.records):>16}"
+            f"{score:>12}{time:>17}  {failed}"
+        )
+    for hand, row in sorted(agreements.items()):
+        lines.append(
+            f"  cross-engine agreement, {hand} ({' vs '.join(row['sims'])}): single trial "
+            f"{_share(row['single'], row['grasps'])}, robust {_share(row['robust'], row['robust_grasps'])}"
+        )
+    return "\n".join(lines)
+
+
+def _share(count: int | None, total: int) -> str:
+    if count is None:
+        return "not run"
+    return f"{count}/{total} ({100 * count / total:.1f}%)" if total else "-"
 
 
 def _step_stats(outcomes: list[list]) -> StepStats:

@@ -122,11 +122,12 @@ def test_table_1_and_info_take_the_times_from_the_timing_files(tmp_path, capsys)
     root = tmp_path / "ds"
     with DatasetWriter(root, CONFIG) as writer:
         record = make_record("procedural/box/000", hand="allegro")
-        times = (0.25, 0.5, 1.5, 2.0)
+        times = (0.25, 0.5, 1.5, 2.0, 4.0)  # the last: the robust trials, counted apart from the total
         steps = {name: StepOutcome(ok=True, seconds=t) for name, t in zip(record.steps, times, strict=True)}
         writer.add(replace(record, steps=steps))
     assert json.loads(timing_file(root, "procedural/box/000", "allegro").read_text())["steps"]["refinement"] == 1.5
     (row,) = table_rows(open_dataset(root))
-    assert row.steps["refinement"].median == 1.5 and row.total_median == 2.25 and row.validation_median == 2.0
+    assert row.steps["refinement"].median == 1.5 and row.total_median == 4.25 and row.validation_median == 2.0
+    assert row.robust_median == 4.0
     assert cli.main(["dataset", "info", str(root)]) == 0
     assert "1/1 100.0% 1.500 s" in capsys.readouterr().out

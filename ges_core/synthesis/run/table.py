@@ -1,10 +1,13 @@
 """A table like the paper's Table 1 from dataset records: per hand and simulator, per step success and time.
 
 Success rates count attempted steps only (a step skipped after an earlier failure does not count), as
-the paper's per-step rates do; ``validated`` is the share of *all* objects whose grasp passed the
-physics lift-and-hold test. ``total`` is contacts + retargeting + refinement time per object. Times come
-from the records' timing files (:mod:`ges_core.dataset.timing`); records whose times are unknown count for the
-rates only.
+the paper's per-step rates do; ``validated`` is the share of *all* objects whose grasp passed the paper's
+single physics lift-and-hold trial, ``robust`` the share that also held every perturbation trial
+(:mod:`ges_core.synthesis.physics.robust`). ``total`` is :data:`ges_core.dataset.TOTAL_STEPS` (contacts +
+retargeting + refinement + the nominal validation) per object, the same meaning as ``ges dataset info``'s; the
+robust trials have their own column. Below the table: the validation per simulator (single trial, robust,
+cross-engine agreement) and the failure reasons per step. Times come from the records' timing files
+(:mod:`ges_core.dataset.timing`); records whose times are unknown count for the rates only.
 """
 
 from __future__ import annotations
@@ -14,12 +17,22 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from ges_core.dataset import GraspRecord
-from ges_core.dataset.summary import StepStats, step_stats
+from ges_core.dataset import TOTAL_STEPS, GraspRecord
+from ges_core.dataset.summary import (
+    TOTAL_TIME,
+    StepStats,
+    agreement,
+    failure_reasons,
+    format_failures,
+    format_sim_stats,
+    sim_stats,
+    step_stats,
+)
 
 __all__ = ["TableRow", "agreement_rates", "format_table", "table_rows"]
 
 TIMED_STEPS = ("contacts", "retargeting", "refinement")
+"""The steps with a success-rate-and-time column of their own (validation and robust have theirs)."""
 
 
 @dataclass(frozen=True)
@@ -31,15 +44,23 @@ class TableRow:
     objects: int
     steps: dict[str, StepStats]
     validated: int
-    """Records whose grasp passed physics validation."""
+    """Records whose grasp passed the paper's single physics validation trial."""
     validation_median: float | None
     total_median: float | None
-    """Median over objects whose times are known of contacts + retargeting + refinement seconds."""
+    """Median over objects whose times are known of the :data:`TOTAL_STEPS` seconds."""
     failures: dict[str, int]
-    """'step:reason' -> count."""
+    """'step:reason' -> count (each record at its first failed step)."""
+    robust: int | None = None
+    """Records whose grasp also held every perturbation trial; None when robust validation did not run."""
+    robust_median: float | None = None
+    """Median seconds per object of the perturbation trials, every attempt's summed (objects whose trials ran)."""
+    records: tuple[GraspRecord, ...] = ()
+    """The row's records (for the per-simulator section; not in :meth:`to_dict`)."""
 
     def to_dict(self) -> dict:
-        return asdict(self) | {"validated_rate": self.validated / self.objects if self.objects else None}
+        data = {k: v for k, v in asdict(self).items() if k != "records"}
+        rate = lambda n: n / self.objects if self.objects and n is not None else None  # noqa: E731
+        return data | {"validated_rate": rate(self.validated), "robust_rate": rate(self.robust)}
 
 
 def table_rows(records: Iterable[GraspRecord]) -> list[TableRow]:
@@ -54,7 +75,10 @@ def _row(hand: str, sim: str, records: list[GraspRecord]) -> TableRow:
     steps = {name: step_stats(r.steps[name] for r in records) for name in TIMED_STEPS}
     validation = [r.steps["validation"].seconds for r in records if r.steps["validation"].attempted]
     validation = [s for s in validation if s is not None]
-    times = ([r.steps[s].seconds for s in TIMED_STEPS] for r in records)
+    robust = [r.steps["robust"].seconds for r in records if r.steps["robust"].attempted]
+    robust = [s for s in robust if s is not None]
+    ran = any(r.steps["robust"].attempted for r in records)
+    times = ([r.steps[s].seconds for s in TOTAL_STEPS] for r in records)
     totals = [sum(t) for t in times if None not in t]
     failures: dict[str, int] = {}
     for r in records:
@@ -70,6 +94,9 @@ def _row(hand: str, sim: str, records: list[GraspRecord]) -> TableRow:
         validation_median=float(np.median(validation)) if validation else None,
         total_median=float(np.median(totals)) if totals else None,
         failures=dict(sorted(failures.items())),
+        robust=sum(r.robust for r in records) if ran else None,
+        robust_median=float(np.median(robust)) if robust else None,
+        records=tuple(records),
     )
 
 
@@ -90,15 +117,38 @@ def agreement_rates(records: Iterable[GraspRecord]) -> dict[str, dict]:
 
 
 def format_table(rows: list[TableRow]) -> str:
-    """Markdown: per step success rate and median time per object, validated success, median total time."""
-    head = "| hand | sim | objects | contacts | retargeting | refinement | validated | total (median) |"
-    lines = [head, "|---|---|---|---|---|---|---|---|"]
+    """Markdown: per step success rate and median time per object, validated (single trial) and robust shares,
+    median total time and robust-trial time; then the validation per simulator and the failure reasons per step."""
+    head = (
+        "| hand | sim | objects | contacts | retargeting | refinement | validated (single trial) | robust "
+        "(all perturbations) | total (median) | robust trials (median, all attempts) |"
+    )
+    lines = [head, "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cells = [_fmt_cell(r.steps[s]) for s in TIMED_STEPS]
-        valid = f"{r.validated}/{r.objects} ({_pct(r.validated / r.objects if r.objects else None)})"
+        valid, robust = _share(r.validated, r.objects), _share(r.robust, r.objects)
         total = "-" if r.total_median is None else f"{r.total_median:.2f} s"
-        lines.append(f"| {r.hand} | {r.simulator} | {r.objects} | " + " | ".join(cells) + f" | {valid} | {total} |")
+        trials = "-" if r.robust_median is None else f"{r.robust_median:.2f} s"
+        lines.append(
+            f"| {r.hand} | {r.simulator} | {r.objects} | "
+            + " | ".join(cells)
+            + f" | {valid} | {robust} | {total} | {trials} |"
+        )
+    lines.append(f"\n{TOTAL_TIME}.")
+    records = [rec for r in rows for rec in r.records]
+    if any(rec.validations for rec in records):
+        lines += ["", format_sim_stats(sim_stats(records), agreement(records))]
+    lines.append("\nfailure reasons per step (each object counted at its first failed step):")
+    for r in rows:
+        failed = [(rec.failed_step, rec.steps[rec.failed_step].reason) for rec in r.records if rec.failed_step]
+        lines.append(f"  {r.hand} / {r.simulator}: {format_failures(failure_reasons(failed))}")
     return "\n".join(lines)
+
+
+def _share(count: int | None, total: int) -> str:
+    if count is None:
+        return "not run"
+    return f"{count}/{total} ({_pct(count / total if total else None)})"
 
 
 def _fmt_cell(cell: StepStats) -> str:
