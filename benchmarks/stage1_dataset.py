@@ -1,0 +1,133 @@
+"""Stage 1 over the whole built-in library: a ContactGrasp-scale dataset, counted per split and per category.
+
+Every object of the library (every procedural category at its configured count, pybullet_data's objects,
+the ``real`` YCB set), both hands, ``--workers`` processes (default 2, one torch thread each), robust
+validation on (the default). The dataset folder is resumable: run the same command again after a kill and
+it goes on where it stopped (stored (object, hand) pairs are skipped); ``--fresh`` starts over. Concave
+meshes are decomposed on the fly (CoACD, cached by mesh hash; near-convex scans use their hull).
+
+    python benchmarks/stage1_dataset.py [--out runs/stage1_dataset] [--workers 2] [--limit N] [--fresh]
+    python benchmarks/stage1_dataset.py --summary-only          # count what is stored, run nothing
+
+Per split and per category (and per hand): records, validated (the paper's single trial), robust (every
+perturbation trial held), median seconds per object (contacts + retargeting + refinement + validation, the
+nominal trial; robust trials apart). Prints markdown and writes ``benchmarks/results/stage1_dataset.json``
+(also after ``--summary-only``, marked incomplete while pairs are missing).
+
+Paper: 773 objects in 82 categories (563 train, 132 unseen-object, 78 unseen-category).
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import shutil
+import time
+from collections import defaultdict
+from pathlib import Path
+from statistics import median
+
+from ges_core.dataset import open_dataset, software_versions
+from ges_core.objects.library import LibraryConfig
+from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.threads import set_torch_threads
+
+from _results import code_state, write_results
+
+RESULTS = Path(__file__).parent / "results" / "stage1_dataset.json"
+HANDS = ("allegro", "shadow")
+PAPER = {"objects": 773, "categories": 82, "train": 563, "unseen_object": 132, "unseen_category": 78}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--out", type=Path, default=Path("runs/stage1_dataset"), help="dataset folder (resumed)")
+    parser.add_argument("--workers", type=int, default=2, help="worker processes")
+    parser.add_argument("--limit", type=int, default=None, help="only the first N objects (a smoke run)")
+    parser.add_argument("--fresh", action="store_true", help="delete --out first")
+    parser.add_argument("--summary-only", action="store_true", help="count the stored records, run nothing")
+    args = parser.parse_args()
+    set_torch_threads(1)
+    config = SynthesisConfig(library=LibraryConfig(sources=("procedural", "pybullet", "real"), decompose=True))
+    objects = config.library.build().list()
+    objects = objects if args.limit is None else objects[: args.limit]
+    if args.fresh and args.out.exists():
+        shutil.rmtree(args.out)
+    wall = None
+    if not args.summary_only:
+        start = time.perf_counter()
+        run_synthesis([o.object_id for o in objects], HANDS, config, args.out, workers=args.workers, progress=True)
+        wall = time.perf_counter() - start
+    wanted = {(o.object_id, h) for o in objects for h in HANDS}
+    records = [r for r in open_dataset(args.out) if r.key in wanted]
+    tables = {by: count(records, by) for by in ("split", "category")}
+    for by, rows in tables.items():
+        print(f"\n### per {by}\n" + format_rows(by, rows))
+    done = len(records) == len(wanted)
+    print(f"\n{len(records)} of {len(wanted)} (object, hand) records stored{'' if done else ' (incomplete)'}")
+    if wall is not None:
+        print(f"wall time of this run: {wall / 60:.1f} min with {args.workers} workers")
+    write_results(RESULTS, _data(objects, records, wanted, tables, wall, args))
+
+
+def count(records: list, by: str) -> dict[str, dict[str, dict]]:
+    """{group: {hand: {records, validated, robust, median_seconds}}} with ``by`` = split or category."""
+    groups: dict[str, dict[str, list]] = defaultdict(lambda: defaultdict(list))
+    for r in records:
+        groups[getattr(r, by)][r.hand].append(r)
+        groups["all"][r.hand].append(r)
+    return {g: {h: _cell(rs) for h, rs in sorted(per_hand.items())} for g, per_hand in sorted(groups.items())}
+
+
+def _cell(records: list) -> dict:
+    seconds = [r.total_seconds for r in records if r.total_seconds is not None]
+    return {
+        "records": len(records),
+        "validated": sum(r.success for r in records),
+        "robust": sum(r.robust for r in records),
+        "median_seconds": median(seconds) if seconds else None,
+    }
+
+
+def format_rows(by: str, rows: dict[str, dict[str, dict]]) -> str:
+    """A markdown table: one line per group and hand."""
+    lines = [f"| {by} | hand | records | validated | robust | median s/object |", "|---|---|---|---|---|---|"]
+    for group, per_hand in rows.items():
+        for hand, c in per_hand.items():
+            sec = "-" if c["median_seconds"] is None else f"{c['median_seconds']:.2f}"
+            n = c["records"]
+            lines.append(
+                f"| {group} | {hand} | {n} | {c['validated']} ({100 * c['validated'] / n:.0f} %) "
+                f"| {c['robust']} ({100 * c['robust'] / n:.0f} %) | {sec} |"
+            )
+    return "\n".join(lines)
+
+
+def _data(objects, records, wanted, tables, wall, args) -> dict:
+    categories = sorted({o.category for o in objects})
+    splits = defaultdict(int)
+    for o in objects:
+        splits[o.split] += 1
+    return {
+        "objects": len(objects),
+        "categories": len(categories),
+        "category_names": categories,
+        "objects_per_split": dict(splits),
+        "hands": list(HANDS),
+        "records_stored": len(records),
+        "records_wanted": len(wanted),
+        "complete": len(records) == len(wanted),
+        "per_split": tables["split"],
+        "per_category": tables["category"],
+        "wall_seconds_this_run": wall,
+        "workers": args.workers,
+        "seconds_meaning": "median over records of contacts + retargeting + refinement + validation (nominal trial)",
+        "paper": PAPER,
+        "machine": {"platform": platform.platform()},
+        "versions": software_versions("sapien"),
+        "code": code_state(),
+    }
+
+
+if __name__ == "__main__":
+    main()
