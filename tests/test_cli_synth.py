@@ -26,7 +26,7 @@ def _demo(out, capsys) -> str:
 @pytest.mark.sim
 def test_demo_runs_end_to_end_then_resumes(demo_dir, capsys):
     text = _demo(demo_dir, capsys)
-    assert "| hand | sim | objects | contacts | retargeting | refinement | validated |" in text
+    assert "| hand | sim | objects | contacts | retargeting | refinement | validated (single trial) | robust" in text
     assert "| allegro | sapien | 2 |" in text
     assert "2 grasps synthesized, 0 already in" in text
     assert validate_dataset(demo_dir / "dataset") == []

@@ -13,7 +13,7 @@ cross-engine agreement) and the failure reasons per step. Times come from the re
 from __future__ import annotations
 
 from collections.abc import Iterable
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -58,7 +58,8 @@ class TableRow:
     """The row's records (for the per-simulator section; not in :meth:`to_dict`)."""
 
     def to_dict(self) -> dict:
-        data = {k: v for k, v in asdict(self).items() if k != "records"}
+        data = asdict(replace(self, records=()))
+        data.pop("records")
         rate = lambda n: n / self.objects if self.objects and n is not None else None  # noqa: E731
         return data | {"validated_rate": rate(self.validated), "robust_rate": rate(self.robust)}
 
