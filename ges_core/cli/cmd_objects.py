@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ges_core.cli.args import non_negative_int, positive_float, positive_int
-from ges_core.errors import AssetError
+from ges_core.errors import AssetError, ConfigError
 
 SOURCE_CHOICES = ("procedural", "pybullet", "real", "user")
 SPLIT_CHOICES = ("train", "unseen_object", "unseen_category")
@@ -31,10 +31,52 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     pp.set_defaults(func=run_prepare)
 
 
+def add_user_options(p: argparse.ArgumentParser) -> None:
+    """``--user-dir`` and the per-object property options (``ges objects``, ``ges synth``, ``ges demo``)."""
+    p.add_argument(
+        "--user-dir", type=Path, metavar="DIR", help="your objects, laid out DIR/<category>/<instance>.obj: "
+        "then only they are used (ids user/<category>/<instance>) unless --with-library",
+    )  # fmt: skip
+    p.add_argument("--user-scale", type=positive_float, default=1.0, help="user files' unit in metres (0.001 for mm)")
+    p.add_argument("--with-library", action="store_true", help="with --user-dir: also the built-in objects")
+    for option, unit in (("mass", "kg"), ("density", "kg/m^3"), ("friction", "coefficient")):
+        p.add_argument(
+            f"--{option}", action="append", default=[], metavar="ID=VALUE",
+            help=f"{option} ({unit}) of one object, over objects.yaml (repeatable)",
+        )  # fmt: skip
+
+
+def user_sources(args: argparse.Namespace, default: tuple[str, ...]) -> tuple[str, ...]:
+    """The sources a command uses: ``user`` alone with ``--user-dir`` (plus ``default`` with ``--with-library``)."""
+    if getattr(args, "with_library", False) and not args.user_dir:
+        raise ConfigError("--with-library adds the built-in objects to a user folder: give the folder with --user-dir")
+    if not args.user_dir:
+        return default
+    return ("user",) + (tuple(s for s in default if s != "user") if args.with_library else ())
+
+
+def property_overrides(args: argparse.Namespace) -> dict[str, dict[str, float]]:
+    """``{object id: {mass|density|friction: value}}`` from ``--mass``, ``--density`` and ``--friction``."""
+    from ges_core.objects.properties import parse_assignments
+
+    merged: dict[str, dict[str, float]] = {}
+    for field in ("mass", "density", "friction"):
+        for oid, values in parse_assignments(getattr(args, field), field, option=f"--{field}").items():
+            merged.setdefault(user_id(oid, args), {}).update(values)
+    return merged
+
+
+KNOWN_PREFIXES = ("procedural/", "pybullet/", "real/", "user/")
+
+
+def user_id(oid: str, args: argparse.Namespace) -> str:
+    """``oid``, with ``user/`` put in front when ``--user-dir`` is given and it names no source (``mug/blue``)."""
+    return f"user/{oid}" if args.user_dir and not oid.startswith(KNOWN_PREFIXES) else oid
+
+
 def _library_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--source", choices=SOURCE_CHOICES, action="append", help="only this source (repeatable)")
-    p.add_argument("--user-dir", type=Path, metavar="PATH", help="user objects laid out <category>/<instance>.obj")
-    p.add_argument("--user-scale", type=positive_float, default=1.0, help="user files' unit in metres (0.001 for mm)")
+    add_user_options(p)
     p.add_argument("--count", type=non_negative_int, default=10, metavar="N", help="procedural objects per category")
     p.add_argument("--seed", type=non_negative_int, default=0, help="procedural seed")
     p.add_argument("--split-seed", type=non_negative_int, default=0, help="seed of the splits")
@@ -51,8 +93,9 @@ def library_from_args(args: argparse.Namespace, **extra):
     from ges_core.config import parse_model
     from ges_core.objects.library import LibraryConfig, ObjectLibrary
 
-    sources = tuple(args.source) if args.source else ("procedural", "pybullet") + (("user",) if args.user_dir else ())
+    sources = tuple(args.source) if args.source else user_sources(args, ("procedural", "pybullet"))
     settings = {
+        "object_properties": property_overrides(args),
         "sources": sources,
         "seed": args.seed,
         "procedural_count": args.count,
@@ -96,7 +139,7 @@ def run_prepare(args: argparse.Namespace) -> int:
 
     settings = FAST if args.coacd == "fast" else DEFAULT
     library = library_from_args(args, coacd=settings)
-    entries = [library.entry(i) for i in args.ids] if args.ids else library.entries()
+    entries = [library.entry(user_id(i, args)) for i in args.ids] if args.ids else library.entries()
     entries = entries[: args.limit] if args.limit is not None else entries
     results = prepare(
         entries,

@@ -6,6 +6,8 @@ import argparse
 from pathlib import Path
 
 from ges_core.cli.args import positive_int
+from ges_core.cli.cmd_objects import SOURCE_CHOICES, add_user_options, property_overrides, user_id, user_sources
+from ges_core.config import parse_model
 from ges_core.errors import ConfigError
 
 
@@ -14,6 +16,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     dp = sub.add_parser("demo", help="synthesize and validate grasps of ~20 built-in objects with both hands")
     dp.add_argument("--config", type=Path, metavar="PATH", help="demo config (default configs/demo.yaml)")
     _common(dp)
+    add_user_options(dp)
+    dp.add_argument(
+        "--objects", nargs="+", metavar="ID", help="object ids (default: the demo set, or all of --user-dir)"
+    )
     dp.add_argument("--out", metavar="DIR", help="output folder (default runs/demo)")
     dp.add_argument(
         "--fresh", action="store_true", help="start over: move an existing output folder aside to DIR.old-N first"
@@ -24,10 +30,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     sp.add_argument("--config", type=Path, metavar="PATH", help="synthesis config YAML (SynthesisConfig)")
     _common(sp)
     sp.add_argument("--hands", nargs="+", default=["shadow", "allegro"], metavar="HAND", help="hands (default both)")
+    add_user_options(sp)
     sp.add_argument("--objects", nargs="+", metavar="ID", help="object ids (default: the whole library)")
     sp.add_argument("--limit", type=positive_int, metavar="N", help="only the first N objects (N >= 1)")
     sp.add_argument("--sim", metavar="NAME", help="simulator of refinement and validation (sets both)")
-    sp.add_argument("--pictures", type=Path, metavar="DIR", help="also draw a PNG per grasp into DIR")
+    sp.add_argument("--pictures", type=Path, metavar="DIR", help="also draw a PNG per grasp and DIR/contact_sheet.png")
     sp.add_argument("--out", type=Path, required=True, metavar="DIR", help="dataset folder (created or resumed)")
     sp.set_defaults(func=run_synth_cmd)
 
@@ -72,9 +79,14 @@ def run_demo_cmd(args: argparse.Namespace) -> int:
     overrides += [f"out={args.out}"] if args.out else []
     overrides += [f"workers={args.workers}"] if args.workers is not None else []
     config = default_demo_config(args.config, tuple(overrides))
+    config = config.model_copy(update={"synthesis": with_user_library(config.synthesis, args)})
+    if args.objects or args.user_dir:
+        ids = [user_id(i, args) for i in args.objects] if args.objects else _all_ids(config.synthesis)
+        config = config.model_copy(update={"objects": ids})
     _check_objects(config.synthesis, config.object_ids())
     if args.fresh:
         _move_aside(Path(config.out))
+    _prepare(config.synthesis, config.object_ids(), config.workers, args)
     print(run_demo(config, registry=_registry(args), progress=not args.no_progress))
     return 0
 
@@ -86,16 +98,58 @@ def run_synth_cmd(args: argparse.Namespace) -> int:
 
     overrides = list(args.overrides)
     overrides += [f"refine_sim={args.sim}", f"validate_sims=[{args.sim}]"] if args.sim else []
-    config = load_config(SynthesisConfig, args.config, overrides)
-    ids = args.objects or [o.object_id for o in config.library.build().list()]
+    config = with_user_library(load_config(SynthesisConfig, args.config, overrides), args)
+    ids = [user_id(i, args) for i in args.objects] if args.objects else _all_ids(config)
     ids = ids if args.limit is None else ids[: args.limit]
     _check_objects(config, ids)
+    _prepare(config, ids, args.workers or 1, args)
     run_synthesis(
         ids, args.hands, config, args.out, workers=args.workers or 1, progress=not args.no_progress,
         registry=_registry(args), pictures=args.pictures,
     )  # fmt: skip
-    _print_table(args.out, {(o, h) for o in ids for h in args.hands})
+    records = _print_table(args.out, {(o, h) for o in ids for h in args.hands})
+    if args.pictures is not None:
+        from ges_core.synthesis.run.demo import draw_contact_sheet
+
+        print(f"contact sheet: {draw_contact_sheet(records, args.pictures / 'contact_sheet.png')}")
     return 0
+
+
+def with_user_library(config, args: argparse.Namespace):
+    """``config`` (a SynthesisConfig) with ``--user-dir``, ``--with-library`` and the per-object options applied
+    to its ``library`` section (that section is stored in the dataset, so Stage 2 rebuilds the same library)."""
+    from ges_core.objects.library import LibraryConfig
+
+    lib = config.library
+    update: dict = {}
+    if args.user_dir or args.with_library:
+        update = {"user_dir": args.user_dir, "user_scale": args.user_scale, "sources": user_sources(args, lib.sources)}
+    props = property_overrides(args)
+    if props:
+        merged = {oid: p.model_dump(exclude_none=True) for oid, p in lib.object_properties.items()}
+        for oid, values in props.items():
+            merged[oid] = {**merged.get(oid, {}), **values}
+        update["object_properties"] = merged
+    if not update:
+        return config
+    settings = {name: getattr(lib, name) for name in LibraryConfig.model_fields}
+    library = parse_model(LibraryConfig, {**settings, **update}, where="object library options")
+    return config.model_copy(update={"library": library})
+
+
+def _all_ids(config) -> list[str]:
+    return [o.object_id for o in config.library.build().list()]
+
+
+def _prepare(config, ids: list[str], workers: int, args: argparse.Namespace) -> None:
+    """Process the run's file meshes and decompose the concave ones missing a decomposition, with a bar."""
+    from ges_core.objects.prepare import prepare_before_run
+
+    results = prepare_before_run(config.library.build(), ids, workers=workers, progress=not args.no_progress)
+    done = [r for r in results if r.status == "decomposed"]
+    if done:
+        seconds = sum(r.seconds for r in done)
+        print(f"decomposed {len(done)} concave objects with CoACD ({seconds:.0f} s; cached for later runs)")
 
 
 def run_retarget_cmd(args: argparse.Namespace) -> int:
@@ -126,7 +180,23 @@ def run_retarget_cmd(args: argparse.Namespace) -> int:
 
 
 def _check_objects(config, ids: list[str]) -> None:
-    """UnknownObjectError (with close matches) for an id the configured library does not hold."""
+    """UnknownObjectError (with close matches) for an id the configured library does not hold; a ConfigError
+    naming the missing option for an id of a source the run does not use (``user/...`` without ``--user-dir``)."""
+    sources = config.library.sources
+    for oid in ids:
+        source = oid.split("/", 1)[0]
+        if source == "user" and "user" not in sources:
+            raise ConfigError(
+                f"object '{oid}' is a user object but no user folder is given: add --user-dir DIR "
+                "(the folder holding <category>/<instance>.obj), or set library.user_dir in the config"
+            )
+        if source in SOURCE_CHOICES and source not in sources:
+            raise ConfigError(
+                f"object '{oid}' is of the '{source}' source, which this run's library does not use "
+                f"(library.sources: {', '.join(sources)}); add it, e.g. "
+                f"-o 'library.sources=[{', '.join(sources)}, {source}]'"
+                + (" (or --with-library beside --user-dir)" if "user" in sources else "")
+            )
     library = config.library.build()
     for oid in ids:
         library.entry(oid)
@@ -134,7 +204,7 @@ def _check_objects(config, ids: list[str]) -> None:
 
 def _print_table(
     root: Path, wanted: set[tuple[str, str]], extra: tuple[Path, set[tuple[str, str]]] | None = None
-) -> None:
+) -> list:
     """The Table 1 summary of ``root``'s records in ``wanted`` (and of ``extra``: another folder and its keys)."""
     from ges_core.dataset import open_dataset
     from ges_core.synthesis.run.table import format_table, table_rows
@@ -143,3 +213,4 @@ def _print_table(
     if extra is not None:
         records += [r for r in open_dataset(extra[0]) if r.key in extra[1]]
     print(format_table(table_rows(records)))
+    return records

@@ -98,10 +98,10 @@ class ObjectInfo:
 class UnknownObjectError(UnknownNameError):
     """An object id that the library does not hold (short message: the libraries are large)."""
 
-    def __init__(self, name: str, known: list[str]) -> None:
+    def __init__(self, name: str, known: list[str], *, list_command: str = "ges objects list") -> None:
         close = difflib.get_close_matches(name, known, n=3)
         hint = f" Did you mean {', '.join(close)}?" if close else ""
-        msg = f"unknown object '{name}'.{hint} `ges objects list` shows the {len(known)} known ids."
+        msg = f"unknown object '{name}'.{hint} `{list_command}` shows the {len(known)} known ids."
         KeyError.__init__(self, msg)
         self.kind, self.name, self.known = "object", name, known
 
@@ -162,7 +162,8 @@ class ObjectLibrary:
         try:
             return self._entries[object_id]
         except KeyError:
-            raise UnknownObjectError(object_id, list(self._entries)) from None
+            command = "ges objects list" + (f" --user-dir {self.config.user_dir}" if self.config.user_dir else "")
+            raise UnknownObjectError(object_id, list(self._entries), list_command=command) from None
 
     def processed(self, object_id: str) -> ProcessedObject:
         """Repaired, placed geometry of ``object_id`` (memoized per library)."""
@@ -216,4 +217,5 @@ class ObjectLibrary:
 
     def min_width(self, object_id: str) -> float:
         """Narrowest width (m) across the object (convex hull); compare with a hand's span."""
-        return min_width(self.processed(object_id).mesh)
+        obj = self.processed(object_id)
+        return obj.min_width if obj.min_width is not None else min_width(obj.mesh)

@@ -10,8 +10,11 @@ from __future__ import annotations
 import time
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
+from functools import cache
 from multiprocessing import get_context
 from typing import Literal
+
+import numpy as np
 
 from ges_core.errors import GesError
 from ges_core.objects.bounds import DEFAULT_MAX_FACES
@@ -19,7 +22,7 @@ from ges_core.objects.decompose import CoacdSettings, cached_parts
 from ges_core.objects.processing import collision_shapes, process_entry
 from ges_core.objects.sources import ObjectEntry
 
-__all__ = ["PrepareResult", "prepare", "prepare_one"]
+__all__ = ["PrepareResult", "prepare", "prepare_before_run", "prepare_one"]
 
 Status = Literal["decomposed", "cached", "not_needed", "failed"]
 
@@ -62,6 +65,7 @@ def prepare(
     normalize_size: float | None = None,
     max_faces: int = DEFAULT_MAX_FACES,
     progress: bool = True,
+    desc: str = "prepare",
 ) -> list[PrepareResult]:
     """:func:`prepare_one` for every entry, ``workers`` at a time; results in the entries' order.
 
@@ -69,7 +73,7 @@ def prepare(
     object (rerunning finds them cached)."""
     from tqdm import tqdm
 
-    bar = tqdm(total=len(entries), desc="prepare", unit="obj", disable=not progress)
+    bar = tqdm(total=len(entries), desc=desc, unit="obj", disable=not progress)
     results: dict[str, PrepareResult] = {}
     try:
         for result in _run(entries, settings, workers, (normalize_size, max_faces)):
@@ -80,6 +84,32 @@ def prepare(
     finally:
         bar.close()
     return [results[e.object_id] for e in entries]
+
+
+def prepare_before_run(library, object_ids, *, workers: int = 1, progress: bool = True) -> list[PrepareResult]:
+    """Before a Stage 1 run: process every file mesh of ``object_ids`` and decompose each concave one that has
+    no cached decomposition yet, ``workers`` at a time with a progress bar (``prepare objects``), so that the
+    run never stalls or fails on a missing decomposition. Procedural shapes other than the concave categories
+    need nothing and are skipped. Processing is cached on disk (:mod:`.processed_cache`): the run reuses it,
+    and a second run finds everything ready at once. Failures are reported by the bar and returned; the run
+    records them as failed objects."""
+    entries = [library.entry(oid) for oid in object_ids]
+    todo = [e for e in entries if e.source != "procedural" or _concave_category(e.category)]
+    if not todo:
+        return []
+    cfg = library.config
+    return prepare(
+        todo, cfg.coacd, workers=workers, normalize_size=cfg.normalize_size, max_faces=cfg.max_faces,
+        progress=progress, desc="prepare objects",
+    )  # fmt: skip
+
+
+@cache
+def _concave_category(category: str) -> bool:
+    """Whether a procedural category's shapes need CoACD (the kind is the category's, whatever the seed)."""
+    from ges_core.objects.procedural import build_shape
+
+    return build_shape(category, np.random.default_rng(0)).kind == "concave"
 
 
 def _run(entries, settings, workers, processing):

@@ -29,6 +29,7 @@ from ges_core.objects.decompose import (
 )
 from ges_core.objects.placement import place_on_table, transform_primitive
 from ges_core.objects.procedural import build_shape, shape_seed
+from ges_core.objects.processed_cache import cache_key, load_processed, store_processed
 from ges_core.objects.sources import ObjectEntry
 from ges_core.objects.validate import CONVEX_RATIO, check_finite, load_mesh_file, repair_mesh
 from ges_core.paths import atomic_write_bytes, cache_dir
@@ -75,6 +76,8 @@ class ProcessedObject:
     """m^3 of the solid (overlapping bodies counted once)."""
     hull_depth: float = 0.0
     """m, deepest point of the surface below its convex hull (one-body file meshes; 0 otherwise)."""
+    min_width: float | None = None
+    """m, :func:`min_width` of the mesh, kept for file meshes (their processing is cached on disk)."""
 
 
 def process_entry(
@@ -89,6 +92,17 @@ def process_entry(
     """
     if entry.problem is not None:
         raise AssetError(f"{entry.object_id}: {entry.problem}")
+    key = cache_key(entry, normalize_size=normalize_size, max_faces=max_faces)
+    cached = load_processed(key, entry) if key is not None else None
+    if cached is not None:
+        return cached
+    obj = _process(entry, normalize_size=normalize_size, max_faces=max_faces)
+    if key is not None:
+        store_processed(key, obj)
+    return obj
+
+
+def _process(entry: ObjectEntry, *, normalize_size: float | None, max_faces: int) -> ProcessedObject:
     mesh, kind, primitives = _raw_geometry(entry, max_faces=max_faces, check_size=normalize_size is None)
     placed, transform = place_on_table(mesh, rotate=entry.source != "procedural")
     primitives = tuple(transform_primitive(p, transform) for p in primitives)
@@ -102,12 +116,13 @@ def process_entry(
     if not path.is_file():
         atomic_write_bytes(path, data)
     volume = solid_volume(placed)
-    depth = 0.0
+    depth, width = 0.0, None
     if kind is None:  # a file mesh, classified at its final size (the hull test is in metres)
-        kind, depth = _classify(placed)
+        width = min_width(placed)
+        kind, depth = _classify(placed, width)
     return ProcessedObject(
         entry=entry, mesh=placed, mesh_path=path, mesh_hash=digest, kind=kind, primitives=primitives, volume=volume,
-        hull_depth=depth,
+        hull_depth=depth, min_width=width,
     )  # fmt: skip
 
 
@@ -132,8 +147,9 @@ def _load_file(entry: ObjectEntry, *, max_faces: int, check_size: bool) -> trime
     return repair_mesh(mesh, name=name)
 
 
-def _classify(mesh: trimesh.Trimesh) -> tuple[CollisionKind, float]:
-    """The collision kind of a file mesh, and its depth below its hull (m; one body only, else 0)."""
+def _classify(mesh: trimesh.Trimesh, width: float) -> tuple[CollisionKind, float]:
+    """The collision kind of a file mesh of narrowest width ``width`` (m), and its depth below its hull (m;
+    one body only, else 0)."""
     bodies = mesh.split(only_watertight=False)
     convex = [b.volume >= CONVEX_RATIO * b.convex_hull.volume for b in bodies]
     if all(convex):
@@ -141,7 +157,7 @@ def _classify(mesh: trimesh.Trimesh) -> tuple[CollisionKind, float]:
     if len(bodies) > 1:
         return "concave", 0.0
     depth = hull_depth(mesh)
-    return ("near_convex" if depth <= hull_tolerance(min_width(mesh)) else "concave"), depth
+    return ("near_convex" if depth <= hull_tolerance(width) else "concave"), depth
 
 
 def _scale_primitive(prim: PrimitiveShape, factor: float) -> PrimitiveShape:

@@ -23,7 +23,7 @@ from ges_core.synthesis.run.pipeline import run_synthesis
 from ges_core.synthesis.run.table import format_table, table_rows
 from ges_core.synthesis.run.tasks import RegistrySpec
 
-__all__ = ["DEMO_OBJECTS", "DemoConfig", "default_demo_config", "run_demo"]
+__all__ = ["DEMO_OBJECTS", "DemoConfig", "default_demo_config", "draw_contact_sheet", "run_demo"]
 
 DEMO_OBJECTS: tuple[str, ...] = (
     "procedural/can/000",
@@ -107,7 +107,7 @@ def run_demo(config: DemoConfig, *, registry: RegistrySpec | None = None, progre
     atomic_write_text(out / "table.md", table + "\n")
     lines = [table, "", _failures(records)]
     if pictures is not None:
-        lines.append(f"contact sheet: {_sheet(records, out / 'contact_sheet.png')}")
+        lines.append(f"contact sheet: {draw_contact_sheet(records, out / 'contact_sheet.png')}")
     lines.append(
         f"{len(report.written)} grasps synthesized, {len(report.skipped)} already in {out / 'dataset'} (resumed); "
         f"wall time {time.perf_counter() - start:.1f} s"
@@ -124,7 +124,9 @@ def _failures(records) -> str:
     return "failures: " + (", ".join(f"{k} x{n}" for k, n in sorted(counts.items())) or "none")
 
 
-def _sheet(records, path: Path) -> Path | str:
+def draw_contact_sheet(records, path: Path) -> Path | str:
+    """Every record's picture in one PNG at ``path`` (green frame: validated, red: failed); the path, or
+    ``"no pictures"`` when no record has one (also used by ``ges synth --pictures``)."""
     from ges_core.render import contact_sheet
 
     shown = [r for r in records if r.picture is not None and Path(r.picture).is_file()]
