@@ -81,6 +81,36 @@ def test_description_expands_every_per_joint_table():
     assert d.pd_damping == (0.1,) * 4
 
 
+def test_effort_limits_are_optional_and_expanded_per_joint():
+    d = describe()
+    assert d.effort_limits == () and d.effort_limits_array is None  # the file gives none
+    d = describe(effort_limit={"ff_.*": 0.5, "th_j2": 20.0, "default": 1.5})  # N·m; N for the prismatic joint
+    assert d.effort_limits == (0.5, 0.5, 1.5, 20.0)
+    np.testing.assert_array_equal(d.effort_limits_array, [0.5, 0.5, 1.5, 20.0])
+
+
+@pytest.mark.parametrize("bad", [0.0, -1.0])
+def test_an_effort_limit_must_be_a_finite_torque(bad):
+    with pytest.raises(AssetError, match=rf"hand 'mini': effort_limit must be a finite torque > 0 N·m per joint, "
+                       rf"got th_j1={bad}; give the actuator's data-sheet value"):  # fmt: skip
+        describe(effort_limit={"th_j1": bad, "default": 1.0})
+    with pytest.raises(AssetError, match=r"effort_limit.dict\[str,float\].th_j1: Input should be a finite number"):
+        describe(effort_limit={"th_j1": float("inf"), "default": 1.0})
+
+
+def test_the_built_in_hands_declare_their_actuators():
+    """Allegro: Isaac Lab's 0.5 N·m everywhere; Shadow: the MJCF actuators' forcerange, J0 as its leader J1."""
+    from ges_core.registry import load_registry
+
+    registry = load_registry()
+    allegro = registry.build_hand("allegro").description
+    assert allegro.effort_limits == (0.5,) * 16
+    shadow = registry.build_hand("shadow").description
+    limits = dict(zip(shadow.joint_names, shadow.effort_limits, strict=True))
+    assert (limits["WRJ1"], limits["THJ4"], limits["THJ0"], limits["FFJ3"]) == (4.785, 2.3722, 0.81, 0.9)
+    assert all(limits[f"{f}J0"] == limits[f"{f}J1"] == 0.7245 for f in ("FF", "MF", "RF", "LF"))
+
+
 def test_pattern_matching_nothing_names_the_table():
     with pytest.raises(AssetError, match=r"mini.pd_damping: pattern 'lf_.\*' matches no joint"):
         describe(pd_damping={"lf_.*": 1.0, "default": 0.1})

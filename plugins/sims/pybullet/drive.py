@@ -55,6 +55,10 @@ with at most ``force``, where ``v*`` is the joint velocity after gravity and app
   with the fingers settled at the pre-grasp first (20 reach steps), and in Stage 1 validation, the box
   stays (tests on both engines).
 
+**Actuator caps** (``SimBackend.set_drive_limits``): the backend clips this per-step ``force`` of each hand
+joint at the actuator's torque, ``min(|Kp (q* - q)|, cap)``, so a blocked finger pushes with at most the cap,
+as SAPIEN's drive ``force_limit`` does (``tests/test_sim_contract.py``: within 10 % of cap / lever in both).
+
 Static loads: a contact (a constraint) meets exactly the spring force. Gravity on the hand (off by
 default) is exact for the floating wrist (the whole hand falls with ``g``: sag ``m g / Kp``), but a
 finger loaded through its children settles at ``I_j (M^-1 tau)_j / Kp`` instead of ``tau_j / Kp``
