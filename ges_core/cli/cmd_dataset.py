@@ -10,7 +10,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ges dataset {info,validate}``."""
     p = sub.add_parser("dataset", help="summarize or validate a grasp dataset folder")
     dsub = p.add_subparsers(dest="dataset_command", metavar="ACTION", required=True)
-    ip = dsub.add_parser("info", help="counts, success rate per step and timing medians")
+    ip = dsub.add_parser(
+        "info",
+        help="counts, success rate, failure reasons and timing medians per step; per hand and validating "
+        "simulator: validated (single trial), robust (all perturbations held), cross-engine agreement",
+    )
     ip.add_argument("path", type=Path, metavar="PATH", help="dataset folder (holds manifest.json)")
     ip.set_defaults(func=run_info)
     vp = dsub.add_parser("validate", help="check every record; one line per problem, exit 1 on problems")
