@@ -9,7 +9,7 @@ fingertip point (``tip_link`` + ``tip_offset``) of the physical finger serving t
 serving two slots (Allegro's ring serves ring and little) gets both terms, which is the same as
 aiming it at the mean of the two targets with weight 2.
 
-Method: projected Levenberg-Marquardt with an active set, one independent problem per finger.
+Method: projected Levenberg-Marquardt with an active set of joints, one independent problem per finger.
 With the wrist held fixed every fingertip depends only on its own finger's joints, so the problem
 separates into F small ones (4-5 unknowns each) solved side by side: each finger of each grasp has
 its own damping, accepts or rejects its own steps and stops improving on its own. Coupled joints
@@ -24,7 +24,7 @@ is built once per retargeter. ``seeds=0`` starts from ``q_init`` only.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 
 import numpy as np
 import torch
@@ -117,6 +117,35 @@ class _Problem:
     """(F, P) weight of each aimed point (fingertip 1)."""
     offsets: torch.Tensor
     """(F, P, 3) each aimed point in its finger's tip-link frame."""
+
+
+@dataclass
+class _LmState:
+    """The Levenberg-Marquardt iterate of a batch (or of some of its rows)."""
+
+    q: torch.Tensor
+    """(B, K) joints."""
+    live: torch.Tensor
+    """(B, C) True where a coupled follower is not clipped."""
+    points: torch.Tensor
+    """(B, F, P, 3) aimed points at ``q``."""
+    jac: torch.Tensor
+    """(B, F, P, 3, K) their Jacobians."""
+    cost: torch.Tensor
+    """(B, F) each finger's share of the objective."""
+    lam: torch.Tensor
+    """(B, F) damping."""
+    done: torch.Tensor
+    """(B, F) settled fingers."""
+
+    def take(self, rows: torch.Tensor) -> _LmState:
+        """The state of ``rows`` only (copies)."""
+        return _LmState(*(getattr(self, f.name)[rows] for f in fields(self)))
+
+    def put(self, rows: torch.Tensor, part: _LmState) -> None:
+        """Write ``part`` (the state of ``rows``) back."""
+        for f in fields(self):
+            getattr(self, f.name)[rows] = getattr(part, f.name)
 
 
 class VectorRetargeter:
@@ -306,42 +335,52 @@ class VectorRetargeter:
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """(B, K) joints after ``config.iterations`` steps from ``q``, and their (B, F, P, 3) aimed points.
 
-        Every finger keeps its best iterate; a finger within ``config.tolerance`` of a tip-only target
-        stops moving (with the pad term there is no exact solution to stop at).
+        Every finger keeps its best iterate; a finger within ``config.tolerance`` of a tips-only target stops
+        moving. Only the rows (grasps) with a finger still moving are iterated: a settled row costs no more
+        kinematics, and the result is the same as iterating every row (its fingers are frozen either way).
         """
-        cfg, lay = self.config, self.layout
+        cfg = self.config
         q, live = self._couple(q)
         points, jac = self._points_and_jacobians(q, problem.offsets)
         cost = self._cost(points, q, problem, prev)
         lam = torch.full(cost.shape, cfg.damping, dtype=self.dtype)
-        coupling_finger = lay.joint_finger[self._couplings[0]]
-        tips_only = problem.targets.shape[2] == 1
-        done = self._converged(points, problem, tips_only)  # (B, F): converged fingers change no more
+        done = self._settled(points, torch.zeros(cost.shape, dtype=torch.bool), problem)  # settled: change no more
+        state = _LmState(q, live, points, jac, cost, lam, done)
         for _ in range(cfg.iterations):
-            if bool(done.all()):
+            rows = torch.nonzero(~state.done.all(dim=1))[:, 0]
+            if len(rows) == 0:
                 break
-            step = self._step(q, points - problem.targets, self._fold_couplings(jac, live), prev, lam, problem)
-            trial, trial_live = self._couple(
-                torch.maximum(torch.minimum(q + step, self.limits[:, 1]), self.limits[:, 0])
-            )
-            trial_points, trial_jac = self._points_and_jacobians(trial, problem.offsets)
-            trial_cost = self._cost(trial_points, trial, problem, prev)
-            ok = (trial_cost < cost) & ~done  # (B, F)
-            ok_pad = torch.cat([ok, torch.zeros_like(ok[:, :1])], dim=1)
-            q = torch.where(ok_pad[:, lay.joint_finger], trial, q)
-            live = torch.where(ok_pad[:, coupling_finger], trial_live, live)
-            points = torch.where(ok[..., None, None], trial_points, points)
-            jac = torch.where(ok[..., None, None, None], trial_jac, jac)
-            cost = torch.where(ok, trial_cost, cost)
-            lam = torch.where(ok, lam / 3.0, lam * 4.0).clamp(1e-9, 1e9)  # usual LM schedule: shrink on success
-            done = done | self._converged(points, problem, tips_only)
-        return q, points
+            whole = len(rows) == len(q)
+            sub = _Problem(problem.targets if whole else problem.targets[rows], problem.weights, problem.offsets)
+            part = state if whole else state.take(rows)
+            self._lm_iteration(part, sub, prev if whole else prev[rows])
+            if not whole:
+                state.put(rows, part)
+        return state.q, state.points
 
-    def _converged(self, points: torch.Tensor, problem: _Problem, tips_only: bool) -> torch.Tensor:
-        """(B, F) fingers whose tip is within tolerance of a tips-only target."""
-        if not tips_only:
-            return torch.zeros(points.shape[:2], dtype=torch.bool)
-        return (points[:, :, 0] - problem.targets[:, :, 0]).norm(dim=-1) <= self.config.tolerance
+    def _lm_iteration(self, s: _LmState, problem: _Problem, prev: torch.Tensor) -> None:
+        """One Levenberg-Marquardt iteration of the rows in ``s`` (updated in place)."""
+        lay = self.layout
+        step = self._step(s.q, s.points - problem.targets, self._fold_couplings(s.jac, s.live), prev, s.lam, problem)
+        trial, trial_live = self._couple(torch.maximum(torch.minimum(s.q + step, self.limits[:, 1]), self.limits[:, 0]))
+        trial_points, trial_jac = self._points_and_jacobians(trial, problem.offsets)
+        trial_cost = self._cost(trial_points, trial, problem, prev)
+        ok = (trial_cost < s.cost) & ~s.done  # (B, F)
+        ok_pad = torch.cat([ok, torch.zeros_like(ok[:, :1])], dim=1)
+        s.q = torch.where(ok_pad[:, lay.joint_finger], trial, s.q)
+        s.live = torch.where(ok_pad[:, lay.joint_finger[self._couplings[0]]], trial_live, s.live)
+        s.points = torch.where(ok[..., None, None], trial_points, s.points)
+        s.jac = torch.where(ok[..., None, None, None], trial_jac, s.jac)
+        s.cost = torch.where(ok, trial_cost, s.cost)
+        s.lam = torch.where(ok, s.lam / 3.0, s.lam * 4.0).clamp(1e-9, 1e9)  # usual LM schedule: shrink on success
+        s.done = self._settled(s.points, s.done, problem)
+
+    def _settled(self, points: torch.Tensor, done: torch.Tensor, problem: _Problem) -> torch.Tensor:
+        """(B, F) fingers that have settled: ``done`` ones, and those whose tip (of ``points`` (B, F, P, 3)) is within
+        ``tolerance`` of a tips-only target (with the pad term there is no exact solution: they iterate to the end)."""
+        if problem.targets.shape[2] != 1:
+            return done
+        return done | ((points[:, :, 0] - problem.targets[:, :, 0]).norm(dim=-1) <= self.config.tolerance)
 
     def _step(
         self,
