@@ -19,7 +19,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lp = osub.add_parser("list", help="list objects with category, source and split")
     _library_options(lp)
     lp.add_argument("--split", choices=SPLIT_CHOICES, help="only this split")
-    lp.add_argument("--sizes", action="store_true", help="also load each mesh: extents and min width (cm)")
+    lp.add_argument(
+        "--sizes", action="store_true", help="also load each mesh: extents, min width (cm), mass and friction"
+    )
     lp.set_defaults(func=run_list)
     pp = osub.add_parser("prepare", help="validate objects and cache convex decompositions (CoACD)")
     _library_options(pp)
@@ -115,7 +117,7 @@ def run_list(args: argparse.Namespace) -> int:
     rows = library.list(split=args.split)
     invalid = 0
     for info in rows:
-        line = f"{info.object_id:<34} {info.category:<14} {info.source:<10} {info.split}"
+        line = f"{info.object_id:<34} {info.category:<14} {info.source:<10} {info.split:<15}"
         problem = library.entry(info.object_id).problem
         if problem is not None:  # found while listing (two files give one id): no mesh to read
             invalid += 1
@@ -124,12 +126,25 @@ def run_list(args: argparse.Namespace) -> int:
             try:
                 ext, width = library.extents(info.object_id) * 100, library.min_width(info.object_id) * 100
                 line += f"  {ext[0]:5.1f} x {ext[1]:5.1f} x {ext[2]:5.1f} cm  min width {width:5.1f} cm"
+                line += _physics(library, info.object_id)
             except AssetError as exc:  # list the rest; say why this one is unusable
                 invalid += 1
                 line += f"  INVALID: {exc}"
-        print(line)
+        print(line.rstrip())
     print(f"{len(rows)} objects" + (f", {invalid} invalid" if invalid else ""))
     return 0
+
+
+def _physics(library, object_id: str) -> str:
+    """``  mass 150 g (given)  friction 0.8`` (or ``(500 kg/m^3)`` when the mass comes from a density)."""
+    props, cfg = library.properties(object_id), library.config
+    if props.mass is not None:
+        mass, origin = props.mass, "given"
+    else:
+        density = cfg.density if props.density is None else props.density
+        mass, origin = density * library.processed(object_id).volume, f"{density:g} kg/m^3"
+    friction = cfg.friction if props.friction is None else props.friction
+    return f"  mass {mass * 1000:6.1f} g ({origin})  friction {friction:g}"
 
 
 def run_prepare(args: argparse.Namespace) -> int:
