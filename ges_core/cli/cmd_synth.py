@@ -149,7 +149,7 @@ def _prepare(config, ids: list[str], workers: int, args: argparse.Namespace) -> 
     done = [r for r in results if r.status == "decomposed"]
     if done:
         seconds = sum(r.seconds for r in done)
-        print(f"decomposed {len(done)} concave objects with CoACD ({seconds:.0f} s; cached for later runs)")
+        print(f"decomposed {len(done)} concave objects with CoACD ({seconds:.1f} s; cached for later runs)")
 
 
 def run_retarget_cmd(args: argparse.Namespace) -> int:
