@@ -73,7 +73,7 @@ def test_concave_without_decomposition_says_how_to_prepare(library):
     with pytest.raises(
         AssetError,
         match=r"procedural/mug/000: concave mesh has no cached convex decomposition .*"
-        r"run `ges objects prepare --ids procedural/mug/000` or load it with decompose=True",
+        r"run `ges objects prepare --source procedural --ids procedural/mug/000` or load it with decompose=True",
     ):
         library.get("procedural/mug/000")
 

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from ges_core.cli import main
-from ges_core.errors import ConfigError
+from ges_core.errors import AssetError, ConfigError
 from ges_core.objects.decompose import hull_depth
 from ges_core.objects.library import ObjectLibrary
 from ges_core.objects.prepare import prepare_before_run
@@ -156,3 +156,14 @@ def test_demo_on_a_user_folder(folder, tmp_path, capsys):
     assert "| allegro | sapien | 1 |" in text and (out / "contact_sheet.png").is_file()
     assert main(["demo", "--objects", "user/fruit/orange", "--out", str(out)]) == 1
     assert "add --user-dir DIR" in capsys.readouterr().err
+
+
+def test_missing_decomposition_names_the_command_that_works(folder, capsys):
+    library = ObjectLibrary(sources=("user",), user_dir=folder)
+    with pytest.raises(AssetError) as info:
+        library.get("user/bracket/ell")
+    command = f"ges objects prepare --user-dir {folder} --ids user/bracket/ell"
+    assert f"run `{command}`" in str(info.value)
+    assert main(command.split()[1:]) == 0  # that command, as printed
+    assert "1 objects: 1 decomposed" in capsys.readouterr().out
+    assert len(ObjectLibrary(sources=("user",), user_dir=folder).get("user/bracket/ell").collision) >= 2

@@ -234,7 +234,7 @@ def collision_shapes(
         oid = obj.entry.object_id
         raise AssetError(
             f"{oid}: concave mesh has no cached convex decomposition (CoACD settings {settings.key()}); "
-            f"run `ges objects prepare --ids {oid}` or load it with decompose=True"
+            f"run `{prepare_command(obj.entry)}` or load it with decompose=True"
         )
     if parts is None:
         parts = decompose(obj.mesh, obj.mesh_hash, settings, name=obj.entry.object_id)
@@ -257,6 +257,15 @@ def _shape_volume(shape: PrimitiveShape | ConvexPart) -> float:
         return ball
     tube = np.pi * size[0] ** 2 * 2.0 * size[1]
     return tube + ball if shape.kind == "capsule" else tube
+
+
+def prepare_command(entry: ObjectEntry) -> str:
+    """The ``ges objects prepare`` command line that decomposes ``entry`` (its source's options included)."""
+    where = {"real": " --source real", "pybullet": " --source pybullet", "procedural": " --source procedural"}
+    option = where.get(entry.source, "")
+    if entry.source == "user" and entry.path is not None:
+        option = f" --user-dir {entry.path.parent.parent}"
+    return f"ges objects prepare{option} --ids {entry.object_id}"
 
 
 def _write_hull(mesh: trimesh.Trimesh) -> Path:
