@@ -64,3 +64,14 @@ def test_cli_lists_the_real_source(capsys):
     out = capsys.readouterr().out
     assert "real/fruit/banana" in out and "real/tool/hammer" in out
     assert out.strip().endswith("20 objects")
+
+
+def test_shipped_real_config_builds_the_real_set():
+    from pathlib import Path
+
+    from ges_core.config import load_config
+    from ges_core.synthesis import SynthesisConfig
+
+    config = load_config(SynthesisConfig, Path(__file__).resolve().parents[1] / "configs" / "real.yaml", [])
+    ids = [o.object_id for o in config.library.build().list()]
+    assert ids == [o.object_id for o in real.REAL_OBJECTS]
