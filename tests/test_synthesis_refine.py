@@ -132,10 +132,11 @@ def test_pregrasp_backs_off_along_the_approach_and_keeps_the_rotation(allegro):
 
 @pytest.mark.parametrize("hand_name", HANDS)
 def test_pregrasp_opens_the_fingers_but_keeps_thumb_opposition_and_wrist(hand_name):
+    """opening="open_pose" (the default is "retract": tests/test_synthesis_squeeze.py)."""
     hand = REGISTRY.build_hand(hand_name)
     d = hand.description
     grasp = top_grasp(hand, closure=0.7)
-    pre = pregrasp(hand, grasp, DOWN)
+    pre = pregrasp(hand, grasp, DOWN, PregraspConfig(opening="open_pose"))
     thumb = d.finger_for_slot("thumb")
     finger_joints = {j for f in d.fingers for j in f.joints}
     for k, name in enumerate(d.joint_names):
@@ -155,7 +156,7 @@ def test_pregrasp_half_open_respects_couplings():
     shadow = REGISTRY.build_hand("shadow")
     d = shadow.description
     grasp = top_grasp(shadow, closure=0.8)
-    pre = pregrasp(shadow, grasp, DOWN, PregraspConfig(open_fraction=0.5, backoff=0.0))
+    pre = pregrasp(shadow, grasp, DOWN, PregraspConfig(opening="open_pose", open_fraction=0.5, backoff=0.0))
     np.testing.assert_allclose(pre.wrist_pose, grasp.wrist_pose)
     assert d.couplings, "the Shadow hand declares its tendon couplings"
     for c in d.couplings:
