@@ -1,12 +1,13 @@
 """Collision shapes per object on the real set: CoACD for every concave scan (before) versus the hull test
-first (after: one hull when the surface lies within ``decompose.hull_tolerance`` of it, CoACD otherwise).
+first (after: one hull when the surface lies within ``decompose.hull_tolerance`` of it, otherwise CoACD with
+``decompose.settings_for``: a lower threshold on objects longer than 15 cm).
 
 Run: ``python benchmarks/coacd_real.py [--ids ...]`` (needs the ``[real]`` extra); writes
 ``benchmarks/results/coacd_real.json`` and prints a table. Per object: faces, hull depth (mm) and the
 tolerance, the choice, the hull test's seconds, CoACD's (``FAST`` settings) seconds and parts, and the fit
 (precision: share of the collision volume inside the mesh, 1 = no false volume) of the CoACD parts and of the
-hull. "after" seconds = hull test + CoACD only where it is still run (the CoACD run is the same one: same
-mesh, same seeded settings). Single process; other load on the machine shows in the times.
+hull. "after" seconds = hull test + CoACD only where it is still run (the same run as "before" where the
+settings are unchanged: same mesh, same seeded settings). Single process; other load on the machine shows in the times.
 """
 
 from __future__ import annotations
@@ -24,7 +25,7 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from coacd_settings import measure
 
-from ges_core.objects.decompose import FAST, hull_depth, hull_tolerance
+from ges_core.objects.decompose import FAST, hull_depth, hull_tolerance, settings_for
 
 from _results import code_state, write_results
 
@@ -48,12 +49,14 @@ def row_for(library, oid: str) -> dict:
     test_s = time.perf_counter() - start
     before = measure(mesh, FAST, FIT_POINTS) if obj.kind in ("near_convex", "concave") else None
     hull = obj.kind in ("convex", "near_convex")
-    after_s = test_s + (0.0 if hull or before is None else before["seconds"])
+    own = settings_for(mesh, FAST)
+    coacd = None if hull or before is None else before if own == FAST else measure(mesh, own, FIT_POINTS)
+    after_s = test_s + (coacd["seconds"] if coacd else 0.0)
     return {
         "object": oid, "faces": len(mesh.faces), "kind": obj.kind, "hull_depth_mm": round(depth * 1000, 1),
-        "tolerance_mm": round(tol * 1000, 1), "hull_test_s": round(test_s, 2),
-        "before": before, "after": {"parts": 1 if hull else before["parts"], "seconds": round(after_s, 2),
-                                    "precision": round(hull_fit(mesh), 3) if hull else before["precision"]},
+        "tolerance_mm": round(tol * 1000, 1), "hull_test_s": round(test_s, 2), "threshold": own.threshold,
+        "before": before, "after": {"parts": coacd["parts"] if coacd else 1, "seconds": round(after_s, 2),
+                                    "precision": coacd["precision"] if coacd else round(hull_fit(mesh), 3)},
     }  # fmt: skip
 
 

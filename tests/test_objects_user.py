@@ -167,3 +167,17 @@ def test_missing_decomposition_names_the_command_that_works(folder, capsys):
     assert main(command.split()[1:]) == 0  # that command, as printed
     assert "1 objects: 1 decomposed" in capsys.readouterr().out
     assert len(ObjectLibrary(sources=("user",), user_dir=folder).get("user/bracket/ell").collision) >= 2
+
+
+def test_long_objects_get_a_lower_coacd_threshold(folder):
+    """CoACD's threshold is relative to size: a 32 cm L gets FAST's threshold x 15/32, a 8 cm one FAST's own."""
+    from ges_core.objects.decompose import FAST, cached_parts, settings_for
+
+    _extrude_star_polygon(ELL * 4, 0.04).export(folder / "bracket" / "long.obj")
+    library = ObjectLibrary(sources=("user",), user_dir=folder, decompose=True)
+    short, long = library.processed("user/bracket/ell"), library.processed("user/bracket/long")
+    assert settings_for(short.mesh, FAST) == FAST
+    assert settings_for(long.mesh, FAST).threshold == pytest.approx(FAST.threshold * 0.15 / 0.32, abs=1e-4)
+    library.get("user/bracket/long")
+    assert cached_parts(long.mesh_hash, settings_for(long.mesh, FAST)) is not None
+    assert cached_parts(long.mesh_hash, FAST) is None  # its parts are cached under its own settings

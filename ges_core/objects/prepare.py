@@ -18,7 +18,7 @@ import numpy as np
 
 from ges_core.errors import GesError
 from ges_core.objects.bounds import DEFAULT_MAX_FACES
-from ges_core.objects.decompose import CoacdSettings, cached_parts
+from ges_core.objects.decompose import CoacdSettings, cached_parts, settings_for
 from ges_core.objects.processing import collision_shapes, process_entry
 from ges_core.objects.sources import ObjectEntry
 
@@ -49,7 +49,7 @@ def prepare_one(
     start = time.perf_counter()
     try:
         obj = process_entry(entry, normalize_size=normalize_size, max_faces=max_faces)
-        was_cached = obj.kind == "concave" and cached_parts(obj.mesh_hash, settings) is not None
+        was_cached = obj.kind == "concave" and cached_parts(obj.mesh_hash, settings_for(obj.mesh, settings)) is not None
         shapes = collision_shapes(obj, settings, compute=True)
     except GesError as exc:
         return PrepareResult(entry.object_id, "failed", time.perf_counter() - start, str(exc))

@@ -26,6 +26,7 @@ from ges_core.objects.decompose import (
     hull_depth,
     hull_tolerance,
     mesh_to_obj_bytes,
+    settings_for,
 )
 from ges_core.objects.placement import place_on_table, transform_primitive
 from ges_core.objects.procedural import build_shape, shape_seed
@@ -229,6 +230,7 @@ def collision_shapes(
         return (ConvexPart(path=_write_hull(obj.mesh)),)
     if obj.kind == "convex_parts":
         return tuple(ConvexPart(path=_write_hull(b)) for b in obj.mesh.split(only_watertight=False))
+    settings = settings_for(obj.mesh, settings)
     parts = cached_parts(obj.mesh_hash, settings)
     if parts is None and not compute:
         oid = obj.entry.object_id
