@@ -77,11 +77,21 @@ class WristConvention:
 
 @dataclass(frozen=True, kw_only=True)
 class JointCoupling:
-    """``q[follower] = ratio * q[leader]``: joints moved together by one tendon."""
+    """``q[follower] = ratio * q[leader] + offset``: joints moved together by one tendon or linkage.
+
+    A URDF ``<mimic joint=leader multiplier=ratio offset=offset>`` tag becomes one of these
+    (:func:`ges_core.hand_prep.mimic.mimic_couplings`). A leader is never itself a follower: chains of
+    mimic tags are resolved to the first leader when they are read.
+    """
 
     follower: str
+    """The joint that follows."""
     leader: str
+    """The joint it follows (an actuated joint)."""
     ratio: float = 1.0
+    """Multiplier, follower radians (metres) per leader radian (metre)."""
+    offset: float = 0.0
+    """Follower value when the leader is at 0, radians (metres for a prismatic follower)."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -179,11 +189,11 @@ class HandDescription:
         return self.apply_couplings(np.where(mask, q0 + fraction * (far - q0), q0))
 
     def apply_couplings(self, q: np.ndarray) -> np.ndarray:
-        """Copy of ``q`` (..., K) with every coupled follower set from its leader, then clipped."""
+        """Copy of ``q`` (..., K) with every follower set to ``ratio * q[leader] + offset``, then clipped."""
         q = np.array(q, dtype=np.float64, copy=True)
         for c in self.couplings:
             f, lead = self.joint_index([c.follower, c.leader])
-            q[..., f] = c.ratio * q[..., lead]
+            q[..., f] = c.ratio * q[..., lead] + c.offset
         lim = self.limits_array
         return np.clip(q, lim[:, 0], lim[:, 1])
 

@@ -17,22 +17,27 @@ from typing import Any
 
 from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
+from ges_core.hand_prep.mimic import add_mimic_couplings
 from ges_core.hand_yaml import description_from_yaml
 
 __all__ = ["FileHand"]
 
 
 class FileHand(HandModel):
-    """A hand read from ``description.yaml`` + ``model.urdf`` (no ``<material>``, absolute or relative mesh paths)."""
+    """A hand read from ``description.yaml`` + ``model.urdf``, the URDF as it comes (mani-skill, a ROS
+    robot-description package, a CAD export): meshes in any format trimesh reads, relative or
+    ``package://`` paths, ``<material>`` tags and ``<mimic>`` joints are all fine. Each ``<mimic>`` becomes a
+    coupling (``q = multiplier * q_leader + offset``) unless the YAML couples that joint itself; the
+    simulators convert what they cannot load (:mod:`ges_core.hand_prep`)."""
 
     def __init__(self, yaml_path: str | Path, urdf_path: str | Path, *, strict: bool = True, **overrides: Any) -> None:
         self._yaml_path, self._urdf_path = Path(yaml_path), Path(urdf_path)
         for path in (self._yaml_path, self._urdf_path):
             if not path.is_file():
                 raise AssetError(f"hand file {path} does not exist")
-        self._description = description_from_yaml(
-            self._yaml_path.read_text(), self._urdf_path.read_text(), strict=strict, **overrides
-        )
+        urdf_text = self._urdf_path.read_text()
+        description = description_from_yaml(self._yaml_path.read_text(), urdf_text, strict=strict, **overrides)
+        self._description = add_mimic_couplings(description, urdf_text)
 
     @property
     def description(self) -> HandDescription:

@@ -70,6 +70,7 @@ class _Coupling(ConfigModel):
     follower: str
     leader: str
     ratio: float = 1.0
+    offset: float = 0.0
 
 
 class _HandFile(ConfigModel):

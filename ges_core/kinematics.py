@@ -28,6 +28,12 @@ FK, all 23 links                     2.3 ms    18 ms
 ``pytorch_kinematics`` 0.7.6 parses URDF origins in float32, so whatever the dtype the frames carry
 float32 rounding: against PyBullet (float64) on Allegro, link positions agree within 1e-8 m and
 rotation entries within 4e-7. Composition runs in the chosen dtype (float64 by default).
+
+Coupled joints (``HandDescription.couplings``, URDF ``<mimic>`` tags) are ordinary joints of ``q``
+here: FK places a follower's links at the value ``q`` gives it. :meth:`HandKinematics.couple` sets
+every follower to ``ratio * q[leader] + offset`` (differentiably) for callers that hold leaders only.
+``<mimic>`` tags are removed before the chain is built, so whatever a later pytorch-kinematics does
+with them, the chain's joints stay the URDF's movable joints.
 """
 
 from __future__ import annotations
@@ -43,7 +49,7 @@ import torch
 from ges_core.errors import AssetError, UnknownNameError
 
 if TYPE_CHECKING:
-    from ges_core.hand import HandModel
+    from ges_core.hand import HandModel, JointCoupling
 
 __all__ = ["HandKinematics", "shared_kinematics"]
 
@@ -55,7 +61,9 @@ def _build_chain(urdf_text: str):
     """A ``pk.Chain`` from URDF text (the parser's chatter on stdout/stderr is swallowed)."""
     import pytorch_kinematics as pk
 
-    data = urdf_text.encode("utf-8")  # bytes: lxml rejects a str that carries an XML declaration
+    from ges_core.hand_prep.mimic import strip_mimic
+
+    data = strip_mimic(urdf_text).encode("utf-8")  # bytes: lxml rejects a str that carries an XML declaration
     try:
         with contextlib.redirect_stdout(io.StringIO()), contextlib.redirect_stderr(io.StringIO()):
             return pk.build_chain_from_urdf(data)
@@ -71,6 +79,7 @@ class HandKinematics:
     urdf_text: the hand's URDF (fixed base: no floating wrist joints).
     joint_names: the hand's canonical joint order (K names); must be exactly the URDF's movable joints.
     dtype, device: of every tensor this object returns (like ``torch.Tensor.to``).
+    couplings: the hand's couplings, used by :meth:`couple` (FK itself never changes ``q``).
     """
 
     def __init__(
@@ -80,9 +89,11 @@ class HandKinematics:
         *,
         dtype: torch.dtype = torch.float64,
         device: torch.device | str = "cpu",
+        couplings: Sequence[JointCoupling] = (),
     ) -> None:
         self.urdf_text = urdf_text
         self.joint_names = tuple(joint_names)
+        self.couplings = tuple(couplings)
         self.dtype, self.device = dtype, torch.device(device)
         self._chain = _build_chain(urdf_text).to(dtype=dtype, device=self.device)
         chain_joints = list(self._chain.get_joint_parameter_names())
@@ -101,11 +112,18 @@ class HandKinematics:
         cls, hand: HandModel, *, dtype: torch.dtype = torch.float64, device: torch.device | str = "cpu"
     ) -> HandKinematics:
         """Kinematics of ``hand``'s URDF in its description's joint order."""
-        return cls(hand.urdf_text(), hand.description.joint_names, dtype=dtype, device=device)
+        d = hand.description
+        return cls(hand.urdf_text(), d.joint_names, dtype=dtype, device=device, couplings=d.couplings)
 
     def to(self, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> HandKinematics:
         """A copy with another dtype and/or device (this object is unchanged)."""
-        return HandKinematics(self.urdf_text, self.joint_names, dtype=dtype or self.dtype, device=device or self.device)
+        return HandKinematics(
+            self.urdf_text,
+            self.joint_names,
+            dtype=dtype or self.dtype,
+            device=device or self.device,
+            couplings=self.couplings,
+        )
 
     @property
     def base_link(self) -> str:
@@ -118,6 +136,16 @@ class HandKinematics:
         return len(self.joint_names)
 
     # -- public API -----------------------------------------------------------------------
+    def couple(self, q: torch.Tensor) -> torch.Tensor:
+        """``q`` (B, K) with each follower set to ``ratio * q[leader] + offset`` (no clipping; differentiable)."""
+        if not self.couplings:
+            return q
+        q = torch.as_tensor(q).clone()
+        lookup = {n: i for i, n in enumerate(self.joint_names)}
+        for c in self.couplings:
+            q[:, lookup[c.follower]] = c.ratio * q[:, lookup[c.leader]] + c.offset
+        return q
+
     def link_poses(self, q: torch.Tensor, links: Sequence[str]) -> torch.Tensor:
         """(B, L, 4, 4) homogeneous poses of ``links`` in the base frame for ``q`` (B, K)."""
         idx = self._frame_indices(links)
@@ -250,9 +278,12 @@ def shared_kinematics(hand: HandModel) -> HandKinematics:
 
     For code that needs the hand's kinematics now and then (a squeeze, a start pose) rather than keeping its
     own: parsing the URDF takes 20 ms to 0.7 s. Callers must not change the object (it is shared)."""
-    return _cached_kinematics(hand.urdf_text(), tuple(hand.description.joint_names))
+    d = hand.description
+    return _cached_kinematics(hand.urdf_text(), tuple(d.joint_names), tuple(d.couplings))
 
 
 @lru_cache(maxsize=8)
-def _cached_kinematics(urdf_text: str, joint_names: tuple[str, ...]) -> HandKinematics:
-    return HandKinematics(urdf_text, joint_names)
+def _cached_kinematics(
+    urdf_text: str, joint_names: tuple[str, ...], couplings: tuple[JointCoupling, ...]
+) -> HandKinematics:
+    return HandKinematics(urdf_text, joint_names, couplings=couplings)

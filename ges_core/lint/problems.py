@@ -9,11 +9,17 @@ __all__ = ["LintProblem"]
 
 @dataclass(frozen=True)
 class LintProblem:
-    """One problem: which check found it, what is wrong, how to fix it."""
+    """One finding: which check found it, what it is, how to fix it.
+
+    ``note=True`` marks something the framework handles itself (a ``<mimic>`` tag that became a
+    coupling, a mesh already converted): printed, but ``ges hand lint`` still exits 0 for it.
+    """
 
     check: str
     what: str
     fix: str
+    note: bool = False
 
     def __str__(self) -> str:
-        return f"[{self.check}] {self.what} -- fix: {self.fix}"
+        label = "note: " if self.note else ""
+        return f"[{self.check}] {label}{self.what} -- fix: {self.fix}"

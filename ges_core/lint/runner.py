@@ -7,31 +7,43 @@ from collections.abc import Callable, Sequence
 
 from ges_core.errors import GesError
 from ges_core.hand import HandModel
-from ges_core.lint import checks_physics, checks_static
+from ges_core.lint import checks_assets, checks_geometry, checks_physics, checks_static
 from ges_core.lint.problems import LintProblem
 from ges_core.lint.urdf_tree import UrdfTree
 from ges_core.sim import SceneConfig, SimBackend
 
-__all__ = ["CHECKS", "lint_hand"]
+__all__ = ["CHECKS", "SLOW_CHECKS", "lint_hand"]
 
 CHECKS: tuple[str, ...] = (
     "joint-limits",
     "slots",
     "tip-links",
     "collision",
+    "tip-collision",
+    "mimic",
+    "meshes",
     "inertia",
     "wrist-frame",
+    "opposition",
+    "hull-overlap",
     "self-collision",
     "fk",
+    "tip-force",
 )
 """Every check, in the order they run and print."""
+SLOW_CHECKS: tuple[str, ...] = ("tip-force",)
+"""Checks that run only when asked (``probe=True``, ``ges hand lint --probe``): a physics probe of seconds."""
 
 _STATIC = {
     "joint-limits": checks_static.check_joint_limits,
     "slots": checks_static.check_slots,
     "tip-links": checks_static.check_tip_links,
     "collision": checks_static.check_collision_geometry,
-    "inertia": checks_static.check_inertia,
+}
+_ASSETS = {
+    "tip-collision": checks_assets.check_tip_collision,
+    "mimic": checks_assets.check_mimic,
+    "meshes": checks_assets.check_mesh_formats,
 }
 
 
@@ -41,24 +53,53 @@ def lint_hand(
     sims: Sequence[str] = (),
     make_sim: Callable[[str, SceneConfig], SimBackend] | None = None,
     skip: Sequence[str] = (),
+    probe: bool = False,
+    ref: str | None = None,
 ) -> list[LintProblem]:
-    """All problems of ``hand``; physical checks run in each simulator of ``sims`` built by ``make_sim``."""
+    """All problems (and notes) of ``hand``; physical checks run in each simulator of ``sims`` built by ``make_sim``.
+
+    probe: also run :data:`SLOW_CHECKS`. ref: how the user names the hand in a command (default its name).
+    """
     tree = UrdfTree.from_text(hand.urdf_text())
-    d = hand.description
+    d, ref = hand.description, ref or hand.name
     problems: list[LintProblem] = []
     for name, check in _STATIC.items():
         if name not in skip:
             problems += check(d, tree)
-    if "wrist-frame" not in skip and not _blocks_kinematics(problems):
-        problems += _guarded("wrist-frame", lambda: checks_physics.check_wrist_convention(hand))
+    for name, check in _ASSETS.items():
+        if name not in skip:
+            problems += _guarded(name, lambda c=check: c(hand, tree, ref))
+    if "inertia" not in skip:
+        problems += checks_static.check_inertia(d, tree)
+    problems += _kinematic_checks(hand, problems, skip, ref)
     for sim_name in sims if make_sim is not None else ():
-        if "self-collision" not in skip:
-            problems += _guarded(
-                "self-collision", lambda s=sim_name: checks_physics.check_self_collision(hand, s, make_sim)
-            )
-        if "fk" not in skip:
-            problems += _guarded("fk", lambda s=sim_name: checks_physics.check_fk_matches_sims(hand, s, make_sim))
+        problems += _sim_checks(hand, sim_name, make_sim, skip, probe)
     return problems
+
+
+def _kinematic_checks(hand: HandModel, found: list[LintProblem], skip: Sequence[str], ref: str) -> list[LintProblem]:
+    if _blocks_kinematics(found):
+        return []
+    runs = {
+        "wrist-frame": lambda: checks_physics.check_wrist_convention(hand),
+        "opposition": lambda: checks_geometry.check_thumb_opposition(hand),
+        "hull-overlap": lambda: checks_geometry.check_hull_overlaps(hand, ref),
+    }
+    if any(p.check == "meshes" and "does not exist" in p.what for p in found):
+        runs.pop("hull-overlap")  # it loads the meshes
+    return [p for name, run in runs.items() if name not in skip for p in _guarded(name, run)]
+
+
+def _sim_checks(hand: HandModel, sim_name: str, make_sim, skip: Sequence[str], probe: bool) -> list[LintProblem]:
+    runs = {
+        "self-collision": lambda: checks_physics.check_self_collision(hand, sim_name, make_sim),
+        "fk": lambda: checks_physics.check_fk_matches_sims(hand, sim_name, make_sim),
+    }
+    if probe:
+        from ges_core.lint.checks_probe import check_tip_forces
+
+        runs["tip-force"] = lambda: check_tip_forces(hand, sim_name, make_sim)
+    return [p for name, run in runs.items() if name not in skip for p in _guarded(name, run)]
 
 
 def installed_sims(names: Sequence[str], requires: dict[str, Sequence[str]]) -> list[str]:

@@ -49,8 +49,17 @@ _TRIANGLE_SLACK = 1e-3
 tripped PyBullet's check after the decimal round trip (3 Allegro links)."""
 
 
-def pybullet_hand_urdf(text: str, name: str, *, floating: bool) -> Path:
-    """Write the PyBullet-ready URDF of a hand to the cache (keyed by its text) and return the path."""
+def pybullet_hand_urdf(text: str, name: str, *, floating: bool, base_dir: Path | None = None) -> Path:
+    """Write the PyBullet-ready URDF of a hand to the cache (keyed by its text) and return the path.
+
+    base_dir: the folder of the hand's URDF file. With it, :func:`ges_core.hand_prep.engine_urdf.engine_urdf`
+    first makes mesh paths absolute, converts meshes PyBullet cannot load (``.glb``: "invalid mesh filename
+    extension", the shape is dropped) to OBJ, drops ``<mimic>`` tags and uses ``ges hand prepare``'s convex parts.
+    """
+    if base_dir is not None:
+        from ges_core.hand_prep.engine_urdf import engine_urdf
+
+        text = engine_urdf(text, base_dir)
     text = add_floating_base(text, world_link=WORLD_LINK) if floating else add_fixed_base(text)
     stem = f"{name}_{'floating' if floating else 'fixed'}"
     return cached_text_file(sanitize_inertias(text), "pybullet", "hands", stem=stem)

@@ -123,7 +123,7 @@ def new_scene(config: SceneConfig, solver_iterations: int | None = None) -> Scen
 
 def load_hand_body(scene: Scene, hand: HandModel, config: SceneConfig, floating: bool) -> None:
     """Load the hand (prepared URDF, fixed world link) into ``scene``, velocity motors off."""
-    path = pybullet_hand_urdf(hand.urdf_text(), hand.name, floating=floating)
+    path = pybullet_hand_urdf(hand.urdf_text(), hand.name, floating=floating, base_dir=hand.urdf_path().parent)
     flags = p.URDF_USE_INERTIA_FROM_FILE  # safe: hand_urdf made every inertia valid
     if config.self_collision:
         flags |= p.URDF_USE_SELF_COLLISION | p.URDF_USE_SELF_COLLISION_EXCLUDE_PARENT

@@ -69,10 +69,16 @@ def create_scene(config: SceneConfig) -> sapien.Scene:
 def prepare_urdf(hand: HandModel, *, floating: bool) -> Path:
     """The hand's URDF without render data, mesh paths absolute, plus the floating wrist if asked.
 
-    Written once to the cache (keyed by a hash of the text) and reused.
+    :func:`ges_core.hand_prep.engine_urdf.engine_urdf` removes ``<mimic>`` tags (SAPIEN's loader would
+    build them as fixed tendons that fight the followers' PD drives: the hand explodes), converts
+    collision meshes to OBJ where needed and uses ``ges hand prepare``'s convex parts. Written once to
+    the cache (keyed by a hash of the text) and reused.
     """
+    from ges_core.hand_prep.engine_urdf import engine_urdf
+
     source = hand.urdf_path()
-    text = absolutize_mesh_paths(strip_render_data(source.read_text()), source.parent)
+    text = engine_urdf(strip_render_data(source.read_text()), source.parent)
+    text = absolutize_mesh_paths(text, source.parent)
     if floating:
         text = add_floating_base(text)
     return cached_text_file(text, "sapien", "urdf", stem=f"{hand.name}_{'floating' if floating else 'fixed'}")

@@ -1,0 +1,160 @@
+"""``ges hand prepare NAME``: make a hand's files what both engines should load, once, cached.
+
+1. Every mesh in a format other than OBJ/STL is converted to OBJ (:mod:`.meshes`).
+2. Each collision mesh is measured: how deep its surface lies below its convex hull
+   (:func:`.geometry.hull_gap`), and whether its hull overlaps another link's hull where the meshes
+   are apart at the open and closing poses (:func:`.geometry.pair_overlaps`).
+3. A mesh whose hull is wrong (gap over :data:`HULL_GAP_TOL`, or in such an overlap) is decomposed
+   with CoACD (:mod:`.decompose`), with a progress bar; the parts are cached by the mesh's hash and
+   both simulators use them from then on (:func:`.engine_urdf.engine_urdf`).
+
+Nothing is written beside the hand's files; a second run finds everything in the cache.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ges_core.hand import HandModel
+from ges_core.hand_prep.decompose import cached_link_parts, decompose_link_mesh, decomposition_seconds
+from ges_core.hand_prep.geometry import (
+    HULL_OVERLAP_TOL,
+    PairOverlap,
+    engine_link_shapes,
+    hand_link_poses,
+    hull_gap,
+    link_shapes,
+    pair_overlaps,
+)
+from ges_core.hand_prep.meshes import NATIVE_FORMATS, converted_mesh, resolve_mesh_path
+from ges_core.hand_prep.mimic import strip_mimic
+from ges_core.urdf import parse_urdf
+
+__all__ = ["HULL_GAP_TOL", "MeshPlan", "PrepareReport", "prepare_hand"]
+
+HULL_GAP_TOL = 3e-3
+"""m: a collision mesh whose surface lies deeper than this below its hull is decomposed. A fingertip pad is
+15-20 mm wide; a contact moved 3 mm is a fifth of it. The Ability hand: palm 17.7 mm, distal phalanx 7.3 mm
+(decomposed), wrist plate 2.0 mm and thumb links 0 mm (kept)."""
+
+
+@dataclass
+class MeshPlan:
+    """One collision mesh file of the hand and what prepare did with it."""
+
+    path: Path
+    """The file the engines load (after OBJ conversion)."""
+    links: list[str]
+    hull_gap: float
+    """m, deepest point of the mesh below its hull."""
+    overlaps: list[str] = field(default_factory=list)
+    """Links whose hulls overlap this one's where the meshes are apart."""
+    parts: int = 0
+    seconds: float = 0.0
+    """CoACD's run time (from the cache's manifest when it ran before)."""
+    cached: bool = False
+
+    @property
+    def reason(self) -> str:
+        """Why it is decomposed, or '' when it is not."""
+        why = []
+        if self.hull_gap > HULL_GAP_TOL:
+            why.append(f"hull {self.hull_gap * 1000:.1f} mm off the mesh")
+        if self.overlaps:
+            why.append(f"hull overlaps {', '.join(sorted(set(self.overlaps)))}")
+        return "; ".join(why)
+
+
+@dataclass
+class PrepareReport:
+    """What ``ges hand prepare`` found and did."""
+
+    hand: str
+    converted: list[Path]
+    meshes: list[MeshPlan]
+    overlaps_before: list[PairOverlap]
+    overlaps_after: list[PairOverlap]
+    seconds: float
+
+    def format(self) -> str:
+        """A table: one row per collision mesh, then the overlaps left."""
+        lines = [f"hand '{self.hand}': {len(self.converted)} mesh file(s) converted to OBJ"]
+        lines.append(f"  {'collision mesh':<28}{'links':<34}{'hull gap':>9}{'parts':>7}{'CoACD s':>9}  reason")
+        for m in self.meshes:
+            links = ", ".join(m.links)
+            links = links if len(links) <= 32 else links[:29] + "..."
+            parts = str(m.parts) if m.parts else "-"
+            secs = (f"{m.seconds:.1f}" + ("*" if m.cached else "")) if m.parts else "-"
+            gap = f"{m.hull_gap * 1000:>6.1f} mm"
+            lines.append(f"  {m.path.name[:27]:<28}{links:<34}{gap}{parts:>7}{secs:>9}  {m.reason or 'kept'}")
+        lines.append(
+            f"  hull overlaps beyond the meshes': {len(self.overlaps_before)} before, {len(self.overlaps_after)} after"
+        )
+        lines += [
+            f"    left: {o.link_a} / {o.link_b} ({o.pose}) {o.hull_overlap * 1000:.1f} mm" for o in self.overlaps_after
+        ]
+        lines.append(f"  {self.seconds:.1f} s")
+        return "\n".join(lines)
+
+
+def prepare_hand(hand: HandModel, *, progress: bool = True) -> PrepareReport:
+    """Convert, measure and decompose ``hand``'s meshes (module docs); returns what was done."""
+    start = time.perf_counter()
+    text, base_dir = hand.urdf_text(), hand.urdf_path().parent
+    converted = _convert_all(text, base_dir)
+    shapes = link_shapes(text, base_dir)
+    links = sorted(shapes)
+    poses = hand_link_poses(hand, links)
+    bare = strip_mimic(text)
+    before = pair_overlaps(shapes, poses, bare, HULL_OVERLAP_TOL)
+    plans = _plan(shapes, before)
+    _decompose(plans, progress)
+    after = pair_overlaps(engine_link_shapes(text, base_dir), poses, bare, HULL_OVERLAP_TOL)
+    return PrepareReport(hand.name, converted, plans, before, after, time.perf_counter() - start)
+
+
+def _convert_all(text: str, base_dir: Path) -> list[Path]:
+    """Convert every non-OBJ/STL mesh (visuals too: PyBullet loads them); the converted files."""
+    out = []
+    for mesh in parse_urdf(text).iter("mesh"):
+        path = resolve_mesh_path(mesh.get("filename", ""), base_dir)
+        if path.suffix.lower() not in NATIVE_FORMATS and path not in out:
+            converted_mesh(path)
+            out.append(path)
+    return out
+
+
+def _engine_file(source: Path) -> Path:
+    return source if source.suffix.lower() in NATIVE_FORMATS else converted_mesh(source)
+
+
+def _plan(shapes, overlaps: list[PairOverlap]) -> list[MeshPlan]:
+    """One plan per collision mesh file (a file several links use is measured and decomposed once)."""
+    plans: dict[Path, MeshPlan] = {}
+    partner = {}
+    for o in overlaps:
+        partner.setdefault(o.link_a, []).append(o.link_b)
+        partner.setdefault(o.link_b, []).append(o.link_a)
+    for link, group in shapes.items():
+        for shape in group:
+            if shape.source is None:
+                continue
+            path = _engine_file(shape.source)
+            if path not in plans:
+                plans[path] = MeshPlan(path, [], hull_gap(shape.mesh))
+            plans[path].links.append(link)
+            if plans[path].hull_gap > HULL_OVERLAP_TOL:  # a convex mesh's hull is the mesh: parts would not help
+                plans[path].overlaps += partner.get(link, [])
+    return list(plans.values())
+
+
+def _decompose(plans: list[MeshPlan], progress: bool) -> None:
+    from tqdm import tqdm
+
+    todo = [p for p in plans if p.reason]
+    for plan in tqdm(todo, desc="CoACD", unit="mesh", disable=not progress or not todo):
+        plan.cached = cached_link_parts(plan.path) is not None
+        plan.parts = len(decompose_link_mesh(plan.path, name=f"hand mesh {plan.path.name} ({', '.join(plan.links)})"))
+        plan.seconds = decomposition_seconds(plan.path)
