@@ -68,14 +68,17 @@ DISTAL_COLLISION = (
         ),
         ({"yaml": (", little: index}", "}")}, r"\[slots\] no finger serves slot 'little'"),
         (
-            {"yaml": ("tip_link: index_tip", "tip_link: index_proximal")},
+            {"yaml": ("tip_link: index_distal", "tip_link: index_proximal")},
             r"\[tip-links\] .*'index_proximal' is not distal",
         ),
         (
             {"yaml": ("keypoint_links: [index_distal", "keypoint_links: [thumb_distal")},
             r"\[tip-links\] .*keypoint 'thumb_distal'",
         ),
-        ({"yaml": ("tip_link: thumb_tip", "tip_link: thumb_nail")}, r"\[tip-links\] .*'thumb_nail' is not in the URDF"),
+        (
+            {"yaml": ("tip_link: thumb_distal", "tip_link: thumb_nail")},
+            r"\[tip-links\] .*'thumb_nail' is not in the URDF",
+        ),
         (
             {
                 "urdf": (

@@ -1,11 +1,14 @@
 """The slow lint check: a short physics probe of the fingertip forces validation's squeeze gets.
 
-The probe is ``ges sim check``'s scene (the hand closes on a 0.1 kg box, :mod:`ges_core.sim_check`)
-without the lift, followed by the squeeze Stage 1 validation applies (targets past the measured
-joints so each tip presses :data:`~ges_core.synthesis.physics.squeeze.SQUEEZE_FORCE`,
-:func:`~ges_core.synthesis.physics.squeeze.squeeze_targets`). A fingertip that then presses far
-less than asked cannot hold the demo objects. About 300 steps per simulator (0.5-2 s); run by
-``ges hand lint --probe``.
+The hand floats high above the table at a half-closed pose (:meth:`HandDescription.closed_pose`
+0.5), with gravity off. Scene ``f`` (one per finger, stepped together) holds a fixed 2 cm cube
+whose face touches finger ``f``'s tip point, on the side that finger presses toward in Stage 1
+validation (:func:`~ges_core.synthesis.physics.squeeze.press_directions`). The joints then get
+validation's squeeze targets (:func:`~ges_core.synthesis.physics.squeeze.squeeze_targets`, which
+ask each tip for :data:`~ges_core.synthesis.physics.squeeze.SQUEEZE_FORCE`), and after
+:data:`SQUEEZE_STEPS` steps finger ``f``'s tip force on its cube is read. A tip far below the force
+asked cannot hold the demo objects, whatever the grasp: weak drives, drive limits, or a tip link
+that nothing touches through. Run by ``ges hand lint --probe`` (1-3 s per simulator).
 """
 
 from __future__ import annotations
@@ -25,33 +28,72 @@ PROBE_SHARE = 0.5
 of 5 N (2.5 N each) is what a 0.25 kg object needs against gravity, the heavy end of the demo objects."""
 SQUEEZE_STEPS = 60
 """Steps (0.5 s at 1/120 s) of squeezing before the forces are read: the PD drives settle in about 20."""
+HOVER = np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0])
+"""(7,) base pose of the probe (x, y, z, qw, qx, qy, qz): half a metre over the table, nothing near it."""
+CUBE_HALF = 0.01
+"""m, half edge of each finger's fixed cube."""
 
 
-def probe_tip_forces(hand: HandModel, sim: SimBackend) -> tuple[np.ndarray, float]:
-    """(F,) each finger's tip force on the box after the squeeze, N, and the force asked, N (``sim`` fresh)."""
-    from ges_core.sim_check import SimCheckConfig, run_sim_check
+def probe_tip_forces(hand: HandModel, make_sim: Callable[[str, SceneConfig], SimBackend], sim_name: str):
+    """(F,) each finger's tip force on its cube after the squeeze, N, and the force asked, N (module docs)."""
     from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 
-    run_sim_check(hand, sim, SimCheckConfig(lift_steps=0))
-    q = sim.joint_state()[0][0]
+    d = hand.description
+    q = d.closed_pose(0.5)
     targets = squeeze_targets(hand, q, force=SQUEEZE_FORCE, min_squeeze=MIN_SQUEEZE, max_squeeze=MAX_SQUEEZE)
-    sim.set_joint_targets(targets[None])
-    sim.step(SQUEEZE_STEPS)
-    forces = np.linalg.norm(sim.contact_forces(list(hand.description.tip_links), "object")[0], axis=-1)
-    return forces, SQUEEZE_FORCE
+    cubes = _cube_poses(hand, q)
+    n = len(d.fingers)
+    with make_sim(sim_name, SceneConfig(num_envs=n, gravity=0.0)) as sim:
+        sim.load_hand(hand, floating=True)
+        sim.set_hand_state(np.tile(q, (n, 1)), np.tile(HOVER, (n, 1)))
+        for f in range(n):
+            sim.load_object(_cube(), cubes[f], env_ids=[f], fixed=True)
+        sim.set_wrist_targets(np.tile(HOVER, (n, 1)))
+        sim.set_joint_targets(np.tile(targets, (n, 1)))
+        sim.step(SQUEEZE_STEPS)
+        forces = np.linalg.norm(sim.contact_forces(list(d.tip_links), "object"), axis=-1)  # (n, F)
+    return forces[np.arange(n), np.arange(n)], SQUEEZE_FORCE
+
+
+def _cube():
+    from ges_core.objects.simple import box_asset
+
+    return box_asset((CUBE_HALF,) * 3, object_id="lint/probe_cube")
+
+
+def _cube_poses(hand: HandModel, q: np.ndarray) -> np.ndarray:
+    """(F, 7) world poses of the cubes: a face through each tip point, facing back along its press direction."""
+    import torch
+
+    from ges_core.kinematics import shared_kinematics
+    from ges_core.synthesis.physics.squeeze import press_directions
+    from ges_core.transforms import matrix_to_pose, pose_to_matrix
+
+    d = hand.description
+    tips = shared_kinematics(hand).points(
+        torch.as_tensor(q)[None], list(d.tip_links), [f.tip_offset for f in d.fingers]
+    )
+    base = pose_to_matrix(HOVER)
+    tips = tips[0].numpy() @ base[:3, :3].T + base[:3, 3]
+    press = press_directions(d, tips)
+    out = np.tile(HOVER, (len(tips), 1))
+    for f, (tip, u) in enumerate(zip(tips, press, strict=True)):
+        m = np.eye(4)
+        m[:3, 3] = tip + u * CUBE_HALF  # a cube is the same along every axis: only its centre matters
+        out[f] = matrix_to_pose(m)
+    return out
 
 
 def check_tip_forces(
     hand: HandModel, sim_name: str, make_sim: Callable[[str, SceneConfig], SimBackend]
 ) -> list[LintProblem]:
     """Each fingertip presses at least :data:`PROBE_SHARE` of the squeeze force on the probe box in ``sim_name``."""
-    with make_sim(sim_name, SceneConfig()) as sim:
-        forces, asked = probe_tip_forces(hand, sim)
+    forces, asked = probe_tip_forces(hand, make_sim, sim_name)
     out = []
     for finger, force in zip(hand.description.fingers, forces, strict=True):
         if force >= PROBE_SHARE * asked:
             continue
-        how = "did not touch the probe box" if force < 0.05 else f"pressed only {force:.2f} N on the probe box"
+        how = "did not touch its probe cube" if force < 0.05 else f"pressed only {force:.2f} N on its probe cube"
         out.append(
             LintProblem(
                 "tip-force",
