@@ -151,7 +151,8 @@ def test_hull_overlap_is_caught_and_prepare_removes_it(capsys, tmp_path):
     code, lines = lint(capsys, path, *NO_SIMS)
     found = [ln for ln in lines if ln.startswith("[hull-overlap]")]
     assert code == 1 and found, lines
-    pattern = r"links '(index|thumb)_distal' and 'palm' .*hulls overlap by ([0-9.]+) mm where the meshes are ([0-9.]+) mm apart"
+    pattern = r"links '(index|thumb)_distal' and 'palm' .*hulls overlap by ([0-9.]+) mm "
+    pattern += r"where the meshes are ([0-9.]+) mm apart"
     match = re.search(pattern, found[0])
     assert match and float(match.group(2)) > 5 and 4 < float(match.group(3)) < 9, found
     assert f"ges hand prepare {path}" in found[0]
