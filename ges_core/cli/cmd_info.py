@@ -52,5 +52,5 @@ def format_hand(d: HandDescription) -> str:
     rows = zip(d.joint_names, d.joint_limits, d.open_pose, d.pd_stiffness, d.pd_damping, strict=True)
     for name, (lo, hi), q0, kp, kd in rows:
         lines.append(f"  {name:<14}{lo:>9.3f}{hi:>9.3f}{q0:>9.3f}{kp:>10.3g}{kd:>9.3g}")
-    lines.extend(f"  coupling: {c.follower} = {c.ratio:g} x {c.leader}" for c in d.couplings)
+    lines.extend(f"  coupling: {c.follower} = {c.ratio:g} x {c.leader} + {c.offset:g} rad" for c in d.couplings)
     return "\n".join(lines)
