@@ -46,7 +46,7 @@ def _rewrite_meshes(root: ET.Element, base_dir: Path) -> bool:
     for mesh in root.iter("mesh"):
         name = mesh.get("filename", "")
         path = resolve_mesh_path(name, base_dir)
-        if path.suffix.lower() not in NATIVE_FORMATS:
+        if path.suffix not in NATIVE_FORMATS:
             path = converted_mesh(path)
         if str(path) != name:
             mesh.set("filename", str(path))

@@ -297,7 +297,7 @@ def engine_link_shapes(urdf_text: str, base_dir: Path) -> dict[str, list[LinkSha
         placed = []
         for shape in shapes:
             loaded = shape.source
-            if loaded is not None and loaded.suffix.lower() not in NATIVE_FORMATS:
+            if loaded is not None and loaded.suffix not in NATIVE_FORMATS:
                 loaded = converted_mesh_if_cached(loaded)
             parts = cached_link_parts(loaded) if loaded is not None else None
             placed += _part_shapes(shape, parts) if parts else [shape]

@@ -29,7 +29,8 @@ __all__ = [
 ]
 
 NATIVE_FORMATS = (".obj", ".stl")
-"""Formats passed to the engines as they are; every other one is converted to OBJ."""
+"""Suffixes passed to the engines as they are (case-sensitive: a CAD export's ``.STL`` is converted too, so
+no engine's handling of upper-case suffixes matters); every other file is converted to OBJ."""
 ENGINE_MESH_FORMATS: dict[str, tuple[str, ...]] = {
     "pybullet": (".obj", ".stl", ".dae"),
     "sapien": (".obj", ".stl", ".dae", ".glb", ".gltf", ".ply", ".off"),

@@ -120,14 +120,14 @@ def _convert_all(text: str, base_dir: Path) -> list[Path]:
     out = []
     for mesh in parse_urdf(text).iter("mesh"):
         path = resolve_mesh_path(mesh.get("filename", ""), base_dir)
-        if path.suffix.lower() not in NATIVE_FORMATS and path not in out:
+        if path.suffix not in NATIVE_FORMATS and path not in out:
             converted_mesh(path)
             out.append(path)
     return out
 
 
 def _engine_file(source: Path) -> Path:
-    return source if source.suffix.lower() in NATIVE_FORMATS else converted_mesh(source)
+    return source if source.suffix in NATIVE_FORMATS else converted_mesh(source)
 
 
 def _plan(shapes, overlaps: list[PairOverlap]) -> list[MeshPlan]:
