@@ -268,10 +268,15 @@ def _point_depth(sa: list[LinkShape], sb: list[LinkShape], ta: np.ndarray, tb: n
     if real:
         shapes_a = list({id(x.real): x.real for x in sa}.values())
         shapes_b = list({id(y.real): y.real for y in sb}.values())
-    else:
-        shapes_a, shapes_b = [x.hull for x in sa], [y.hull for y in sb]
-    gap = min(mesh_gap(_placed_mesh(x, ta), _placed_mesh(y, tb)) for x in shapes_a for y in shapes_b)
-    return gap if real else max(0.0, -gap)
+        return min(mesh_gap(_placed_mesh(x, ta), _placed_mesh(y, tb)) for x in shapes_a for y in shapes_b)
+    pairs = [
+        (x.hull, y.hull)
+        for x in sa
+        for y in sb
+        if hull_penetration(_placed(x.hull.vertices, ta), _placed(y.hull.vertices, tb)) > 0.0
+    ]  # hulls the separating-axis test finds apart cannot overlap: no need to measure them
+    gaps = [mesh_gap(_placed_mesh(x, ta), _placed_mesh(y, tb)) for x, y in pairs]
+    return max(0.0, -min(gaps)) if gaps else 0.0
 
 
 def _placed(points: np.ndarray, pose: np.ndarray) -> np.ndarray:

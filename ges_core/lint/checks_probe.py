@@ -1,8 +1,8 @@
 """The slow lint check: a short physics probe of the fingertip forces validation's squeeze gets.
 
-The hand floats high above the table at a half-closed pose (:meth:`HandDescription.closed_pose`
-0.5), with gravity off. Scene ``f`` (one per finger, stepped together) holds a fixed 2 cm cube
-whose face touches finger ``f``'s tip point, on the side that finger presses toward in Stage 1
+The hand floats high above the table, gravity off, and closes from 30 % to 50 % of
+:meth:`HandDescription.closed_pose`. Scene ``f`` (one per finger, stepped together) holds a fixed 2 cm cube
+whose face touches finger ``f``'s tip point at 50 %, on the side that finger presses toward in Stage 1
 validation (:func:`~ges_core.synthesis.physics.squeeze.press_directions`). The joints then get
 validation's squeeze targets (:func:`~ges_core.synthesis.physics.squeeze.squeeze_targets`, which
 ask each tip for :data:`~ges_core.synthesis.physics.squeeze.SQUEEZE_FORCE`), and after
@@ -30,6 +30,10 @@ SQUEEZE_STEPS = 60
 """Steps (0.5 s at 1/120 s) of squeezing before the forces are read: the PD drives settle in about 20."""
 HOVER = np.array([0.0, 0.0, 0.5, 1.0, 0.0, 0.0, 0.0])
 """(7,) base pose of the probe (x, y, z, qw, qx, qy, qz): half a metre over the table, nothing near it."""
+START = 0.3
+"""The fingers start at this fraction of the closed pose, short of the cubes (placed for 0.5), and close onto
+them: a cube placed where a tip already is would start inside the finger (the Ability's tip point lies 1.6 mm
+inside its fingertip sphere) and read hundreds of newtons of depenetration."""
 CUBE_HALF = 0.01
 """m, half edge of each finger's fixed cube."""
 
@@ -45,7 +49,7 @@ def probe_tip_forces(hand: HandModel, make_sim: Callable[[str, SceneConfig], Sim
     n = len(d.fingers)
     with make_sim(sim_name, SceneConfig(num_envs=n, gravity=0.0)) as sim:
         sim.load_hand(hand, floating=True)
-        sim.set_hand_state(np.tile(q, (n, 1)), np.tile(HOVER, (n, 1)))
+        sim.set_hand_state(np.tile(d.closed_pose(START), (n, 1)), np.tile(HOVER, (n, 1)))
         for f in range(n):
             sim.load_object(_cube(), cubes[f], env_ids=[f], fixed=True)
         sim.set_wrist_targets(np.tile(HOVER, (n, 1)))
