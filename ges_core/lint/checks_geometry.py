@@ -31,10 +31,12 @@ def check_hull_overlaps(hand: HandModel, ref: str) -> list[LintProblem]:
 
 def _overlap_problem(o, ref: str) -> LintProblem:
     gap = f"{o.mesh_gap * 1000:.1f} mm apart" if o.mesh_gap >= 0 else f"{-o.mesh_gap * 1000:.1f} mm into each other"
+    if abs(o.mesh_gap) < 1e-4:
+        gap = "touching or crossing (not closed surfaces: how deep is not known)"
     return LintProblem(
         "hull-overlap",
         f"links '{o.link_a}' and '{o.link_b}' ({o.pose} pose): their convex hulls overlap by "
-        f"{o.hull_overlap * 1000:.1f} mm where the meshes are {gap} (both engines collide a mesh as its hull)",
+        f"{o.hull_overlap * 1000:.1f} mm where the meshes are {gap} (both engines collide each mesh as its hull)",
         f"run `ges hand prepare {ref}` (decomposes those links' meshes with CoACD, cached; both simulators then "
         "collide the parts)",
     )
