@@ -240,15 +240,36 @@ def pair_overlaps(
             if frozenset((a, b)) in excluded or all(s.primitive for s in shapes[a] + shapes[b]):
                 continue  # never collide, or primitives only (each collides as itself)
             depths = {name: _hull_depth(shapes[a], shapes[b], pose[a], pose[b]) for name, pose in poses.items()}
-            worst = max(depths, key=depths.get)
-            if depths[worst] <= tol:
-                continue
-            pose = poses[worst]
-            hull = _point_depth(shapes[a], shapes[b], pose[a], pose[b], real=False)
-            real = _point_depth(shapes[a], shapes[b], pose[a], pose[b], real=True)
-            if hull - max(0.0, -real) > tol:
-                out.append(PairOverlap(a, b, worst, hull, real))
+            found = _first_clean_overlap(shapes[a], shapes[b], poses, depths, tol)
+            if found is not None:
+                out.append(PairOverlap(a, b, *found))
     return out
+
+
+def _first_clean_overlap(
+    sa: list[LinkShape],
+    sb: list[LinkShape],
+    poses: dict[str, dict[str, np.ndarray]],
+    depths: dict[str, float],
+    tol: float,
+) -> tuple[str, float, float] | None:
+    """(pose, hull overlap, mesh gap) at the pose of deepest hull overlap where the real shapes are at most
+    ``tol`` into each other and the hulls reach more than ``tol`` further; None if no pose qualifies.
+
+    Poses where the real links already collide (a finger curled into the palm at 90 % closure, 7-12 mm deep
+    on the Ability hand) are left out: there the hulls' extra depth is not what stops a grasp, and the parts of
+    a decomposition, cut faces and all, are not comparable with the whole meshes."""
+    for name in sorted(depths, key=depths.get, reverse=True):
+        if depths[name] <= tol:
+            return None
+        pose = poses[name]
+        real = _point_depth(sa, sb, pose[sa[0].link], pose[sb[0].link], real=True)
+        if real < -tol:
+            continue
+        hull = _point_depth(sa, sb, pose[sa[0].link], pose[sb[0].link], real=False)
+        if hull - max(0.0, -real) > tol:
+            return name, hull, real
+    return None
 
 
 def _hull_depth(sa: list[LinkShape], sb: list[LinkShape], ta: np.ndarray, tb: np.ndarray) -> float:

@@ -93,7 +93,9 @@ class PrepareReport:
             f"  hull overlaps beyond the meshes': {len(self.overlaps_before)} before, {len(self.overlaps_after)} after"
         )
         lines += [
-            f"    left: {o.link_a} / {o.link_b} ({o.pose}) {o.hull_overlap * 1000:.1f} mm" for o in self.overlaps_after
+            f"    left: {o.link_a} / {o.link_b} ({o.pose} pose): hulls {o.hull_overlap * 1000:.1f} mm into each "
+            f"other, meshes {o.mesh_gap * 1000:+.1f} mm apart"
+            for o in self.overlaps_after
         ]
         lines.append(f"  {self.seconds:.1f} s")
         return "\n".join(lines)
