@@ -41,6 +41,7 @@ def main() -> None:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--retry", choices=["on", "both"], default="on")
     parser.add_argument("--dataset", nargs="+", type=Path, help="summarize these finished runs (no new run)")
+    parser.add_argument("--note", default="", help="how the --dataset runs were made (command, commit), stored")
     args = parser.parse_args()
     runs = {}
     if args.dataset:
@@ -53,8 +54,11 @@ def main() -> None:
             runs[f"retry={retry}"] = _run(list(DEMO_OBJECTS[: args.objects]), args, retry)
     for name, summary in runs.items():
         print(f"\n{name}:\n" + _format(summary))
-    write_results(RESULTS, {"runs": runs, "machine": {"platform": platform.platform(), "workers": args.workers},
-                            "versions": software_versions("sapien", "pybullet"), "code": code_state()})  # fmt: skip
+    machine = {"platform": platform.platform(), "workers": args.workers}
+    versions = software_versions("sapien", "pybullet")
+    write_results(
+        RESULTS, {"runs": runs, "note": args.note, "machine": machine, "versions": versions, "code": code_state()}
+    )
 
 
 def _run(ids: list[str], args, retry: bool) -> dict:
