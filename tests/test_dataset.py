@@ -639,6 +639,21 @@ CORRUPTIONS = {
         lambda m, a: m["validations"]["sapien"].update(trials=[], robustness=1.0),
         "validations.sapien.robustness: 1.0 but no trial is stored (null)",
     ),
+    "robust_ok_but_a_trial_failed": (
+        lambda m, a: (
+            [v["trials"][1].update(success=False, reason="dropped") for v in m["validations"].values()]
+            and [v.update(robustness=0.5) for v in m["validations"].values()]
+        ),
+        "steps.robust: ok, but the primary simulator's trials ['mass_x2'] failed",
+    ),
+    "robust_without_trials": (
+        lambda m, a: [v.update(trials=[], robustness=None) for v in m["validations"].values()],
+        "steps.robust: ran, but the primary simulator's verdict stores no trials",
+    ),
+    "robust_reason_not_a_trial": (
+        lambda m, a: _steps(m, robust={"ok": False, "reason": "pose_9"}),
+        "steps.robust: failed at 'pose_9', which is not a failed trial of the primary simulator",
+    ),
     "attempt_robustness": (
         lambda m, a: m["attempts"][0].update(robustness=2),
         "attempts: must be a list of {refinement, robust, robustness, validation} verdicts",

@@ -318,7 +318,24 @@ def _presence_problems(meta: dict, arrays: Mapping[str, np.ndarray]) -> list[str
     problems += _grasp_stage_problems(meta.get("grasp_stage"), has_grasp, steps)
     if _attempted(steps["validation"]) and not (has_grasp and "pregrasp_wrist_pose" in arrays):
         problems.append("steps.validation: attempted but the grasp or the pre-grasp is missing")
-    return problems
+    return problems + _robust_step_problems(steps["robust"], meta.get("validations"), meta.get("simulator"))
+
+
+def _robust_step_problems(step: dict, verdicts: object, simulator: object) -> list[str]:
+    """A robust step that ran must agree with the primary simulator's trials: ok = every trial held, a failure
+    names a failed trial. The primary verdict is the record simulator's, else the first stored."""
+    if not _attempted(step) or not isinstance(verdicts, dict):
+        return []
+    primary = verdicts.get(simulator) if simulator in verdicts else next(iter(verdicts.values()), None)
+    trials = primary.get("trials") if isinstance(primary, dict) else None
+    if not isinstance(trials, list) or not trials or not all(isinstance(t, dict) for t in trials):
+        return ["steps.robust: ran, but the primary simulator's verdict stores no trials"]
+    failed = [t.get("name") for t in trials if t.get("success") is not True]
+    if step["ok"] and failed:
+        return [f"steps.robust: ok, but the primary simulator's trials {failed} failed"]
+    if not step["ok"] and step["reason"] not in failed:
+        return [f"steps.robust: failed at {step['reason']!r}, which is not a failed trial of the primary simulator"]
+    return []
 
 
 def _grasp_stage_problems(stage: object, has_grasp: bool, steps: dict) -> list[str]:
