@@ -80,7 +80,7 @@ class PrepareReport:
 
     def format(self) -> str:
         """A table: one row per collision mesh, then the overlaps left."""
-        lines = [f"hand '{self.hand}': {len(self.converted)} mesh file(s) converted to OBJ"]
+        lines = [f"hand '{self.hand}': {len(self.converted)} mesh file(s) converted to OBJ (cached by hash)"]
         lines.append(f"  {'collision mesh':<28}{'links':<34}{'hull gap':>9}{'parts':>7}{'CoACD s':>9}  reason")
         for m in self.meshes:
             links = ", ".join(m.links)
@@ -97,7 +97,9 @@ class PrepareReport:
             f"other, meshes {o.mesh_gap * 1000:+.1f} mm apart"
             for o in self.overlaps_after
         ]
-        lines.append(f"  {self.seconds:.1f} s")
+        cached = any(m.cached for m in self.meshes)
+        note = " (*: parts from the cache; the time is CoACD's when they were made)" if cached else ""
+        lines.append(f"  {self.seconds:.1f} s{note}")
         return "\n".join(lines)
 
 
