@@ -94,15 +94,15 @@ def test_processing_is_cached_on_disk(folder):
 
 def test_prepare_before_run_decomposes_only_what_needs_it(folder):
     library = ObjectLibrary(sources=("user", "procedural"), user_dir=folder, procedural_count=1)
-    ids = ["user/bracket/ell", "user/box/small", "procedural/can/000", "procedural/mug/000"]
+    ids = ["user/bracket/ell", "user/box/small", "procedural/can/000", "procedural/torus/000"]
     first = {r.object_id: r.status for r in prepare_before_run(library, ids, progress=False)}
     assert first == {
         "user/bracket/ell": "decomposed",
         "user/box/small": "not_needed",
-        "procedural/mug/000": "decomposed",
+        "procedural/torus/000": "decomposed",
     }
     again = {r.object_id: r.status for r in prepare_before_run(library, ids, progress=False)}
-    assert again["user/bracket/ell"] == "cached" and again["procedural/mug/000"] == "cached"
+    assert again["user/bracket/ell"] == "cached" and again["procedural/torus/000"] == "cached"
 
 
 def test_cli_user_dir_alone_unless_with_library(folder, capsys):
