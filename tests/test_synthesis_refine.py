@@ -255,11 +255,17 @@ def test_refine_verdict_counts_tips_that_touch_without_freezing(allegro):
 
 
 def test_refinement_blow_up_becomes_a_synthesis_error(allegro):
+    no_rest_check = RefineConfig(rest_steps=0)
     with pytest.raises(SynthesisError) as info:
-        refine_grasp(ExplodingBackend(explode_after=3), allegro, box_object(), top_grasp(allegro))
+        refine_grasp(ExplodingBackend(explode_after=3), allegro, box_object(), top_grasp(allegro), no_rest_check)
     assert info.value.reason == "unstable"
     assert "exploding blew up closing hand 'allegro' on object 'test/refine_box'" in str(info.value)
     assert "non-finite object velocity" in str(info.value)
+    # the resting check (on by default) steps first: a blow-up there is 'unstable' too
+    with pytest.raises(SynthesisError) as info:
+        refine_grasp(ExplodingBackend(explode_after=3), allegro, box_object(), top_grasp(allegro))
+    assert info.value.reason == "unstable"
+    assert "exploding blew up settling 'test/refine_box'" in str(info.value)
 
 
 def test_scene_needs_one_env(allegro):

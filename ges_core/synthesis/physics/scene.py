@@ -21,8 +21,10 @@ from ges_core.sim import SimBackend
 from ges_core.synthesis.types import Grasp
 
 __all__ = [
+    "REST_AWAY",
     "TOUCH_SEPARATION",
     "HandContacts",
+    "RestDrift",
     "check_grasp",
     "closing_direction",
     "finger_joint_indices",
@@ -34,6 +36,9 @@ __all__ = [
 
 TOUCH_SEPARATION = 5e-4
 """m: a listed hand-table or hand-object pair closer than this touches (both backends' own touching distance)."""
+
+REST_AWAY = 1.0
+"""m: how far above the object the hand waits while the object settles alone (:func:`rest_drift`)."""
 
 _LOADED: weakref.WeakKeyDictionary[SimBackend, str] = weakref.WeakKeyDictionary()
 """Which hand these helpers loaded into which backend (a backend takes one hand for its lifetime)."""
@@ -61,6 +66,70 @@ def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset, *, fixed: bo
         )
     sim.load_object(obj, fixed=fixed)
     return sim.object_pose()[0]
+
+
+@dataclass(frozen=True)
+class RestDrift:
+    """How far an object left alone on the table moved from the pose it was set down in (:func:`rest_drift`)."""
+
+    shift: float
+    """Displacement of the object frame's origin, m."""
+    turn_deg: float
+    """Rotation, degrees."""
+    seconds: float
+    """Simulated time it was left alone, s."""
+
+    def exceeds(self, max_shift: float, max_turn_deg: float) -> bool:
+        """Whether it moved more than ``max_shift`` m or turned more than ``max_turn_deg`` degrees."""
+        return self.shift > max_shift or self.turn_deg > max_turn_deg
+
+
+def rest_drift(sim: SimBackend, hand: HandModel, obj: ObjectAsset, steps: int, *, tilt_deg: float = 0.0) -> RestDrift:
+    """Set ``obj`` down at its resting pose, leave it alone ``steps`` physics steps, and measure how far it went.
+
+    The hand (loaded once per backend, as :func:`stage_scene`) waits :data:`REST_AWAY` m above the object,
+    open, held by its drives. An object that rolls or tips over on its own from the library's resting pose
+    (a sphere-like scan on a slightly off support, an egg set on its tip) drifts centimetres or tens of degrees
+    in a second; one at rest moves by the engines' settling (well under a millimetre).
+
+    tilt_deg: set it down tilted this much about the world x axis through its lowest point, raised just
+    enough to clear the table: a stable pose falls back to where it rests, while a balance point (an egg on
+    its tip, which an untouched simulation keeps standing) tips over. The drift is measured from the untilted
+    resting pose. The object is left where it drifted to: stage it again before using the scene.
+    """
+    if steps < 1:
+        raise ConfigError(f"rest_drift: steps must be >= 1, got {steps}")
+    start = stage_scene(sim, hand, obj)
+    if tilt_deg:
+        sim.set_object_pose(_tilted(start, obj, tilt_deg)[None])
+    away = start.copy()
+    away[2] += REST_AWAY
+    away[3:] = (1.0, 0.0, 0.0, 0.0)
+    open_q = hand.description.apply_couplings(np.asarray(hand.description.open_pose, dtype=np.float64))
+    sim.set_hand_state(open_q[None], away[None])
+    sim.set_wrist_targets(away[None])
+    sim.set_joint_targets(open_q[None])
+    sim.step(steps)
+    end = sim.object_pose()[0]
+    w = float(np.clip(abs(np.dot(start[3:], end[3:])), 0.0, 1.0))
+    turn = float(np.degrees(2.0 * np.arccos(w)))
+    return RestDrift(float(np.linalg.norm(end[:3] - start[:3])), turn, steps * sim.config.timestep)
+
+
+def _tilted(rest: np.ndarray, obj: ObjectAsset, tilt_deg: float) -> np.ndarray:
+    """(7,) ``rest`` (7,) turned ``tilt_deg`` about world x through its origin, raised to clear the table."""
+    import trimesh
+    from scipy.spatial.transform import Rotation
+
+    turn = Rotation.from_euler("x", tilt_deg, degrees=True)
+    w, x, y, z = rest[3:]
+    rotation = turn * Rotation.from_quat([x, y, z, w])
+    verts = rotation.apply(np.asarray(trimesh.load(obj.mesh_path, force="mesh").vertices))
+    pose = rest.copy()
+    pose[2] = rest[2] - min(0.0, float(verts[:, 2].min()))
+    qx, qy, qz, qw = rotation.as_quat()
+    pose[3:] = (qw, qx, qy, qz)
+    return pose
 
 
 def check_grasp(description: HandDescription, grasp: Grasp, what: str) -> None:
