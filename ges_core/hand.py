@@ -128,6 +128,10 @@ class HandDescription:
     """Joints that follow another joint (tendons)."""
     base_link: str = ""
     """URDF root link; filled by the plugin from its URDF."""
+    settings: dict = field(default_factory=dict, hash=False)
+    """The hand's own Stage 1 settings, the YAML's ``settings:``: partial sections of the run config
+    (``contacts``, ``retarget``, ``refine``, ``pregrasp``, ``validate``, ``robust``; ``thumb_keep``), checked against
+    their models; {} when the hand sets none. How they combine with the run's: :mod:`ges_core.hand_settings`."""
 
     @property
     def num_joints(self) -> int:

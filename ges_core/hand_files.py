@@ -36,7 +36,9 @@ class FileHand(HandModel):
             if not path.is_file():
                 raise AssetError(f"hand file {path} does not exist")
         urdf_text = self._urdf_path.read_text()
-        description = description_from_yaml(self._yaml_path.read_text(), urdf_text, strict=strict, **overrides)
+        description = description_from_yaml(
+            self._yaml_path.read_text(), urdf_text, strict=strict, source=str(self._yaml_path), **overrides
+        )
         self._description = add_mimic_couplings(description, urdf_text)
 
     @property

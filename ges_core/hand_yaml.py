@@ -31,7 +31,7 @@ from pydantic import Field, ValidationError, field_validator
 
 from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS
-from ges_core.errors import AssetError
+from ges_core.errors import AssetError, ConfigError
 from ges_core.hand import FingerSpec, HandDescription, JointCoupling, WristConvention
 from ges_core.urdf import parse_urdf, root_link
 
@@ -86,6 +86,7 @@ class _HandFile(ConfigModel):
     pd_damping: PerJoint
     effort_limit: PerJoint | None = None
     couplings: list[_Coupling] = Field(default_factory=list)
+    settings: dict[str, Any] = Field(default_factory=dict)
 
 
 def urdf_joint_limits(urdf_text: str) -> dict[str, tuple[float, float] | None]:
@@ -173,10 +174,13 @@ def _effort_limits(data: _HandFile, names: list[str]) -> tuple[float, ...]:
     return limits
 
 
-def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True, **overrides: Any) -> HandDescription:
+def description_from_yaml(
+    yaml_text: str, urdf_text: str, *, strict: bool = True, source: str | None = None, **overrides: Any
+) -> HandDescription:
     """Build a HandDescription; ``overrides`` replace top-level YAML keys (registry settings).
 
     strict: reject joints without limits (the hand linter passes False to report every problem).
+    source: the YAML file's name, for messages (e.g. ``"shadow.yaml"``).
     """
     try:
         raw = yaml.safe_load(yaml_text) or {}
@@ -189,7 +193,8 @@ def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True
         data = _HandFile.model_validate(raw)
     except ValidationError as exc:
         problems = "; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors())
-        raise AssetError(f"invalid description of hand '{raw.get('name', '?')}': {problems}") from None
+        where = f" ({source})" if source else ""
+        raise AssetError(f"invalid description of hand '{raw.get('name', '?')}'{where}: {problems}") from None
     limits = urdf_joint_limits(urdf_text)
     names = data.joint_names or list(limits)
     _check_joint_names(data.name, names, list(limits))
@@ -218,4 +223,18 @@ def description_from_yaml(yaml_text: str, urdf_text: str, *, strict: bool = True
         slot_fill=dict(data.slot_fill),
         couplings=tuple(JointCoupling(**c.model_dump()) for c in data.couplings),
         base_link=root_link(urdf_text),
+        settings=_settings(data, source),
     )
+
+
+def _settings(data: _HandFile, source: str | None) -> dict[str, Any]:
+    """The YAML's ``settings:`` checked against the run config's models; AssetError naming the file and path."""
+    if not data.settings:
+        return {}
+    from ges_core.hand_settings import check_settings
+
+    try:
+        return check_settings(data.settings, "settings")
+    except ConfigError as exc:
+        where = f" ({source})" if source else ""
+        raise AssetError(f"hand '{data.name}'{where}: {exc}") from None

@@ -35,8 +35,9 @@ import torch
 
 from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
 from ges_core.hand import HandModel
+from ges_core.hand_settings import hand_validate_config
 from ges_core.policy import Expert
-from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
+from ges_core.synthesis.physics.squeeze import SQUEEZE_FORCE, squeeze_targets
 from ges_core.transforms_torch import interpolate_pose, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
 
 __all__ = ["ScriptedExpert"]
@@ -64,7 +65,7 @@ class ScriptedExpert(Expert):
         overshoot: float = 0.3,
         lift: float = 0.225,
         hand: HandModel | None = None,
-        squeeze_force: float = SQUEEZE_FORCE,
+        squeeze_force: float | None = None,
         approach_steps: int = 15,
         pause_steps: int = 5,
         carry_margin: float = 0.05,
@@ -101,8 +102,16 @@ class ScriptedExpert(Expert):
         hand: the env's hand; given, the closing targets are Stage 1 validation's squeeze instead
         (:func:`ges_core.synthesis.physics.squeeze.squeeze_targets`: each fingertip pressing ``squeeze_force`` N
         toward what it opposes). The overshoot rule pushed the Shadow thumb across its contact (0 of 21
-        objects lifted, benchmarks/scripted_baseline.py)."""
+        objects lifted, benchmarks/scripted_baseline.py). The squeeze's floor and cap (``min_squeeze``,
+        ``max_squeeze``) and, when ``squeeze_force`` is None, its force are the hand's, read as Stage 1 reads them:
+        :class:`~ges_core.synthesis.physics.validate.ValidateConfig`'s defaults with the hand YAML's
+        ``settings.validate`` over them (:func:`ges_core.hand_settings.hand_validate_config`); a hand that sets
+        none squeezes with 5 N, floor 0.05 rad, cap 0.6 rad as before."""
         self.obs_layout, self.act_layout = obs_layout, act_layout
+        self.squeeze = hand_validate_config(hand.description) if hand is not None else None
+        """The hand's squeeze settings (None without ``hand``)."""
+        if squeeze_force is None:
+            squeeze_force = self.squeeze.squeeze_force if self.squeeze is not None else SQUEEZE_FORCE
         self.hand, self.squeeze_force, self.overshoot = hand, squeeze_force, overshoot
         self.approach_steps, self.close_steps, self.pause_steps = approach_steps, close_steps, pause_steps
         self.lift, self.carry_margin, self.carry_gain = lift, carry_margin, carry_gain
@@ -167,7 +176,11 @@ class ScriptedExpert(Expert):
         close = goal.clone()
         for i in fresh.nonzero().flatten().tolist():
             press = squeeze_targets(
-                self.hand, goal[i].numpy(), force=self.squeeze_force, min_squeeze=MIN_SQUEEZE, max_squeeze=MAX_SQUEEZE
+                self.hand,
+                goal[i].numpy(),
+                force=self.squeeze_force,
+                min_squeeze=self.squeeze.min_squeeze,
+                max_squeeze=self.squeeze.max_squeeze,
             )
             close[i] = torch.as_tensor(press)
         return close

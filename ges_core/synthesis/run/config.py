@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import copy
+from typing import Any
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from ges_core.config import ConfigModel, parse_model
+from ges_core.errors import ConfigError
+from ges_core.hand_settings import check_settings, merge_settings
 from ges_core.objects.library import LibraryConfig
 from ges_core.sim import SceneConfig
 from ges_core.synthesis.contacts.generate import ContactConfig
@@ -67,6 +70,22 @@ class SynthesisConfig(ConfigModel):
         default_factory=RobustConfig,
         description="perturbation trials of every grasp whose nominal validation passed, in every validating simulator",
     )
+    # hand_settings: the top layer of the per-hand precedence (run config < the hand's YAML settings < this);
+    # ges_core.hand_settings documents it. Left out of dump() when empty, so that runs which set none keep their
+    # run_config (and its hash in every record) as before.
+    hand_settings: dict[str, dict[str, Any]] = Field(
+        default_factory=dict,
+        description="per hand name, partial sections (contacts, retarget, refine, pregrasp, validate, robust; "
+        "thumb_keep) put over the run's and the hand's YAML settings for that hand",
+    )
+
+    @field_validator("hand_settings")
+    @classmethod
+    def _checked_hand_settings(cls, value: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+        try:
+            return {hand: check_settings(section, f"hand_settings.{hand}") for hand, section in value.items()}
+        except ConfigError as exc:
+            raise ValueError(str(exc)) from None
 
     @field_validator("validate_sims")
     @classmethod
@@ -100,8 +119,27 @@ class SynthesisConfig(ConfigModel):
         return self.refine_sim if self.refine_sim in self.validate_sims else self.validate_sims[0]
 
     def dump(self) -> dict:
-        """JSON-ready settings (the ``validate`` key spelled as in YAML)."""
-        return self.model_dump(mode="json", by_alias=True)
+        """JSON-ready settings (the ``validate`` key spelled as in YAML); ``hand_settings`` only when not empty."""
+        data = self.model_dump(mode="json", by_alias=True)
+        if not data["hand_settings"]:
+            del data["hand_settings"]
+        return data
+
+    def for_hand(self, hand: str, settings: dict[str, Any] | None = None) -> SynthesisConfig:
+        """The settings of ``hand``'s steps: this config < the hand's YAML ``settings`` < ``hand_settings[hand]``.
+
+        settings: the hand's own (:attr:`ges_core.hand.HandDescription.settings`). Returns ``self`` when neither
+        layer sets anything; ConfigError naming the hand when the merged settings are invalid (e.g. a hand's
+        ``contacts.max_width`` below the run's ``min_width``). Run-wide fields (simulators, seed, points, chunks,
+        attempts, scene, library) are not per hand: the layers cannot name them.
+        """
+        layers = [settings or {}, self.hand_settings.get(hand, {})]
+        if not any(layers):
+            return self
+        data = merge_settings(self.dump(), *layers)
+        where = f"settings of hand '{hand}' (run config < the hand's YAML settings < hand_settings.{hand})"
+        merged = parse_model(SynthesisConfig, data, where=where)
+        return merged.model_copy(update={"threads": self.threads})
 
     @classmethod
     def of_dataset(cls, dataset) -> SynthesisConfig:

@@ -30,7 +30,7 @@ from ges_core.dataset import (
     software_versions,
 )
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
-from ges_core.synthesis.contacts.generate import generate_contacts
+from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
 from ges_core.synthesis.physics.robust import robust_validate
@@ -38,6 +38,7 @@ from ges_core.synthesis.physics.scene import stage_scene
 from ges_core.synthesis.physics.validate import validate_grasp
 from ges_core.synthesis.retarget.retargeter import GraspRetargeter
 from ges_core.synthesis.retarget.search import ObjectCloud
+from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.records import ObjectWork, PairResult, build_record, contacts_from_record
 from ges_core.synthesis.run.tasks import RunContext, Task, object_seed
 from ges_core.synthesis.types import Grasp, RefinedGrasp
@@ -52,12 +53,13 @@ _LOG = logging.getLogger(__name__)
 def run_task(task: Task, context: RunContext) -> list[GraspRecord]:
     """Records of every (object, hand) pair of ``task``, object order then hand order."""
     state = _state(context)
-    works = {oid: _contacts(state, oid) for oid, _ in task.pairs}
+    works = _all_contacts(state, task)
     sims = _Sims(state)
     records: dict[tuple[str, str], GraspRecord] = {}
     try:
         for hand in _hands_in_order(task):
-            todo = [works[oid] for oid, hands in task.pairs if hand in hands]
+            key = _contact_key(state, hand)
+            todo = [works[(oid, key)] for oid, hands in task.pairs if hand in hands]
             for work, result in zip(todo, _retarget(state, hand, todo), strict=True):
                 records[(work.object_id, hand)] = _finish(state, sims, hand, work, result)
                 sims.close()  # fresh simulators per object: a reused one carries the last object's history
@@ -74,6 +76,7 @@ class _State:
     registry: object
     library: object
     hands: dict = field(default_factory=dict)
+    configs: dict = field(default_factory=dict)
     retargeters: dict = field(default_factory=dict)
     renderer: object | None = None
     source: object | None = None
@@ -86,11 +89,17 @@ class _State:
             self.hands[name] = self.registry.build_hand(name)
         return self.hands[name]
 
+    def config(self, name: str) -> SynthesisConfig:
+        """The settings of hand ``name``'s steps: the run's, the hand's YAML ``settings`` and the run's
+        ``hand_settings[name]``, in that order (:meth:`SynthesisConfig.for_hand`)."""
+        if name not in self.configs:
+            self.configs[name] = self.context.config.for_hand(name, self.hand(name).description.settings)
+        return self.configs[name]
+
     def retargeter(self, name: str) -> GraspRetargeter:
         if name not in self.retargeters:
-            self.retargeters[name] = GraspRetargeter(
-                self.hand(name), self.context.config.retarget, thumb_keep=self.context.config.thumb_keep
-            )
+            cfg = self.config(name)
+            self.retargeters[name] = GraspRetargeter(self.hand(name), cfg.retarget, thumb_keep=cfg.thumb_keep)
         return self.retargeters[name]
 
 
@@ -113,8 +122,29 @@ def _hands_in_order(task: Task) -> list[str]:
     return list(dict.fromkeys(h for _, hands in task.pairs for h in hands))
 
 
-# -- step 1: contacts (shared by every hand) ---------------------------------------------------
-def _contacts(state: _State, object_id: str) -> ObjectWork:
+# -- step 1: contacts (shared by every hand with the same contact settings) ---------------------
+def _contact_key(state: _State, hand: str) -> str:
+    """The hand's contact settings as text: hands with equal ones share each object's contacts."""
+    return state.config(hand).contacts.model_dump_json()
+
+
+def _all_contacts(state: _State, task: Task) -> dict[tuple[str, str], ObjectWork]:
+    """(object id, contact key) -> the object's contact step, once per distinct contact setting its hands use.
+
+    With no hand setting its own ``contacts``, every hand shares one generation per object (as before per-hand
+    settings existed: same seed, same result). A hand with other contact settings gets its own, from the same
+    point cloud and seed.
+    """
+    works: dict[tuple[str, str], ObjectWork] = {}
+    for oid, hands in task.pairs:
+        for hand in hands:
+            key = _contact_key(state, hand)
+            if (oid, key) not in works:
+                works[(oid, key)] = _contacts(state, oid, state.config(hand).contacts)
+    return works
+
+
+def _contacts(state: _State, object_id: str, contacts: ContactConfig) -> ObjectWork:
     lib, cfg = state.library, state.context.config
     entry = lib.entry(object_id)
     seed = object_seed(cfg.seed, object_id)
@@ -128,7 +158,7 @@ def _contacts(state: _State, object_id: str) -> ObjectWork:
     start = time.perf_counter()
     try:
         points, normals = lib.point_cloud(object_id, cfg.points, seed=seed)
-        result = generate_contacts(points, normals, cfg.contacts, object_id=object_id, seed=seed)
+        result = generate_contacts(points, normals, contacts, object_id=object_id, seed=seed)
     except SynthesisError as error:
         return work.failed_contacts(error.reason, str(error), time.perf_counter() - start)
     except AssetError as error:
@@ -230,7 +260,7 @@ def _attempts(
     first of equals); none passing, the first that refined, else the first. It lists every attempt's verdicts
     and the chosen one's index when it passed; its refinement, validation and robust times are the sums over the
     attempts."""
-    retry = state.context.config.robust.retry
+    retry = state.config(hand).robust.retry
     tries = []
     for grasp in grasps:
         tries.append(_attempt(state, sims, hand, work, grasp))
@@ -268,7 +298,7 @@ def _chosen(tries: list[_Attempt]) -> int:
 
 
 def _attempt(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp) -> _Attempt:
-    cfg = state.context.config
+    cfg = state.config(hand)
     refined, refinement, errors = _refine(state, sims, hand, work, grasp)
     settled = refined.grasp if refined is not None else grasp
     pre = pregrasp(state.hand(hand), settled, work.result.approach, cfg.pregrasp, thumb_keep=cfg.thumb_keep)
@@ -282,7 +312,7 @@ def _attempt(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gra
 
 def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp):
     """(RefinedGrasp or None, the refinement step's outcome, {"refinement": error message} or {})."""
-    cfg, model = state.context.config, state.hand(hand)
+    cfg, model = state.config(hand), state.hand(hand)
     start = time.perf_counter()
     try:
         asset = state.library.get(work.object_id)
@@ -303,7 +333,7 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
     """Validate in every configured simulator, then run the perturbation trials where the nominal trial passed:
     (the primary one's nominal verdict as the validation step, its trials as the robust step, the verdict per
     simulator, {"validation_<sim>": error message} of the simulators that failed to run)."""
-    cfg = state.context.config
+    cfg = state.config(hand)
     if not cfg.validate_sims:
         return StepOutcome(ok=False, reason=NOT_RUN), StepOutcome(ok=False, reason=NOT_RUN), {}, {}
     asset = state.library.get(work.object_id)
@@ -323,7 +353,7 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
 
 def _sim_verdict(state: _State, sim, hand: str, work: ObjectWork, asset, grasp: Grasp, pre: Grasp) -> SimVerdict:
     """The nominal trial in ``sim`` and, if it passed and robust validation is on, the perturbation trials."""
-    cfg, model = state.context.config, state.hand(hand)
+    cfg, model = state.config(hand), state.hand(hand)
     result = validate_grasp(sim, model, asset, grasp, pre, cfg.validate_)
     flags = {k: bool(v) for k, v in result.flags.items()}
     verdict = SimVerdict(success=result.success, reason=result.reason, flags=flags, seconds=result.seconds)

@@ -80,7 +80,9 @@ class AllegroHand(HandModel):
     def __init__(self, **overrides: Any) -> None:
         self._source = source_urdf_path()
         yaml_text = (HERE / "allegro.yaml").read_text()
-        self._description = description_from_yaml(yaml_text, self._source.read_text(), **overrides)
+        self._description = description_from_yaml(
+            yaml_text, self._source.read_text(), source=str(HERE / "allegro.yaml"), **overrides
+        )
         self._urdf: Path | None = None
 
     @property

@@ -25,7 +25,9 @@ class ShadowHand(HandModel):
 
     def __init__(self, *, asset_dir: str | Path | None = None, **overrides: Any) -> None:
         self._urdf_path = cached_urdf(Path(asset_dir) if asset_dir is not None else None)
-        self._description = description_from_yaml(DESCRIPTION_FILE.read_text(), self.urdf_text(), **overrides)
+        self._description = description_from_yaml(
+            DESCRIPTION_FILE.read_text(), self.urdf_text(), source=str(DESCRIPTION_FILE), **overrides
+        )
 
     @property
     def description(self) -> HandDescription:

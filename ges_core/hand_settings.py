@@ -1,0 +1,130 @@
+"""Per-hand Stage 1 settings: a hand's YAML ``settings:`` section and a run's ``hand_settings``.
+
+A hand carries the Stage 1 settings that depend on the hand (how hard its fingertips must squeeze, which
+object widths its thumb and fingers span, how many fingertips must touch, ...) as *partial* sections of the
+run's :class:`~ges_core.synthesis.SynthesisConfig`::
+
+    settings:                       # in the hand's YAML (docs/hands/format.md)
+      validate: {squeeze_force: 3.0, min_squeeze: 0.25, min_tips: 2}
+      contacts: {max_width: 0.09}
+      thumb_keep: 1
+
+Precedence, lowest first (each layer replaces only the keys it names; nested sections merge key by key):
+
+1. the run config (``SynthesisConfig``: its defaults or what the run's YAML / ``-o`` gave);
+2. the hand's YAML ``settings:`` (what the hand's author knows about the hand);
+3. the run config's ``hand_settings: {HAND: {...}}`` (what this run wants for that hand).
+
+:meth:`ges_core.synthesis.SynthesisConfig.for_hand` applies the three; the Stage 1 worker builds every step's
+config of a hand from its result, and the Stage 2 scripted expert reads the hand's squeeze the same way
+(:func:`hand_validate_config`). A hand that sets nothing runs with the run config unchanged.
+
+Each section is checked against the real config model (unknown keys, wrong types and out-of-range values
+rejected, with the dotted path). The models are imported only when a hand has settings: they pull in torch.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any
+
+from pydantic import ValidationError
+
+from ges_core.errors import ConfigError
+
+if TYPE_CHECKING:
+    from ges_core.hand import HandDescription
+    from ges_core.synthesis.physics.validate import ValidateConfig
+
+__all__ = ["SECTIONS", "SCALARS", "check_settings", "hand_validate_config", "merge_settings"]
+
+SECTIONS = ("contacts", "retarget", "refine", "pregrasp", "validate", "robust")
+"""Sections of :class:`~ges_core.synthesis.SynthesisConfig` a hand may set (keys as spelled in YAML)."""
+SCALARS = ("thumb_keep",)
+"""Top-level :class:`~ges_core.synthesis.SynthesisConfig` values a hand may set."""
+
+
+def _models() -> dict[str, type]:
+    """Section name -> its config model (imported here: they pull in torch)."""
+    from ges_core.synthesis.contacts.generate import ContactConfig
+    from ges_core.synthesis.physics.pregrasp import PregraspConfig
+    from ges_core.synthesis.physics.refine import RefineConfig
+    from ges_core.synthesis.physics.robust import RobustConfig
+    from ges_core.synthesis.physics.validate import ValidateConfig
+    from ges_core.synthesis.retarget.retargeter import RetargetConfig
+
+    return {
+        "contacts": ContactConfig,
+        "retarget": RetargetConfig,
+        "refine": RefineConfig,
+        "pregrasp": PregraspConfig,
+        "validate": ValidateConfig,
+        "robust": RobustConfig,
+    }
+
+
+def check_settings(data: object, where: str) -> dict[str, Any]:
+    """``data`` checked as partial per-hand settings; returns a deep copy (plain YAML/JSON data).
+
+    where: what the settings are, for messages (e.g. ``"hand 'shadow' (shadow.yaml) settings"``); every problem
+    is named by its dotted path under it. ConfigError listing every problem.
+    """
+    if data is None:
+        return {}
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: must be a mapping of sections ({', '.join(SECTIONS + SCALARS)}), got {data!r}")
+    problems = []
+    allowed = SECTIONS + SCALARS
+    for key in data:
+        if key not in allowed:
+            problems.append(f"{where}.{key}: unknown section (known: {', '.join(allowed)})")
+    models = _models() if any(k in SECTIONS for k in data) else {}
+    for key, value in data.items():
+        if key in SECTIONS:
+            problems += _section_problems(models[key], value, f"{where}.{key}")
+    if "thumb_keep" in data:
+        keep = data["thumb_keep"]
+        if isinstance(keep, bool) or not isinstance(keep, int) or keep < 0:
+            problems.append(f"{where}.thumb_keep: must be an integer >= 0 (proximal thumb joints kept), got {keep!r}")
+    if problems:
+        raise ConfigError("invalid per-hand settings: " + "; ".join(problems), problems=problems)
+    return copy.deepcopy(dict(data))
+
+
+def _section_problems(model: type, value: object, where: str) -> list[str]:
+    """Problems of one partial section against its model (its defaults fill what it leaves out)."""
+    if not isinstance(value, Mapping):
+        return [f"{where}: must be a mapping of {model.__name__} fields, got {value!r}"]
+    try:
+        model.model_validate(dict(value))
+    except ValidationError as exc:
+        return [f"{where}{''.join('.' + str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()]
+    return []
+
+
+def merge_settings(base: Mapping, *layers: Mapping | None) -> dict:
+    """Deep copy of ``base`` with each layer's keys put over it in turn (mappings merge key by key; any other
+    value, lists included, replaces)."""
+    out = copy.deepcopy(dict(base))
+    for layer in layers:
+        for key, value in (layer or {}).items():
+            if isinstance(value, Mapping) and isinstance(out.get(key), Mapping):
+                out[key] = merge_settings(out[key], value)
+            else:
+                out[key] = copy.deepcopy(value)
+    return out
+
+
+def hand_validate_config(description: HandDescription, base: ValidateConfig | None = None) -> ValidateConfig:
+    """``base`` (default: :class:`ValidateConfig`'s defaults) with the hand's ``settings.validate`` over it: the
+    squeeze and pass marks that Stage 1 validation of this hand uses when the run sets nothing else."""
+    from ges_core.config import parse_model
+    from ges_core.synthesis.physics.validate import ValidateConfig
+
+    base = base or ValidateConfig()
+    section = description.settings.get("validate")
+    if not section:
+        return base
+    data = merge_settings(base.model_dump(mode="json"), section)
+    return parse_model(ValidateConfig, data, where=f"hand '{description.name}' settings.validate")
