@@ -27,6 +27,7 @@ from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
+from ges_core.hand_prep.engine_urdf import engine_urdf
 from ges_core.kinematics import HandKinematics
 from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, open_joint_mask
 from ges_core.synthesis.retarget.search import (
@@ -119,7 +120,9 @@ class GraspRetargeter:
         # 2 cm lower than at the grasp and pressed the table at 80-200 N on flat objects (jenga, random_urdfs/000).
         self._opened = torch.as_tensor(open_joint_mask(d, thumb_keep))
         """(K,) joints the pre-grasp and refinement open (their table clearance is checked too)."""
-        hull = collision_points(hand.urdf_text())
+        # engine_urdf: what the simulators load (absolute mesh paths, converted meshes, prepared parts); the
+        # very same text for a URDF that needs none of it (Allegro, Shadow), relative paths for a FileHand's.
+        hull = collision_points(engine_urdf(hand.urdf_text(), hand.urdf_path().parent))
         self.hull_links = list(hull)
         """Links whose collision geometry the wrist search keeps off the table."""
         self._hull_link_of = torch.as_tensor(np.repeat(np.arange(len(hull)), [len(v) for v in hull.values()]))

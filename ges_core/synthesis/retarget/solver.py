@@ -273,10 +273,10 @@ class VectorRetargeter:
 
     def _couple(self, q: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """q with followers set from leaders (clipped), and (B, C) True where a follower is not clipped."""
-        fol, lead, ratio = self._couplings
+        fol, lead, ratio, offset = self._couplings
         if len(fol) == 0:
             return q, torch.ones(q.shape[0], 0, dtype=torch.bool)
-        value = ratio * q[:, lead]
+        value = ratio * q[:, lead] + offset
         lo, hi = self.limits[fol, 0], self.limits[fol, 1]
         q = q.clone()
         q[:, fol] = torch.maximum(torch.minimum(value, hi), lo)
@@ -436,7 +436,7 @@ class VectorRetargeter:
 
     def _fold_couplings(self, jac: torch.Tensor, live: torch.Tensor) -> torch.Tensor:
         """(B, F, P, 3, K) Jacobian with each follower's column added to its leader's (times ratio, if not clipped)."""
-        fol, lead, ratio = self._couplings
+        fol, lead, ratio, _ = self._couplings
         if len(fol) == 0:
             return jac
         scale = (ratio * live).reshape(live.shape[0], *([1] * (jac.dim() - 2)), -1)
@@ -493,8 +493,11 @@ def _finger_layout(d: HandDescription, dtype: torch.dtype) -> _FingerLayout:
     )
 
 
-def _coupling_tensors(d: HandDescription, dtype: torch.dtype) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """(C,) follower indices, (C,) leader indices, (C,) ratios."""
+def _coupling_tensors(
+    d: HandDescription, dtype: torch.dtype
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(C,) follower indices, (C,) leader indices, (C,) ratios, (C,) offsets (radians): ``q_f = r q_l + o``."""
     fol = torch.as_tensor(d.joint_index([c.follower for c in d.couplings]), dtype=torch.long)
     lead = torch.as_tensor(d.joint_index([c.leader for c in d.couplings]), dtype=torch.long)
-    return fol, lead, torch.tensor([c.ratio for c in d.couplings], dtype=dtype)
+    ratio = torch.tensor([c.ratio for c in d.couplings], dtype=dtype)
+    return fol, lead, ratio, torch.tensor([c.offset for c in d.couplings], dtype=dtype)
