@@ -173,11 +173,23 @@ def write_manifest(root: Path, manifest: dict, entries: list[dict]) -> None:
 
     The header is indented; the index holds one compact line per record (diffs and ``grep`` stay easy).
     """
-    header = {k: v for k, v in manifest.items() if k != "records"} | {"updated": utc_now()}
+    header = {k: v for k, v in manifest.items() if k not in ("records", "hands")} | {"updated": utc_now()}
     index = sorted(entries, key=lambda e: (e["hand"], e["object_id"]))
     rows = ",\n".join("  " + json.dumps(e, sort_keys=True) for e in index)
-    text = json.dumps(header, indent=1, sort_keys=True)[:-2] + f',\n "records": [\n{rows}\n ]\n}}\n'
+    hands = _hands_text(manifest["hands"]) if "hands" in manifest else ""
+    text = json.dumps(header, indent=1, sort_keys=True)[:-2] + hands + f',\n "records": [\n{rows}\n ]\n}}\n'
     atomic_write_text(root / MANIFEST, text)
+
+
+def _hands_text(hands: dict) -> str:
+    """The manifest's ``hands`` (:mod:`ges_core.dataset.hands`) as JSON text with one line per description field."""
+    parts = []
+    for name, entry in sorted(hands.items()):
+        fields = entry.get("description", {}) if isinstance(entry, dict) else {}
+        lines = ",\n".join(f"    {json.dumps(k)}: {json.dumps(v)}" for k, v in sorted(fields.items()))
+        head = json.dumps({k: v for k, v in entry.items() if k != "description"}, sort_keys=True)[1:-1]
+        parts.append(f'  {json.dumps(name)}: {{{head}, "description": {{\n{lines}\n  }}}}')
+    return ',\n "hands": {\n' + ",\n".join(parts) + "\n }"
 
 
 def move_aside(root: Path, rel: str) -> str:

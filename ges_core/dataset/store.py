@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from ges_core.dataset.checks import record_problems
+from ges_core.dataset.hands import check_hands
 from ges_core.dataset.layout import (
     DAMAGED_DIR,
     DATASET_FORMAT,
@@ -83,6 +84,12 @@ class DatasetWriter:
         between are safe on disk and adopted on the next open; :meth:`close` (or leaving a ``with``
         block) writes the manifest. Rewriting an index of N records after each of N records would
         cost O(N^2) bytes, which a large run notices.
+    hands: per hand name, ``{"hash", "description"}`` of the hand as this run builds it
+        (:func:`ges_core.dataset.hands.hand_entry`), kept in the manifest's ``hands``. Resuming a folder that holds
+        records of a hand whose stored hash differs raises ConfigError naming the changed fields, unless
+        ``allow_config_change`` (the old entry then goes to ``hands_history``). A folder written before hands were
+        recorded (no ``hands`` in its manifest) opens as before: its records' hands cannot be checked (a note says
+        so) and this run's hands are recorded from then on. None: the stored ``hands`` are kept, unchecked.
     """
 
     def __init__(
@@ -92,9 +99,11 @@ class DatasetWriter:
         *,
         allow_config_change: bool = False,
         manifest_interval: float = MANIFEST_INTERVAL_S,
+        hands: dict[str, dict] | None = None,
     ) -> None:
         self.root = Path(path)
         self.run_config = normalize_config(run_config)
+        self.hands = None if hands is None else normalize_config(hands)
         self.config_hash = config_hash(self.run_config)
         """What :meth:`add` stamps on records that carry no run-config hash."""
         self.manifest_interval = manifest_interval
@@ -195,6 +204,8 @@ class DatasetWriter:
         else:
             kept = self._check_config(dict(manifest, version=DATASET_VERSION), allow_config_change)
             kept = self._check_records_config(kept, index, allow_config_change)
+        kept, notes = check_hands(self.root, kept, self.hands, [hand for _, hand in index.records], allow_config_change)
+        self.recovered += notes
         if manifest is None and (self.root / MANIFEST).exists():
             aside = move_aside(self.root, MANIFEST)
             self.recovered.append(f"{MANIFEST} could not be read ({why}): moved to {aside}")

@@ -30,7 +30,14 @@ from pathlib import Path
 from ges_core.dataset import DatasetWriter
 from ges_core.errors import ConfigError
 from ges_core.synthesis.run.config import SynthesisConfig
-from ges_core.synthesis.run.tasks import RegistrySpec, RunContext, Task, check_plugin_names, plan_tasks
+from ges_core.synthesis.run.tasks import (
+    RegistrySpec,
+    RunContext,
+    Task,
+    check_plugin_names,
+    hand_entries,
+    plan_tasks,
+)
 from ges_core.synthesis.run.worker import run_task
 from ges_core.threads import resolve_threads, set_torch_threads
 
@@ -75,7 +82,8 @@ def run_synthesis(
     resolve_threads(config.threads)  # a bad $GES_THREADS fails here, before the dataset folder exists
     registry = registry or RegistrySpec()
     check_plugin_names(hands, config, registry)  # before the dataset folder exists
-    with DatasetWriter(out, config.dump()) as writer:
+    entries = hand_entries(hands, registry)  # a resumed dataset refuses hands that changed (docs/dataset.md)
+    with DatasetWriter(out, config.dump(), hands=entries) as writer:
         report = RunReport(Path(out), recovered=list(writer.recovered))
         tasks, report.skipped = plan_tasks(list(object_ids), list(hands), config.chunk_size, writer.has)
         context = RunContext(config, registry, str(pictures) if pictures else None, _source(source))

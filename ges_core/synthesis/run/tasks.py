@@ -17,7 +17,7 @@ from ges_core.synthesis.run.config import SynthesisConfig
 if TYPE_CHECKING:
     from ges_core.registry import Registry
 
-__all__ = ["RegistrySpec", "RunContext", "Task", "check_plugin_names", "object_seed", "plan_tasks"]
+__all__ = ["RegistrySpec", "RunContext", "Task", "check_plugin_names", "hand_entries", "object_seed", "plan_tasks"]
 
 
 def object_seed(seed: int, object_id: str) -> int:
@@ -85,6 +85,15 @@ def check_plugin_names(hands: Sequence[str], config: SynthesisConfig, registry: 
         for sim in sims:
             if sim not in loaded.names("sim"):
                 raise UnknownNameError("sim", sim, loaded.names("sim"), where=f" ({field})")
+
+
+def hand_entries(hands: Sequence[str], registry: RegistrySpec) -> dict[str, dict]:
+    """Per hand, what the dataset keeps of it (:func:`ges_core.dataset.hands.hand_entry`: the hash of its description,
+    settings, URDF and meshes as this run builds them, and the description field by field)."""
+    from ges_core.dataset.hands import hand_entry
+
+    loaded = registry.load()
+    return {hand: hand_entry(loaded.build_hand(hand)) for hand in hands}
 
 
 @dataclass(frozen=True)
