@@ -5,19 +5,25 @@ PD gains) are mappings whose keys are full-match regular expressions over joint 
 optional ``default``; they are expanded once here, and a pattern that matches no joint is an
 error. ``ges info hand NAME`` prints the resolved table.
 
-Example::
+The format, field by field with units and frames and the built-in hands as examples:
+``docs/hands/format.md``. Abridged from ``plugins/hands/allegro/allegro.yaml``::
 
     name: allegro
     fingers:
-      - {name: index, slot: index, joints: [joint_0.0, ...], tip_link: link_3.0_tip}
+      - {name: index, slot: index, joints: [joint_0.0, joint_1.0, joint_2.0, joint_3.0], tip_link: link_3.0_tip,
+         tip_offset: [0.012, 0.0, 0.0], pad_normal: [1.0, 0.0, 0.0],
+         keypoint_links: [link_1.0, link_2.0, link_3.0, link_3.0_tip]}
+      # middle, ring, thumb alike
     slot_fill: {little: ring}
-    wrist: {link: palm, palm_normal: [1, 0, 0], finger_direction: [0, 0, 1]}
-    middle_finger_length: 0.105
-    scale: 1.33
-    open_pose: {default: 0.0, "joint_12.0": 0.3}
-    pd_stiffness: {default: 5.0}
-    pd_damping: {default: 0.1}
+    wrist: {link: base_link, palm_normal: [1.0, 0.0, 0.0], finger_direction: [0.0, 0.0, 1.0]}
+    middle_finger_length: 0.1311
+    scale: 1.311
+    open_pose: {default: 0.0, "joint_12\\\\.0": 0.263}
+    pd_stiffness: {default: 400.0}
+    pd_damping: {default: 10.0}
     effort_limit: {default: 0.5}     # optional: the real actuators' torque limits, N·m
+    couplings: []                    # optional: {follower, leader, ratio, offset}
+    settings: {}                     # optional: the hand's own Stage 1 settings (ges_core.hand_settings)
 """
 
 from __future__ import annotations
