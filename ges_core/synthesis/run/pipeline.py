@@ -5,7 +5,9 @@
 >>> report.written, report.skipped
 
 Per object (one seed per object, derived from ``(seed, object_id)``, never from the order):
-point cloud (``points`` samples) -> five contacts (shared by every hand). Per hand: the contact sets of
+point cloud (``points`` samples) -> five contacts (shared by every hand with the same contact settings). Each
+hand's steps run with :meth:`SynthesisConfig.for_hand` (the run config < the hand YAML's ``settings`` <
+``hand_settings[hand]``, :mod:`ges_core.hand_settings`). Per hand: the contact sets of
 a whole chunk of objects are retargeted as one batch (batched solves are much cheaper per grasp;
 each grasp's solution does not depend on its batch mates, see ``tests/test_synthesis_pipeline.py``),
 then per object: refinement in ``refine_sim``, pre-grasp, validation in every ``validate_sims``
@@ -16,7 +18,9 @@ Objects are cut into fixed chunks of ``chunk_size`` (in the order given) whateve
 workers; each (object, hand) gets fresh simulators (a reused scene carries the previous object's
 history, see :mod:`.worker`), so a record does not depend on its chunk mates, on resuming or on
 ``workers``. The parent process alone writes the dataset (atomic, resumable:
-stored (object, hand) pairs are skipped), each task's records as soon as that task finishes.
+stored (object, hand) pairs are skipped), each task's records as soon as that task finishes. It keeps each
+hand's description and hash in the manifest and refuses to resume with a hand that changed
+(:mod:`ges_core.dataset.hands`).
 """
 
 from __future__ import annotations
