@@ -8,7 +8,7 @@ import pytest
 
 from ges_core.config import parse_model
 from ges_core.dataset import open_dataset
-from ges_core.errors import AssetError, ConfigError
+from ges_core.errors import AssetError, ConfigError, UnknownNameError
 from ges_core.hand_settings import hand_validate_config, merge_settings
 from ges_core.hand_yaml import description_from_yaml
 from ges_core.synthesis import SynthesisConfig, ValidateConfig, run_synthesis
@@ -98,6 +98,13 @@ def test_bad_hand_settings_and_bad_merges_are_config_errors():
         parse_model(SynthesisConfig, {"hand_settings": {"shadow": {"validate": {"min_squez": 0.4}}}})
     with pytest.raises(ConfigError, match=r"settings of hand 'shadow'.*min_width"):
         SynthesisConfig().for_hand("shadow", {"contacts": {"max_width": 0.004}})  # below the run's min_width
+
+
+def test_hand_settings_of_an_unknown_hand_is_refused_before_the_run(tmp_path):
+    cfg = parse_model(SynthesisConfig, {"hand_settings": {"shadw": {"validate": {"min_squeeze": 0.2}}}})
+    with pytest.raises(UnknownNameError, match=r"shadw.*hand_settings.*shadow"):
+        run_synthesis(["procedural/box/000"], ["shadow"], cfg, tmp_path / "ds")
+    assert not (tmp_path / "ds").exists()
 
 
 def test_merge_settings_replaces_lists_and_merges_mappings():

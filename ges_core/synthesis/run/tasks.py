@@ -73,7 +73,8 @@ class RegistrySpec:
 
 
 def check_plugin_names(hands: Sequence[str], config: SynthesisConfig, registry: RegistrySpec) -> None:
-    """UnknownNameError ("did you mean") for a hand or simulator of the run that the registry does not hold.
+    """UnknownNameError ("did you mean") for a hand or simulator of the run, or a hand named in ``hand_settings``,
+    that the registry does not hold.
 
     Called before the dataset folder is created: a manifest naming an unknown simulator would make the corrected
     run look like a change of config.
@@ -81,6 +82,9 @@ def check_plugin_names(hands: Sequence[str], config: SynthesisConfig, registry: 
     loaded = registry.load()
     for hand in hands:
         loaded.spec("hand", hand)
+    for hand in config.hand_settings:  # a misspelt hand there would silently set nothing
+        if hand not in loaded.names("hand"):
+            raise UnknownNameError("hand", hand, loaded.names("hand"), where=" (hand_settings)")
     for field, sims in (("refine_sim", [config.refine_sim]), ("validate_sims", config.validate_sims)):
         for sim in sims:
             if sim not in loaded.names("sim"):
