@@ -163,3 +163,15 @@ def test_contacts_are_shared_when_equal_and_generated_per_hand_when_not(tmp_path
     assert moved > 1e-3  # 3 cm spacing instead of 2 cm: the allegro's fingers sit elsewhere
     for field in ("positions", "normals"):  # the other hand keeps the contacts it had
         assert np.array_equal(getattr(own["shadow"].contacts, field), getattr(shared["shadow"].contacts, field))
+
+
+def test_a_hands_validation_settings_reach_its_validation(tmp_path):
+    """Allegro (4 fingertips) asked for 5 touching tips can never pass; the same grasp passes with the defaults."""
+    cfg = parse_model(SynthesisConfig, {"robust": {"enabled": False}, "attempts": 1})
+    run_synthesis(["procedural/box/000"], ["allegro"], cfg, tmp_path / "plain")
+    strict = RegistrySpec(overrides=("settings.hand.allegro.settings={validate: {min_tips: 5}}",))
+    run_synthesis(["procedural/box/000"], ["allegro"], cfg, tmp_path / "strict", registry=strict)
+    plain, tight = (open_dataset(tmp_path / n).get("procedural/box/000", "allegro") for n in ("plain", "strict"))
+    assert plain.steps["validation"].ok
+    assert not tight.steps["validation"].ok and tight.steps["validation"].reason == "palm_only"
+    assert np.array_equal(plain.grasp.q, tight.grasp.q)  # the same grasp: only the pass mark differs
