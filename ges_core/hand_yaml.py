@@ -199,8 +199,8 @@ def description_from_yaml(
         data = _HandFile.model_validate(raw)
     except ValidationError as exc:
         problems = "; ".join(f"{'.'.join(str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors())
-        where = f" ({source})" if source else ""
-        raise AssetError(f"invalid description of hand '{raw.get('name', '?')}'{where}: {problems}") from None
+        where = f" (in {source})" if source else ""
+        raise AssetError(f"invalid description of hand '{raw.get('name', '?')}': {problems}{where}") from None
     limits = urdf_joint_limits(urdf_text)
     names = data.joint_names or list(limits)
     _check_joint_names(data.name, names, list(limits))
