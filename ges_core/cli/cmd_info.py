@@ -53,4 +53,5 @@ def format_hand(d: HandDescription) -> str:
     for name, (lo, hi), q0, kp, kd in rows:
         lines.append(f"  {name:<14}{lo:>9.3f}{hi:>9.3f}{q0:>9.3f}{kp:>10.3g}{kd:>9.3g}")
     lines.extend(f"  coupling: {c.follower} = {c.ratio:g} x {c.leader} + {c.offset:g} rad" for c in d.couplings)
+    lines.append(f"  settings (over the run config's, docs/hands/format.md): {d.settings or 'none'}")
     return "\n".join(lines)
