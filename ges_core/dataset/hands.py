@@ -7,9 +7,10 @@ description is flat so that a change is named in one line (``pd_stiffness[FFJ1]:
   (``joint_limits[J]``, ``open_pose[J]``, ``pd_stiffness[J]``, ``pd_damping[J]``, ``effort_limit[J]``), fingers by
   finger name (``fingers[ff].tip_offset``), couplings by follower, ``slot_fill[slot]``, the YAML's settings by
   dotted path (``settings.validate.min_squeeze``);
-* ``urdf``: the SHA-256 of the URDF the simulators load, with each mesh file name replaced by its content's hash
-  (so the folder the files sit in, e.g. a cache directory, does not count), and ``mesh[LINK/collision/0]`` (and
-  ``visual``) the hash of each mesh file's bytes; a missing mesh file hashes its name.
+* ``urdf``: the SHA-256 of the URDF the simulators load (converted meshes, prepared collision parts), with each
+  mesh file name replaced by its content's hash (so the folder the files sit in, e.g. a cache directory, does not
+  count), and ``mesh[LINK/collision/0]`` (and ``visual``) the hash of each mesh file's bytes; a missing mesh file
+  hashes its name.
 
 A resumed run compares this with the hands it builds (:meth:`ges_core.dataset.DatasetWriter`): a hand whose hash
 changed is refused, the fields that differ named.
@@ -80,10 +81,17 @@ def _flat(data: object, prefix: str) -> dict[str, object]:
 
 
 def urdf_fields(text: str, base_dir: Path) -> dict[str, str]:
-    """``urdf`` (the text with mesh names replaced by their content hashes) and ``mesh[LINK/KIND/i]`` hashes."""
+    """``urdf`` (the URDF the engines load, with mesh names replaced by their content hashes) and
+    ``mesh[LINK/KIND/i]`` hashes.
+
+    "The URDF the engines load" is :func:`ges_core.hand_prep.engine_urdf.engine_urdf`'s: meshes converted, mimic
+    tags removed, and a collision mesh that ``ges hand prepare`` decomposed replaced by its convex parts (so
+    preparing a hand after records were made changes its hash, as it changes the hand's collision).
+    """
+    from ges_core.hand_prep.engine_urdf import engine_urdf
     from ges_core.hand_prep.meshes import resolve_mesh_path
 
-    root = parse_urdf(text)
+    root = parse_urdf(engine_urdf(text, base_dir))
     out: dict[str, str] = {}
     for link in root.findall("link"):
         for kind in ("collision", "visual"):
