@@ -16,7 +16,7 @@ from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import grasp_start_pose
-from ges_core.synthesis import pregrasp
+from ges_core.synthesis import PregraspConfig, pregrasp
 from ges_core.synthesis.types import Grasp
 
 __all__ = ["HELD_CLOSURE", "build_grasp_env", "grasp_targets", "held_grasp_targets"]
@@ -50,7 +50,10 @@ def held_grasp_targets(hand: HandModel, shifts: np.ndarray) -> GraspTargets:
     d = hand.description
     pose = grasp_start_pose(hand, np.array([0.0, 0.0, 0.05]), HELD_CLOSURE, object_top=0.1)
     grasp = Grasp(hand=d.name, wrist_pose=pose, q=np.asarray(d.closed_pose(HELD_CLOSURE)))
-    pre = pregrasp(hand, grasp, approach=np.array([0.0, 0.0, -1.0]))  # palm-down: the hand moves down
+    # palm-down: the hand moves down. opening="open_pose": the opened hand HELD_CLOSURE was measured with (Stage 1's
+    # default retracts each finger 3 cm from its contact; this synthetic grasp is not refined, its tips lie inside
+    # the box, and retracted from there PyBullet's expert no longer lifted it)
+    pre = pregrasp(hand, grasp, approach=np.array([0.0, 0.0, -1.0]), config=PregraspConfig(opening="open_pose"))
     shifts = np.asarray(shifts, dtype=np.float64)
     move = np.concatenate([shifts, np.zeros((len(shifts), 4))], axis=1)
     rows = [np.tile(r, (len(shifts), 1)) for r in (grasp.wrist_pose, grasp.q, pre.wrist_pose, pre.q)]
