@@ -13,6 +13,7 @@ import trimesh
 
 from ges_core.cli import main
 from ges_core.hand_files import FileHand
+from ges_core.hand_prep.meshes import converted_mesh, resolve_mesh_path
 from ges_core.lint import lint_hand
 from ges_core.lint.checks_assets import check_tip_collision
 from ges_core.lint.urdf_tree import UrdfTree
@@ -178,15 +179,25 @@ def test_parallel_fingers_cannot_oppose(capsys, tmp_path):
     assert code == 0, lines
 
 
-def test_raw_ability_files_lint(capsys):
-    """mani-skill's raw Ability URDF (.glb visuals, mimic tags, tip frames): what a new user meets first."""
+def test_raw_ability_files_lint(monkeypatch, tmp_path):
+    """mani-skill's raw Ability URDF (.glb visuals, mimic tags, tip frames): what a new user meets first.
+
+    An empty cache of its own: the session's shared one holds the .glb files' OBJ copies once another test
+    (test_hand_prep*) has converted them, and then the meshes problem is only a note (checked last here)."""
+    monkeypatch.setenv("GES_CACHE_DIR", str(tmp_path / "cache"))
     hand = FileHand(ABILITY_YAML, ABILITY_GLB, strict=False)
     problems = lint_hand(hand, skip=("hull-overlap",))
     checks = {p.check for p in problems if not p.note}
     assert {"tip-collision", "meshes", "inertia"} <= checks
+    meshes = [p for p in problems if p.check == "meshes"]
+    assert all("cannot load" in str(p) and "ges hand prepare" in str(p) for p in meshes), meshes
     assert sum(p.check == "mimic" and p.note for p in problems) == 4
     assert sum(p.check == "tip-collision" for p in problems) == 5
     assert not [p for p in problems if p.check in ("opposition", "wrist-frame")]
+    for name in set(re.findall(r'filename="([^"]+\.glb)"', ABILITY_GLB.read_text())):
+        converted_mesh(resolve_mesh_path(name, ABILITY_GLB.parent))  # what `ges hand prepare` does for them
+    converted = [p for p in lint_hand(hand, skip=("hull-overlap",)) if p.check == "meshes"]
+    assert len(converted) == len(meshes) and all(p.note and "its OBJ copy" in str(p) for p in converted)
 
 
 @pytest.mark.sim
