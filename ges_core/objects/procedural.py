@@ -100,15 +100,20 @@ def plate(rng: np.random.Generator) -> Shape:
     return _box_shape((p["length"], p["width"], p["thickness"]), p)
 
 
-def can(rng: np.random.Generator) -> Shape:
-    """Standing cylinder, 5-9 cm in diameter."""
-    p = {"radius": _u(rng, 0.025, 0.045), "height": _u(rng, 0.06, 0.14)}
+def _standing_cylinder(p: dict[str, float]) -> Shape:
+    """Cylinder of ``p["radius"]`` and ``p["height"]`` (m) standing on its base at z = 0 (one exact primitive)."""
     mesh = trimesh.creation.cylinder(radius=p["radius"], height=p["height"], sections=SECTIONS)
     mesh.apply_translation((0.0, 0.0, p["height"] / 2))
     prim = PrimitiveShape(
         kind="cylinder", size=(p["radius"], p["height"] / 2), pose=_pose((0, 0, p["height"] / 2), X_TO_Z)
     )
     return Shape(mesh=mesh, kind="primitive", primitives=(prim,), params=p)
+
+
+def can(rng: np.random.Generator) -> Shape:
+    """Standing cylinder, 5-9 cm in diameter."""
+    p = {"radius": _u(rng, 0.025, 0.045), "height": _u(rng, 0.06, 0.14)}
+    return _standing_cylinder(p)
 
 
 def sphere(rng: np.random.Generator) -> Shape:
@@ -393,12 +398,7 @@ def spray_can(rng: np.random.Generator) -> Shape:
 def puck(rng: np.random.Generator) -> Shape:
     """Short wide disc lying flat (a jar lid, a hockey puck), 6-10 cm across, 1.5-3 cm tall."""
     p = {"radius": _u(rng, 0.03, 0.05), "height": _u(rng, 0.015, 0.03)}
-    mesh = trimesh.creation.cylinder(radius=p["radius"], height=p["height"], sections=SECTIONS)
-    mesh.apply_translation((0.0, 0.0, p["height"] / 2))
-    prim = PrimitiveShape(
-        kind="cylinder", size=(p["radius"], p["height"] / 2), pose=_pose((0, 0, p["height"] / 2), X_TO_Z)
-    )
-    return Shape(mesh=mesh, kind="primitive", primitives=(prim,), params=p)
+    return _standing_cylinder(p)
 
 
 def remote(rng: np.random.Generator) -> Shape:
