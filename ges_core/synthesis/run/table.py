@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from ges_core.dataset import TOTAL_STEPS, GraspRecord
+from ges_core.dataset import NOT_RUN, TOTAL_STEPS, GraspRecord
 from ges_core.dataset.summary import (
     TOTAL_TIME,
     StepStats,
@@ -43,8 +43,8 @@ class TableRow:
     simulator: str
     objects: int
     steps: dict[str, StepStats]
-    validated: int
-    """Records whose grasp passed the paper's single physics validation trial."""
+    validated: int | None
+    """Records whose grasp passed the paper's single physics validation trial; None when validation did not run."""
     validation_median: float | None
     total_median: float | None
     """Median over objects whose times are known of the :data:`TOTAL_STEPS` seconds."""
@@ -78,7 +78,6 @@ def _row(hand: str, sim: str, records: list[GraspRecord]) -> TableRow:
     validation = [s for s in validation if s is not None]
     robust = [r.steps["robust"].seconds for r in records if r.steps["robust"].attempted]
     robust = [s for s in robust if s is not None]
-    ran = any(r.steps["robust"].attempted for r in records)
     times = ([r.steps[s].seconds for s in TOTAL_STEPS] for r in records)
     totals = [sum(t) for t in times if None not in t]
     failures: dict[str, int] = {}
@@ -91,14 +90,21 @@ def _row(hand: str, sim: str, records: list[GraspRecord]) -> TableRow:
         simulator=sim,
         objects=len(records),
         steps=steps,
-        validated=sum(bool(r.steps["validation"].ok) for r in records),
+        validated=sum(bool(r.steps["validation"].ok) for r in records) if _ran(records, "validation") else None,
         validation_median=float(np.median(validation)) if validation else None,
         total_median=float(np.median(totals)) if totals else None,
         failures=dict(sorted(failures.items())),
-        robust=sum(r.robust for r in records) if ran else None,
+        robust=sum(r.robust for r in records) if _ran(records, "robust") else None,
         robust_median=float(np.median(robust)) if robust else None,
         records=tuple(records),
     )
+
+
+def _ran(records: list[GraspRecord], step: str) -> bool:
+    """False when the run had ``step`` switched off: no record attempted it and some record that reached it says
+    NOT_RUN (a record that failed earlier says SKIPPED either way, so if none reached it, it counts as on)."""
+    steps = [r.steps[step] for r in records]
+    return any(s.attempted for s in steps) or not any(s.reason == NOT_RUN for s in steps)
 
 
 def agreement_rates(records: Iterable[GraspRecord]) -> dict[str, dict]:

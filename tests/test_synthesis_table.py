@@ -1,0 +1,37 @@
+"""The run table's validated and robust columns: a count when the step was on, "not run" only when it was off."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+from test_dataset import make_record
+
+from ges_core.dataset import NOT_RUN, StepOutcome
+from ges_core.synthesis.run.table import format_table, table_rows
+
+OFF = StepOutcome(ok=False, reason=NOT_RUN)
+
+
+def _switched_off(record, *steps: str):
+    """``record`` as a run with ``steps`` off writes it: those steps NOT_RUN where the record reached them."""
+    return replace(record, steps={**record.steps, **{s: OFF for s in steps if record.steps[s].reason != "skipped"}})
+
+
+def _cells(records) -> tuple[str, str]:
+    """(validated, robust) cells of the one table row."""
+    (row,) = table_rows(records)
+    line = format_table([row]).splitlines()[2].split(" | ")
+    return line[6], line[7]
+
+
+def test_a_step_switched_off_reads_not_run():
+    records = [make_record("procedural/box/000"), make_record("procedural/cube/000", fail_at="contacts")]
+    assert _cells([_switched_off(r, "validation", "robust") for r in records]) == ("not run", "not run")
+    assert _cells([_switched_off(r, "robust") for r in records]) == ("1/2 (50.0 %)", "not run")
+    assert _cells(records) == ("1/2 (50.0 %)", "1/2 (50.0 %)")
+
+
+def test_a_step_that_was_on_but_reached_by_no_record_reads_zero():
+    """Every record failed before validation: SKIPPED, not NOT_RUN, so the step was on and validated none."""
+    records = [make_record("procedural/box/000", fail_at="refinement")]
+    assert _cells(records) == ("0/1 (0.0 %)", "0/1 (0.0 %)")
