@@ -14,7 +14,7 @@ from ges_core.errors import AssetError
 from ges_core.hand import JointCoupling
 from ges_core.hand_files import FileHand
 from ges_core.hand_prep.engine_urdf import engine_urdf
-from ges_core.hand_prep.geometry import hull_penetration, mesh_gap
+from ges_core.hand_prep.geometry import hull_penetration, link_shapes, mesh_gap
 from ges_core.hand_prep.meshes import converted_mesh, converted_mesh_if_cached, resolve_mesh_path
 from ges_core.hand_prep.mimic import mimic_couplings, strip_mimic
 from ges_core.kinematics import HandKinematics
@@ -138,6 +138,12 @@ def test_converting_a_missing_or_unreadable_mesh_names_the_file(tmp_path):
     bad.write_text("this is no mesh")
     with pytest.raises(AssetError, match="bad.ply"):
         converted_mesh(bad)
+
+
+def test_a_missing_collision_mesh_names_the_link_and_the_fix(tmp_path):
+    urdf = '<robot name="r"><link name="palm"><collision><geometry><mesh filename="gone.stl"/></geometry></collision>'
+    with pytest.raises(AssetError, match=r"link 'palm': collision mesh .*gone.stl does not exist; fix the URDF's"):
+        link_shapes(urdf + "</link></robot>", tmp_path)
 
 
 def test_package_paths_resolve_in_a_robot_description_layout(tmp_path):

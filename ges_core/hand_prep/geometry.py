@@ -112,7 +112,10 @@ def _shape(link: str, collision, base_dir: Path) -> LinkShape | None:
     if g.tag == "mesh":
         source = resolve_mesh_path(g.get("filename", ""), base_dir)
         if not source.is_file():
-            raise AssetError(f"link '{link}': collision mesh {source} does not exist")
+            raise AssetError(
+                f"link '{link}': collision mesh {source} does not exist; fix the URDF's filename or install the "
+                "package that holds it"
+            )
         mesh = trimesh.load(str(source), force="mesh")
         scale = np.diag([*(float(s) for s in g.get("scale", "1 1 1").split()), 1.0])
     elif g.tag == "box":
