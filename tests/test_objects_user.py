@@ -92,6 +92,16 @@ def test_processing_is_cached_on_disk(folder):
     assert process_entry(entry).volume == pytest.approx(first.volume * 1.44, rel=1e-6)
 
 
+def test_a_damaged_processing_cache_entry_is_processed_again(folder):
+    entry = ObjectLibrary(sources=("user",), user_dir=folder).entry("user/bracket/ell")
+    first = process_entry(entry)
+    (stored,) = (folder.parent / "cache" / "objects" / "processed").glob("*.npz")
+    stored.write_bytes(stored.read_bytes()[:100])  # cut short (a disk that filled up, a copy interrupted)
+    again = process_entry(entry)
+    assert np.array_equal(again.mesh.vertices, first.mesh.vertices) and again.kind == first.kind
+    assert len(stored.read_bytes()) > 100  # written again
+
+
 def test_prepare_before_run_decomposes_only_what_needs_it(folder):
     library = ObjectLibrary(sources=("user", "procedural"), user_dir=folder, procedural_count=1)
     ids = ["user/bracket/ell", "user/box/small", "procedural/can/000", "procedural/torus/000"]

@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import io
 import json
-from dataclasses import replace
+import zipfile
 from pathlib import Path
 
 import numpy as np
@@ -24,6 +24,7 @@ from ges_core.paths import atomic_write_bytes, cache_dir, file_sha256
 __all__ = ["cache_key", "load_processed", "store_processed"]
 
 _MODULES = ("processing.py", "placement.py", "validate.py", "bounds.py", "decompose.py", "processed_cache.py")
+"""Modules (in this folder) whose source text is part of every key: the code that produces a processed object."""
 
 
 def _code_hash() -> str:
@@ -58,9 +59,12 @@ def load_processed(key: str, entry: ObjectEntry):
     path = _path(key)
     if not path.is_file():
         return None
-    with np.load(path) as data:
-        meta = json.loads(str(data["meta"]))
-        mesh = trimesh.Trimesh(data["vertices"], data["faces"], process=False)
+    try:
+        with np.load(path) as data:
+            meta = json.loads(str(data["meta"]))
+            mesh = trimesh.Trimesh(data["vertices"], data["faces"], process=False)
+    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile):  # damaged entry: a miss, rewritten
+        return None
     mesh_path = cache_dir("objects", "meshes") / meta["mesh_file"]
     if not mesh_path.is_file():  # the mesh cache was cleared: process again
         return None
@@ -68,7 +72,7 @@ def load_processed(key: str, entry: ObjectEntry):
         entry=entry, mesh=mesh, mesh_path=mesh_path, mesh_hash=meta["mesh_hash"], kind=meta["kind"],
         volume=meta["volume"], hull_depth=meta["hull_depth"], min_width=meta["min_width"],
     )  # fmt: skip
-    return replace(obj, entry=entry)
+    return obj
 
 
 def store_processed(key: str, obj) -> None:
