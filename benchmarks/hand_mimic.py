@@ -12,6 +12,7 @@ Gravity acts on the hand (-9.81 m/s^2): the drives hold the fingers against it.
 
 from __future__ import annotations
 
+import argparse
 import importlib.util
 import time
 from pathlib import Path
@@ -136,6 +137,8 @@ def sapien_with_tendons(hand: FileHand) -> dict:
 
 
 def main() -> None:
+    """Measure both engines (and SAPIEN's own tendons), print the table, write the results file."""
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()  # --help answers, runs nothing
     registry = load_registry(autoload=False)
     hand = FileHand(YAML, ability_urdf(), strict=False)
     rows = {name: measure(hand, name, registry) for name in ("sapien", "pybullet")}
