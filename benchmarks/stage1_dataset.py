@@ -52,6 +52,8 @@ def main() -> None:
     objects = config.library.build().list()
     objects = objects if args.limit is None else objects[: args.limit]
     if args.fresh and args.out.exists():
+        if any(args.out.iterdir()) and not (args.out / "manifest.json").is_file():
+            raise SystemExit(f"--fresh deletes --out, but {args.out} holds no dataset (no manifest.json): pick another")
         shutil.rmtree(args.out)
     wall = None
     if not args.summary_only:
