@@ -1,0 +1,92 @@
+"""Record version 3 in the dataset: robust verdicts stored and read back, counted by ``ges dataset info``, and
+version-2 datasets (made before robust validation) still opened, validated and summarized."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+from test_dataset import CONFIG, assert_same, make_record
+
+from ges_core import cli
+from ges_core.dataset import (
+    NOT_RUN,
+    TOTAL_STEPS,
+    DatasetWriter,
+    StepOutcome,
+    open_dataset,
+    record_relpath,
+    summarize,
+    validate_dataset,
+)
+from ges_core.dataset.checks import record_problems
+from ges_core.dataset.record import read_raw, record_from_bytes, record_to_bytes, record_to_raw
+
+DATASET_V2 = Path(__file__).parent / "data" / "dataset_v2"
+"""Four records written by the version-2 code (``ges synth``, Allegro and Shadow, SAPIEN and PyBullet verdicts)."""
+
+
+def test_version_2_dataset_opens_validates_and_reads_as_not_robust_checked():
+    assert json.loads((DATASET_V2 / "manifest.json").read_text())["version"] == 2
+    assert validate_dataset(DATASET_V2) == []
+    records = list(open_dataset(DATASET_V2))
+    assert len(records) == 4 and {r.hand for r in records} == {"allegro", "shadow"}
+    for record in records:
+        meta, _ = read_raw((DATASET_V2 / record_relpath(record.object_id, record.hand)).read_bytes())
+        assert meta["version"] == 2 and "robust" not in meta["steps"]
+        assert record.steps["robust"] == StepOutcome(ok=False, reason=NOT_RUN, seconds=None)
+        assert record.success == all(record.steps[s].ok for s in TOTAL_STEPS) and not record.robust
+        assert record.total_seconds > 0  # the timing file of version 2 still gives the times
+        assert all(
+            v.trials == () and v.robustness is None and v.robust_seconds == 0.0 for v in record.validations.values()
+        )
+        assert all(a.robust == NOT_RUN for a in record.attempts)
+        again = record_from_bytes(record_to_bytes(record))  # written again: version 3, reads the same
+        assert record_to_raw(record)[0]["version"] == 3 and record_problems(*record_to_raw(record)) == []
+        assert_same(again, record, times=False)
+    assert (
+        "robust" in summarize(open_dataset(DATASET_V2)).format()
+        and "not run" in summarize(open_dataset(DATASET_V2)).format()
+    )
+
+
+def test_robust_verdicts_round_trip_with_their_times(tmp_path):
+    record = make_record("procedural/box/000", "allegro", fail_at="robust")
+    assert record.steps["validation"].ok and not record.robust and record.robustness == 0.5
+    with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
+        writer.add(record)
+    back = open_dataset(tmp_path / "ds").get("procedural/box/000", "allegro")
+    assert_same(back, record)
+    verdict = back.validations["sapien"]
+    assert [(t.name, t.success) for t in verdict.trials] == [("limits", True), ("mass_x2", False)]
+    assert verdict.robust_seconds == 0.4 and back.steps["robust"].reason == "mass_x2"
+    assert back.attempts[0].robust == "mass_x2" and back.attempts[0].robustness == 0.5
+    assert back.total_seconds == pytest.approx(sum(back.steps[s].seconds for s in TOTAL_STEPS))
+
+
+def test_info_counts_single_trial_and_robust_per_simulator(tmp_path, capsys):
+    made = [
+        make_record("procedural/box/000", "allegro"),
+        make_record("procedural/box/001", "allegro", fail_at="robust"),
+        make_record("procedural/box/002", "allegro", fail_at="validation"),
+    ]
+    with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
+        for record in made:
+            writer.add(record)
+    summary = summarize(open_dataset(tmp_path / "ds"))
+    stats = {s.simulator: s for s in summary.sims}
+    assert set(stats) == {"sapien", "pybullet"}
+    for s in stats.values():  # counted from the records, one by one
+        assert (s.records, s.validated, s.robust, s.tried) == (3, 2, 1, 2)
+        assert s.mean_robustness == pytest.approx(0.75) and s.trial_failures == {"mass_x2": 1}
+    assert summary.agreement["allegro"] == {"grasps": 3, "single": 3, "robust_grasps": 3, "robust": 3,
+                                            "sims": ["pybullet", "sapien"]}  # fmt: skip
+    (group,) = summary.groups
+    assert group.failures == {"validation": {"validation_failed": 1}, "robust": {"mass_x2": 1}}
+    assert cli.main(["dataset", "info", str(tmp_path / "ds")]) == 0
+    out = capsys.readouterr().out
+    assert "validation: validation_failed x1; robust: mass_x2 x1" in out
+    (row,) = [line.split() for line in out.splitlines() if line.split()[:2] == ["allegro", "sapien"]]
+    assert row[2:7] == ["2/3", "(66.7%)", "1/3", "(33.3%)", "0.750"] and row[-2:] == ["mass_x2", "x1"]
+    assert "total time = contacts + retargeting + refinement + validation" in out
