@@ -143,7 +143,8 @@ def _options_of(command: str) -> set[str]:
 # -- registry.yaml: defaults and settings --------------------------------------------------------------------
 
 
-def test_unknown_default_hand_fails_ges_list(capsys, write_registry):
+def test_unknown_default_hand_fails_ges_list(capsys, write_registry, monkeypatch):
+    monkeypatch.setenv("GES_DISABLE_PLUGIN_AUTOLOAD", "1")  # the known hands are the built-ins, whatever is installed
     path = write_registry("defaults: {hand: nosuchhand}\n")
     code, out, err = run(capsys, "--registry", str(path), "list")
     assert code == 1 and "allegro" in out and "pybullet" in out  # still lists
