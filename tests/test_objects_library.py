@@ -73,7 +73,7 @@ def test_concave_without_decomposition_says_how_to_prepare(library):
     with pytest.raises(
         AssetError,
         match=r"procedural/mug/000: concave mesh has no cached convex decomposition .*"
-        r"run `ges objects prepare --source procedural --ids procedural/mug/000` or load it with decompose=True",
+        r"run `ges objects prepare --source procedural --objects procedural/mug/000` or load it with decompose=True",
     ):
         library.get("procedural/mug/000")
 
@@ -153,3 +153,14 @@ def test_cli_list_error_is_one_line(capsys, tmp_path):
     assert main(["objects", "list", "--source", "user", "--user-dir", str(tmp_path / "none")]) == 1
     err = capsys.readouterr().err.strip()
     assert err.startswith("ges: error: user object folder") and "\n" not in err
+
+
+def test_cli_list_objects_filters_and_unknown_ids_say_so(capsys):
+    assert main(["objects", "list", "--source", "procedural", "--count", "2", "--objects", "procedural/cube/001",
+                 "procedural/box/000"]) == 0  # fmt: skip
+    lines = capsys.readouterr().out.splitlines()
+    assert [line.split()[0] for line in lines[:-1]] == ["procedural/box/000", "procedural/cube/001"]
+    assert lines[-1] == "2 objects"
+    assert main(["objects", "list", "--source", "procedural", "--count", "2", "--objects", "procedural/cube/01"]) == 1
+    out, err = capsys.readouterr()
+    assert out == "" and "unknown object 'procedural/cube/01'. Did you mean procedural/cube/001" in err

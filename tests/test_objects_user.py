@@ -172,7 +172,7 @@ def test_missing_decomposition_names_the_command_that_works(folder, capsys):
     library = ObjectLibrary(sources=("user",), user_dir=folder)
     with pytest.raises(AssetError) as info:
         library.get("user/bracket/ell")
-    command = f"ges objects prepare --user-dir {folder} --ids user/bracket/ell"
+    command = f"ges objects prepare --user-dir {folder} --objects user/bracket/ell"
     assert f"run `{command}`" in str(info.value)
     assert main(command.split()[1:]) == 0  # that command, as printed
     assert "1 objects: 1 decomposed" in capsys.readouterr().out

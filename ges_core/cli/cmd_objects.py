@@ -19,6 +19,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     lp = osub.add_parser("list", help="list objects with category, source and split")
     _library_options(lp)
     lp.add_argument("--split", choices=SPLIT_CHOICES, help="only this split")
+    lp.add_argument("--objects", nargs="+", metavar="ID", help="only these object ids (user ids without user/ too)")
     lp.add_argument(
         "--sizes", action="store_true", help="also load each mesh: extents, min width (cm), mass and friction"
     )
@@ -27,7 +28,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     _library_options(pp)
     pp.add_argument("--workers", type=positive_int, default=1, metavar="N", help="parallel processes (default 1)")
     pp.add_argument("--limit", type=positive_int, metavar="N", help="only the first N objects")
-    pp.add_argument("--ids", nargs="+", metavar="ID", help="only these object ids")
+    pp.add_argument(
+        "--objects", "--ids", dest="ids", nargs="+", metavar="ID", help="only these object ids (--ids: the older name)"
+    )
     pp.add_argument("--coacd", choices=("fast", "default"), default="fast", help="CoACD settings (default fast)")
     pp.add_argument("--no-progress", action="store_true", help="no progress bar")
     pp.set_defaults(func=run_prepare)
@@ -115,6 +118,9 @@ def run_list(args: argparse.Namespace) -> int:
     """Print ``id  category  source  split`` per object (and sizes with ``--sizes``)."""
     library = library_from_args(args)
     rows = library.list(split=args.split)
+    if args.objects:  # unknown ids: UnknownObjectError with close matches, before anything is printed
+        wanted = {library.entry(user_id(i, args)).object_id for i in args.objects}
+        rows = [r for r in rows if r.object_id in wanted]
     invalid = 0
     for info in rows:
         line = f"{info.object_id:<34} {info.category:<14} {info.source:<10} {info.split:<15}"

@@ -267,7 +267,7 @@ def prepare_command(entry: ObjectEntry) -> str:
     option = where.get(entry.source, "")
     if entry.source == "user" and entry.path is not None:
         option = f" --user-dir {entry.path.parent.parent}"
-    return f"ges objects prepare{option} --ids {entry.object_id}"
+    return f"ges objects prepare{option} --objects {entry.object_id}"
 
 
 def _write_hull(mesh: trimesh.Trimesh) -> Path:
