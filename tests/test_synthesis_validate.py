@@ -129,6 +129,20 @@ def test_blow_up_is_recorded_as_unstable_not_raised(allegro):
     assert sim.steps == 101
 
 
+def test_a_nan_command_inside_the_run_is_unstable_not_raised(allegro, monkeypatch):
+    """A closing target computed as NaN (from a blown-up state) is refused at the backend's boundary
+    (ArrayError); validation records it as ``unstable`` like a blow-up, so one perturbation trial cannot
+    take the grasp's other verdicts with it."""
+    grasp = top_grasp(allegro)
+    monkeypatch.setattr(
+        "ges_core.synthesis.physics.validate.squeeze_targets", lambda hand, q, **kw: np.full_like(q, np.nan)
+    )
+    sim = ExplodingBackend(explode_after=10**6)
+    result = validate_grasp(sim, allegro, box_object(), grasp, pregrasp(allegro, grasp, DOWN))
+    assert not result.success and result.reason == "unstable"
+    assert sim.steps == ValidateConfig().approach_steps  # stopped at the first closing target
+
+
 def test_validation_rejects_a_grasp_of_another_hand(allegro):
     grasp = top_grasp(allegro)
     foreign = Grasp(hand="shadow", wrist_pose=grasp.wrist_pose, q=grasp.q)

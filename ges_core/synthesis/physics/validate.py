@@ -14,7 +14,8 @@ also requires a *fingertip* grasp through the hold. Phases, all through
 
 Verdict (:func:`classify`), from what was measured:
 
-* ``unstable``: the backend raised SimulationError (caught, recorded, never raised);
+* ``unstable``: the backend raised SimulationError, or refused a NaN command (ArrayError) computed from a
+  blown-up state (caught, recorded, never raised);
 * ``success``: the object rose at least ``lift_height - lift_tolerance`` above its start at every
   hold step, and in at least ``hold_fraction`` of the hold steps at least ``min_tips`` fingertips
   (the thumb among them if ``require_thumb``) pushed on it harder than ``min_tip_force``;
@@ -39,7 +40,7 @@ from pydantic import Field
 
 from ges_core.arrays import checked_poses
 from ges_core.config import ConfigModel
-from ges_core.errors import ConfigError, SimulationError
+from ges_core.errors import ArrayError, ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
@@ -113,7 +114,8 @@ def validate_grasp(
     """Approach, close, lift and hold ``obj`` with ``hand`` in ``sim``; success or failure with a reason.
 
     grasp, pregrasp_grasp: base poses in the object frame, joints (K,). sim: ``num_envs == 1``, fresh
-    or used before by these functions with the same hand. SimulationError -> reason ``unstable``.
+    or used before by these functions with the same hand. SimulationError, or an ArrayError from a NaN command
+    computed inside the run, -> reason ``unstable``.
     object_shift: (7,) or None; a perturbation (:mod:`ges_core.synthesis.physics.robust`): the object is put
     ``object_shift[:3]`` m (world frame) from its resting pose and turned by the quaternion ``object_shift[3:]``
     about its own origin, while the hand still aims at the resting pose. drive_limits: (K,) N·m or None; the
@@ -129,7 +131,7 @@ def validate_grasp(
     capped: list[bool] = []
     try:
         record = _run(sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped)
-    except SimulationError:
+    except (SimulationError, ArrayError):  # a blow-up, or a NaN command computed from a blown-up state
         return ValidationResult(False, "unstable", flags, time.perf_counter() - start)
     finally:
         if capped and not sim.closed:
