@@ -37,12 +37,26 @@ if TYPE_CHECKING:
     from ges_core.hand import HandDescription
     from ges_core.synthesis.physics.validate import ValidateConfig
 
-__all__ = ["SECTIONS", "SCALARS", "check_settings", "hand_validate_config", "merge_settings"]
+__all__ = [
+    "SCALARS",
+    "SECTIONS",
+    "SIM_CHECK",
+    "SIM_CHECK_FIELDS",
+    "check_settings",
+    "hand_sim_check_config",
+    "hand_validate_config",
+    "merge_settings",
+    "stage1_settings",
+]
 
 SECTIONS = ("contacts", "retarget", "refine", "pregrasp", "validate", "robust")
 """Sections of :class:`~ges_core.synthesis.SynthesisConfig` a hand may set (keys as spelled in YAML)."""
 SCALARS = ("thumb_keep",)
 """Top-level :class:`~ges_core.synthesis.SynthesisConfig` values a hand may set."""
+SIM_CHECK = "sim_check"
+"""The one section that is not Stage 1's: how ``ges sim check`` closes this hand (:data:`SIM_CHECK_FIELDS`)."""
+SIM_CHECK_FIELDS = ("closure", "settle_steps", "close_steps", "lift_steps", "lift_height")
+""":class:`~ges_core.sim_check.SimCheckConfig` fields a hand may set (how far and how its fingers close)."""
 
 
 def _models() -> dict[str, type]:
@@ -73,9 +87,10 @@ def check_settings(data: object, where: str) -> dict[str, Any]:
     if data is None:
         return {}
     if not isinstance(data, Mapping):
-        raise ConfigError(f"{where}: must be a mapping of sections ({', '.join(SECTIONS + SCALARS)}), got {data!r}")
+        known = ", ".join(SECTIONS + SCALARS + (SIM_CHECK,))
+        raise ConfigError(f"{where}: must be a mapping of sections ({known}), got {data!r}")
     problems = []
-    allowed = SECTIONS + SCALARS
+    allowed = SECTIONS + SCALARS + (SIM_CHECK,)
     for key in data:
         if key not in allowed:
             problems.append(f"{where}.{key}: unknown section (known: {', '.join(allowed)})")
@@ -83,6 +98,8 @@ def check_settings(data: object, where: str) -> dict[str, Any]:
     for key, value in data.items():
         if key in SECTIONS:
             problems += _section_problems(models[key], value, f"{where}.{key}")
+    if SIM_CHECK in data:
+        problems += _sim_check_problems(data[SIM_CHECK], f"{where}.{SIM_CHECK}")
     if "thumb_keep" in data:
         keep = data["thumb_keep"]
         if isinstance(keep, bool) or not isinstance(keep, int) or keep < 0:
@@ -101,6 +118,35 @@ def _section_problems(model: type, value: object, where: str) -> list[str]:
     except ValidationError as exc:
         return [f"{where}{''.join('.' + str(p) for p in e['loc'])}: {e['msg']}" for e in exc.errors()]
     return []
+
+
+def _sim_check_problems(value: object, where: str) -> list[str]:
+    """Problems of a hand's ``sim_check`` section: only :data:`SIM_CHECK_FIELDS`, each valid for SimCheckConfig."""
+    from ges_core.sim_check import SimCheckConfig
+
+    if not isinstance(value, Mapping):
+        return [f"{where}: must be a mapping of {', '.join(SIM_CHECK_FIELDS)}, got {value!r}"]
+    known = ", ".join(SIM_CHECK_FIELDS)
+    problems = [f"{where}.{k}: not a per-hand field (known: {known})" for k in value if k not in SIM_CHECK_FIELDS]
+    return problems or _section_problems(SimCheckConfig, value, where)
+
+
+def stage1_settings(settings: Mapping | None) -> dict:
+    """A hand's settings without the ``sim_check`` section: what layers over the Stage 1 run config."""
+    return {k: v for k, v in (settings or {}).items() if k != SIM_CHECK}
+
+
+def hand_sim_check_config(description: HandDescription, config):
+    """``config`` (a :class:`~ges_core.sim_check.SimCheckConfig`) with the hand's ``settings.sim_check`` taking
+    every field the user did not set (``-o closure=...`` or the config file wins over the hand's YAML)."""
+    section = description.settings.get(SIM_CHECK) or {}
+    update = {k: v for k, v in section.items() if k not in config.model_fields_set}
+    if not update:
+        return config
+    from ges_core.config import parse_model
+
+    data = merge_settings(config.model_dump(mode="json"), update)
+    return parse_model(type(config), data, where=f"hand '{description.name}' settings.sim_check")
 
 
 def merge_settings(base: Mapping, *layers: Mapping | None) -> dict:

@@ -9,7 +9,7 @@ import pytest
 from ges_core.config import parse_model
 from ges_core.dataset import open_dataset
 from ges_core.errors import AssetError, ConfigError, UnknownNameError
-from ges_core.hand_settings import hand_validate_config, merge_settings
+from ges_core.hand_settings import hand_sim_check_config, hand_validate_config, merge_settings
 from ges_core.hand_yaml import description_from_yaml
 from ges_core.synthesis import SynthesisConfig, ValidateConfig, run_synthesis
 from ges_core.synthesis.run import worker
@@ -54,6 +54,8 @@ def test_yaml_settings_are_read_and_kept_partial():
         ("settings: {scene: {hand_friction: 1.0}}", "settings.scene"),
         ("settings: {thumb_keep: -1}", "settings.thumb_keep"),
         ("settings: {validate: 3}", "settings.validate"),
+        ("settings: {sim_check: {closure: 1.5}}", "settings.sim_check.closure"),
+        ("settings: {sim_check: {hand: shadow}}", "settings.sim_check.hand"),
     ],
 )
 def test_bad_yaml_settings_name_the_file_and_the_dotted_path(settings, path):
@@ -175,3 +177,19 @@ def test_a_hands_validation_settings_reach_its_validation(tmp_path):
     assert plain.steps["validation"].ok
     assert not tight.steps["validation"].ok and tight.steps["validation"].reason == "palm_only"
     assert np.array_equal(plain.grasp.q, tight.grasp.q)  # the same grasp: only the pass mark differs
+
+
+def test_a_hands_sim_check_closure_is_used_unless_the_command_gives_one():
+    """``settings.sim_check`` sets how ``ges sim check`` closes the hand; a value the user gives wins, and Stage 1's
+    config ignores the section (it is not a SynthesisConfig section)."""
+    from ges_core.config import load_config
+    from ges_core.sim_check import SimCheckConfig
+
+    d = _allegro("\nsettings: {sim_check: {closure: 0.3, lift_steps: 60}, validate: {min_tips: 3}}\n")
+    mine = hand_sim_check_config(d, load_config(SimCheckConfig, None, []))
+    assert (mine.closure, mine.lift_steps, mine.close_steps) == (0.3, 60, SimCheckConfig().close_steps)
+    given = hand_sim_check_config(d, load_config(SimCheckConfig, None, ["closure=0.5"]))
+    assert (given.closure, given.lift_steps) == (0.5, 60)
+    assert hand_sim_check_config(_allegro(), SimCheckConfig()) == SimCheckConfig()
+    stage1 = SynthesisConfig().for_hand("allegro_test", d.settings)
+    assert stage1.validate_.min_tips == 3

@@ -31,6 +31,7 @@ def run_check(args: argparse.Namespace) -> int:
     from ges_core.cli import registry_from_args
     from ges_core.config import load_config
     from ges_core.graspability import check_graspable
+    from ges_core.hand_settings import hand_sim_check_config
     from ges_core.sim_check import SimCheckConfig, build_check_object, run_sim_check
 
     overrides = [*args.override]
@@ -48,9 +49,10 @@ def run_check(args: argparse.Namespace) -> int:
     for hand_name in hands:
         hand = registry.build_hand(hand_name)
         check_graspable(hand, obj)  # before any simulator starts
+        hand_config = hand_sim_check_config(hand.description, config)  # the hand's own closure, unless given
         for sim_name in sims:
-            with registry.build_sim(sim_name, config.scene) as sim:
-                report = run_sim_check(hand, sim, config, obj)
+            with registry.build_sim(sim_name, hand_config.scene) as sim:
+                report = run_sim_check(hand, sim, hand_config, obj)
             print(report.format(), flush=True)
             failed += not report.ok
     return 1 if failed else 0

@@ -9,7 +9,7 @@ from pydantic import ConfigDict, Field, field_validator, model_validator
 
 from ges_core.config import ConfigModel, parse_model
 from ges_core.errors import ConfigError
-from ges_core.hand_settings import check_settings, merge_settings
+from ges_core.hand_settings import check_settings, merge_settings, stage1_settings
 from ges_core.objects.library import LibraryConfig
 from ges_core.sim import SceneConfig
 from ges_core.synthesis.contacts.generate import ContactConfig
@@ -133,7 +133,7 @@ class SynthesisConfig(ConfigModel):
         ``contacts.max_width`` below the run's ``min_width``). Run-wide fields (simulators, seed, points, chunks,
         attempts, scene, library) are not per hand: the layers cannot name them.
         """
-        layers = [settings or {}, self.hand_settings.get(hand, {})]
+        layers = [stage1_settings(settings), stage1_settings(self.hand_settings.get(hand))]
         if not any(layers):
             return self
         data = merge_settings(self.dump(), *layers)
