@@ -12,7 +12,8 @@ meshes are decomposed on the fly (CoACD, cached by mesh hash; near-convex scans 
 Per split and per category (and per hand): records, validated (the paper's single trial), robust (every
 perturbation trial held), median seconds per object (contacts + retargeting + refinement + validation, the
 nominal trial; robust trials apart). Prints markdown and writes ``benchmarks/results/stage1_dataset.json``
-(also after ``--summary-only``, marked incomplete while pairs are missing).
+(also after ``--summary-only``, marked incomplete while pairs are missing). The wall time is the sum over the
+runs that wrote the folder (each run appends itself to ``<out>.runs.json`` beside it).
 
 Paper: 773 objects in 82 categories (563 train, 132 unseen-object, 78 unseen-category).
 """
@@ -20,6 +21,7 @@ Paper: 773 objects in 82 categories (563 train, 132 unseen-object, 78 unseen-cat
 from __future__ import annotations
 
 import argparse
+import json
 import platform
 import shutil
 import time
@@ -29,6 +31,7 @@ from statistics import median
 
 from ges_core.dataset import open_dataset, software_versions
 from ges_core.objects.library import LibraryConfig
+from ges_core.paths import atomic_write_text
 from ges_core.synthesis import SynthesisConfig, run_synthesis
 from ges_core.threads import set_torch_threads
 
@@ -36,6 +39,8 @@ from _results import code_state, write_results
 
 RESULTS = Path(__file__).parent / "results" / "stage1_dataset.json"
 HANDS = ("allegro", "shadow")
+RUNS_SUFFIX = ".runs.json"
+"""``<out>.runs.json`` beside the dataset folder: each run's wall time, so a resumed dataset's total adds up."""
 PAPER = {"objects": 773, "categories": 82, "train": 563, "unseen_object": 132, "unseen_category": 78}
 
 
@@ -55,11 +60,13 @@ def main() -> None:
         if any(args.out.iterdir()) and not (args.out / "manifest.json").is_file():
             raise SystemExit(f"--fresh deletes --out, but {args.out} holds no dataset (no manifest.json): pick another")
         shutil.rmtree(args.out)
-    wall = None
     if not args.summary_only:
         start = time.perf_counter()
+        before = len(open_dataset(args.out).entries) if (args.out / "manifest.json").is_file() else 0
         run_synthesis([o.object_id for o in objects], HANDS, config, args.out, workers=args.workers, progress=True)
-        wall = time.perf_counter() - start
+        _log_run(args.out, time.perf_counter() - start, args.workers, len(open_dataset(args.out).entries) - before)
+    runs = _runs(args.out)
+    wall = sum(r["seconds"] for r in runs)
     wanted = {(o.object_id, h) for o in objects for h in HANDS}
     records = [r for r in open_dataset(args.out) if r.key in wanted]
     tables = {by: count(records, by) for by in ("split", "category")}
@@ -67,9 +74,25 @@ def main() -> None:
         print(f"\n### per {by}\n" + format_rows(by, rows))
     done = len(records) == len(wanted)
     print(f"\n{len(records)} of {len(wanted)} (object, hand) records stored{'' if done else ' (incomplete)'}")
-    if wall is not None:
-        print(f"wall time of this run: {wall / 60:.1f} min with {args.workers} workers")
-    write_results(RESULTS, _data(objects, records, wanted, tables, wall, args))
+    workers = ", ".join(str(r["workers"]) for r in runs)
+    print(f"wall time: {wall / 60:.1f} min in {len(runs)} run(s) ({workers} workers)")
+    write_results(RESULTS, _data(objects, records, wanted, tables, runs, args))
+
+
+def _runs_file(out: Path) -> Path:
+    return out.with_name(out.name + RUNS_SUFFIX)
+
+
+def _runs(out: Path) -> list[dict]:
+    """The runs that wrote ``out`` (``<out>.runs.json``): seconds, workers and records written by each."""
+    path = _runs_file(out)
+    return json.loads(path.read_text())["runs"] if path.is_file() else []
+
+
+def _log_run(out: Path, seconds: float, workers: int, written: int) -> None:
+    """Append this run to ``<out>.runs.json`` (atomically), so a resumed dataset's wall time adds up."""
+    runs = [*_runs(out), {"seconds": seconds, "workers": workers, "records_written": written}]
+    atomic_write_text(_runs_file(out), json.dumps({"runs": runs}, indent=1) + "\n")
 
 
 def count(records: list, by: str) -> dict[str, dict[str, dict]]:
@@ -85,7 +108,7 @@ def _cell(records: list) -> dict:
     seconds = [r.total_seconds for r in records if r.total_seconds is not None]
     return {
         "records": len(records),
-        "validated": sum(r.success for r in records),
+        "validated": sum(r.steps["validation"].ok for r in records),  # the nominal trial (record.success needs robust)
         "robust": sum(r.robust for r in records),
         "median_seconds": median(seconds) if seconds else None,
     }
@@ -105,7 +128,7 @@ def format_rows(by: str, rows: dict[str, dict[str, dict]]) -> str:
     return "\n".join(lines)
 
 
-def _data(objects, records, wanted, tables, wall, args) -> dict:
+def _data(objects, records, wanted, tables, runs, args) -> dict:
     categories = sorted({o.category for o in objects})
     splits = defaultdict(int)
     for o in objects:
@@ -121,8 +144,8 @@ def _data(objects, records, wanted, tables, wall, args) -> dict:
         "complete": len(records) == len(wanted),
         "per_split": tables["split"],
         "per_category": tables["category"],
-        "wall_seconds_this_run": wall,
-        "workers": args.workers,
+        "wall_seconds": sum(r["seconds"] for r in runs),
+        "runs": runs,
         "seconds_meaning": "median over records of contacts + retargeting + refinement + validation (nominal trial)",
         "paper": PAPER,
         "machine": {"platform": platform.platform()},
