@@ -257,7 +257,7 @@ def format_sim_stats(stats: Iterable[SimStats], agreements: dict[str, dict]) -> 
     lines = [
         "validation per simulator (validated = the paper's single nominal trial; robust = it and every perturbation "
         "trial held):",
-        f"  {'hand':<10}{'simulator':<11}{'validated':>16}{'robust':>16}{'robustness':>12}{'trials (median)':>17}"
+        f"  {'hand':<10}{'simulator':<11}{'validated':>19}{'robust':>19}{'robustness':>12}{'trials (median)':>17}"
         "  failed trials",
     ]
     for s in stats:
@@ -265,7 +265,7 @@ def format_sim_stats(stats: Iterable[SimStats], agreements: dict[str, dict]) -> 
         time = "-" if s.robust_median is None else f"{s.robust_median:.2f} s"
         failed = ", ".join(f"{k} x{n}" for k, n in s.trial_failures.items()) or "-"
         lines.append(
-            f"  {s.hand:<10}{s.simulator:<11}{_share(s.validated, s.records):>16}{_share(s.robust, s.records):>16}"
+            f"  {s.hand:<10}{s.simulator:<11} {_share(s.validated, s.records):>18} {_share(s.robust, s.records):>18}"
             f"{score:>12}{time:>17}  {failed}"
         )
     for hand, row in sorted(agreements.items()):
