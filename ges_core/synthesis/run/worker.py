@@ -32,7 +32,7 @@ from ges_core.dataset import (
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
 from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
 from ges_core.synthesis.physics.pregrasp import pregrasp
-from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
+from ges_core.synthesis.physics.refine import check_rest, refine_grasp, refine_verdict
 from ges_core.synthesis.physics.robust import robust_validate
 from ges_core.synthesis.physics.scene import stage_scene
 from ges_core.synthesis.physics.validate import validate_grasp
@@ -339,6 +339,11 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
     asset = state.library.get(work.object_id)
     verdicts, errors = {}, {}
     for name in cfg.validate_sims:
+        drifted = None if name == cfg.refine_sim else sims.rest_problem(hand, name, asset)
+        if drifted is not None:  # the object does not stay at rest in this engine: no grasp is judged there
+            errors[f"validation_{name}"] = str(drifted)
+            verdicts[name] = SimVerdict(success=False, reason=drifted.reason)  # unstable_rest (or unstable)
+            continue
         try:
             verdicts[name] = _sim_verdict(state, sims.get(hand, name, asset), hand, work, asset, grasp, pre)
         except (SimulationError, ArrayError) as error:  # failing to build or load, or a NaN command: a blow-up
@@ -383,6 +388,25 @@ class _Sims:
         self.state, self.sims = state, {}
         self.setup_seconds: dict[str, float] = {}
         """Per simulator built since the last :meth:`close`, its build + hand load, seconds."""
+        self.rest: dict[tuple[str, str], SynthesisError | None] = {}
+        """(hand, simulator) -> why the object does not stay at rest there (None: it does), checked once."""
+
+    def rest_problem(self, hand: str, name: str, asset) -> SynthesisError | None:
+        """Why ``asset`` does not stay at its resting pose on its own in simulator ``name`` (None: it does).
+
+        Refinement checks this in its own engine (:func:`ges_core.synthesis.physics.refine.check_rest`); every
+        other validating engine is checked here, once per (object, hand), in a simulator of its own, so the one
+        that validates carries no history from it (a check run first in the validating scene moved other
+        verdicts: the wedge became palm_only in PyBullet)."""
+        key = (hand, name)
+        if key not in self.rest:
+            self.rest[key] = None
+            with self.state.registry.build_sim(name, self.state.context.config.scene) as sim:
+                try:
+                    check_rest(sim, self.state.hand(hand), asset, self.state.config(hand).refine)
+                except SynthesisError as error:  # reason unstable_rest, or unstable if it blew up settling
+                    self.rest[key] = error
+        return self.rest[key]
 
     def get(self, hand: str, name: str, asset):
         key = (hand, name)
@@ -399,6 +423,7 @@ class _Sims:
             sim.close()
         self.sims.clear()
         self.setup_seconds = {}
+        self.rest = {}
 
 
 def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
