@@ -22,32 +22,11 @@ from pathlib import Path
 
 import numpy as np
 
+from ges_core.synthesis.run.demo import DEMO_OBJECTS
+
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _results import code_state, write_results  # noqa: E402
 
-DEMO_OBJECTS = [
-    "procedural/can/000",
-    "procedural/box/000",
-    "procedural/cube/000",
-    "pybullet/classic/jenga",
-    "procedural/sphere/000",
-    "procedural/capsule/000",
-    "procedural/cone/000",
-    "procedural/ellipsoid/000",
-    "procedural/wedge/000",
-    "procedural/l_bracket/000",
-    "procedural/plate/000",
-    "pybullet/classic/cylinder",
-    "pybullet/classic/prism",
-    "pybullet/classic/domino",
-    "pybullet/random_urdfs/000",
-    "pybullet/random_urdfs/001",
-    "pybullet/random_urdfs/002",
-    "procedural/can/001",
-    "procedural/box/001",
-    "procedural/sphere/001",
-]
-"""ges_core.synthesis.run.demo.DEMO_OBJECTS at the time of writing (kept here so the set stays fixed)."""
 SIMS = ("sapien", "pybullet")
 STEPS = ("contacts", "retargeting", "refinement")
 
