@@ -35,3 +35,22 @@ def test_a_step_that_was_on_but_reached_by_no_record_reads_zero():
     """Every record failed before validation: SKIPPED, not NOT_RUN, so the step was on and validated none."""
     records = [make_record("procedural/box/000", fail_at="refinement")]
     assert _cells(records) == ("0/1 (0.0 %)", "0/1 (0.0 %)")
+
+
+def test_agreement_rates_count_grasps_judged_alike_by_every_simulator():
+    from ges_core.dataset import SimVerdict
+    from ges_core.synthesis.run.table import agreement_rates
+
+    def judged(oid, hand, *successes):
+        verdicts = {sim: SimVerdict(success=ok, reason="success" if ok else "dropped") for sim, ok in successes}
+        return replace(make_record(oid, hand=hand), validations=verdicts)
+
+    records = [
+        judged("procedural/box/000", "allegro", ("sapien", True), ("pybullet", True)),
+        judged("procedural/cube/000", "allegro", ("sapien", True), ("pybullet", False)),
+        judged("procedural/can/000", "allegro", ("sapien", False), ("pybullet", False)),
+        judged("procedural/box/000", "shadow", ("sapien", True)),  # one simulator: not counted
+    ]
+    rates = agreement_rates(records)
+    assert list(rates) == ["allegro"]
+    assert rates["allegro"] == {"grasps": 3, "agree": 2, "sims": ["pybullet", "sapien"], "rate": 2 / 3}

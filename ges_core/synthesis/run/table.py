@@ -108,19 +108,12 @@ def _ran(records: list[GraspRecord], step: str) -> bool:
 
 
 def agreement_rates(records: Iterable[GraspRecord]) -> dict[str, dict]:
-    """Per hand: how often the validating simulators judged the same grasps alike (records validated in 2+)."""
-    out: dict[str, dict] = {}
-    for record in records:
-        verdicts = record.validations
-        if len(verdicts) < 2:
-            continue
-        same = len({v.success for v in verdicts.values()}) == 1
-        row = out.setdefault(record.hand, {"grasps": 0, "agree": 0, "sims": sorted(verdicts)})
-        row["grasps"] += 1
-        row["agree"] += int(same)
-    for row in out.values():
-        row["rate"] = row["agree"] / row["grasps"]
-    return out
+    """Per hand: how often the validating simulators judged the same grasps alike (records validated in 2+):
+    ``{"grasps", "agree", "sims", "rate"}``, the single-trial part of :func:`ges_core.dataset.summary.agreement`."""
+    return {
+        hand: {"grasps": a["grasps"], "agree": a["single"], "sims": a["sims"], "rate": a["single"] / a["grasps"]}
+        for hand, a in agreement(records).items()
+    }
 
 
 def format_table(rows: list[TableRow]) -> str:
