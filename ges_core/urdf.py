@@ -22,6 +22,7 @@ __all__ = [
     "strip_render_data",
     "root_link",
     "neighbour_link_pairs",
+    "origin_matrix",
 ]
 
 WRIST_JOINTS: tuple[str, ...] = (
@@ -48,6 +49,22 @@ def parse_urdf(text: str) -> ET.Element:
     if root.tag != "robot":
         raise AssetError(f"URDF root element is <{root.tag}>, expected <robot>")
     return root
+
+
+def origin_matrix(element: ET.Element | None) -> np.ndarray:
+    """(4, 4) parent <- element frame of an element's ``<origin>`` (a joint, collision, visual; None: identity).
+
+    URDF ``rpy`` is roll, pitch, yaw about the fixed x, y, z axes: ``R = Rz(yaw) Ry(pitch) Rx(roll)``.
+    """
+    from scipy.spatial.transform import Rotation
+
+    origin = element.find("origin") if element is not None else None
+    xyz = [float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()]
+    rpy = [float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()]
+    out = np.eye(4)
+    out[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()
+    out[:3, 3] = xyz
+    return out
 
 
 def root_link(text: str) -> str:

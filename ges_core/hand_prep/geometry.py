@@ -19,7 +19,7 @@ import numpy as np
 
 from ges_core.errors import AssetError
 from ges_core.hand_prep.meshes import resolve_mesh_path
-from ges_core.urdf import neighbour_link_pairs, parse_urdf
+from ges_core.urdf import neighbour_link_pairs, origin_matrix, parse_urdf
 
 __all__ = [
     "CLOSURES",
@@ -126,21 +126,9 @@ def _shape(link: str, collision, base_dir: Path) -> LinkShape | None:
         mesh = trimesh.creation.cylinder(radius=float(g.get("radius")), height=float(g.get("length")), sections=32)
     else:
         return None
-    transform = _origin_matrix(collision) @ (scale if source is not None else np.eye(4))
+    transform = origin_matrix(collision) @ (scale if source is not None else np.eye(4))
     mesh.apply_transform(transform)
     return LinkShape(link, mesh, source, transform)
-
-
-def _origin_matrix(element) -> np.ndarray:
-    from scipy.spatial.transform import Rotation
-
-    origin = element.find("origin")
-    xyz = [float(v) for v in (origin.get("xyz", "0 0 0") if origin is not None else "0 0 0").split()]
-    rpy = [float(v) for v in (origin.get("rpy", "0 0 0") if origin is not None else "0 0 0").split()]
-    out = np.eye(4)
-    out[:3, :3] = Rotation.from_euler("xyz", rpy).as_matrix()  # URDF rpy: fixed axes x, y, z
-    out[:3, 3] = xyz
-    return out
 
 
 def hull_gap(mesh) -> float:

@@ -17,7 +17,7 @@ from ges_core.hand_prep.meshes import (
 from ges_core.hand_prep.mimic import mimic_couplings
 from ges_core.lint.problems import LintProblem
 from ges_core.lint.urdf_tree import UrdfTree
-from ges_core.urdf import parse_urdf
+from ges_core.urdf import origin_matrix, parse_urdf
 
 __all__ = ["check_mesh_formats", "check_mimic", "check_tip_collision"]
 
@@ -70,12 +70,8 @@ def _tip_fix(root: ET.Element, tree: UrdfTree, tip: str, offset, pad) -> str:
 
 
 def _joint_origin(root: ET.Element, joint: str) -> tuple[np.ndarray, np.ndarray]:
-    from scipy.spatial.transform import Rotation
-
-    node = root.find(f"joint[@name='{joint}']/origin")
-    xyz = [float(v) for v in (node.get("xyz", "0 0 0") if node is not None else "0 0 0").split()]
-    rpy = [float(v) for v in (node.get("rpy", "0 0 0") if node is not None else "0 0 0").split()]
-    return Rotation.from_euler("xyz", rpy).as_matrix(), np.asarray(xyz)
+    m = origin_matrix(root.find(f"joint[@name='{joint}']"))
+    return m[:3, :3], m[:3, 3]
 
 
 # -- (b) mimic tags ---------------------------------------------------------------------------
