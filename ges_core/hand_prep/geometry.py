@@ -340,11 +340,11 @@ def hand_link_poses(hand, links: list[str]) -> dict[str, dict[str, np.ndarray]]:
     hand: a :class:`~ges_core.hand.HandModel`; joints with couplings applied."""
     import torch
 
-    from ges_core.kinematics import HandKinematics
+    from ges_core.kinematics import shared_kinematics
 
     d = hand.description
     named = {"open": d.apply_couplings(np.asarray(d.open_pose, dtype=float))}
     named.update({f"closed {c:.0%}": d.closed_pose(c) for c in CLOSURES})
-    kin = HandKinematics.from_hand(hand)
+    kin = shared_kinematics(hand)
     placed = kin.link_poses(torch.as_tensor(np.stack(list(named.values()))), links).numpy()
     return {name: dict(zip(links, placed[i], strict=True)) for i, name in enumerate(named)}

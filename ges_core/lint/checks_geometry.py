@@ -69,14 +69,14 @@ def _best_facing_angles(hand: HandModel, thumb, others) -> dict[str, float]:
     over sampled configurations where each pad lies in front of the other."""
     import torch
 
-    from ges_core.kinematics import HandKinematics
+    from ges_core.kinematics import shared_kinematics
 
     d = hand.description
     lim = d.limits_array
     q = np.random.default_rng(0).uniform(lim[:, 0], lim[:, 1], size=(OPPOSITION_SAMPLES, d.num_joints))
     q = torch.as_tensor(d.apply_couplings(q))
     fingers = [thumb, *others]
-    kin = HandKinematics.from_hand(hand)
+    kin = shared_kinematics(hand)
     poses = kin.link_poses(q, [f.tip_link for f in fingers]).numpy()  # (B, F, 4, 4)
     pads = np.stack([poses[:, i, :3, :3] @ np.asarray(f.pad_normal) for i, f in enumerate(fingers)], axis=1)
     offsets = np.asarray([f.tip_offset for f in fingers])
