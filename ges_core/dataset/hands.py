@@ -26,6 +26,7 @@ from pathlib import Path
 from ges_core.dataset.layout import utc_now
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription, HandModel
+from ges_core.paths import file_sha256
 from ges_core.urdf import parse_urdf
 
 __all__ = ["check_hands", "describe_hand", "hand_differences", "hand_entry", "urdf_fields"]
@@ -107,10 +108,9 @@ def urdf_fields(text: str, base_dir: Path) -> dict[str, str]:
 def _file_hash(path: Path) -> str:
     """16 hex digits of the file's SHA-256, or of ``missing:<name>`` when it cannot be read."""
     try:
-        data = path.read_bytes()
+        return file_sha256(path)
     except OSError:
-        data = f"missing:{path.name}".encode()
-    return hashlib.sha256(data).hexdigest()[:16]
+        return hashlib.sha256(f"missing:{path.name}".encode()).hexdigest()[:16]
 
 
 def hand_differences(old: dict, new: dict) -> list[str]:
