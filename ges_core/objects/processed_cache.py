@@ -9,6 +9,7 @@ key covers the source file's bytes, the processing options and the source text o
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import io
 import json
@@ -27,6 +28,7 @@ _MODULES = ("processing.py", "placement.py", "validate.py", "bounds.py", "decomp
 """Modules (in this folder) whose source text is part of every key: the code that produces a processed object."""
 
 
+@functools.cache  # the sources do not change while a process runs: read them once, not per object
 def _code_hash() -> str:
     here = Path(__file__).parent
     return hashlib.sha256(b"".join((here / name).read_bytes() for name in _MODULES)).hexdigest()[:16]
@@ -68,11 +70,10 @@ def load_processed(key: str, entry: ObjectEntry):
     mesh_path = cache_dir("objects", "meshes") / meta["mesh_file"]
     if not mesh_path.is_file():  # the mesh cache was cleared: process again
         return None
-    obj = ProcessedObject(
+    return ProcessedObject(
         entry=entry, mesh=mesh, mesh_path=mesh_path, mesh_hash=meta["mesh_hash"], kind=meta["kind"],
         volume=meta["volume"], hull_depth=meta["hull_depth"], min_width=meta["min_width"],
     )  # fmt: skip
-    return obj
 
 
 def store_processed(key: str, obj) -> None:
