@@ -340,10 +340,11 @@ def _side_plans(
             picks = sl.pick_extremes(_coords(pts, ctx, axes[flip]), allowed, layouts[flip][rank], cfg.extremum_tol)
             if picks is None:
                 continue
-            if _fits(_opening(pts, picks, axes[flip]), cfg):
+            opening = _opening(pts, picks, axes[flip])
+            if _fits(opening, cfg):
                 plans.append(_optimized(pts, nrm, ctx, axes[flip], layouts[flip][rank], picks, allowed))
             else:  # a band widened onto another part (a sparse slice's width read too narrow): too wide a hand
-                openings.append(_opening(pts, picks, axes[flip]))
+                openings.append(opening)
         if plans:
             yield max(plans, key=lambda p: p.screen)
 
