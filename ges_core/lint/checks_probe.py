@@ -71,7 +71,7 @@ def _cube_poses(hand: HandModel, q: np.ndarray) -> np.ndarray:
 
     from ges_core.kinematics import shared_kinematics
     from ges_core.synthesis.physics.squeeze import press_directions
-    from ges_core.transforms import matrix_to_pose, pose_to_matrix
+    from ges_core.transforms import pose_to_matrix
 
     d = hand.description
     tips = shared_kinematics(hand).points(
@@ -81,10 +81,7 @@ def _cube_poses(hand: HandModel, q: np.ndarray) -> np.ndarray:
     tips = tips[0].numpy() @ base[:3, :3].T + base[:3, 3]
     press = press_directions(d, tips)
     out = np.tile(HOVER, (len(tips), 1))
-    for f, (tip, u) in enumerate(zip(tips, press, strict=True)):
-        m = np.eye(4)
-        m[:3, 3] = tip + u * CUBE_HALF  # a cube is the same along every axis: only its centre matters
-        out[f] = matrix_to_pose(m)
+    out[:, :3] = tips + press * CUBE_HALF  # a cube is the same along every axis: only its centre matters
     return out
 
 
