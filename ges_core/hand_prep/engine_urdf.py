@@ -22,7 +22,7 @@ import xml.etree.ElementTree as ET
 from pathlib import Path
 
 from ges_core.hand_prep.decompose import cached_link_parts
-from ges_core.hand_prep.meshes import NATIVE_FORMATS, converted_mesh, resolve_mesh_path
+from ges_core.hand_prep.meshes import engine_mesh, resolve_mesh_path
 from ges_core.hand_prep.mimic import strip_mimic
 from ges_core.urdf import parse_urdf
 
@@ -45,9 +45,7 @@ def _rewrite_meshes(root: ET.Element, base_dir: Path) -> bool:
     changed = False
     for mesh in root.iter("mesh"):
         name = mesh.get("filename", "")
-        path = resolve_mesh_path(name, base_dir)
-        if path.suffix not in NATIVE_FORMATS:
-            path = converted_mesh(path)
+        path = engine_mesh(resolve_mesh_path(name, base_dir))
         if str(path) != name:
             mesh.set("filename", str(path))
             changed = True

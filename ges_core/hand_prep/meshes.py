@@ -24,6 +24,7 @@ __all__ = [
     "NATIVE_FORMATS",
     "converted_mesh",
     "converted_mesh_if_cached",
+    "engine_mesh",
     "engines_that_cannot_load",
     "resolve_mesh_path",
 ]
@@ -105,6 +106,11 @@ def converted_mesh(source: Path) -> Path:
     if not path.is_file():
         atomic_write_text(path, _obj_text(source))
     return path
+
+
+def engine_mesh(source: Path) -> Path:
+    """The file the engines load for ``source``: itself in a :data:`NATIVE_FORMATS` format, else its OBJ copy."""
+    return source if source.suffix in NATIVE_FORMATS else converted_mesh(source)
 
 
 def _obj_text(source: Path) -> str:

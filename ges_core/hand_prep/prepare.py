@@ -28,7 +28,7 @@ from ges_core.hand_prep.geometry import (
     link_shapes,
     pair_overlaps,
 )
-from ges_core.hand_prep.meshes import NATIVE_FORMATS, converted_mesh, resolve_mesh_path
+from ges_core.hand_prep.meshes import NATIVE_FORMATS, converted_mesh, engine_mesh, resolve_mesh_path
 from ges_core.hand_prep.mimic import strip_mimic
 from ges_core.urdf import parse_urdf
 
@@ -130,10 +130,6 @@ def _convert_all(text: str, base_dir: Path) -> list[Path]:
     return out
 
 
-def _engine_file(source: Path) -> Path:
-    return source if source.suffix in NATIVE_FORMATS else converted_mesh(source)
-
-
 def _plan(shapes, overlaps: list[PairOverlap]) -> list[MeshPlan]:
     """One plan per collision mesh file (a file several links use is measured and decomposed once)."""
     plans: dict[Path, MeshPlan] = {}
@@ -145,7 +141,7 @@ def _plan(shapes, overlaps: list[PairOverlap]) -> list[MeshPlan]:
         for shape in group:
             if shape.source is None:
                 continue
-            path = _engine_file(shape.source)
+            path = engine_mesh(shape.source)
             if path not in plans:
                 plans[path] = MeshPlan(path, [], hull_gap(shape.mesh))
             plans[path].links.append(link)
