@@ -86,14 +86,10 @@ def check_settings(data: object, where: str) -> dict[str, Any]:
     """
     if data is None:
         return {}
-    if not isinstance(data, Mapping):
-        known = ", ".join(SECTIONS + SCALARS + (SIM_CHECK,))
-        raise ConfigError(f"{where}: must be a mapping of sections ({known}), got {data!r}")
-    problems = []
     allowed = SECTIONS + SCALARS + (SIM_CHECK,)
-    for key in data:
-        if key not in allowed:
-            problems.append(f"{where}.{key}: unknown section (known: {', '.join(allowed)})")
+    if not isinstance(data, Mapping):
+        raise ConfigError(f"{where}: must be a mapping of sections ({', '.join(allowed)}), got {data!r}")
+    problems = [f"{where}.{key}: unknown section (known: {', '.join(allowed)})" for key in data if key not in allowed]
     models = _models() if any(k in SECTIONS for k in data) else {}
     for key, value in data.items():
         if key in SECTIONS:
