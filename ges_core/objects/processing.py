@@ -8,6 +8,7 @@ write the mesh, content-addressed, under ``<cache_dir>/objects/meshes`` → coll
 
 from __future__ import annotations
 
+import functools
 import hashlib
 from dataclasses import dataclass
 from pathlib import Path
@@ -250,7 +251,7 @@ def collision_volume(shapes: tuple[PrimitiveShape | ConvexPart, ...]) -> float:
 
 def _shape_volume(shape: PrimitiveShape | ConvexPart) -> float:
     if isinstance(shape, ConvexPart):
-        return float(trimesh.load(shape.path, force="mesh", process=False).convex_hull.volume)
+        return _part_volume(Path(shape.path))
     size = shape.size
     if shape.kind == "box":
         return 8.0 * size[0] * size[1] * size[2]
@@ -259,6 +260,12 @@ def _shape_volume(shape: PrimitiveShape | ConvexPart) -> float:
         return ball
     tube = np.pi * size[0] ** 2 * 2.0 * size[1]
     return tube + ball if shape.kind == "capsule" else tube
+
+
+@functools.cache  # part files are content-addressed (same path, same hull): ObjectLibrary.get asks per attempt
+def _part_volume(path: Path) -> float:
+    """m^3 of the convex hull of the part file at ``path``."""
+    return float(trimesh.load(path, force="mesh", process=False).convex_hull.volume)
 
 
 def prepare_command(entry: ObjectEntry) -> str:
