@@ -37,11 +37,11 @@ def decompose_link_mesh(mesh: Path, *, name: str) -> list[Path]:
     """Decompose ``mesh`` (cached: a second call only reads the manifest); returns the part files."""
     import trimesh
 
-    parts = cached_link_parts(mesh)
+    key = file_sha256(mesh)  # hashed once: the cache lookup and the decomposition share it
+    parts = cached_parts(key, HAND_COACD)
     if parts is not None:
         return parts
-    loaded = trimesh.load(str(mesh), force="mesh")
-    return decompose(loaded, file_sha256(mesh), HAND_COACD, name=name)
+    return decompose(trimesh.load(str(mesh), force="mesh"), key, HAND_COACD, name=name)
 
 
 def decomposition_seconds(mesh: Path) -> float:
