@@ -143,14 +143,12 @@ def run_list(args: argparse.Namespace) -> int:
 
 def _physics(library, object_id: str) -> str:
     """``  mass 150 g (given)  friction 0.8`` (or ``(500 kg/m^3)`` when the mass comes from a density)."""
-    props, cfg = library.properties(object_id), library.config
+    props = library.properties(object_id)
     if props.mass is not None:
         mass, origin = props.mass, "given"
     else:
-        density = cfg.density if props.density is None else props.density
-        mass, origin = density * library.processed(object_id).volume, f"{density:g} kg/m^3"
-    friction = cfg.friction if props.friction is None else props.friction
-    return f"  mass {mass * 1000:6.1f} g ({origin})  friction {friction:g}"
+        mass, origin = props.density * library.processed(object_id).volume, f"{props.density:g} kg/m^3"
+    return f"  mass {mass * 1000:6.1f} g ({origin})  friction {props.friction:g}"
 
 
 def run_prepare(args: argparse.Namespace) -> int:

@@ -190,20 +190,24 @@ class ObjectLibrary:
         if props.mass is not None:  # simulators take density x collision volume: this gives them this mass
             density, mass = props.mass / collision_volume(collision), props.mass
         else:
-            density = cfg.density if props.density is None else props.density
-            mass = density * obj.volume
-        friction = cfg.friction if props.friction is None else props.friction
+            density, mass = props.density, props.density * obj.volume
         return ObjectAsset(
             object_id=object_id, category=obj.entry.category, mesh_path=obj.mesh_path, collision=collision,
-            density=density, mass=mass, friction=friction,
+            density=density, mass=mass, friction=props.friction,
         )  # fmt: skip
 
     def properties(self, object_id: str) -> ObjectProperties:
-        """The mass / density / friction given for ``object_id`` (source, objects.yaml, then
-        ``config.object_properties``); unset fields fall back to ``config.density`` and ``config.friction``."""
+        """The mass / density / friction of ``object_id``: those given (source, objects.yaml, then
+        ``config.object_properties``), with ``config.density`` when neither a mass nor a density is given and
+        ``config.friction`` when no friction is. Exactly one of mass and density is set; friction always is."""
         entry = self.entry(object_id)
         own = ObjectProperties(mass=entry.mass, density=entry.density, friction=entry.friction)
-        return merge_properties(own, self.config.object_properties.get(object_id))
+        given = merge_properties(own, self.config.object_properties.get(object_id))
+        cfg = self.config
+        density = cfg.density if given.mass is None and given.density is None else given.density
+        friction = cfg.friction if given.friction is None else given.friction
+        # constructed as is: the library's own density and friction were checked (or not) by LibraryConfig
+        return ObjectProperties.model_construct(mass=given.mass, density=density, friction=friction)
 
     def point_cloud(
         self, object_id: str, n: int = 2048, *, seed: int = 0, fps: bool = False
