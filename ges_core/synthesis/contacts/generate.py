@@ -292,9 +292,13 @@ def _coords(pts: np.ndarray, ctx: _Context, axes: sl.GraspAxes) -> np.ndarray:
     return (pts - ctx.origin) @ axes.matrix()
 
 
-def _profile(pts: np.ndarray, ctx: _Context, strategy: str, col: int, flip: bool) -> sl.SliceProfile:
+def _profile(
+    pts: np.ndarray, ctx: _Context, strategy: str, col: int, flip: bool
+) -> tuple[sl.GraspAxes, np.ndarray, sl.SliceProfile]:
+    """The grasp axes of one choice, the (n, 3) grasp coordinates of ``pts`` and their slice profile."""
     axes = sl.grasp_axes(strategy, ctx.frame, col, right_hand=ctx.cfg.right_hand, flip=flip)
-    return sl.slice_profile(_coords(pts, ctx, axes), pts[:, 2], ctx.cfg.slice_thickness)
+    coords = _coords(pts, ctx, axes)
+    return axes, coords, sl.slice_profile(coords, pts[:, 2], ctx.cfg.slice_thickness)
 
 
 def _layouts(
@@ -302,9 +306,7 @@ def _layouts(
 ) -> list[sl.Layout]:
     """The ranked five-contact layouts for one choice of axes (empty when no slice fits the hand)."""
     cfg, top = ctx.cfg, ctx.top
-    axes = sl.grasp_axes(strategy, ctx.frame, col, right_hand=cfg.right_hand, flip=flip)
-    coords = _coords(pts, ctx, axes)
-    prof = sl.slice_profile(coords, pts[:, 2], cfg.slice_thickness)
+    axes, coords, prof = _profile(pts, ctx, strategy, col, flip)
     ok = sl.graspable(prof, cfg.min_width, cfg.max_width)
     if strategy == "vertical":
         z_range = (max(cfg.min_height, top - cfg.vertical_reach), top)
@@ -316,7 +318,7 @@ def _layouts(
 
 def _narrowest(pts: np.ndarray, ctx: _Context, strategy: str, col: int) -> float:
     """Narrowest squeeze width of any slice above min_height (for the error message)."""
-    prof = _profile(pts, ctx, strategy, col, False)
+    _, _, prof = _profile(pts, ctx, strategy, col, False)
     above = (prof.centers >= ctx.cfg.min_height) & (prof.counts >= sl.MIN_SLICE_POINTS)
     return float(prof.width[above].min()) if above.any() else float("inf")
 
