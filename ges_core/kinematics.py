@@ -30,10 +30,9 @@ float32 rounding: against PyBullet (float64) on Allegro, link positions agree wi
 rotation entries within 4e-7. Composition runs in the chosen dtype (float64 by default).
 
 Coupled joints (``HandDescription.couplings``, URDF ``<mimic>`` tags) are ordinary joints of ``q``
-here: FK places a follower's links at the value ``q`` gives it. :meth:`HandKinematics.couple` sets
-every follower to ``ratio * q[leader] + offset`` (differentiably) for callers that hold leaders only.
-``<mimic>`` tags are removed before the chain is built, so whatever a later pytorch-kinematics does
-with them, the chain's joints stay the URDF's movable joints.
+here: FK places a follower's links at the value ``q`` gives it (set followers first with
+``HandDescription.apply_couplings``). ``<mimic>`` tags are removed before the chain is built, so whatever a
+later pytorch-kinematics does with them, the chain's joints stay the URDF's movable joints.
 """
 
 from __future__ import annotations
@@ -49,7 +48,7 @@ import torch
 from ges_core.errors import AssetError, UnknownNameError
 
 if TYPE_CHECKING:
-    from ges_core.hand import HandModel, JointCoupling
+    from ges_core.hand import HandModel
 
 __all__ = ["HandKinematics", "shared_kinematics"]
 
@@ -79,7 +78,6 @@ class HandKinematics:
     urdf_text: the hand's URDF (fixed base: no floating wrist joints).
     joint_names: the hand's canonical joint order (K names); must be exactly the URDF's movable joints.
     dtype, device: of every tensor this object returns (like ``torch.Tensor.to``).
-    couplings: the hand's couplings, used by :meth:`couple` (FK itself never changes ``q``).
     """
 
     def __init__(
@@ -89,11 +87,9 @@ class HandKinematics:
         *,
         dtype: torch.dtype = torch.float64,
         device: torch.device | str = "cpu",
-        couplings: Sequence[JointCoupling] = (),
     ) -> None:
         self.urdf_text = urdf_text
         self.joint_names = tuple(joint_names)
-        self.couplings = tuple(couplings)
         self.dtype, self.device = dtype, torch.device(device)
         self._chain = _build_chain(urdf_text).to(dtype=dtype, device=self.device)
         chain_joints = list(self._chain.get_joint_parameter_names())
@@ -112,18 +108,11 @@ class HandKinematics:
         cls, hand: HandModel, *, dtype: torch.dtype = torch.float64, device: torch.device | str = "cpu"
     ) -> HandKinematics:
         """Kinematics of ``hand``'s URDF in its description's joint order."""
-        d = hand.description
-        return cls(hand.urdf_text(), d.joint_names, dtype=dtype, device=device, couplings=d.couplings)
+        return cls(hand.urdf_text(), hand.description.joint_names, dtype=dtype, device=device)
 
     def to(self, dtype: torch.dtype | None = None, device: torch.device | str | None = None) -> HandKinematics:
         """A copy with another dtype and/or device (this object is unchanged)."""
-        return HandKinematics(
-            self.urdf_text,
-            self.joint_names,
-            dtype=dtype or self.dtype,
-            device=device or self.device,
-            couplings=self.couplings,
-        )
+        return HandKinematics(self.urdf_text, self.joint_names, dtype=dtype or self.dtype, device=device or self.device)
 
     @property
     def base_link(self) -> str:
@@ -136,16 +125,6 @@ class HandKinematics:
         return len(self.joint_names)
 
     # -- public API -----------------------------------------------------------------------
-    def couple(self, q: torch.Tensor) -> torch.Tensor:
-        """``q`` (B, K) with each follower set to ``ratio * q[leader] + offset`` (no clipping; differentiable)."""
-        if not self.couplings:
-            return q
-        q = torch.as_tensor(q).clone()
-        lookup = {n: i for i, n in enumerate(self.joint_names)}
-        for c in self.couplings:
-            q[:, lookup[c.follower]] = c.ratio * q[:, lookup[c.leader]] + c.offset
-        return q
-
     def link_poses(self, q: torch.Tensor, links: Sequence[str]) -> torch.Tensor:
         """(B, L, 4, 4) homogeneous poses of ``links`` in the base frame for ``q`` (B, K)."""
         idx = self._frame_indices(links)
@@ -279,11 +258,9 @@ def shared_kinematics(hand: HandModel) -> HandKinematics:
     For code that needs the hand's kinematics now and then (a squeeze, a start pose) rather than keeping its
     own: parsing the URDF takes 20 ms to 0.7 s. Callers must not change the object (it is shared)."""
     d = hand.description
-    return _cached_kinematics(hand.urdf_text(), tuple(d.joint_names), tuple(d.couplings))
+    return _cached_kinematics(hand.urdf_text(), tuple(d.joint_names))
 
 
 @lru_cache(maxsize=8)
-def _cached_kinematics(
-    urdf_text: str, joint_names: tuple[str, ...], couplings: tuple[JointCoupling, ...]
-) -> HandKinematics:
-    return HandKinematics(urdf_text, joint_names, couplings=couplings)
+def _cached_kinematics(urdf_text: str, joint_names: tuple[str, ...]) -> HandKinematics:
+    return HandKinematics(urdf_text, joint_names)

@@ -83,20 +83,22 @@ def test_apply_couplings_uses_ratio_and_offset():
 
 
 def test_file_hand_adds_mimic_couplings_and_kinematics_follows_the_formula():
-    """FK of a follower's link equals FK with the follower set by hand to multiplier * leader + offset."""
+    """The mimic tags' couplings set each follower to multiplier * leader + offset (within its limits), and FK
+    places the followers' links where those values put them (not where the drawn, uncoupled values would)."""
     hand = FileHand(ABILITY_YAML, ABILITY)
     d = hand.description
     assert {c.follower for c in d.couplings} == {"index_q2", "middle_q2", "ring_q2", "pinky_q2"}
     kin = HandKinematics.from_hand(hand)
-    q = torch.as_tensor(np.random.default_rng(1).uniform(*d.limits_array.T, size=(16, d.num_joints)))
-    coupled = kin.couple(q)
-    manual = q.clone()
+    q = np.random.default_rng(1).uniform(*d.limits_array.T, size=(16, d.num_joints))
+    coupled = d.apply_couplings(q)
+    manual = q.copy()
     for c in d.couplings:
         i, j = d.joint_index([c.follower, c.leader])
-        manual[:, i] = c.ratio * q[:, j] + c.offset
-    assert torch.allclose(coupled, manual)
+        manual[:, i] = np.clip(c.ratio * q[:, j] + c.offset, *d.limits_array[i])
+    assert np.allclose(coupled, manual)
     links = ["index_L2", "index_tip", "pinky_tip"]
-    assert not torch.allclose(kin.link_poses(q, links), kin.link_poses(coupled, links), atol=1e-3)
+    drawn, followed = kin.link_poses(torch.as_tensor(q), links), kin.link_poses(torch.as_tensor(coupled), links)
+    assert not torch.allclose(drawn, followed, atol=1e-3)
 
 
 def test_strip_mimic_removes_tags_and_keeps_text_without_them():
