@@ -61,10 +61,12 @@ def main() -> None:
             raise SystemExit(f"--fresh deletes --out, but {args.out} holds no dataset (no manifest.json): pick another")
         shutil.rmtree(args.out)
     if not args.summary_only:
-        start = time.perf_counter()
-        before = len(open_dataset(args.out).entries) if (args.out / "manifest.json").is_file() else 0
-        run_synthesis([o.object_id for o in objects], HANDS, config, args.out, workers=args.workers, progress=True)
-        _log_run(args.out, time.perf_counter() - start, args.workers, len(open_dataset(args.out).entries) - before)
+        start, written = time.perf_counter(), []
+        try:  # a stopped run (Ctrl-C) keeps its records and logs its time too; a SIGKILL loses only the time
+            ids = [o.object_id for o in objects]
+            run_synthesis(ids, HANDS, config, args.out, workers=args.workers, progress=True, on_record=written.append)
+        finally:
+            _log_run(args.out, time.perf_counter() - start, args.workers, len(written))
     runs = _runs(args.out)
     wall = sum(r["seconds"] for r in runs)
     wanted = {(o.object_id, h) for o in objects for h in HANDS}
