@@ -6,8 +6,13 @@ Both work on batched torch tensors so that one call serves many environments.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
 
 import torch
+
+from ges_core.errors import ConfigError
 
 __all__ = ["Expert", "Gate"]
 
@@ -31,10 +36,18 @@ class Expert(ABC):
 
 
 class Gate(ABC):
-    """Chooses one expert per object from its point cloud."""
+    """Chooses one expert per object from its point cloud.
+
+    A gate is trained for a fixed, ordered list of experts (:attr:`experts`, the columns of
+    :meth:`predict`); its checkpoint names them, and using it with other experts is an error
+    (:meth:`check_experts`). Training, data and checkpoint formats live in :mod:`ges_core.gating`.
+    """
 
     name: str = ""
     """Registry name."""
+
+    experts: tuple[str, ...] = ()
+    """Names of the experts the gate chooses among, in the order of :meth:`predict`'s columns."""
 
     @abstractmethod
     def predict(self, points: torch.Tensor) -> torch.Tensor:
@@ -43,6 +56,29 @@ class Gate(ABC):
         points: (n, N, 3) float32 object point clouds, object frame, metres.
         Returns (n, k) float32, rows sum to 1, k = number of experts.
         """
+
+    @abstractmethod
+    def fit(self, data: Any, **options: Any) -> Any:
+        """Train on ``data`` (a :class:`ges_core.gating.GateData`: object clouds and per-expert success
+        rates); sets :attr:`experts` to the data's experts and returns the training history."""
+
+    @abstractmethod
+    def save(self, path: str | Path) -> None:
+        """Write a checkpoint that names :attr:`experts`."""
+
+    @classmethod
+    @abstractmethod
+    def load(cls, path: str | Path) -> Gate:
+        """The gate saved at ``path``, with the experts it was trained for."""
+
+    def check_experts(self, experts: Sequence[str]) -> None:
+        """ConfigError naming both lists unless ``experts`` are the ones this gate was trained for (same order)."""
+        if tuple(experts) != tuple(self.experts):
+            raise ConfigError(
+                f"gate '{self.name}' was trained for experts {list(self.experts)} but is used with "
+                f"{list(experts)}; retrain it (ges train-gate) on a success matrix of these experts, "
+                f"or pass the experts it was trained for"
+            )
 
     def select(self, points: torch.Tensor) -> torch.Tensor:
         """Index (n,) int64 of the expert with the highest predicted score."""
