@@ -30,6 +30,7 @@ _COMMAND_MODULES = (
     "ges_core.cli.cmd_env",
     "ges_core.cli.cmd_train",
     "ges_core.cli.cmd_view",
+    "ges_core.cli.cmd_cluster",
 )
 """Modules that add sub-commands, in ``--help`` order."""
 
