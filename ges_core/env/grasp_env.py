@@ -12,8 +12,14 @@ starts every episode with the open hand at a fixed pose above the object and no 
 ``goal_prior=False`` leaves the goal blocks G out of the observation (the reward still uses the goal).
 
 Per-env resets (:meth:`GraspEnv.reset_envs`) teleport that env's hand straight to its episode start and
-its object to its rest pose, through the backend's per-env teleports: the other envs are untouched. See
+its object to its start pose, through the backend's per-env teleports: the other envs are untouched. See
 ``docs/env.md``.
+
+One object in every env (``GraspEnv(sim, hand, obj, grasps, cfg)``, one grasp row per env), or a multi-object
+environment (:meth:`GraspEnv.from_pool`): each env holds its own object and grasp, and every episode start
+draws that env's next (object, grasp) from a weighted :class:`~ges_core.env.grasp_pool.GraspPool`. Either way
+``EnvConfig.randomization`` (:mod:`ges_core.env.randomization`) may shift and turn the object's start pose,
+scale its mass and friction, and add observation noise, each switchable and seeded.
 
 Faults at the inputs: a wrongly shaped or non-numeric action is one ArrayError, raised before anything reaches
 the backend; a NaN or inf in an env's action row ends that env's step as ``unstable`` (its targets stay where
@@ -29,6 +35,7 @@ physics (benchmarks/env_throughput.py). tests/test_env_fast_path.py checks it ag
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import torch
@@ -37,6 +44,7 @@ from pydantic import Field
 from ges_core.arrays import as_numpy, checked_array
 from ges_core.config import ConfigModel
 from ges_core.env.layout import ActionLayout, ObservationLayout
+from ges_core.env.randomization import RandomizationConfig, Randomizer
 from ges_core.env.reward import TERMS, RewardConfig, RewardFunction, consistency_groups
 from ges_core.env.success import EndReason, SuccessConfig, SuccessTracker
 from ges_core.errors import ConfigError, SimulationError
@@ -45,6 +53,7 @@ from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
 from ges_core.sim_args import env_id_list
 from ges_core.transforms import (
+    compose,
     matrix_to_pose,
     quat_conj,
     quat_mul,
@@ -54,6 +63,9 @@ from ges_core.transforms import (
     unit_quat_to_matrix,
 )
 from ges_core.transforms_torch import interpolate_pose
+
+if TYPE_CHECKING:
+    from ges_core.env.grasp_pool import GraspPool
 
 _UNSTABLE = int(EndReason.UNSTABLE)  # plain ints: numpy compares IntEnum members several times slower
 
@@ -84,6 +96,9 @@ class EnvConfig(ConfigModel):
     )
     reward: RewardConfig = Field(default_factory=RewardConfig)
     success: SuccessConfig = Field(default_factory=SuccessConfig)
+    randomization: RandomizationConfig = Field(
+        default_factory=RandomizationConfig, description="per-episode randomization (every kind off by default)"
+    )
 
 
 PRIOR_PRESETS: dict[str, dict[str, bool]] = {
@@ -117,16 +132,34 @@ class GraspTargets:
 
 
 class GraspEnv:
-    """Batched grasp execution over ``sim`` (hand loaded here, one object in every env)."""
+    """Grasp execution over ``sim``'s envs (hand loaded here): one object in all, or a pool (:meth:`from_pool`)."""
 
     def __init__(
-        self, sim: SimBackend, hand: HandModel, obj: ObjectAsset, grasps: GraspTargets, cfg: EnvConfig
+        self,
+        sim: SimBackend,
+        hand: HandModel,
+        obj: ObjectAsset | None,
+        grasps: GraspTargets | None,
+        cfg: EnvConfig,
+        *,
+        pool: GraspPool | None = None,
     ) -> None:
-        self.sim, self.hand, self.obj, self.cfg = sim, hand, obj, cfg
+        """One object: ``obj`` in every env, ``grasps`` one world-frame row per env. Pool: ``obj`` and ``grasps``
+        None, ``pool`` given (use :meth:`from_pool`); each env draws its own entry at every episode start."""
+        if (pool is None) == (obj is None or grasps is None) or (pool is not None and (obj, grasps) != (None, None)):
+            raise ConfigError(
+                "GraspEnv: give either an object and its grasps (one object in every env) or a GraspPool "
+                "(GraspEnv.from_pool), not both and not neither"
+            )
+        self.sim, self.hand, self.obj, self.cfg, self.pool = sim, hand, obj, cfg, pool
         self.n = sim.num_envs
         d = hand.description
-        self._check_grasps(grasps, d.num_joints)
+        if grasps is not None:
+            self._check_grasps(grasps, d.num_joints)
+        else:
+            grasps = GraspTargets(*(np.zeros((self.n, w)) for w in (7, d.num_joints, 7, d.num_joints)))
         self.grasps = {k: torch.as_tensor(np.asarray(v, dtype=np.float64)) for k, v in vars(grasps).items()}
+        """Each env's grasp, world frame (n, ...) float64 (a pool env's row changes when it draws a new entry)."""
         self._goal_pose, self._goal_q = self.grasps["wrist_pose"].numpy(), self.grasps["q"].numpy()
         self.tip_links = list(d.tip_links)
         self.tip_offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
@@ -152,8 +185,77 @@ class GraspEnv:
         self._last_terms: tuple[dict | None, np.ndarray | None] = (None, None)  # see terms_array
         self._last_state: tuple = (None, None, None)  # see _state_arrays
         self._quat_buf = (np.empty((2, self.n, 4)), np.empty((2, self.n, 4)), np.empty((3, self.n, 4)))
+        self.random = Randomizer(cfg.randomization, self.obs_layout.slices)
+        self.objects: list[ObjectAsset | None] = [None] * self.n
+        """The object each env holds, as loaded (mass and friction randomization included)."""
+        self.entry = np.full(self.n, -1, dtype=np.int64)
+        """(n,) the pool entry each env's episode runs (-1: no pool)."""
+        self.rest_pose = np.zeros((self.n, 7))
+        """(n, 7) world pose each env's object rests at after loading (the frame its grasp is given in)."""
+        self.start_pose = np.zeros((self.n, 7))
+        """(n, 7) world pose each env's object started its episode at (rest pose, randomized if switched on)."""
+        self.noinit_start = torch.zeros((self.n, 7), dtype=torch.float64)
+        """(n, 7) NoInit: base poses of the open hand above each env's object (set at episode starts)."""
         sim.load_hand(hand, floating=True)
-        sim.load_object(obj)
+        if pool is None:
+            sim.load_object(obj)
+            self.objects = [obj] * self.n
+            self.rest_pose[:] = sim.object_pose()
+        self._place(list(range(self.n)))
+
+    @classmethod
+    def from_pool(cls, sim: SimBackend, hand: HandModel, pool: GraspPool, cfg: EnvConfig) -> GraspEnv:
+        """A multi-object environment: every env draws its (object, grasp) from ``pool`` at each episode start."""
+        return cls(sim, hand, None, None, cfg, pool=pool)
+
+    @property
+    def object_ids(self) -> list[str]:
+        """The object id each env holds."""
+        return [o.object_id for o in self.objects]
+
+    def reseed(self, seed: int) -> None:
+        """Restart the randomization's and the pool draws' random streams from ``seed``."""
+        self.random.reseed(seed)
+
+    def _place(self, ids: list[int]) -> None:
+        """Choose the objects of envs ``ids`` for their next episode: a pool draw, mass and friction randomized
+        (each switchable), loaded where it changed; set their rest poses, grasps, start poses and NoInit starts.
+
+        The objects are left at their rest poses (a fresh load) or where they were: the caller teleports them
+        to :attr:`start_pose`."""
+        if self.pool is not None:
+            self.entry[ids] = self.pool.draw(self.random.pool_rng, len(ids))
+            base = [self.pool.entries[k].asset for k in self.entry[ids]]
+        else:
+            base = [self.obj] * len(ids)
+        changed: dict[int, list[int]] = {}  # id(asset) -> envs to load it into (one load_object call per asset)
+        assets = {}
+        for e, asset in zip(ids, base, strict=True):
+            asset = self.random.physics(asset)
+            if asset is not self.objects[e]:
+                changed.setdefault(id(asset), []).append(e)
+                assets[id(asset)] = asset
+                self.objects[e] = asset
+        for key, envs in changed.items():
+            self.sim.load_object(assets[key], env_ids=envs)  # rests it on the table at the origin
+        loaded = [e for envs in changed.values() for e in envs]
+        if loaded:
+            self.rest_pose[loaded] = self.sim.object_pose()[loaded]
+        if self.pool is not None:
+            self._set_pool_grasps(ids)
+        self.start_pose[ids] = self.random.start_poses(self.rest_pose[ids])
+        if not self.cfg.init_prior:
+            start = open_hand_start_pose(self.hand, self.rest_pose[ids, :3], self.cfg.noinit_height)
+            self.noinit_start[ids] = torch.as_tensor(start)
+
+    def _set_pool_grasps(self, ids: list[int]) -> None:
+        """Grasp rows of envs ``ids`` from their pool entries, mapped to the world through each rest pose."""
+        g = {k: v.numpy() for k, v in self.grasps.items()}  # views: writes reach the tensors
+        for e in ids:
+            entry, rest = self.pool.entries[self.entry[e]], self.rest_pose[e]
+            g["wrist_pose"][e] = compose(rest, entry.wrist_pose)
+            g["pre_wrist_pose"][e] = compose(rest, entry.pre_wrist_pose)
+            g["q"][e], g["pre_q"][e] = entry.q, entry.pre_q
 
     def _check_grasps(self, g: GraspTargets, k: int) -> None:
         """ArrayError unless every field holds one finite row per env: poses (n, 7), joints (n, K)."""
@@ -163,7 +265,8 @@ class GraspEnv:
 
     # -- resets ----------------------------------------------------------------------------
     def reset_all(self) -> None:
-        """Every env: object at rest, hand at its episode start (:meth:`start_state`), ``settle_steps`` holding.
+        """Every env: object drawn (a pool) and at its start pose, hand at its episode start (:meth:`start_state`),
+        ``settle_steps`` holding.
 
         Init: the hand starts ``reach_offset`` above the pre-grasp and stage one (PD reaching) takes it
         there. NoInit: the open hand is teleported to its fixed start above the object; no reaching.
@@ -171,10 +274,11 @@ class GraspEnv:
         self._check_open("reset_all")
         sim, cfg = self.sim, self.cfg
         sim.reset()
-        self.rest_pose = sim.object_pose()
-        if not cfg.init_prior:
-            start = open_hand_start_pose(self.hand, self.rest_pose[:, :3], cfg.noinit_height)
-            self.noinit_start = torch.as_tensor(start)  # (n, 7) base poses, world
+        if self.pool is None and not self._reloads():
+            self.rest_pose[:] = sim.object_pose()  # the one object, at its load pose: no reload, no draw
+        self._place(list(range(self.n)))
+        if self.random.cfg.active("start_pose"):
+            sim.set_object_pose(self.start_pose)
         q, pose = self.start_state(torch.arange(self.n))
         if cfg.init_prior:
             self._reach(q, pose)
@@ -197,7 +301,7 @@ class GraspEnv:
         """Where episodes of ``env_ids`` hand over to the policy: joints (m, K) rad, base pose (m, 7) world.
 
         Init: the pre-grasp (``pre_q``, ``pre_wrist_pose``). NoInit: the open pose at ``noinit_start``
-        (set by :meth:`reset_all`).
+        (above each env's object, set when its episode starts).
         """
         if self.cfg.init_prior:
             return self.grasps["pre_q"][env_ids], self.grasps["pre_wrist_pose"][env_ids]
@@ -205,7 +309,8 @@ class GraspEnv:
         return q_open.expand(len(env_ids), -1).clone(), self.noinit_start[env_ids]
 
     def reset_envs(self, env_ids) -> None:
-        """Envs ``env_ids``: object back at rest, hand at its episode start (:meth:`start_state`); others untouched.
+        """Envs ``env_ids``: next object drawn (a pool) and placed at its start pose, hand at its episode start
+        (:meth:`start_state`); others untouched.
 
         No stage one here: the hand is teleported straight to where the policy takes over. env_ids: distinct
         env indices as the backends take them: a list or tuple of ints, a 1-D numpy or torch integer array
@@ -216,10 +321,16 @@ class GraspEnv:
         ids = env_id_list(env_ids, self.n, "GraspEnv.reset_envs")
         if not ids:
             return
+        self._place(ids)
         q, pose = self.start_state(torch.tensor(ids))
         self.sim.set_hand_state(q.numpy(), pose.numpy(), env_ids=ids)  # also restores a blown-up env
-        self.sim.set_object_pose(self.rest_pose[ids], env_ids=ids)  # not load_object: SAPIEN segfaults reading
-        self._begin(np.array(ids), q.numpy())  # contacts of a removed body
+        self.sim.set_object_pose(self.start_pose[ids], env_ids=ids)
+        self._begin(np.array(ids), q.numpy())
+
+    def _reloads(self) -> bool:
+        """True when an episode start may load a new object (a pool, or mass or friction randomized)."""
+        r = self.random.cfg
+        return self.pool is not None or r.active("mass") or r.active("friction")
 
     def _begin(self, ids: np.ndarray, q: np.ndarray) -> None:
         """Start episodes in envs ``ids`` (m,) whose hands were just put at joints ``q`` (m, K): targets there."""
@@ -292,7 +403,9 @@ class GraspEnv:
         arrays = {"q": q, "dq": dq, "tip_world": tip_world, "obj": obj, "wrist_vel": vel}
         state = {name: torch.from_numpy(value) for name, value in arrays.items()}
         self._last_state = (state, arrays, blocks["goal_q"])
-        return torch.from_numpy(self.obs_layout.pack_np(blocks)), state
+        flat = self.obs_layout.pack_np(blocks)
+        self.random.add_noise(flat)  # the policy's view only: the state (reward, success) stays exact
+        return torch.from_numpy(flat), state
 
     def _state_arrays(self, state: dict[str, torch.Tensor]) -> tuple[dict[str, np.ndarray], np.ndarray]:
         """Numpy float64 views of a state dict of :meth:`observe` and its goal joint error (n, K) (grasp - q).

@@ -8,7 +8,8 @@ each end reason, of both success protocols and the mean Table 3 metrics (``/metr
 ``/metrics/hand_oscillation``, ``/metrics/fdc``, :mod:`~ges_core.env.metrics`); ``extras["end_reason"]``
 the (n,) EndReason codes, ``extras["peer_success"]`` (n,) bool and ``extras["max_rise"]`` (n,) metres: the
 peers' protocol and the object's highest rise so far in each env's episode, read before finished envs
-restart (so an ended episode's values survive its reset).
+restart (so an ended episode's values survive its reset); ``extras["entry"]`` (n,) int64 the pool entry
+each env's episode ran (:meth:`GraspEnv.from_pool`; -1 without a pool), read before the reset draws the next.
 
 Faults: an env whose action row holds NaN or inf (a diverging policy) ends that step ``unstable`` with reward 0
 and restarts like any finished env; the batch goes on. ``extras["log"]["/faults/nan_actions"]`` is, at every
@@ -96,6 +97,7 @@ class GraspVecEnv(VecEnv):
         extras["end_reason"] = reason
         extras["peer_success"] = env.tracker.peer_success.clone()  # before the reset below clears them
         extras["max_rise"] = env.tracker.max_rise.clone()
+        extras["entry"] = torch.from_numpy(env.entry.copy())  # pool entry of each env's episode (-1: no pool)
         if any_done:
             ended = torch.from_numpy(done.nonzero()[0])
             env.reset_envs(ended)
