@@ -17,7 +17,8 @@ simulator, one :class:`~ges_core.dataset.GraspRecord`. A ``SynthesisError``, ``S
 Objects are cut into fixed chunks of ``chunk_size`` (in the order given) whatever the number of
 workers; each (object, hand) gets fresh simulators (a reused scene carries the previous object's
 history, see :mod:`.worker`), so a record does not depend on its chunk mates, on resuming or on
-``workers``. The parent process alone writes the dataset (atomic, resumable:
+``workers`` or on the executor (:mod:`ges_core.executors`: local worker processes or Ray tasks, whose
+records travel back to this process). The parent process alone writes the dataset (atomic, resumable:
 stored (object, hand) pairs are skipped), each task's records as soon as that task finishes. It keeps each
 hand's description and hash in the manifest and refuses to resume with a hand that changed
 (:mod:`ges_core.dataset.hands`).
@@ -25,14 +26,13 @@ hand's description and hash in the manifest and refuses to resume with a hand th
 
 from __future__ import annotations
 
-import multiprocessing
 from collections.abc import Callable, Generator, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass, field
 from pathlib import Path
 
 from ges_core.dataset import DatasetWriter
 from ges_core.errors import ConfigError
+from ges_core.executors import TaskLostError, make_executor
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.tasks import (
     RegistrySpec,
@@ -73,17 +73,25 @@ def run_synthesis(
     pictures: str | Path | None = None,
     source: tuple[str, str] | None = None,
     on_record: Callable | None = None,
+    executor: str = "local",
+    address: str | None = None,
 ) -> RunReport:
     """Synthesize and validate grasps of ``object_ids`` x ``hands``; write them to the dataset ``out``.
 
-    workers: processes (1 = this process). Torch threads: ``config.threads``, else ``$GES_THREADS``, else 1, set in
-    each worker process, or in this process when it runs the tasks itself (:mod:`ges_core.threads`).
+    workers: processes (1 = this process); with ``executor="ray"`` the CPUs of the Ray instance started here.
+    executor: ``local`` (worker processes here) or ``ray`` (Ray tasks; ``address``: an existing cluster, None:
+    a Ray instance started here and stopped after the run); the records are the same (docs/scale.md).
+    Torch threads: ``config.threads``, else ``$GES_THREADS``, else 1, set in each worker process, or in this
+    process when it runs the tasks itself (:mod:`ges_core.threads`).
     pictures: folder for one PNG per record (None: none).
     source: (dataset folder, hand): that hand's stored contacts replace contact generation (cross-hand
     retargeting); every object needs a record of that hand there. on_record: called with each record as it is written.
     """
     _check_run(object_ids, hands, workers)
-    resolve_threads(config.threads)  # a bad $GES_THREADS fails here, before the dataset folder exists
+    make_executor(executor, address=address, workers=workers)  # a bad name, or Ray missing: before the folder exists
+    # a bad $GES_THREADS fails here, before the dataset folder exists; resolved here, as a Ray cluster's
+    # workers do not share this process's environment
+    threads = resolve_threads(config.threads)
     registry = registry or RegistrySpec()
     check_plugin_names(hands, config, registry)  # before the dataset folder exists
     entries = hand_entries(hands, registry)  # a resumed dataset refuses hands that changed (docs/dataset.md)
@@ -92,7 +100,7 @@ def run_synthesis(
         tasks, report.skipped = plan_tasks(list(object_ids), list(hands), config.chunk_size, writer.has)
         context = RunContext(config, registry, str(pictures) if pictures else None, _source(source))
         bar = _progress_bar(sum(t.size for t in tasks), progress)
-        results = _results(tasks, context, workers, threads=config.threads)
+        results = _results(tasks, context, workers, threads=threads, executor=executor, address=address)
         try:
             for records in results:
                 for record in records:
@@ -126,30 +134,42 @@ def _check_run(object_ids: Sequence[str], hands: Sequence[str], workers: int) ->
 
 
 def _results(
-    tasks: list[Task], context: RunContext, workers: int, runner: Callable = run_task, threads: int | None = None
+    tasks: list[Task],
+    context: RunContext,
+    workers: int,
+    runner: Callable = run_task,
+    threads: int | None = None,
+    executor: str = "local",
+    address: str | None = None,
 ) -> Generator[list, None, None]:
     """Records of each task as soon as it finishes, so that a slow task holds back no other task's records and
     a stopped run keeps every finished task. The dataset does not depend on this order: one file per
     (object, hand), and the manifest's index is sorted. ``runner``: a test double of :func:`run_task`
     (picklable: a module-level function). ``threads``: torch threads of the process(es) running the tasks
-    (:func:`~ges_core.threads.set_torch_threads`)."""
-    if workers == 1 or len(tasks) <= 1:
-        set_torch_threads(threads)  # this process does the torch work (ges_core.threads: why one by default)
+    (:func:`~ges_core.threads.set_torch_threads`). ``executor``/``address``: where the tasks run
+    (:mod:`ges_core.executors`). A task whose worker died on every attempt is left out and, once every other
+    task's records are yielded, raised as one TaskLostError naming its objects (a rerun resumes them)."""
+    lost: list[Task] = []
+    options = {"workers": workers, "setup": set_torch_threads, "setup_args": (threads,)}
+    with make_executor(executor, address=address, **options) as pool:
         for task in tasks:
-            yield runner(task, context)
-        return
-    ctx = multiprocessing.get_context("spawn")  # fork would copy engine state (SAPIEN, PyBullet clients, torch threads)
-    pool = ProcessPoolExecutor(
-        max_workers=min(workers, len(tasks)), mp_context=ctx, initializer=set_torch_threads, initargs=(threads,)
+            pool.submit(runner, task, context)
+        for done in pool.as_completed():
+            if isinstance(done.error, TaskLostError):
+                lost.append(tasks[done.ticket])
+                continue
+            yield done.result()  # a task that raised stops the run, as before (its records were not written)
+    if lost:
+        raise _lost_error(lost, len(tasks))
+
+
+def _lost_error(lost: list[Task], total: int) -> TaskLostError:
+    pairs = [f"{oid} ({', '.join(hands)})" for task in lost for oid, hands in getattr(task, "pairs", ())]
+    return TaskLostError(
+        f"{len(lost)} of {total} synthesis tasks were lost: their worker process died on every attempt "
+        f"(killed, out of memory or a crash in native code); objects not written: {', '.join(pairs) or '?'}. "
+        "Every other task's records are written; run the same command again to resume the missing ones"
     )
-    with pool:
-        futures = [pool.submit(runner, task, context) for task in tasks]
-        try:
-            for future in as_completed(futures):
-                yield future.result()
-        except BaseException:  # stopped (Ctrl-C, a failing write): start no queued task
-            pool.shutdown(wait=False, cancel_futures=True)
-            raise
 
 
 def _progress_bar(total: int, enabled: bool):

@@ -1,0 +1,91 @@
+"""``--executor local`` (the default): a pool of spawned worker processes on this machine, or this process.
+
+With ``workers == 1`` (or a single call) the calls run in this process, one after the other, as
+``ges synth`` has always done; ``in_process=False`` forces a pool of one worker (the benchmark's
+"1 worker, process pool" row). Otherwise a :class:`~concurrent.futures.ProcessPoolExecutor` with the
+``spawn`` start method (fork would copy engine state: SAPIEN, PyBullet clients, torch threads) runs at most
+``workers`` calls at a time.
+
+A worker that dies (SIGKILL, out of memory, a crash in native code) breaks a process pool as a whole: every
+call it was running fails with ``BrokenProcessPool``. Since at most ``workers`` calls are in flight, those are
+the calls that can be lost; they are run again in a fresh pool, each at most ``max_retries`` more times, and
+the calls already finished are kept. A call that dies in this process (``workers == 1``) ends the run, as before.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+
+from ges_core.executors.base import Done, Executor, call_with_setup
+
+__all__ = ["LocalExecutor"]
+
+_Call = tuple[int, Callable, tuple]
+
+
+class LocalExecutor(Executor):
+    """Worker processes on this machine (``workers``: processes; 1 = this process unless ``in_process=False``)."""
+
+    name = "local"
+
+    def __init__(self, *, in_process: bool | None = None, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.in_process = in_process
+        """None: this process when ``workers == 1`` or there is one call; True/False: always/never."""
+
+    def _run(self, calls: list[_Call]) -> Iterator[Done]:
+        in_process = self.in_process if self.in_process is not None else (self.workers == 1 or len(calls) <= 1)
+        if in_process:
+            return self._run_here(calls)
+        return self._run_pool(calls)
+
+    def _run_here(self, calls: list[_Call]) -> Iterator[Done]:
+        if self.setup is not None:
+            self.setup(*self.setup_args)
+        for ticket, fn, args in calls:
+            try:
+                value = fn(*args)
+            except Exception as exc:  # the caller decides; KeyboardInterrupt still stops the run at once
+                yield Done(ticket, error=exc)
+            else:
+                yield Done(ticket, value)
+
+    def _run_pool(self, calls: list[_Call]) -> Iterator[Done]:
+        queue: deque[_Call] = deque(calls)
+        attempts = {ticket: 0 for ticket, _, _ in calls}
+        while queue:
+            broken: list[_Call] = []
+            yield from self._one_pool(queue, attempts, broken)
+            for call in reversed(broken):  # run them again first, in their order
+                if attempts[call[0]] > self.max_retries:
+                    yield self.lost(call[0], attempts[call[0]], "the process pool broke while it ran")
+                else:
+                    queue.appendleft(call)
+
+    def _one_pool(self, queue: deque[_Call], attempts: dict[int, int], broken: list[_Call]) -> Iterator[Done]:
+        """Run ``queue`` in one pool until it is empty or the pool breaks (the calls lost then go to ``broken``)."""
+        ctx = multiprocessing.get_context("spawn")
+        pool = ProcessPoolExecutor(max_workers=min(self.workers, len(queue)), mp_context=ctx)
+        running: dict[Future, _Call] = {}
+        try:
+            while queue or running:
+                while queue and len(running) < self.workers and not broken:
+                    call = queue.popleft()
+                    attempts[call[0]] += 1
+                    running[pool.submit(call_with_setup, self.setup, self.setup_args, call[1], call[2])] = call
+                finished, _ = wait(running, return_when=FIRST_COMPLETED)
+                for future in finished:
+                    call = running.pop(future)
+                    error = future.exception()
+                    if isinstance(error, BrokenProcessPool):
+                        broken.append(call)
+                    else:
+                        yield Done(call[0], None if error else future.result(), error, attempts[call[0]])
+                if broken and not running:
+                    return
+        finally:  # stopped early or done: start nothing more; a stop waits for the running calls to end
+            pool.shutdown(wait=True, cancel_futures=True)
