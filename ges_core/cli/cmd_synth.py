@@ -9,6 +9,7 @@ from ges_core.cli.args import positive_int
 from ges_core.cli.cmd_objects import SOURCE_CHOICES, add_user_options, property_overrides, user_id, user_sources
 from ges_core.config import parse_model
 from ges_core.errors import ConfigError
+from ges_core.executors import add_executor_options, executor_options
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -44,6 +45,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     rp.add_argument("--to", dest="target_hand", required=True, metavar="HAND", help="hand to produce grasps for")
     rp.add_argument("--out", type=Path, metavar="DIR", help="write the new records here (default: DATASET)")
     rp.add_argument("--workers", type=positive_int, default=1, metavar="N", help="worker processes (default 1)")
+    add_executor_options(rp)
     rp.add_argument("--no-progress", action="store_true", help="no progress bar")
     rp.set_defaults(func=run_retarget_cmd)
 
@@ -51,6 +53,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def _common(p: argparse.ArgumentParser) -> None:
     p.add_argument("-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides", help="override a value")
     p.add_argument("--workers", type=positive_int, metavar="N", help="worker processes (N >= 1)")
+    add_executor_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
@@ -75,6 +78,7 @@ def run_demo_cmd(args: argparse.Namespace) -> int:
     """Run the demo and print its summary table."""
     from ges_core.synthesis.run.demo import default_demo_config, run_demo
 
+    where = executor_options(args)
     overrides = list(args.overrides)
     overrides += [f"out={args.out}"] if args.out else []
     overrides += [f"workers={args.workers}"] if args.workers is not None else []
@@ -87,7 +91,7 @@ def run_demo_cmd(args: argparse.Namespace) -> int:
     if args.fresh:
         _move_aside(Path(config.out))
     _prepare(config.synthesis, config.object_ids(), config.workers, args)
-    print(run_demo(config, registry=_registry(args), progress=not args.no_progress))
+    print(run_demo(config, registry=_registry(args), progress=not args.no_progress, **where))
     return 0
 
 
@@ -96,6 +100,7 @@ def run_synth_cmd(args: argparse.Namespace) -> int:
     from ges_core.config import load_config
     from ges_core.synthesis import SynthesisConfig, run_synthesis
 
+    where = executor_options(args)
     overrides = list(args.overrides)
     overrides += [f"refine_sim={args.sim}", f"validate_sims=[{args.sim}]"] if args.sim else []
     config = with_user_library(load_config(SynthesisConfig, args.config, overrides), args)
@@ -105,7 +110,7 @@ def run_synth_cmd(args: argparse.Namespace) -> int:
     _prepare(config, ids, args.workers or 1, args)
     run_synthesis(
         ids, args.hands, config, args.out, workers=args.workers or 1, progress=not args.no_progress,
-        registry=_registry(args), pictures=args.pictures,
+        registry=_registry(args), pictures=args.pictures, **where,
     )  # fmt: skip
     records = _print_table(args.out, {(o, h) for o in ids for h in args.hands})
     if args.pictures is not None:
@@ -157,6 +162,7 @@ def run_retarget_cmd(args: argparse.Namespace) -> int:
     from ges_core.dataset import open_dataset
     from ges_core.synthesis import SynthesisConfig, run_synthesis
 
+    where = executor_options(args)
     dataset = open_dataset(args.dataset)
     if args.source_hand == args.target_hand:
         raise ConfigError(f"ges retarget: --from and --to are both '{args.source_hand}'; name two different hands")
@@ -171,7 +177,7 @@ def run_retarget_cmd(args: argparse.Namespace) -> int:
     out = args.out or args.dataset
     run_synthesis(
         ids, [args.target_hand], config, out, workers=args.workers, progress=not args.no_progress,
-        registry=_registry(args), source=(str(args.dataset), args.source_hand),
+        registry=_registry(args), source=(str(args.dataset), args.source_hand), **where,
     )  # fmt: skip
     # the source hand's records from DATASET, the target hand's from where they were written (a dataset
     # holding both hands, like the demo's, would otherwise count its own target-hand records too)

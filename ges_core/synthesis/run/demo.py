@@ -91,15 +91,24 @@ def default_demo_config(path: str | Path | None = None, overrides: tuple[str, ..
     return load_config(DemoConfig, path, overrides)
 
 
-def run_demo(config: DemoConfig, *, registry: RegistrySpec | None = None, progress: bool = True) -> str:
-    """Run the demo and return the text it prints at the end (summary table and where things are)."""
+def run_demo(
+    config: DemoConfig,
+    *,
+    registry: RegistrySpec | None = None,
+    progress: bool = True,
+    executor: str = "local",
+    address: str | None = None,
+) -> str:
+    """Run the demo and return the text it prints at the end (summary table and where things are).
+
+    ``executor``/``address``: where the tasks run (:func:`~ges_core.synthesis.run.pipeline.run_synthesis`)."""
     start = time.perf_counter()
     out = Path(config.out)
     ids, hands = config.object_ids(), list(config.hands)
     pictures = out / "pictures" if config.pictures else None
     report = run_synthesis(
         ids, hands, config.synthesis, out / "dataset", workers=config.workers, progress=progress,
-        registry=registry, pictures=pictures,
+        registry=registry, pictures=pictures, executor=executor, address=address,
     )  # fmt: skip
     wanted = {(o, h) for o in ids for h in hands}
     records = [r for r in open_dataset(out / "dataset") if r.key in wanted]
