@@ -31,6 +31,10 @@ BUILTIN_PLUGINS: dict[str, str] = {
     "allegro": "ges_plugins.hands.allegro",
     "sapien": "ges_plugins.sims.sapien",
     "pybullet": "ges_plugins.sims.pybullet",
+    "curvenet": "ges_plugins.gates.curvenet",
+    "pointnet2": "ges_plugins.gates.pointnet2",
+    "centroid": "ges_plugins.gates.centroid",
+    "scripted": "ges_plugins.experts.scripted",
 }
 """Plugin name -> registration module of every built-in plugin, registered first and in this order."""
 

@@ -46,7 +46,18 @@ def ges_register_sims(register: Callable[[SimSpec], None]) -> None:
 
 @hookspec
 def ges_register_experts(register: Callable[[ExpertSpec], None]) -> None:
-    """Register grasp-execution experts (factory returns a :class:`ges_core.policy.Expert`)."""
+    """Register grasp-execution experts.
+
+    :param register: call ``register(ExpertSpec(name=..., entry_point="pkg.mod:factory", settings={...}))``
+        once per expert. :meth:`ges_core.registry.Registry.build_expert` calls the factory as
+        ``factory(context: ExpertContext, **settings) -> Expert``: ``context`` is a
+        :class:`ges_core.policy.ExpertContext` (observation and action layouts, the hand, ``num_envs``, the
+        simulator's name, the registry); ``settings`` are the spec's ``settings`` (the plugin's defaults, one
+        source: ``ges info expert NAME`` lists them), then registry.yaml ``settings.expert.<name>``, then the
+        caller's (``ges eval-experts --expert NAME:key=value``), key by key. An expert made for one hand and
+        layout (a trained checkpoint) sets :attr:`ges_core.policy.Expert.made_for`; the registry then calls
+        :func:`ges_core.policy.check_expert_fits`, which refuses a context that differs, naming both.
+    """
 
 
 @hookspec

@@ -146,6 +146,21 @@ class Registry:
             )
         return sim
 
+    def build_expert(self, name: str, context: Any, **settings: Any) -> Any:
+        """Build expert ``name`` for ``context`` (a :class:`ges_core.policy.ExpertContext`) as
+        ``factory(context, **settings)``: the spec's settings, then registry.yaml's, then ``settings``, key by key.
+        The expert must fit the context (:func:`ges_core.policy.check_expert_fits`)."""
+        from ges_core.policy import Expert, check_expert_fits
+
+        spec = self.spec("expert", name)
+        expert = self._call(spec, spec.load(), context, **{**self.settings("expert", spec.name), **settings})
+        if not isinstance(expert, Expert):
+            raise PluginError(
+                f"expert plugin '{spec.name}' ({spec.source}) returned {type(expert).__name__}, not an Expert"
+            )
+        check_expert_fits(expert, context, who=f"expert '{spec.name}'")
+        return expert
+
     def build_renderer(self, name: str | None = None, config: Any = None) -> Any:
         """A grasp-picture renderer (:class:`ges_core.render.Renderer`) from simulator ``name``'s plugin, or
         from the first simulator, by name, that offers one (``SimSpec.renderer``); config: a RenderConfig or None."""

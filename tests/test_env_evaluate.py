@@ -11,14 +11,12 @@ import torch
 from ges_core.cli import main
 from ges_core.config import parse_model
 from ges_core.dataset import open_dataset
-from ges_core.env.baseline import ScriptedExpert
 from ges_core.env.evaluate import (
     BaselineConfig,
     SplitRow,
     evaluate_baseline,
     format_table,
     results_path,
-    runner,
     summarize,
 )
 from ges_core.env.grasp_env import GraspEnv
@@ -29,6 +27,7 @@ from ges_core.objects.library import LibraryConfig
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_plugins.experts.scripted.expert import ScriptedExpert
 
 pytestmark = pytest.mark.sim
 CANDIDATES = ("procedural/cube/000", "procedural/sphere/000", "procedural/box/000", "procedural/ellipsoid/000")
@@ -40,11 +39,11 @@ SHORT = {"episode_length": 15, "reach_steps": 5, "settle_steps": 0}
 class CountingRegistry:
     """A real registry that counts simulators built and can refuse to build them."""
 
-    def __init__(self, refuse: bool = False) -> None:
-        self.real, self.refuse, self.sims = load_registry(), refuse, 0
+    def __init__(self, refuse: bool = False, overrides: tuple[str, ...] = ()) -> None:
+        self.real, self.refuse, self.sims = load_registry(overrides=overrides), refuse, 0
 
-    def build_hand(self, name):
-        return self.real.build_hand(name)
+    def __getattr__(self, name):  # build_hand, build_expert, settings, spec: the real registry's
+        return getattr(self.real, name)
 
     def build_sim(self, name, scene=None):
         if self.refuse:
@@ -105,7 +104,7 @@ def direct_episode(dataset, object_id: str, config: BaselineConfig) -> tuple[lis
         env = GraspEnv(sim, hand, asset, targets, config.env)
         torch.manual_seed(config.seed)
         env.reset_all()
-        expert = ScriptedExpert(env.obs_layout, env.act_layout, hand=hand)  # as evaluate.scripted_expert
+        expert = ScriptedExpert(env.obs_layout, env.act_layout, hand=hand)  # as the plugin's build_expert
         obs, _ = env.observe()
         reasons, peers, steps = [None] * config.envs, [False] * config.envs, [0] * config.envs
         for t in range(1, config.env.episode_length + 1):
@@ -222,12 +221,11 @@ def test_a_changed_grasp_is_evaluated_again_and_other_objects_stay_stored(datase
     assert set(stored) == {a, b, "procedural/other/000"} and stored[a]["grasp_key"] != "0" * 16
 
 
-def test_a_changed_expert_default_invalidates_stored_results(full_run, dataset, monkeypatch):
+def test_a_changed_expert_default_invalidates_stored_results(full_run, dataset):
     report, out = full_run
-    changed = {**runner.scripted_defaults(), "lift": 0.5}
-    monkeypatch.setattr(runner, "scripted_defaults", lambda: changed)  # where evaluate_baseline looks it up
+    changed = CountingRegistry(refuse=True, overrides=("settings.expert.scripted.lift=0.5",))  # registry.yaml's
     with pytest.raises(ConfigError, match=r"expert_defaults.lift: [0-9.]+ -> 0.5"):
-        evaluate_baseline(dataset, report.config, out, registry=CountingRegistry(refuse=True))
+        evaluate_baseline(dataset, report.config, out, registry=changed)
 
 
 def test_an_object_that_cannot_be_set_up_is_an_error_row(dataset, tmp_path):
@@ -278,6 +276,7 @@ def test_cli_prints_the_table_and_errors_in_one_line(dataset, tmp_path, capsys):
 
 
 def test_scripted_expert_refuses_nogoal(dataset, tmp_path):
+    """The expert's own refusal (its factory), not an error row: the run stops at the first object."""
     config = short_config(env={**SHORT, "goal_prior": False})
     with pytest.raises(ConfigError, match=r"reads the goal blocks .* cannot run with env.goal_prior=false"):
-        evaluate_baseline(dataset, config, tmp_path, registry=CountingRegistry(refuse=True))
+        evaluate_baseline(dataset, config, tmp_path, registry=CountingRegistry())

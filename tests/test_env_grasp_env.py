@@ -9,7 +9,6 @@ from helpers_env import build_grasp_env, grasp_targets, held_grasp_targets
 from rsl_rl.env import VecEnv
 from tensordict import TensorDict
 
-from ges_core.env.baseline import ScriptedExpert
 from ges_core.env.grasp_env import EnvConfig, GraspEnv, GraspTargets
 from ges_core.env.success import EndReason
 from ges_core.env.vec_env import GraspVecEnv
@@ -19,6 +18,7 @@ from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.synthesis.physics.squeeze import squeeze_targets
 from ges_core.synthesis.physics.validate import ValidateConfig
+from ges_plugins.experts.scripted.expert import ScriptedExpert
 
 pytestmark = pytest.mark.sim
 N = 2

@@ -10,11 +10,11 @@ import torch
 from gymnasium.utils.env_checker import check_env
 from helpers_env import build_grasp_env
 
-from ges_core.env.baseline import ScriptedExpert
 from ges_core.env.grasp_env import prior_preset
 from ges_core.env.gym_env import GraspGymEnv
 from ges_core.env.reward import TERMS
 from ges_core.errors import ArrayError, ConfigError
+from ges_plugins.experts.scripted.expert import ScriptedExpert
 
 pytestmark = pytest.mark.sim
 

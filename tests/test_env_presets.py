@@ -8,10 +8,10 @@ import torch
 from helpers_env import build_grasp_env
 from scipy.spatial.transform import Rotation
 
-from ges_core.env.baseline import ScriptedExpert
 from ges_core.env.grasp_env import PRIOR_PRESETS, EnvConfig, prior_preset
 from ges_core.env.layout import GOAL_BLOCKS
 from ges_core.errors import ConfigError
+from ges_plugins.experts.scripted.expert import ScriptedExpert
 
 pytestmark = pytest.mark.sim
 

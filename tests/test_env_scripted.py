@@ -2,7 +2,7 @@
 
 The schedule tests feed the expert observations built from the documented layout, with a wrist that
 follows the expert's own target exactly, and check each phase against the rules written out by hand
-(docs/env.md, the module docs of ges_core/env/baseline.py), not against the expert's internals.
+(docs/env.md, the module docs of plugins/experts/scripted/expert.py), not against the expert's internals.
 """
 
 from __future__ import annotations
@@ -12,9 +12,9 @@ import pytest
 import torch
 from helpers_env import build_grasp_env
 
-from ges_core.env.baseline import ScriptedExpert
 from ges_core.env.layout import ActionLayout, ObservationLayout
 from ges_core.transforms_torch import quat_conj, quat_mul, quat_to_rotvec
+from ges_plugins.experts.scripted.expert import ScriptedExpert
 
 K = 3
 STEP, TURN = 0.005, 0.1

@@ -116,7 +116,7 @@ def test_merge_settings_replaces_lists_and_merges_mappings():
 
 
 def test_scripted_expert_reads_the_hands_squeeze():
-    from ges_core.env.baseline import ScriptedExpert
+    from ges_plugins.experts.scripted.expert import ScriptedExpert
 
     class _Hand:
         def __init__(self, description):

@@ -1,4 +1,4 @@
-"""``ges env baseline``: run the scripted baseline expert on a Stage 1 dataset's grasps."""
+"""``ges env baseline``: run an expert (the scripted baseline by default) on a Stage 1 dataset's grasps."""
 
 from __future__ import annotations
 
@@ -15,13 +15,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bp = esub.add_parser(
         "baseline",
         help="success rate of the scripted baseline expert per split (the floor learned experts must beat)",
-        description="Runs the scripted expert on every selected grasp of a Stage 1 dataset, one GraspEnv per "
-        "object; prints success per split under the paper's and the peers' protocols. Results are stored per "
-        "object in OUT/baseline-HAND-SIM.json; a rerun with the same settings resumes.",
+        description="Runs an expert (default: the scripted baseline) on every selected grasp of a Stage 1 dataset, "
+        "one GraspEnv per object; prints success per split under the paper's and the peers' protocols. Results are "
+        "stored per object in OUT/baseline-HAND-SIM.json; a rerun with the same settings resumes. Several experts "
+        "on every object, as a success matrix: ges eval-experts.",
     )
     bp.add_argument("dataset", type=Path, metavar="DATASET", help="Stage 1 dataset folder (ges synth / ges demo)")
     bp.add_argument("--hand", metavar="NAME", help="hand (default: registry.yaml defaults.hand)")
     bp.add_argument("--sim", metavar="NAME", help="simulator of the episodes (default: registry.yaml defaults.sim)")
+    bp.add_argument(
+        "--expert",
+        default="scripted",
+        metavar="NAME[:KEY=VALUE,...]",
+        help="expert plugin and its settings (default: scripted; ges list / ges info expert NAME)",
+    )
     bp.add_argument("--envs", type=positive_int, default=1, metavar="N", help="episodes (envs) per object (default 1)")
     bp.add_argument(
         "--select",
@@ -33,7 +40,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     bp.add_argument("--out", type=Path, metavar="DIR", help="results folder (default: DATASET/../baseline)")
     bp.add_argument(
         "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-        help="override a BaselineConfig value, e.g. env.episode_length=150 or expert.overshoot=0.5",
+        help="override a BaselineConfig value, e.g. env.episode_length=150 or expert_settings.overshoot=0.5",
     )  # fmt: skip
     bp.add_argument("--no-progress", action="store_true", help="no progress bar")
     bp.set_defaults(func=run_baseline_cmd)
@@ -42,8 +49,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run_baseline_cmd(args: argparse.Namespace) -> int:
     """Evaluate, print the table and where the results are."""
     from ges_core.cli import registry_from_args
-    from ges_core.config import load_config
+    from ges_core.config import apply_overrides, parse_model
     from ges_core.env.evaluate import BaselineConfig, evaluate_baseline
+    from ges_core.experts.choice import parse_expert
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
@@ -51,10 +59,11 @@ def run_baseline_cmd(args: argparse.Namespace) -> int:
     registry = registry_from_args(args)
     hand = args.hand or registry.default("hand")
     sim = args.sim or registry.default("sim")
-    registry.spec("hand", hand), registry.spec("sim", sim)  # unknown names fail here, with the known ones
-    overrides = [f"hand={hand}", f"sim={sim}", f"envs={args.envs}", f"selection={args.select}", *args.overrides]
-    overrides += [f"splits=[{', '.join(args.split)}]"] if args.split else []
-    config = load_config(BaselineConfig, None, overrides)
+    expert = parse_expert(args.expert)
+    registry.spec("hand", hand), registry.spec("sim", sim), registry.spec("expert", expert.name)  # known names
+    data = {"hand": hand, "sim": sim, "envs": args.envs, "selection": args.select, "expert": expert.name}
+    data |= {"expert_settings": expert.settings} | ({"splits": tuple(args.split)} if args.split else {})
+    config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where="ges env baseline")
     out = args.out or args.dataset.parent / "baseline"
     report = evaluate_baseline(args.dataset, config, out, registry=registry, progress=not args.no_progress)
     print(report.table())

@@ -11,7 +11,7 @@ from ges_core.hand import HandDescription
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ges info``."""
     p = sub.add_parser("info", help="show one plugin in detail")
-    p.add_argument("kind", choices=["hand", "sim"], help="what to show")
+    p.add_argument("kind", choices=["hand", "sim", "expert"], help="what to show")
     p.add_argument("name", help="registry name")
     p.set_defaults(func=run)
 

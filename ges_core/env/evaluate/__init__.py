@@ -1,4 +1,4 @@
-"""Evaluate an expert on Stage 1 grasps: per object one :class:`GraspEnv`, one episode per env.
+"""Evaluate an expert plugin on Stage 1 grasps: per object one :class:`GraspEnv`, one episode per env.
 
 >>> config = BaselineConfig(hand="allegro", sim="sapien", envs=2, selection="refined")
 >>> report = evaluate_baseline("runs/demo/dataset", config, "runs/demo/baseline")
@@ -7,7 +7,8 @@
 Per selected record (:mod:`ges_core.env.grasp_source`): the object's rest pose in ``sim``, a fresh
 ``sim`` with ``envs`` scenes (objects never share a scene: a reused scene carries the previous object's
 history, see ``ges_core/synthesis/run/worker.py``), ``GraspEnv`` + ``GraspVecEnv`` (full reset: stage
-one reaching to the pre-grasp), then the expert acts until every env has ended one episode. Recorded
+one reaching to the pre-grasp), then the expert (``config.expert`` built by the registry for that env,
+:mod:`ges_core.policy`) acts until every env has ended one episode. Recorded
 per object: each env's end reason, whether the paper's protocol (0.2 m up, held 200 simulation steps)
 and the peers' protocol (within 5 cm of the lift target at some step) succeeded, the highest rise.
 
@@ -18,23 +19,26 @@ same physics, so ``envs > 1`` only repeats the episode (a determinism check), se
 
 One job per module:
 
-* :mod:`~ges_core.env.evaluate.config`: :class:`BaselineConfig`, the expert's :class:`ScriptedSettings`;
-* :mod:`~ges_core.env.evaluate.runner`: the episodes (:func:`evaluate_baseline`, :func:`run_episodes`);
+* :mod:`~ges_core.env.evaluate.config`: :class:`BaselineConfig` (the expert by registry name, with its settings);
+* :mod:`~ges_core.env.evaluate.runner`: the episodes (:func:`evaluate_baseline`, :func:`evaluate_object`,
+  :func:`run_episodes`); ``ges eval-experts`` (:mod:`ges_core.experts.evaluate`) runs :func:`evaluate_object`
+  per object and expert;
 * :mod:`~ges_core.env.evaluate.store`: the resumable results file (:func:`results_path`, :func:`grasp_key`);
 * :mod:`~ges_core.env.evaluate.table`: the per-split summary (:func:`summarize`, :func:`format_table`).
 """
 
 from __future__ import annotations
 
-from ges_core.env.evaluate.config import BaselineConfig, ScriptedSettings, scripted_defaults
+from ges_core.env.evaluate.config import BaselineConfig
 from ges_core.env.evaluate.runner import (
     BaselineReport,
     EpisodeOutcome,
-    ExpertFactory,
+    build_expert_for,
+    dataset_scene,
     evaluate_baseline,
     evaluate_object,
+    expert_defaults,
     run_episodes,
-    scripted_expert,
 )
 from ges_core.env.evaluate.store import RESULTS_FORMAT, RESULTS_VERSION, grasp_key, results_path
 from ges_core.env.evaluate.table import REASONS, SplitRow, format_table, summarize
@@ -46,16 +50,15 @@ __all__ = [
     "BaselineConfig",
     "BaselineReport",
     "EpisodeOutcome",
-    "ExpertFactory",
-    "ScriptedSettings",
     "SplitRow",
+    "build_expert_for",
+    "dataset_scene",
     "evaluate_baseline",
     "evaluate_object",
     "format_table",
     "grasp_key",
     "results_path",
+    "expert_defaults",
     "run_episodes",
-    "scripted_defaults",
-    "scripted_expert",
     "summarize",
 ]

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import time
 from collections import Counter
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,8 +17,7 @@ import torch
 
 from ges_core.config import parse_model
 from ges_core.dataset import GraspRecord
-from ges_core.env.baseline import ScriptedExpert
-from ges_core.env.evaluate.config import BaselineConfig, scripted_defaults
+from ges_core.env.evaluate.config import BaselineConfig
 from ges_core.env.evaluate.store import grasp_key, read_results, results_header, results_path, write_results
 from ges_core.env.evaluate.table import SplitRow, format_table, summarize
 from ges_core.env.grasp_env import GraspEnv
@@ -34,28 +32,34 @@ from ges_core.env.grasp_source import (
 )
 from ges_core.env.success import EndReason
 from ges_core.env.vec_env import GraspVecEnv
-from ges_core.errors import ConfigError, GesError, SimulationError
-from ges_core.policy import Expert
+from ges_core.errors import GesError, SimulationError
+from ges_core.policy import Expert, ExpertContext
 from ges_core.sim import SceneConfig
 
 __all__ = [
     "BaselineReport",
     "EpisodeOutcome",
-    "ExpertFactory",
+    "build_expert_for",
+    "dataset_scene",
     "evaluate_baseline",
     "evaluate_object",
+    "expert_defaults",
     "run_episodes",
-    "scripted_expert",
 ]
 
 
-ExpertFactory = Callable[[GraspEnv, BaselineConfig], Expert]
-"""Builds the expert for one object's env (its layouts) and the run's settings."""
+def build_expert_for(registry, config: BaselineConfig, env: GraspEnv) -> Expert:
+    """``config.expert`` with ``config.expert_settings`` over its registered settings, built for ``env``
+    (:meth:`~ges_core.registry.Registry.build_expert`: an expert made for another hand or layout is refused)."""
+    context = ExpertContext.of_env(env, sim=config.sim, registry=registry)
+    return registry.build_expert(config.expert, context, **config.expert_settings)
 
 
-def scripted_expert(env: GraspEnv, config: BaselineConfig) -> Expert:
-    """The scripted baseline expert with ``config.expert`` settings, closing with the hand's squeeze."""
-    return ScriptedExpert(env.obs_layout, env.act_layout, hand=env.hand, **config.expert.kwargs())
+def expert_defaults(registry, config: BaselineConfig) -> dict:
+    """The settings ``config.expert`` is built with before ``config.expert_settings``: its plugin's, then
+    registry.yaml's (stored with results: a changed default invalidates them). UnknownNameError for an unknown
+    expert."""
+    return dict(registry.settings("expert", config.expert))
 
 
 # -- one object ---------------------------------------------------------------------------------
@@ -97,33 +101,59 @@ def run_episodes(venv: GraspVecEnv, expert: Expert) -> EpisodeOutcome:
     )
 
 
-def evaluate_object(
-    registry, hand, record: GraspRecord, library, config: BaselineConfig, scene: SceneConfig, factory: ExpertFactory
-) -> dict:
-    """JSON-ready result of one object: episodes in a fresh simulator (closed afterwards).
+def evaluate_object(registry, hand, record: GraspRecord, library, config: BaselineConfig, scene: SceneConfig) -> dict:
+    """JSON-ready result of one object: ``config.envs`` episodes of ``config.expert`` in a fresh simulator (closed
+    afterwards).
 
-    A GesError while setting the object up (no collision model, bad grasp, backend failure) gives
-    every env the reason ``error`` and the message under ``"error"``; the run goes on.
+    A GesError while setting the object up (no collision model, bad grasp, backend failure) or while its episodes
+    run gives every env the reason ``error`` and the message under ``"error"``; the run goes on. An expert that
+    cannot be built (unknown setting, made for another hand) is the caller's error and propagates.
     """
     start = time.perf_counter()
     result = {"object_id": record.object_id, "category": record.category, "split": record.split}
     result["grasp_key"] = grasp_key(record)
-    n = config.envs
+    n, sim = config.envs, None
     try:
         asset = library.get(record.object_id)
         pose = object_rest_pose(registry, config.sim, asset, scene)
         targets = grasp_targets(record, hand.description, n, pose)
         sim = registry.build_sim(config.sim, scene)
-        try:
-            outcome = _episodes(sim, hand, asset, targets, config, factory)
-        finally:
-            sim.close()
+        env = GraspEnv(sim, hand, asset, targets, config.env)
     except GesError as error:
-        outcome = EpisodeOutcome(["error"] * n, [False] * n, [0.0] * n, [0] * n)
+        if sim is not None:
+            sim.close()
+        return _result(result, _failed(n, "error"), start, error)
+    try:
+        expert = build_expert_for(registry, config, env)
+        outcome, error = _episodes(env, expert, config)
+    finally:
+        sim.close()
+    return _result(result, outcome, start, error)
+
+
+def _failed(n: int, reason: str) -> EpisodeOutcome:
+    """Every env ended with ``reason`` before the expert acted."""
+    return EpisodeOutcome([reason] * n, [False] * n, [0.0] * n, [0] * n)
+
+
+def _episodes(env: GraspEnv, expert: Expert, config: BaselineConfig) -> tuple[EpisodeOutcome, GesError | None]:
+    try:
+        venv = GraspVecEnv(env, seed=config.seed)  # full reset: stage one reaching, every env together
+    except SimulationError:  # blew up before the expert acted: no episode to run
+        return _failed(config.envs, "unstable"), None
+    try:
+        return run_episodes(venv, expert), None
+    except GesError as error:
+        return _failed(config.envs, "error"), error
+
+
+def _result(result: dict, outcome: EpisodeOutcome, start: float, error: GesError | None) -> dict:
+    """The JSON-ready row of one object (``result``: its id, category, split and grasp key)."""
+    if error is not None:
         result["error"] = f"{type(error).__name__}: {error}"
     return {
         **result,
-        "envs": n,
+        "envs": len(outcome.reasons),
         "end_reasons": outcome.reasons,
         "paper_success": sum(r == "success" for r in outcome.reasons),
         "peers_success": int(sum(outcome.peers)),
@@ -132,16 +162,6 @@ def evaluate_object(
         "steps": outcome.steps,
         "seconds": round(time.perf_counter() - start, 3),
     }
-
-
-def _episodes(sim, hand, asset, targets, config: BaselineConfig, factory: ExpertFactory) -> EpisodeOutcome:
-    env = GraspEnv(sim, hand, asset, targets, config.env)
-    try:
-        venv = GraspVecEnv(env, seed=config.seed)  # full reset: stage one reaching, every env together
-    except SimulationError:  # blew up before the expert acted: no episode to run
-        n = config.envs
-        return EpisodeOutcome(["unstable"] * n, [False] * n, [0.0] * n, [0] * n)
-    return run_episodes(venv, factory(env, config))
 
 
 # -- the run -------------------------------------------------------------------------------------
@@ -160,7 +180,6 @@ class BaselineReport:
     reused: list[str] = field(default_factory=list)
     """Objects whose stored result was reused (resume)."""
     seconds: float = 0.0
-    expert_name: str = "scripted"
 
     def rows(self) -> list[SplitRow]:
         """The summary rows (per split in the config, then all)."""
@@ -172,7 +191,7 @@ class BaselineReport:
         c = self.config
         sims = sorted({r.simulator for r in self.selection.records}) or ["-"]
         return (
-            f"{self.expert_name} expert | hand {c.hand} | sim {c.sim} | grasps: selection '{c.selection}' "
+            f"{c.expert} expert{_settings_note(c)} | hand {c.hand} | sim {c.sim} | grasps: selection '{c.selection}' "
             f"({SELECTIONS[c.selection]}), refined in {', '.join(sims)} | {c.envs} env(s) per object | "
             f"objects = evaluated / the hand's records in the split"
         )
@@ -182,48 +201,45 @@ class BaselineReport:
         return format_table(self.rows(), self.header())
 
 
+def _settings_note(config: BaselineConfig) -> str:
+    """`` (close_steps=20)`` for an expert run with settings of its own, else ''."""
+    given = ", ".join(f"{k}={v}" for k, v in config.expert_settings.items())
+    return f" ({given})" if given else ""
+
+
 def evaluate_baseline(
-    dataset: str | Path,
-    config: BaselineConfig,
-    out: str | Path,
-    *,
-    registry=None,
-    progress: bool = False,
-    expert: ExpertFactory = scripted_expert,
-    expert_name: str = "scripted",
+    dataset: str | Path, config: BaselineConfig, out: str | Path, *, registry=None, progress: bool = False
 ) -> BaselineReport:
-    """Evaluate ``expert`` on the records of ``config.hand`` that pass ``config.selection``.
+    """Evaluate ``config.expert`` on the records of ``config.hand`` that pass ``config.selection``.
 
     registry: a :class:`~ges_core.registry.Registry` (default: ``load_registry()``). Results are
     written to :func:`results_path` after every object; stored results are reused (resume).
     """
     start = time.perf_counter()
-    if expert is scripted_expert and not config.env.goal_prior:
-        raise ConfigError(
-            "the scripted expert reads the goal blocks (goal_pos, goal_q) of the observation; it cannot run "
-            "with env.goal_prior=false (NoGoal). Evaluate a learned expert there, or keep goal_prior=true"
-        )
     data = open_grasp_dataset(dataset)
     if registry is None:
         from ges_core.registry import load_registry
 
         registry = load_registry()
+    path, header = results_path(out, config), results_header(config, expert_defaults(registry, config))
     selection = select_records(data, config.hand, selection=config.selection)
     records = [r for r in selection.records if r.split in config.splits]
-    defaults = scripted_defaults() if expert is scripted_expert else {}
-    path, header = results_path(out, config), results_header(config, expert_name, defaults)
     store = read_results(path, header)  # every stored object (those outside this selection stay in the file)
-    report = BaselineReport(path, config, selection, [], expert_name=expert_name)
+    report = BaselineReport(path, config, selection, [])
     todo = [r for r in records if store.get(r.object_id, {}).get("grasp_key") != grasp_key(r)]
     fresh = {r.object_id for r in todo}
     report.reused = [r.object_id for r in records if r.object_id not in fresh]
     if todo:
         from tqdm import tqdm
 
-        hand, library, scene = registry.build_hand(config.hand), library_for(data), _scene(data, config)
+        hand, library, scene = (
+            registry.build_hand(config.hand),
+            library_for(data),
+            dataset_scene(data, config.envs, config.scene),
+        )
         bar = tqdm(todo, disable=not progress, unit="object", desc=f"{config.hand}/{config.sim}", dynamic_ncols=True)
         for record in bar:
-            store[record.object_id] = evaluate_object(registry, hand, record, library, config, scene, expert)
+            store[record.object_id] = evaluate_object(registry, hand, record, library, config, scene)
             report.evaluated.append(record.object_id)
             write_results(path, header, data.root.resolve(), store)
             bar.set_postfix(success=sum(store[oid]["paper_success"] for oid in report.evaluated))
@@ -232,10 +248,9 @@ def evaluate_baseline(
     return report
 
 
-def _scene(data, config: BaselineConfig) -> SceneConfig:
-    """The run's physics: ``config.scene``, else the dataset's Stage 1 scene; num_envs = envs."""
-    scene = config.scene
+def dataset_scene(data, envs: int, scene: SceneConfig | None = None) -> SceneConfig:
+    """The run's physics: ``scene``, else the dataset's Stage 1 scene; ``num_envs = envs``."""
     if scene is None:
         stored = data.run_config.get("scene") if isinstance(data.run_config, dict) else None
         scene = parse_model(SceneConfig, stored, where=f"{data.root} run_config.scene") if stored else SceneConfig()
-    return scene.model_copy(update={"num_envs": config.envs})
+    return scene.model_copy(update={"num_envs": envs})

@@ -49,10 +49,11 @@ def results_path(out: str | Path, config: BaselineConfig) -> Path:
     return Path(out) / f"baseline-{config.hand}-{config.sim}.json"
 
 
-def results_header(config: BaselineConfig, expert: str, defaults: dict) -> dict:
-    """What a stored result depends on: the expert, its defaults and every setting but the record choice."""
+def results_header(config: BaselineConfig, defaults: dict) -> dict:
+    """What a stored result depends on: the expert, its registered settings (``defaults``: the plugin's, then
+    registry.yaml's) and every setting but the record choice (``config.expert_settings`` included)."""
     settings = config.model_dump(mode="json", exclude={"selection", "splits"})
-    return {"expert": expert, "expert_defaults": defaults, "config": settings}
+    return {"expert": config.expert, "expert_defaults": defaults, "config": settings}
 
 
 def read_results(path: Path, header: dict) -> dict[str, dict]:

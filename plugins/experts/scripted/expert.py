@@ -1,5 +1,8 @@
 """Scripted baseline expert: approach the grasp, close, carry the object up, as Stage 1 validation does.
 
+Built by the registry as ``build_expert(context, **settings)`` (the expert factory contract,
+:mod:`ges_core.policy`); its parameters are :class:`~ges_plugins.experts.scripted.config.ScriptedConfig`.
+
 Phases per env, counted in control steps from the episode's start (the pre-grasp, where stage one ends):
 
 1. **approach** (``approach_steps``): the wrist target moves from the start pose toward the grasp pose
@@ -31,16 +34,21 @@ validation holds were held in SAPIEN; ``docs/env_baseline.md``).
 
 from __future__ import annotations
 
+from typing import Any
+
 import torch
 
+from ges_core.config import parse_model
 from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
+from ges_core.errors import ConfigError
 from ges_core.hand import HandModel
 from ges_core.hand_settings import hand_validate_config
-from ges_core.policy import Expert
+from ges_core.policy import Expert, ExpertContext
 from ges_core.synthesis.physics.squeeze import SQUEEZE_FORCE, squeeze_targets
 from ges_core.transforms_torch import interpolate_pose, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
+from ges_plugins.experts.scripted.config import ScriptedConfig
 
-__all__ = ["ScriptedExpert"]
+__all__ = ["ScriptedExpert", "build_expert"]
 
 DRIFT_TOLERANCE = 0.025
 """m: sideways drift of the carried object left alone: half the peers' 5 cm. Correcting every drift
@@ -61,60 +69,33 @@ class ScriptedExpert(Expert):
         self,
         obs_layout: ObservationLayout,
         act_layout: ActionLayout,
-        close_steps: int = 30,
-        overshoot: float = 0.3,
-        lift: float = 0.225,
         hand: HandModel | None = None,
-        squeeze_force: float | None = None,
-        approach_steps: int = 15,
-        pause_steps: int = 5,
-        carry_margin: float = 0.05,
-        carry_gain: float = 0.2,
+        **settings: Any,
     ) -> None:
-        """close_steps: control steps of the finger ramp; 30 = Stage 1 validation's 60 physics steps at the
-        env's 2 physics steps per control step.
+        """obs_layout, act_layout: the env's layouts (the observation must hold the goal blocks).
 
-        approach_steps: control steps from the start pose to the grasp pose before the fingers move; 15 =
-        validation's 30 physics steps (2 cm at 1.3 mm per step). At the full 5 mm per step a Shadow thumb
-        hit a plate with 14.5 N and the plate slid 6 mm and tilted 8 degrees before the fingers closed
-        (procedural/plate/000, SAPIEN). 0: the fingers close from the first step while the wrist goes
-        straight to the grasp.
-
-        pause_steps: control steps between the end of the close and the carry. Lifting on the step the
-        fingers reached their targets lost two-finger Allegro grasps in PyBullet (the grip was still
-        building); 5 held them (benchmarks/scripted_baseline.py grasps, docs/env_baseline.md).
-
-        lift: metres above its start the object is carried to: the 0.2 m bar + 2.5 cm for slip in the hand
-        (1 cm let a slipping box dip to 0.195 m in PyBullet), still within the peers' 5 cm.
-
-        carry_margin: how far past ``lift`` above the grasp the wrist target may rise to bring a slipping
-        object up, m (a dropped object does not send the hand away).
-
-        carry_gain: share of the lifted object's sideways drift (past :data:`DRIFT_TOLERANCE`) that the wrist
-        target takes back per carry step. Without it a squeezed test box dragged 8-9 cm sideways in a
-        PyBullet Allegro hand stayed out of the peers' 5 cm; gain 1 on every drift (the first version)
-        rocked the carried object and dropped Shadow grasps. 0.2: a time constant of 5 control steps, well
-        above the wrist's PD lag of 1-2 steps.
-
-        overshoot: fraction of (goal - start) added past the goal so the fingers press on the object
-        (PD targets exactly at a contact pose give no grip force). Used without ``hand``.
-
-        hand: the env's hand; given, the closing targets are Stage 1 validation's squeeze instead
+        hand: the env's hand; given, the closing targets are Stage 1 validation's squeeze
         (:func:`ges_core.synthesis.physics.squeeze.squeeze_targets`: each fingertip pressing ``squeeze_force`` N
-        toward what it opposes). The overshoot rule pushed the Shadow thumb across its contact (0 of 21
-        objects lifted, benchmarks/scripted_baseline.py). The squeeze's floor and cap (``min_squeeze``,
+        toward what it opposes), else the ``overshoot`` rule. The squeeze's floor and cap (``min_squeeze``,
         ``max_squeeze``) and, when ``squeeze_force`` is None, its force are the hand's, read as Stage 1 reads them:
         :class:`~ges_core.synthesis.physics.validate.ValidateConfig`'s defaults with the hand YAML's
         ``settings.validate`` over them (:func:`ges_core.hand_settings.hand_validate_config`); a hand that sets
-        none squeezes with 5 N, floor 0.05 rad, cap 0.6 rad as before."""
+        none squeezes with 5 N, floor 0.05 rad, cap 0.6 rad.
+
+        settings: :class:`~ges_plugins.experts.scripted.config.ScriptedConfig` fields (each documented there, with
+        where its default comes from); an unknown or out-of-range one is a ConfigError.
+        """
+        self.config = parse_model(ScriptedConfig, settings, where="settings of expert 'scripted'")
+        c = self.config
         self.obs_layout, self.act_layout = obs_layout, act_layout
         self.squeeze = hand_validate_config(hand.description) if hand is not None else None
         """The hand's squeeze settings (None without ``hand``)."""
+        squeeze_force = c.squeeze_force
         if squeeze_force is None:
             squeeze_force = self.squeeze.squeeze_force if self.squeeze is not None else SQUEEZE_FORCE
-        self.hand, self.squeeze_force, self.overshoot = hand, squeeze_force, overshoot
-        self.approach_steps, self.close_steps, self.pause_steps = approach_steps, close_steps, pause_steps
-        self.lift, self.carry_margin, self.carry_gain = lift, carry_margin, carry_gain
+        self.hand, self.squeeze_force, self.overshoot = hand, squeeze_force, c.overshoot
+        self.approach_steps, self.close_steps, self.pause_steps = c.approach_steps, c.close_steps, c.pause_steps
+        self.lift, self.carry_margin, self.carry_gain = c.lift, c.carry_margin, c.carry_gain
         self.t: torch.Tensor | None = None
         self.plan: dict[str, torch.Tensor] = {}
         """Per env, set at its episode's first step (float64): start_q, close_q (n, K); start_obj, start_pos,
@@ -246,3 +227,16 @@ class ScriptedExpert(Expert):
         dp, dr = self.act_layout.wrist_deltas(action)
         p["target_pos"] = p["target_pos"] + dp.to(torch.float64)
         p["target_rot"] = quat_mul(rotvec_to_quat(dr.to(torch.float64)), p["target_rot"])
+
+
+def build_expert(context: ExpertContext, **settings: Any) -> ScriptedExpert:
+    """The expert factory (``registry.build_expert("scripted", context, **settings)``): closes with the hand's squeeze.
+
+    ConfigError when the observation has no goal blocks (the NoGoal ablation): the script reads the grasp from them.
+    """
+    if not context.obs_layout.goal:
+        raise ConfigError(
+            "the scripted expert reads the goal blocks (goal_pos, goal_q) of the observation; it cannot run "
+            "with env.goal_prior=false (NoGoal). Evaluate a learned expert there, or keep goal_prior=true"
+        )
+    return ScriptedExpert(context.obs_layout, context.act_layout, hand=context.hand, **settings)
