@@ -66,12 +66,18 @@ def shape_features(mesh: trimesh.Trimesh, points: np.ndarray, *, volume: float |
     points = np.asarray(points, dtype=np.float64)
     if points.ndim != 2 or points.shape[1] != 3 or len(points) < 4:
         raise AssetError(f"shape_features: points must be (n >= 4, 3), got shape {points.shape}")
+    with np.errstate(divide="ignore", invalid="ignore"):  # a degenerate mesh gives NaN: check_features names it
+        return _features(mesh, points, volume)
+
+
+def _features(mesh: trimesh.Trimesh, points: np.ndarray, volume: float | None) -> np.ndarray:
     vol = float(mesh.volume) if volume is None else float(volume)
     extents = np.sort(np.asarray(mesh.bounding_box_oriented.primitive.extents, dtype=np.float64))[::-1]
     eig = np.sort(np.linalg.eigvalsh(np.cov(points.T)))[::-1]
     hull_volume = float(mesh.convex_hull.volume)
     height = float(mesh.extents[2])
-    com_height = float(mesh.center_mass[2] - mesh.bounds[0, 2])
+    # trimesh divides by the signed mesh volume: only a closed, outward mesh has a centre of mass
+    com_height = float(mesh.center_mass[2] - mesh.bounds[0, 2]) if mesh.volume > 0 else math.nan
     return np.array(
         [
             *extents,
