@@ -28,6 +28,7 @@ _COMMAND_MODULES = (
     "ges_core.cli.cmd_dataset",
     "ges_core.cli.cmd_synth",
     "ges_core.cli.cmd_env",
+    "ges_core.cli.cmd_experts",
     "ges_core.cli.cmd_train",
     "ges_core.cli.cmd_view",
     "ges_core.cli.cmd_cluster",

@@ -1,0 +1,253 @@
+"""``ges eval-experts``: every expert on every selected object, written as an objects x experts success matrix.
+
+>>> config = BaselineConfig(hand="allegro", sim="sapien", envs=4, selection="validated")
+>>> report = evaluate_experts("runs/demo/dataset", config, [parse_expert("slow=scripted:close_steps=60")], "out")
+>>> print(report.table("paper"))
+
+Each cell (object, expert) is one call of :func:`ges_core.env.evaluate.evaluate_object`, the episode runner of
+``ges env baseline``: a fresh simulator for the object, ``config.envs`` episodes (E) of the expert built for that
+env by the registry. The scripted baseline (column ``scripted``, its registered settings) is added unless one of
+the given experts is labelled ``scripted``. Cells run object by object (every expert on one object, then the
+next) and the matrix file (:mod:`~ges_core.experts.matrix`) is rewritten atomically after each, so a killed run
+loses at most the cell in progress and a rerun evaluates only what is missing:
+
+* the run's settings (``config`` but the record choice and the expert) must be those stored (ConfigError listing
+  the differences otherwise);
+* a stored column whose expert name or settings differ from the one given under its label is refused
+  (ConfigError: give it another label);
+* an object whose grasp changed (another ``grasp_key``) loses its stored cells and is evaluated again;
+* columns and objects a rerun does not name stay in the file (its table shows the run's own).
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from ges_core.config import parse_model
+from ges_core.dataset.layout import config_differences
+from ges_core.env.evaluate import BaselineConfig, dataset_scene, evaluate_object, grasp_key
+from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
+from ges_core.errors import AssetError, ConfigError
+from ges_core.experts.choice import ExpertChoice
+from ges_core.experts.matrix import SuccessMatrix, matrix_from_json, matrix_path, read_matrix_json, write_matrix
+from ges_core.experts.table import expert_table
+
+__all__ = ["BASELINE", "EvalReport", "evaluate_experts", "read_clusters", "run_header"]
+
+BASELINE = ExpertChoice("scripted", "scripted", {})
+"""The scripted baseline column: the ``scripted`` expert with its registered settings."""
+
+
+@dataclass
+class EvalReport:
+    """What :func:`evaluate_experts` did and found."""
+
+    path: Path
+    """The matrix file."""
+    matrix: SuccessMatrix
+    """This run's objects and expert columns (the file may hold more)."""
+    evaluated: int = 0
+    """Cells evaluated by this run."""
+    reused: int = 0
+    """Cells found in the file (resume)."""
+    errors: list[str] = field(default_factory=list)
+    """``object / expert: message`` per cell of this run whose object could not be set up or run."""
+    seconds: float = 0.0
+
+    def table(self, protocol: str = "paper") -> str:
+        """Markdown table of success per expert and split, with the baseline and oracle rows."""
+        return expert_table(self.matrix, protocol)
+
+    def summary(self) -> str:
+        """One line: cells evaluated and reused, errors, time, where the matrix is."""
+        m = self.matrix
+        return (
+            f"{len(m.object_ids)} object(s) x {len(m.experts)} expert(s): {self.evaluated} cell(s) evaluated, "
+            f"{self.reused} reused; {len(self.errors)} cell(s) with errors; {self.seconds:.1f} s; matrix: {self.path}"
+        )
+
+
+def run_header(config: BaselineConfig) -> dict:
+    """What every cell depends on besides its expert and grasp: the config but the record choice and the expert."""
+    return config.model_dump(mode="json", exclude={"selection", "splits", "expert", "expert_settings"})
+
+
+def evaluate_experts(
+    dataset: str | Path,
+    config: BaselineConfig,
+    experts: list[ExpertChoice],
+    out: str | Path,
+    *,
+    clusters: str | Path | None = None,
+    registry=None,
+    progress: bool = False,
+) -> EvalReport:
+    """Evaluate ``experts`` (and the scripted baseline) on the records of ``config.hand`` passing ``config.selection``
+    in ``config.splits``, ``config.envs`` episodes per cell; write and return the matrix (module docs).
+
+    clusters: a clusters file (``ges cluster``) or a JSON mapping object id -> cluster; stored per object.
+    """
+    start = time.perf_counter()
+    data = open_grasp_dataset(dataset)
+    if registry is None:
+        from ges_core.registry import load_registry
+
+        registry = load_registry()
+    choices = _columns(experts)
+    columns = {c.label: {"name": c.name, "settings": {**registry.settings("expert", c.name), **c.settings}}
+               for c in choices}  # fmt: skip
+    records = [r for r in select_records(data, config.hand, selection=config.selection).records
+               if r.split in config.splits]  # fmt: skip
+    path = matrix_path(out, config.hand, config.sim)
+    stored = _stored(path, run_header(config), columns)
+    cluster_of = read_clusters(clusters) if clusters is not None else None
+    _update_objects(stored, records, cluster_of, clusters)
+    stored["experts"].update(columns)
+    stored["baseline"] = BASELINE.label
+    cells = stored["cells"]
+    todo = [(r, c) for r in records for c in choices if c.label not in cells.get(r.object_id, {})]
+    report = EvalReport(path, matrix_from_json(stored), reused=len(records) * len(choices) - len(todo))
+    write = _writer(path, stored, data.root.resolve())
+    write()
+    if todo:
+        _run_cells(registry, data, config, todo, cells, write, report, progress)
+    report.matrix = _this_run(stored, [r.object_id for r in records], [c.label for c in choices])
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _columns(experts: list[ExpertChoice]) -> list[ExpertChoice]:
+    """The run's columns: the baseline first unless a given expert is labelled like it; labels must be unique."""
+    labels = [c.label for c in experts]
+    twice = sorted({lab for lab in labels if labels.count(lab) > 1})
+    if twice:
+        raise ConfigError(f"expert labels {twice} are given twice; label each column once (LABEL=NAME:settings)")
+    return experts if BASELINE.label in labels else [BASELINE, *experts]
+
+
+def _stored(path: Path, header: dict, columns: dict[str, dict]) -> dict:
+    """The matrix file's contents (an empty matrix if there is none), checked against this run."""
+    empty = {
+        "dataset": "",
+        "run": header,
+        "experts": {},
+        "baseline": None,
+        "clusters": None,
+        "objects": {},
+        "cells": {},
+    }
+    if not path.is_file():
+        return empty
+    data = {**empty, **read_matrix_json(path)}
+    diffs = config_differences(data["run"], header)
+    if diffs:
+        raise ConfigError(
+            f"success matrix {path} was written with other settings ({'; '.join(diffs)}); choose another --out, "
+            "rerun with those settings, or delete the file to start over",
+            problems=diffs,
+        )
+    for label, column in columns.items():
+        old = data["experts"].get(label)
+        if old is not None and old != json.loads(json.dumps(column)):
+            diffs = config_differences(old, column)
+            raise ConfigError(
+                f"expert column '{label}' of {path} was evaluated as {old['name']} with other settings "
+                f"({'; '.join(diffs)}); give this one another label (LABEL={column['name']}:...) or use another --out",
+                problems=diffs,
+            )
+    return data
+
+
+def _update_objects(stored: dict, records, cluster_of: dict[str, int] | None, clusters) -> None:
+    """Object entries for ``records`` (dataset order first); a changed grasp drops the object's cells."""
+    old = stored["objects"]
+    objects = {}
+    for r in records:
+        key, entry = grasp_key(r), old.get(r.object_id, {})
+        if entry.get("grasp_key") != key:
+            stored["cells"].pop(r.object_id, None)
+        cluster = cluster_of.get(r.object_id) if cluster_of is not None else entry.get("cluster")
+        objects[r.object_id] = {"split": r.split, "category": r.category, "cluster": cluster, "grasp_key": key}
+    stored["objects"] = objects | {oid: e for oid, e in old.items() if oid not in objects}
+    if clusters is not None:
+        stored["clusters"] = str(Path(clusters).resolve())
+
+
+def _writer(path: Path, stored: dict, dataset: Path):
+    def write() -> None:
+        write_matrix(path, {**stored, "dataset": str(dataset)})
+
+    return write
+
+
+def _run_cells(registry, data, config: BaselineConfig, todo, cells: dict, write, report: EvalReport, progress) -> None:
+    """Evaluate each (record, expert) of ``todo`` into ``cells``, writing the matrix after each."""
+    from tqdm import tqdm
+
+    hand, library = registry.build_hand(config.hand), library_for(data)
+    scene = dataset_scene(data, config.envs, config.scene)
+    wins = 0
+    bar = tqdm(todo, disable=not progress, unit="cell", desc=f"{config.hand}/{config.sim}", dynamic_ncols=True)
+    for record, choice in bar:
+        bar.set_description(f"{record.object_id} / {choice.label}"[:60])
+        cell_config = _cell_config(config, choice)
+        row = evaluate_object(registry, hand, record, library, cell_config, scene)
+        cells.setdefault(record.object_id, {})[choice.label] = _cell(row)
+        write()
+        report.evaluated += 1
+        wins += row["paper_success"]
+        if "error" in row:
+            report.errors.append(f"{record.object_id} / {choice.label}: {row['error']}")
+        bar.set_postfix(success=f"{wins}/{report.evaluated * config.envs}")
+
+
+def _cell_config(config: BaselineConfig, choice: ExpertChoice) -> BaselineConfig:
+    """``config`` running ``choice``'s expert with its settings."""
+    data = {**config.model_dump(), "expert": choice.name, "expert_settings": choice.settings}
+    return parse_model(BaselineConfig, data, where=f"expert column '{choice.label}'")
+
+
+def _cell(row: dict) -> dict:
+    """A matrix cell from :func:`evaluate_object`'s row."""
+    cell = {"episodes": row["envs"], "paper": row["paper_success"], "peers": row["peers_success"]}
+    cell |= {k: row[k] for k in ("end_reasons", "max_rise", "steps", "seconds")}
+    return cell | ({"error": row["error"]} if "error" in row else {})
+
+
+def _this_run(stored: dict, object_ids: list[str], labels: list[str]) -> SuccessMatrix:
+    """The matrix restricted to this run's objects and columns."""
+    part = {
+        **stored,
+        "objects": {oid: stored["objects"][oid] for oid in object_ids},
+        "experts": {label: stored["experts"][label] for label in labels},
+    }
+    return matrix_from_json(part)
+
+
+def read_clusters(path: str | Path) -> dict[str, int]:
+    """Object id -> cluster from a clusters file of ``ges cluster`` (format ``ges.object_clusters``, or the
+    dataset folder holding one) or from a plain JSON object mapping ids to integers."""
+    path = Path(path)
+    if path.is_dir() or _format(path) is not None:
+        from ges_core.clustering import load_clusters
+
+        return {oid: int(m.cluster) for oid, m in load_clusters(path).objects.items()}
+    raw = json.loads(path.read_text())
+    if not isinstance(raw, dict) or not all(isinstance(v, int) and not isinstance(v, bool) for v in raw.values()):
+        raise AssetError(
+            f"{path} is neither a clusters file of ges cluster nor a JSON object mapping object ids to cluster "
+            "integers; run 'ges cluster DATASET' and pass DATASET/clusters.json"
+        )
+    return dict(raw)
+
+
+def _format(path: Path) -> str | None:
+    """The ``format`` key of a JSON file (None if it has none); AssetError if it cannot be read as JSON."""
+    try:
+        raw = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise AssetError(f"cannot read the clusters file {path}: {exc}") from exc
+    return raw.get("format") if isinstance(raw, dict) and isinstance(raw.get("format"), str) else None
