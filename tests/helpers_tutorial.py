@@ -67,9 +67,11 @@ def ges_runner(cwd: Path) -> Callable[..., subprocess.CompletedProcess]:
     """A function running ``ges ARGS`` in ``cwd`` in a fresh interpreter (``python -m ges_core.cli``).
 
     The environment is the test session's (its ``GES_CACHE_DIR`` included, see conftest) with the checkout on
-    ``PYTHONPATH`` and one OpenMP thread, as the project's rules ask.
+    ``PYTHONPATH`` and one OpenMP thread, as the project's rules ask. Installed outside plugins are not loaded
+    (``GES_DISABLE_PLUGIN_AUTOLOAD=1``): the tutorials use the built-in hands and simulators, and their printed
+    lists (``Known sims: pybullet, sapien``) must not depend on what else the environment holds.
     """
-    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1"}
+    env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "GES_DISABLE_PLUGIN_AUTOLOAD": "1"}
 
     def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
         return subprocess.run(
