@@ -48,12 +48,10 @@ def run_cluster(args: argparse.Namespace) -> int:
 def summary_table(clusters) -> str:
     """Per cluster: objects by split and the training categories it holds."""
     rows = [f"{'cluster':>7}  {'train':>5}  {'unseen obj':>10}  {'unseen cat':>10}  categories (train)"]
-    for c in range(clusters.k):
-        members = [m for m in clusters.objects.values() if m.cluster == c]
-        n = {s: sum(m.split == s for m in members) for s in ("train", "unseen_object", "unseen_category")}
-        cats = sorted(cat for cat, cl in clusters.categories.items() if cl == c)
+    for row in clusters.summary():
+        cats = ", ".join(row["categories"]) or "-"
         rows.append(
-            f"{c:>7}  {n['train']:>5}  {n['unseen_object']:>10}  {n['unseen_category']:>10}  {', '.join(cats) or '-'}"
+            f"{row['cluster']:>7}  {row['train']:>5}  {row['unseen_object']:>10}  {row['unseen_category']:>10}  {cats}"
         )
     total = len(clusters.objects)
     rows.append(

@@ -38,9 +38,11 @@ def plot_clusters(clusters: Clusters, path: str | Path) -> Path:
         filled = split == "train"
         col = [colours[m.cluster] for m in members]
         ax.scatter(xy[:, 0], xy[:, 1], marker=marker, s=28, c=col if filled else "none",
-                   edgecolors=col, linewidths=1.0, label=split.replace("_", " "))  # fmt: skip
+                   edgecolors=col, linewidths=1.0)  # fmt: skip
+        ax.scatter([], [], marker=marker, c="grey" if filled else "none", edgecolors="grey", label=_label(split))
     centres = (clusters.centres - np.asarray(clusters.pca["mean"])) @ np.asarray(clusters.pca["components"]).T
-    ax.scatter(centres[:, 0], centres[:, 1], marker="X", s=160, c=colours, edgecolors="black", label="centres")
+    ax.scatter(centres[:, 0], centres[:, 1], marker="X", s=160, c=colours, edgecolors="black")
+    ax.scatter([], [], marker="X", s=100, c="grey", edgecolors="black", label="centres (colour: cluster)")
     for c, (x, y) in enumerate(centres):
         ax.annotate(f"{c}", (x, y), xytext=(6, 6), textcoords="offset points", fontsize=11, weight="bold")
     ratio = clusters.pca.get("explained_variance_ratio", [0.0, 0.0])
@@ -53,6 +55,10 @@ def plot_clusters(clusters: Clusters, path: str | Path) -> Path:
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png")
     return atomic_write_bytes(path, buffer.getvalue())
+
+
+def _label(split: str) -> str:
+    return {"train": "train (defines the clusters)"}.get(split, split.replace("_", " "))
 
 
 def _projection(clusters: Clusters):

@@ -128,6 +128,16 @@ class Clusters:
         """(k,) number of objects (of ``split``) per cluster."""
         return [len(self.members(c, split=split)) for c in range(self.k)]
 
+    def summary(self) -> list[dict]:
+        """Per cluster: ``cluster``, ``size``, objects per split and the training ``categories`` it holds."""
+        out = []
+        for cluster in range(self.k):
+            members = [m for m in self.objects.values() if m.cluster == cluster]
+            by_split = {s: sum(m.split == s for m in members) for s in ("train", "unseen_object", "unseen_category")}
+            cats = sorted(cat for cat, cl in self.categories.items() if cl == cluster)
+            out.append({"cluster": cluster, "size": len(members), **by_split, "categories": cats})
+        return out
+
     def standardize(self, features: np.ndarray) -> np.ndarray:
         """(..., F) raw features -> standardized, the space of ``centres``."""
         return (np.asarray(features, dtype=np.float64) - self.mean) / self.std
@@ -184,24 +194,13 @@ def to_json(clusters: Clusters) -> dict:
         "centres": [_floats(row) for row in c.centres],
         "kmeans_centres": [_floats(row) for row in c.kmeans_centres],
         "categories": dict(sorted(c.categories.items())),
-        "clusters": _summaries(c),
+        "clusters": c.summary(),
         "objects": {oid: _member_json(m) for oid, m in sorted(c.objects.items())},
         "skipped": dict(sorted(c.skipped.items())),
         "warnings": list(c.warnings),
         "pca": {key: value for key, value in c.pca.items()},
         "plot": c.plot,
     }
-
-
-def _summaries(c: Clusters) -> list[dict]:
-    """Per cluster: sizes by split and its training categories (derived; written for people and other tools)."""
-    out = []
-    for cluster in range(c.k):
-        members = [m for m in c.objects.values() if m.cluster == cluster]
-        by_split = {s: sum(m.split == s for m in members) for s in ("train", "unseen_object", "unseen_category")}
-        cats = sorted(cat for cat, cl in c.categories.items() if cl == cluster)
-        out.append({"cluster": cluster, "size": len(members), **by_split, "categories": cats})
-    return out
 
 
 def _member_json(m: ClusterMember) -> dict:
