@@ -93,6 +93,18 @@ class Randomizer:
         streams = np.random.SeedSequence(seed).spawn(4)
         self.pool_rng, self._pose_rng, self._physics_rng, self._noise_rng = (np.random.default_rng(s) for s in streams)
 
+    def state(self) -> list[dict]:
+        """The four streams' states (JSON-ready dicts), for a checkpoint."""
+        return [g.bit_generator.state for g in self._streams()]
+
+    def set_state(self, state: list[dict]) -> None:
+        """Restore :meth:`state`."""
+        for g, s in zip(self._streams(), state, strict=True):
+            g.bit_generator.state = s
+
+    def _streams(self) -> tuple[np.random.Generator, ...]:
+        return self.pool_rng, self._pose_rng, self._physics_rng, self._noise_rng
+
     def start_poses(self, rest: np.ndarray) -> np.ndarray:
         """(m, 7) object start poses from rest poses (m, 7), world: shifted in x, y and turned about world z.
 

@@ -1,0 +1,89 @@
+"""What a training run trains on: the dataset's training grasps as a pool, the curriculum, the vectorized env."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from ges_core.env.grasp_env import EnvConfig, GraspEnv
+from ges_core.env.grasp_pool import GraspPool
+from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
+from ges_core.env.reward import reward_preset
+from ges_core.env.vec_env import GraspVecEnv
+from ges_core.errors import AssetError
+from ges_core.sim import SceneConfig
+from ges_core.training.config import TrainConfig
+from ges_core.training.curriculum import Curriculum
+
+__all__ = ["TrainingSetup", "build_setup", "env_config", "training_pool"]
+
+
+@dataclass
+class TrainingSetup:
+    """The pieces of one run: names, the pool, the curriculum and the (possibly residual) vectorized env."""
+
+    hand: str
+    sim: str
+    pool: GraspPool
+    curriculum: Curriculum
+    venv: object
+    """A GraspVecEnv, or a ResidualVecEnv around one (``action_mode: residual``)."""
+    rejected: dict[str, str]
+    """Training objects left out by the grasp selection: object id -> why."""
+
+    @property
+    def env(self) -> GraspEnv:
+        return self.venv.env
+
+
+def env_config(cfg: TrainConfig) -> EnvConfig:
+    """The run's EnvConfig: ``cfg.env`` with the reward preset's weights and the run's seed for the randomization."""
+    update = {"randomization": cfg.env.randomization.model_copy(update={"seed": cfg.seed})}
+    if cfg.reward_preset != "custom":
+        update["reward"] = reward_preset(cfg.reward_preset)
+    return cfg.env.model_copy(update=update)
+
+
+def training_pool(dataset_path: str | Path, hand, cfg: TrainConfig) -> tuple[GraspPool, dict[str, str]]:
+    """The pool of the dataset's training objects with a usable grasp for ``hand`` (the first ``max_objects`` by
+    id) and the rejected ones. AssetError when none is usable."""
+    dataset = open_grasp_dataset(dataset_path)
+    chosen = select_records(dataset, hand.name, split="train", selection=cfg.selection)
+    if cfg.max_objects is not None:
+        keep = sorted(r.object_id for r in chosen.records)[: cfg.max_objects]
+        chosen = type(chosen)(chosen.hand, chosen.selection, tuple(r for r in chosen.records if r.object_id in keep),
+                              chosen.rejected, chosen.splits)  # fmt: skip
+    return GraspPool.from_selection(chosen, hand, library_for(dataset)), dict(chosen.rejected)
+
+
+def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=None) -> TrainingSetup:
+    """Pool, curriculum (``clusters``: a :class:`~ges_core.clustering.Clusters`; None only with the curriculum off
+    and no ``objects``) and the vectorized env of a run."""
+    hand_name, sim_name = cfg.hand or registry.default("hand"), cfg.sim or registry.default("sim")
+    hand = registry.build_hand(hand_name)
+    pool, rejected = training_pool(dataset_path, hand, cfg)
+    curriculum = _curriculum(cfg, clusters, pool)
+    pool.set_weights(curriculum.weights())
+    sim = registry.build_sim(sim_name, SceneConfig(num_envs=cfg.num_envs))
+    env = GraspEnv.from_pool(sim, hand, pool, env_config(cfg))
+    venv = GraspVecEnv(env, seed=cfg.seed)
+    if cfg.action_mode == "residual":
+        from ges_core.policy import ExpertContext
+        from ges_core.training.residual import ResidualVecEnv
+
+        base = registry.build_expert(cfg.base_expert, ExpertContext.of_env(env, sim=sim_name, registry=registry))
+        venv = ResidualVecEnv(venv, base, cfg.residual_scale)
+    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, rejected)
+
+
+def _curriculum(cfg: TrainConfig, clusters, pool: GraspPool) -> Curriculum:
+    available = sorted(set(pool.keys))
+    if clusters is None:
+        if cfg.curriculum.enabled or cfg.objects is not None:
+            raise AssetError(
+                "the curriculum needs the dataset's clusters: run 'ges cluster DATASET' (it writes "
+                "DATASET/clusters.json) or pass --clusters FILE; -o curriculum.enabled=false trains on every "
+                "training object without stages"
+            )
+        return Curriculum(cfg.curriculum, {s: available for s in cfg.curriculum.stages})
+    return Curriculum.for_cluster(cfg.curriculum, clusters, cfg.cluster, available, objects=cfg.objects)

@@ -1,0 +1,272 @@
+"""rsl-rl's ``OnPolicyRunner`` with what a GES run adds: curriculum, episode counts, atomic checkpoints, resume.
+
+:class:`GraspRunner.learn` is the runner's own loop (collect ``num_steps_per_env`` steps with ``alg.act`` /
+``env.step`` / ``alg.process_env_step``, ``alg.compute_returns``, ``alg.update``, ``logger.log``) with, per
+iteration: the outcomes of the episodes that ended counted per episode (both success protocols, end reasons, NaN
+actions) and fed to the curriculum, whose promotions set the pool's weights and are logged; one line of
+``history.jsonl`` (the success curve); a checkpoint every ``checkpoint_interval`` iterations and at the end;
+the wall-time limit. The first iteration is preceded by a normalizer warm-up. An update that leaves a non-finite
+weight is undone (the weights from before it are restored) and counted, so a diverging step does not end the run.
+
+Iterations are counted as *done*: a checkpoint's ``iter`` is the number of iterations behind it, and a resumed
+run starts at that number (rsl-rl's own loop re-runs the last index).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import io
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from rsl_rl.runners import OnPolicyRunner
+
+from ges_core.env.success import EndReason
+from ges_core.training.checkpoint import FORMAT, VERSION, write_checkpoint
+
+__all__ = ["EpisodeCounts", "GraspRunner"]
+
+_SUCCESS = int(EndReason.SUCCESS)
+
+
+@dataclass
+class EpisodeCounts:
+    """Outcomes of the episodes that ended during one iteration (counted per episode, not per step)."""
+
+    episodes: int = 0
+    paper: int = 0
+    peers: int = 0
+    reasons: dict[str, int] = field(default_factory=dict)
+    nan_actions: int = 0
+    """Env steps whose action row held NaN or inf (each ended its episode ``unstable``)."""
+    per_object: dict[str, list[int]] = field(default_factory=dict)
+    """object id -> [episodes, paper successes]."""
+    outcomes: list[bool] = field(default_factory=list)
+    """Per ended episode, in order: success under the curriculum's protocol."""
+
+    def add(self, done: torch.Tensor, extras: dict, keys: tuple[str, ...], protocol: str) -> None:
+        """Count the episodes that ended this step (``done`` (n,)); ``keys``: pool entry -> object id."""
+        self.nan_actions += int(extras["log"].get("/faults/nan_actions", 0))
+        ended = done.nonzero().flatten()
+        if not len(ended):
+            return
+        reason = extras["end_reason"][ended].numpy()
+        peers = extras["peer_success"][ended].numpy()
+        entries = extras["entry"][ended].numpy()
+        for code, peer, entry in zip(reason.tolist(), peers.tolist(), entries.tolist(), strict=True):
+            paper = code == _SUCCESS
+            name = EndReason(code).name.lower()
+            self.reasons[name] = self.reasons.get(name, 0) + 1
+            self.episodes, self.paper, self.peers = self.episodes + 1, self.paper + paper, self.peers + bool(peer)
+            obj = keys[entry] if entry >= 0 else "?"
+            row = self.per_object.setdefault(obj, [0, 0])
+            row[0], row[1] = row[0] + 1, row[1] + paper
+            self.outcomes.append(paper if protocol == "paper" else bool(peer))
+
+    def rate(self, which: str) -> float:
+        """Success rate under ``which`` ('paper' or 'peers'); NaN when no episode ended."""
+        return getattr(self, which) / self.episodes if self.episodes else math.nan
+
+
+class GraspRunner(OnPolicyRunner):
+    """OnPolicyRunner over a GraspVecEnv (or ResidualVecEnv) with a curriculum and GES checkpoints (module docs)."""
+
+    def __init__(self, env, train_cfg: dict, run_dir: Path, *, curriculum, meta: dict, settings) -> None:
+        """run_dir: the run folder (logs/, checkpoints/, history.jsonl); meta: the checkpoint's fixed ``ges``
+        fields (made_for, model, ...); settings: the TrainConfig (checkpoint interval, time limit, warm-up)."""
+        self.run_dir, self.curriculum, self.meta, self.settings = Path(run_dir), curriculum, meta, settings
+        with contextlib.redirect_stdout(io.StringIO()):  # it prints both models; the summary says what ran
+            super().__init__(env, train_cfg, log_dir=str(self.run_dir / "logs"), device="cpu")
+        self.logger.git_status_repos = []  # else its logger runs git on the repository holding rsl_rl
+        self.pool = env.env.pool
+        self.totals = {"episodes": 0, "paper": 0, "peers": 0, "nan_actions": 0, "bad_updates": 0, "env_steps": 0}
+        self.seconds = 0.0
+        self.warmed = False
+        self.last_counts = EpisodeCounts()
+        self.on_iteration: Callable[[int, dict], None] | None = None
+        """Called after every iteration with (iterations done, the history row): the progress bar."""
+        self.on_promotion: Callable[[str], None] | None = None
+
+    # -- the loop --------------------------------------------------------------------------------
+    def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> str:
+        """Run up to ``num_learning_iterations`` more iterations; returns why it stopped ('done' or 'time_limit')."""
+        if self.logger.writer is None:
+            with contextlib.redirect_stdout(io.StringIO()):
+                self.logger.init_logging_writer()
+        obs = self.env.get_observations()
+        self.alg.train_mode()
+        if not self.warmed and self.current_learning_iteration == 0:
+            obs = self._warm_up(obs)
+        self.warmed = True
+        start = self.current_learning_iteration
+        limit = self.settings.time_limit
+        began = time.perf_counter() - self.seconds
+        for it in range(start, start + num_learning_iterations):
+            obs = self._iteration(it, start, start + num_learning_iterations, obs)
+            self.current_learning_iteration = it + 1
+            self.seconds = time.perf_counter() - began
+            if (it + 1) % self.settings.checkpoint_interval == 0:
+                self.save_checkpoint()
+            if limit is not None and self.seconds >= limit:
+                self.save_checkpoint()
+                return "time_limit"
+        self.save_checkpoint()
+        return "done"
+
+    def _iteration(self, it: int, start: int, total: int, obs):
+        t0 = time.perf_counter()
+        counts = EpisodeCounts()
+        keys, protocol = self.pool.keys, self.curriculum.cfg.protocol
+        with torch.inference_mode():
+            for _ in range(self.cfg["num_steps_per_env"]):
+                actions = self.alg.act(obs)
+                obs, rewards, dones, extras = self.env.step(actions)
+                self.alg.process_env_step(obs, rewards, dones, extras)
+                self.logger.process_env_step(rewards, dones, extras, None)
+                counts.add(dones, extras, keys, protocol)
+            collect = time.perf_counter() - t0
+            self.alg.compute_returns(obs)
+        t1 = time.perf_counter()
+        loss = self._guarded_update()
+        learn = time.perf_counter() - t1
+        with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints a page per iteration; tqdm shows progress
+            self.logger.log(it, start, total, collect, learn, loss, self.alg.learning_rate,
+                            self.alg.get_policy().output_std, None)  # fmt: skip
+        self._after_iteration(it, counts, collect, learn)
+        return obs
+
+    def _guarded_update(self) -> dict:
+        """``alg.update()``; restore the weights from before it if it left any non-finite one (counted)."""
+        before = copy.deepcopy((self.alg.actor.state_dict(), self.alg.critic.state_dict()))
+        loss = self.alg.update()
+        params = [*self.alg.actor.parameters(), *self.alg.critic.parameters()]
+        if not all(torch.isfinite(p).all() for p in params):
+            self.alg.actor.load_state_dict(before[0])
+            self.alg.critic.load_state_dict(before[1])
+            self.totals["bad_updates"] += 1
+        return loss
+
+    def _warm_up(self, obs):
+        """Prime the observation normalizers with ``normalizer_warmup`` steps of the initial policy (not learned
+        from; the episodes go on from there)."""
+        steps = self.settings.ppo.normalizer_warmup
+        with torch.inference_mode():
+            for _ in range(steps):
+                self.alg.actor.update_normalization(obs)
+                self.alg.critic.update_normalization(obs)
+                obs, _, _, _ = self.env.step(self.alg.actor(obs, stochastic_output=True))
+        self.totals["env_steps"] += steps * self.env.num_envs
+        return obs
+
+    def _after_iteration(self, it: int, counts: EpisodeCounts, collect: float, learn: float) -> None:
+        """Totals, curriculum, TensorBoard scalars, one history line, the progress callback."""
+        t = self.totals
+        t["episodes"], t["paper"], t["peers"] = t["episodes"] + counts.episodes, t["paper"] + counts.paper, \
+            t["peers"] + counts.peers  # fmt: skip
+        t["nan_actions"] += counts.nan_actions
+        t["env_steps"] += self.cfg["num_steps_per_env"] * self.env.num_envs
+        self.curriculum.record(counts.outcomes)
+        stage = self.curriculum.stage
+        promotion = self.curriculum.end_iteration(it + 1)
+        if promotion is not None:
+            self.pool.set_weights(self.curriculum.weights())
+            self._log_promotion(promotion)
+        row = {
+            "iteration": it + 1, "env_steps": t["env_steps"], "seconds": round(self.seconds + collect + learn, 3),
+            "collect_s": round(collect, 4), "learn_s": round(learn, 4), "stage": stage,
+            "episodes": counts.episodes, "success_paper": _num(counts.rate("paper")),
+            "success_peers": _num(counts.rate("peers")), "window_success": _num(self.curriculum.success_rate()),
+            "reasons": counts.reasons, "nan_actions": counts.nan_actions, "bad_updates": t["bad_updates"],
+            "mean_reward": _num(float(np.mean(self.logger.rewbuffer)) if self.logger.rewbuffer else math.nan),
+        }  # fmt: skip
+        self._scalars(it, row, counts)
+        with open(self.run_dir / "history.jsonl", "a", encoding="utf-8") as fh:
+            fh.write(json.dumps(row) + "\n")
+        self.last_counts = counts
+        if self.on_iteration is not None:
+            self.on_iteration(it + 1, row)
+
+    def _scalars(self, it: int, row: dict, counts: EpisodeCounts) -> None:
+        w = self.logger.writer
+        if w is None:
+            return
+        for key in ("success_paper", "success_peers"):
+            if row[key] is not None:
+                w.add_scalar(f"Success/{key.split('_')[1]}_episodes", row[key], it)
+        w.add_scalar("Episodes/ended", counts.episodes, it)
+        for name, n in counts.reasons.items():
+            w.add_scalar(f"Episodes/{name}", n, it)
+        w.add_scalar("Faults/nan_actions", counts.nan_actions, it)
+        w.add_scalar("Faults/nan_actions_total", self.totals["nan_actions"], it)
+        w.add_scalar("Faults/bad_updates_total", self.totals["bad_updates"], it)
+        w.add_scalar("Curriculum/stage", self.curriculum.stage, it)
+        w.add_scalar("Curriculum/objects", len(self.curriculum.objects()), it)
+        if row["window_success"] is not None:
+            w.add_scalar("Curriculum/window_success", row["window_success"], it)
+
+    def _log_promotion(self, promotion) -> None:
+        line = promotion.describe()
+        with open(self.run_dir / "curriculum.log", "a", encoding="utf-8") as fh:
+            fh.write(line + "\n")
+        if self.logger.writer is not None:
+            self.logger.writer.add_text("Curriculum/promotion", line, promotion.iteration)
+        if self.on_promotion is not None:
+            self.on_promotion(line)
+
+    # -- checkpoints ------------------------------------------------------------------------------
+    def checkpoint_dict(self) -> dict:
+        """rsl-rl's saved dict plus the ``ges`` section (see :mod:`ges_core.training.checkpoint`)."""
+        data = self.alg.save()
+        data["iter"], data["infos"] = self.current_learning_iteration, None
+        env = self.env.env
+        state = {
+            "curriculum": self.curriculum.state_dict(),
+            "totals": dict(self.totals),
+            "seconds": self.seconds,
+            "torch_rng": torch.get_rng_state(),
+            "env_rng": env.random.state(),
+            "logger": {"tot_timesteps": self.logger.tot_timesteps, "tot_time": self.logger.tot_time},
+        }
+        data["ges"] = {"format": FORMAT, "version": VERSION, **self.meta, "state": state}
+        return data
+
+    def save_checkpoint(self) -> Path:
+        """Write the checkpoint of the iterations done (atomically) into ``run_dir/checkpoints``."""
+        folder = self.run_dir / "checkpoints"
+        return write_checkpoint(folder, self.checkpoint_dict(), self.current_learning_iteration,
+                                self.settings.keep_checkpoints)  # fmt: skip
+
+    def save(self, path: str, infos: dict | None = None) -> None:
+        """rsl-rl's ``save`` (a single file), atomic and with the ``ges`` section."""
+        from ges_core.paths import atomic_write_bytes
+
+        buf = io.BytesIO()
+        torch.save(self.checkpoint_dict(), buf)
+        atomic_write_bytes(Path(path), buf.getvalue())
+
+    def resume_from(self, data: dict) -> None:
+        """Continue from a checkpoint dict: weights, optimizer, iterations, curriculum, random states, totals."""
+        self.alg.load(data, None, strict=True)
+        self.current_learning_iteration = int(data["iter"])
+        state = data["ges"]["state"]
+        self.curriculum.load_state_dict(state["curriculum"])
+        self.pool.set_weights(self.curriculum.weights())
+        self.totals.update(state["totals"])
+        self.seconds = float(state["seconds"])
+        torch.set_rng_state(state["torch_rng"])
+        self.env.env.random.set_state(state["env_rng"])
+        self.logger.tot_timesteps = state["logger"]["tot_timesteps"]
+        self.logger.tot_time = state["logger"]["tot_time"]
+        self.warmed = True
+
+
+def _num(value: float) -> float | None:
+    """JSON-safe: None for NaN."""
+    return None if value is None or (isinstance(value, float) and math.isnan(value)) else round(float(value), 4)
