@@ -116,7 +116,7 @@ def test_a_flat_mesh_names_the_object_and_the_feature():
     sheet = trimesh.Trimesh([[0, 0, 0], [0.1, 0, 0], [0.1, 0.1, 0], [0, 0.1, 0]], [[0, 1, 2], [0, 2, 3]])
     points = np.random.default_rng(0).uniform(0, 0.1, size=(64, 3)) * [1, 1, 0]
     features = shape_features(sheet, points)
-    with pytest.raises(AssetError, match=r"user/flat/sheet.*log10_volume_m3 = nan.*--skip-bad"):
+    with pytest.raises(AssetError, match=r"user/flat/sheet.*log10_volume_m3 = nan.*ges objects list"):
         check_features("user/flat/sheet", features)
     with pytest.raises(AssetError, match=r"points must be \(n >= 4, 3\)"):
         shape_features(sheet, points[:3])
@@ -287,3 +287,28 @@ def test_cluster_command_on_stage1_records(tmp_path, capsys):
     assert main(["cluster", str(dataset), "-k", "0"]) == 1
     assert "k: Input should be greater than or equal to 1" in capsys.readouterr().err
     assert not (dataset / "clusters.json").exists()
+
+
+def test_a_broken_object_stops_the_command_or_is_left_out(tmp_path, capsys):
+    """A zero-volume sheet among real procedural objects: an error naming it, or with --skip-bad a recorded skip."""
+    from ges_core.dataset import STEPS, DatasetWriter, GraspRecord, StepOutcome
+
+    (tmp_path / "objects" / "flat").mkdir(parents=True)
+    sheet = "v 0 0 0\nv 0.1 0 0\nv 0.1 0.1 0\nv 0 0.1 0\nf 1 2 3\nf 1 3 4\n"  # zero volume
+    (tmp_path / "objects" / "flat" / "sheet.obj").write_text(sheet)
+    config = LibraryConfig(sources=("procedural", "user"), user_dir=tmp_path / "objects", procedural_count=1)
+    library = ObjectLibrary(config)
+    chosen = [o for o in library.list() if o.split == "train"][:6] + library.list(source="user")
+    steps = {s: StepOutcome.failed("no_contacts") if s == "contacts" else StepOutcome.skipped() for s in STEPS}
+    with DatasetWriter(tmp_path / "ds", {"library": config.model_dump(mode="json")}) as writer:
+        for o in chosen:
+            writer.add(GraspRecord(object_id=o.object_id, category=o.category, split=o.split, hand="allegro",
+                                   simulator="sapien", joint_names=("j0",), steps=steps))  # fmt: skip
+    args = ["cluster", str(tmp_path / "ds"), "-k", "2", "--points", "256", "--no-progress"]
+    assert main(args) == 1
+    err = capsys.readouterr().err
+    assert "shape features of 'user/flat/sheet'" in err and "--skip-bad" in err
+    assert main([*args, "--skip-bad"]) == 0
+    assert "left out user/flat/sheet" in capsys.readouterr().out
+    clusters = load_clusters(tmp_path / "ds")
+    assert list(clusters.skipped) == ["user/flat/sheet"] and len(clusters.objects) == len(chosen) - 1

@@ -104,7 +104,7 @@ def check_features(object_id: str, features: np.ndarray) -> np.ndarray:
     if bad:
         raise AssetError(
             f"object '{object_id}': shape feature(s) not finite: {', '.join(bad)} (a flat, open or empty mesh?); "
-            "check it with 'ges objects list --sizes --objects ID', or pass --skip-bad to leave it out"
+            "check it with 'ges objects list --sizes --objects ID'"
         )
     return features
 

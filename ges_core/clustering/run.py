@@ -65,7 +65,10 @@ def _features(
             features = object_features(library, oid, points=config.points, seed=config.seed)
         except AssetError as exc:
             if not config.skip_bad:
-                raise
+                raise AssetError(
+                    f"cannot compute the shape features of '{oid}': {exc}. Pass --skip-bad (ClusterConfig.skip_bad) "
+                    "to leave such objects out; they are then listed under 'skipped' in the clusters file"
+                ) from exc
             skipped[oid] = str(exc)
             _LOG.warning("left out %s: %s", oid, exc)
             continue
