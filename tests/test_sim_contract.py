@@ -52,6 +52,25 @@ TOLERANCES = {
 BACKENDS = {"sapien": SapienBackend, "pybullet": PybulletBackend}
 
 
+def _outside_backends() -> None:
+    """Add every registered simulator from an outside package whose backend class declares its tolerances
+    (``contract_tolerances``: the :class:`Tolerances` fields, e.g. ``examples/ges-mujoco-sim``) to the same checks.
+
+    One installed but unable to load fails here, loudly; a registered backend without the attribute is left out.
+    """
+    registry = load_registry()
+    for spec in registry.specs("sim"):
+        if spec.name in BACKENDS or spec.missing():
+            continue
+        cls = spec.load()
+        declared = getattr(cls, "contract_tolerances", None)
+        if declared is not None:
+            BACKENDS[spec.name], TOLERANCES[spec.name] = cls, Tolerances(**declared)
+
+
+_outside_backends()
+
+
 @pytest.fixture(scope="module")
 def hand():
     return allegro_test_hand()
@@ -72,7 +91,7 @@ def named(request):
 
 def test_registry_builds_the_backend(named):
     name, _, _ = named
-    registry = load_registry(blocked=tuple({"shadow", "allegro", "sapien", "pybullet"} - {name}))
+    registry = load_registry(blocked=tuple({"shadow", "allegro", *BACKENDS} - {name}))
     assert registry.spec("sim", name).requires == (name,)
     with registry.build_sim(name, SceneConfig(num_envs=2)) as sim:
         assert isinstance(sim, BACKENDS[name]) and sim.num_envs == 2 and sim.name == name
