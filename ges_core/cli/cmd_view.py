@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ges_core.cli.args import positive_int
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ges view``."""
@@ -14,16 +16,43 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "(needs the [view] extra: viser)",
     )
     p.add_argument("path", type=Path, metavar="DATASET", help="dataset folder (holds manifest.json)")
-    p.add_argument("--port", type=int, default=8080, help="port to serve on (default 8080; 0 = any free port)")
-    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; 0.0.0.0 = all)")
+    p.add_argument("--port", type=int, default=8080, help="port to serve on (default 8080; taken: the next free one)")
+    p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; 0.0.0.0: all)")
+    p.add_argument("--object", metavar="ID", help="object shown first (default: the first one)")
+    p.add_argument("--hand", metavar="NAME", help="hand shown first (default: the object's first hand)")
+    p.add_argument(
+        "--screenshot",
+        type=Path,
+        metavar="PNG",
+        help="instead of serving: load the page in headless Chromium, write a PNG of it and exit",
+    )
+    p.add_argument(
+        "--size", type=positive_int, nargs=2, default=(1280, 800), metavar=("W", "H"), help="--screenshot's pixels"
+    )
     p.set_defaults(func=run_view)
 
 
 def run_view(args: argparse.Namespace) -> int:
-    """Serve the viewer until Ctrl-C."""
-    from ges_core.viewer import serve
+    """Serve the viewer until Ctrl-C, or write one screenshot."""
+    from ges_core.viewer import serve, start
 
-    serve(args.path, host=args.host, port=args.port, registry_factory=lambda: _registry(args))
+    initial = (args.object, args.hand) if args.object else None
+    if args.hand and not args.object:
+        from ges_core.errors import ConfigError
+
+        raise ConfigError("ges view: --hand needs --object (the object to show it on)")
+    options = {"host": args.host, "port": args.port, "registry": lambda: _registry(args), "initial": initial}
+    if args.screenshot is None:
+        serve(args.path, **options)
+        return 0
+    from ges_core.viewer.chromium import screenshot
+
+    viewer = start(args.path, **options)
+    try:
+        screenshot(viewer.url, args.screenshot, size=tuple(args.size))
+    finally:
+        viewer.server.stop()
+    print(f"wrote {args.screenshot} ({viewer.shown[0]}, hand {viewer.shown[1]})")
     return 0
 
 

@@ -1,0 +1,168 @@
+"""Headless Chromium screenshots of a page (the viewer's, for ``ges view --screenshot`` and the tests).
+
+Chromium is a system program (Debian: ``apt-get install chromium``), not a Python package; nothing is downloaded.
+WebGL runs on the CPU through SwiftShader (``--use-angle=swiftshader --enable-unsafe-swiftshader``): headless
+Chromium on a machine without a GPU otherwise draws no 3D canvas at all.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import subprocess
+import tempfile
+from pathlib import Path
+
+from ges_core.errors import BackendUnavailable
+
+__all__ = ["CHROMIUM_NAMES", "HeadlessPage", "chromium_command", "find_chromium", "screenshot"]
+
+CHROMIUM_NAMES = ("chromium", "chromium-browser", "google-chrome", "google-chrome-stable")
+"""Program names looked up on PATH, in order ($GES_CHROMIUM overrides them)."""
+
+_FLAGS = (
+    "--headless",
+    "--no-sandbox",  # Chromium refuses to run as root with its sandbox; the page is our own local one
+    "--use-angle=swiftshader",  # software WebGL: no GPU needed
+    "--enable-unsafe-swiftshader",  # Chromium >= 137 turns SwiftShader WebGL off without this flag
+    "--hide-scrollbars",
+    "--mute-audio",
+    "--no-first-run",
+    "--disable-extensions",
+    "--disable-background-networking",
+)
+
+
+def find_chromium() -> str | None:
+    """Path of a Chromium executable ($GES_CHROMIUM, else the first of :data:`CHROMIUM_NAMES` on PATH) or None."""
+    named = os.environ.get("GES_CHROMIUM")
+    if named:
+        return shutil.which(named) or (named if Path(named).is_file() else None)
+    return next((found for n in CHROMIUM_NAMES if (found := shutil.which(n))), None)
+
+
+def chromium_command(profile: Path, size: tuple[int, int], *extra: str) -> list[str]:
+    """The headless command line (without the URL); ``profile``: a fresh user-data folder (two runs never share)."""
+    exe = find_chromium()
+    if exe is None:
+        raise BackendUnavailable(
+            "no Chromium found (looked for $GES_CHROMIUM, then " + ", ".join(CHROMIUM_NAMES) + " on PATH); "
+            "install it, e.g. 'apt-get install chromium' on Debian"
+        )
+    return [exe, *_FLAGS, f"--user-data-dir={profile}", f"--window-size={size[0]},{size[1]}", *extra]
+
+
+def screenshot(
+    url: str, path: str | Path, *, size: tuple[int, int] = (1280, 800), wait_ms: int = 8000, timeout: float = 90.0
+) -> Path:
+    """Load ``url`` in headless Chromium, let it run ``wait_ms`` of virtual time, write a PNG of the window.
+
+    size: (width, height) pixels. BackendUnavailable without Chromium or when it writes no picture (its output
+    ends the message).
+    """
+    path = Path(path).resolve()
+    with tempfile.TemporaryDirectory(prefix="ges-chromium-") as profile:
+        cmd = chromium_command(Path(profile), size, f"--virtual-time-budget={wait_ms}", f"--screenshot={path}", url)
+        try:
+            run = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
+        except subprocess.TimeoutExpired as exc:
+            raise BackendUnavailable(f"Chromium took over {timeout:.0f} s to screenshot {url}") from exc
+    if not path.is_file():
+        tail = (run.stderr or run.stdout).strip().splitlines()[-3:]
+        raise BackendUnavailable(
+            f"Chromium wrote no screenshot of {url} (exit {run.returncode}): {' | '.join(tail) or 'no output'}"
+        )
+    return path
+
+
+class HeadlessPage:
+    """One headless Chromium tab driven over the DevTools protocol (for timing a page and polling its pixels).
+
+    >>> with HeadlessPage(size=(1280, 800)) as page:
+    ...     page.navigate("http://127.0.0.1:8080")
+    ...     rgb = page.screenshot()          # (H, W, 3) uint8 of the window now
+
+    Uses ``websockets`` (a dependency of viser) and Pillow. BackendUnavailable without Chromium or when it does
+    not start within ``timeout`` seconds.
+    """
+
+    def __init__(self, size: tuple[int, int] = (1280, 800), *, timeout: float = 60.0) -> None:
+        self.size, self.timeout = size, timeout
+        self._profile = tempfile.TemporaryDirectory(prefix="ges-chromium-")
+        cmd = chromium_command(Path(self._profile.name), size, "--remote-debugging-port=0", "about:blank")
+        self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self._next_id = 0
+        try:
+            self._ws = self._connect()
+            self.call("Page.enable")
+        except BaseException:
+            self.close()
+            raise
+
+    def _connect(self):
+        import json
+        import time
+        import urllib.request
+
+        from websockets.sync.client import connect
+
+        port_file, deadline = Path(self._profile.name) / "DevToolsActivePort", time.monotonic() + self.timeout
+        while not port_file.is_file() or not port_file.read_text().strip():
+            if self._proc.poll() is not None or time.monotonic() > deadline:
+                raise BackendUnavailable(f"Chromium did not open its DevTools port (exit {self._proc.poll()})")
+            time.sleep(0.05)
+        port = int(port_file.read_text().split()[0])
+        with urllib.request.urlopen(f"http://127.0.0.1:{port}/json", timeout=self.timeout) as reply:
+            targets = json.loads(reply.read())
+        page = next(t for t in targets if t.get("type") == "page")
+        return connect(page["webSocketDebuggerUrl"], max_size=None, open_timeout=self.timeout)
+
+    def call(self, method: str, **params) -> dict:
+        """Send one DevTools command and return its result (events that arrive meanwhile are dropped)."""
+        import json
+
+        self._next_id += 1
+        self._ws.send(json.dumps({"id": self._next_id, "method": method, "params": params}))
+        while True:
+            message = json.loads(self._ws.recv(timeout=self.timeout))
+            if message.get("id") == self._next_id:
+                if "error" in message:
+                    raise BackendUnavailable(f"Chromium: {method} failed: {message['error']}")
+                return message.get("result", {})
+
+    def navigate(self, url: str) -> None:
+        """Start loading ``url`` (returns once the request is sent, not when the page is drawn)."""
+        self.call("Page.navigate", url=url)
+
+    def screenshot(self):
+        """(H, W, 3) uint8 RGB of the window as it is now."""
+        import base64
+        import io
+
+        import numpy as np
+        from PIL import Image
+
+        data = base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
+        with Image.open(io.BytesIO(data)) as image:
+            return np.asarray(image.convert("RGB"))
+
+    def close(self) -> None:
+        """Close the browser and remove its profile; calling twice is harmless."""
+        ws = getattr(self, "_ws", None)
+        if ws is not None:
+            ws.close()
+            self._ws = None
+        if self._proc.poll() is None:
+            self._proc.terminate()
+            try:
+                self._proc.wait(timeout=10)
+            except subprocess.TimeoutExpired:
+                self._proc.kill()
+                self._proc.wait()
+        self._profile.cleanup()
+
+    def __enter__(self) -> HeadlessPage:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
