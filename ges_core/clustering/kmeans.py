@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections import Counter
 from collections.abc import Mapping
+from dataclasses import dataclass
 
 import numpy as np
 from pydantic import Field
@@ -48,14 +49,19 @@ class ClusterConfig(ConfigModel):
     )
 
 
+@dataclass(frozen=True)
 class ObjectShape:
-    """One object to cluster: id, category, split and its raw features (F,)."""
+    """One object to cluster."""
 
-    __slots__ = ("category", "features", "object_id", "split")
+    object_id: str
+    category: str
+    split: str
+    """'train', 'unseen_object' or 'unseen_category': only 'train' objects define the clusters."""
+    features: np.ndarray
+    """(F,) float64 raw shape features (:data:`~ges_core.clustering.features.FEATURE_NAMES` order)."""
 
-    def __init__(self, object_id: str, category: str, split: str, features: np.ndarray) -> None:
-        self.object_id, self.category, self.split = object_id, category, split
-        self.features = np.asarray(features, dtype=np.float64)
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "features", np.asarray(self.features, dtype=np.float64))
 
 
 def cluster_objects(
