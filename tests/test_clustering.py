@@ -25,6 +25,7 @@ from ges_core.clustering import (
 )
 from ges_core.clustering.features import check_features
 from ges_core.config import parse_model
+from ges_core.dataset import open_dataset
 from ges_core.errors import AssetError, ConfigError
 from ges_core.objects.library import LibraryConfig, ObjectLibrary
 from ges_core.objects.pointcloud import sample_surface
@@ -243,15 +244,17 @@ def test_reader_errors_say_what_to_do(tmp_path):
 
 @pytest.fixture(scope="module")
 def procedural_dataset(tmp_path_factory) -> Path:
-    """A dataset folder written by the real writer: 48 procedural objects (24 categories x 2), one record each
-    whose contact step failed (clustering reads objects, not grasps)."""
+    """A dataset folder written by the real writer: procedural objects (2 per category) of 10 categories and every
+    unseen one, one record each whose contact step failed (clustering reads objects, not grasps)."""
     from ges_core.dataset import STEPS, DatasetWriter, GraspRecord, StepOutcome
 
     root = tmp_path_factory.mktemp("cluster") / "ds"
     config = LibraryConfig(sources=("procedural",), procedural_count=2)
     steps = {s: StepOutcome.failed("no_contacts") if s == "contacts" else StepOutcome.skipped() for s in STEPS}
     with DatasetWriter(root, {"library": config.model_dump(mode="json")}) as writer:
-        for o in ObjectLibrary(config).list():
+        rows = ObjectLibrary(config).list()
+        kept = sorted({o.category for o in rows})[:10]
+        for o in (o for o in rows if o.category in kept or o.split != "train"):
             writer.add(GraspRecord(object_id=o.object_id, category=o.category, split=o.split, hand="allegro",
                                    simulator="sapien", joint_names=("j0",), steps=steps))  # fmt: skip
     return root
@@ -262,7 +265,8 @@ def test_cluster_command_on_a_procedural_dataset(procedural_dataset, capsys):
     out = capsys.readouterr().out
     clusters = load_clusters(procedural_dataset)
     assert (procedural_dataset / "clusters.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    assert len(clusters.objects) == 48 and clusters.k == 3
+    assert len(clusters.objects) == len(open_dataset(procedural_dataset).entries) and clusters.k == 3
+    assert {m.split for m in clusters.objects.values()} == {"train", "unseen_category"}
     for category, cluster in clusters.categories.items():  # the category rule, read back from the file
         train = [m for m in clusters.objects.values() if m.category == category and m.split == "train"]
         assert {m.cluster for m in train} == {cluster}
