@@ -6,6 +6,7 @@ import argparse
 from pathlib import Path
 
 from ges_core.cli.args import positive_int
+from ges_core.cli.cmd_experts import add_fanout_options, fanout_from_args
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -42,6 +43,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
         help="override a BaselineConfig value, e.g. env.episode_length=150 or expert_settings.overshoot=0.5",
     )  # fmt: skip
+    add_fanout_options(bp)
     bp.add_argument("--no-progress", action="store_true", help="no progress bar")
     bp.set_defaults(func=run_baseline_cmd)
 
@@ -65,7 +67,10 @@ def run_baseline_cmd(args: argparse.Namespace) -> int:
     data |= {"expert_settings": expert.settings} | ({"splits": tuple(args.split)} if args.split else {})
     config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where="ges env baseline")
     out = args.out or args.dataset.parent / "baseline"
-    report = evaluate_baseline(args.dataset, config, out, registry=registry, progress=not args.no_progress)
+    fanout = fanout_from_args(args)
+    report = evaluate_baseline(
+        args.dataset, config, out, registry=registry, progress=not args.no_progress, fanout=fanout
+    )
     print(report.table())
     rejected = len(report.selection.rejected)
     print(

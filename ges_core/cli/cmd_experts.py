@@ -43,8 +43,37 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
         help="override a run setting (BaselineConfig), e.g. env.episode_length=150 or seed=1",
     )  # fmt: skip
+    p.add_argument(
+        "--no-randomization",
+        action="store_true",
+        help="episodes without per-episode randomization (written to matrix-HAND-SIM-norand.json); by default the "
+        "object start pose, mass, friction and observation noise are randomized (env.randomization, seeded)",
+    )
+    add_fanout_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_eval_experts)
+
+
+def add_fanout_options(parser: argparse.ArgumentParser) -> None:
+    """``--workers``, ``--executor`` and ``--address`` (ges_core.executors) for an evaluation command."""
+    from ges_core.executors import add_executor_options
+
+    parser.add_argument(
+        "--workers", type=positive_int, default=1, metavar="N", help="worker processes, one object at a time each (1)"
+    )
+    add_executor_options(parser)
+
+
+def fanout_from_args(args: argparse.Namespace):
+    """The :class:`~ges_core.env.evaluate.fanout.Fanout` of ``--workers/--executor/--address`` and the global
+    registry options (workers build their registry from them)."""
+    from ges_core.env.evaluate.fanout import Fanout
+    from ges_core.executors import executor_options
+    from ges_core.synthesis.run.tasks import RegistrySpec
+
+    where = executor_options(args)
+    spec = RegistrySpec(args.registry, tuple(args.registry_overrides), tuple(args.no_plugin))
+    return Fanout(where["executor"], args.workers, where["address"], spec)
 
 
 def run_eval_experts(args: argparse.Namespace) -> int:
@@ -53,7 +82,7 @@ def run_eval_experts(args: argparse.Namespace) -> int:
     from ges_core.config import apply_overrides, parse_model
     from ges_core.env.evaluate import BaselineConfig
     from ges_core.experts.choice import parse_expert
-    from ges_core.experts.evaluate import evaluate_experts
+    from ges_core.experts.evaluate import RANDOMIZED, evaluate_experts
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
@@ -66,12 +95,17 @@ def run_eval_experts(args: argparse.Namespace) -> int:
         registry.spec("expert", choice.name)
     data = {"hand": hand, "sim": sim, "envs": args.episodes, "selection": args.select}
     data |= {"splits": tuple(args.split)} if args.split else {}
+    data["env"] = {"randomization": {"enabled": False} if args.no_randomization else RANDOMIZED}
     config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where="ges eval-experts")
     out = args.out or args.dataset.parent / "experts"
+    fanout = fanout_from_args(args)
     report = evaluate_experts(
-        args.dataset, config, experts, out, clusters=args.clusters, registry=registry, progress=not args.no_progress
-    )
-    print(f"{len(report.matrix.experts)} expert(s) | hand {hand} | sim {sim} | {args.episodes} episode(s) per cell\n")
+        args.dataset, config, experts, out, clusters=args.clusters, registry=registry,
+        progress=not args.no_progress, fanout=fanout,
+    )  # fmt: skip
+    rand = "randomization off" if args.no_randomization else "randomized start pose, mass, friction, obs noise"
+    print(f"{len(report.matrix.experts)} expert(s) | hand {hand} | sim {sim} | {args.episodes} episode(s) per cell "
+          f"| {rand}\n")  # fmt: skip
     print(report.table("paper") + "\n\n" + report.table("peers"))
     for line in report.errors[:10]:
         print(f"error: {line}")

@@ -28,17 +28,29 @@ from pathlib import Path
 
 from ges_core.config import parse_model
 from ges_core.dataset.layout import config_differences
-from ges_core.env.evaluate import BaselineConfig, dataset_scene, evaluate_object, grasp_key
-from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
+from ges_core.env.evaluate import BaselineConfig, grasp_key
+from ges_core.env.evaluate.fanout import Cell, Fanout, evaluate_cells
+from ges_core.env.grasp_source import open_grasp_dataset, select_records
 from ges_core.errors import AssetError, ConfigError
 from ges_core.experts.choice import ExpertChoice
 from ges_core.experts.matrix import SuccessMatrix, matrix_from_json, matrix_path, read_matrix_json, write_matrix
 from ges_core.experts.table import expert_table
 
-__all__ = ["BASELINE", "EvalReport", "evaluate_experts", "read_clusters", "run_header"]
+__all__ = ["BASELINE", "RANDOMIZED", "EvalReport", "evaluate_experts", "is_randomized", "read_clusters", "run_header"]
 
 BASELINE = ExpertChoice("scripted", "scripted", {})
 """The scripted baseline column: the ``scripted`` expert with its registered settings."""
+
+RANDOMIZED: dict[str, bool] = {"start_pose": True, "mass": True, "friction": True, "obs_noise": True}
+"""``env.randomization`` switches ``ges eval-experts`` turns on unless ``--no-randomization`` (amounts: the
+:class:`~ges_core.env.randomization.RandomizationConfig` defaults; seeded, so every expert of one object meets the
+same draws in the same env)."""
+
+
+def is_randomized(config: BaselineConfig) -> bool:
+    """Whether the episodes of ``config`` draw any per-episode randomization."""
+    r = config.env.randomization
+    return bool(r.enabled and any(getattr(r, kind) for kind in RANDOMIZED))
 
 
 @dataclass
@@ -84,11 +96,14 @@ def evaluate_experts(
     clusters: str | Path | None = None,
     registry=None,
     progress: bool = False,
+    fanout: Fanout | None = None,
 ) -> EvalReport:
     """Evaluate ``experts`` (and the scripted baseline) on the records of ``config.hand`` passing ``config.selection``
     in ``config.splits``, ``config.envs`` episodes per cell; write and return the matrix (module docs).
 
     clusters: a clusters file (``ges cluster``) or a JSON mapping object id -> cluster; stored per object.
+    fanout: where the cells run (:class:`~ges_core.env.evaluate.fanout.Fanout`: executor, workers, address;
+    default here, in order); the matrix is written here, after each cell, whichever executor runs it.
     """
     start = time.perf_counter()
     data = open_grasp_dataset(dataset)
@@ -101,7 +116,7 @@ def evaluate_experts(
                for c in choices}  # fmt: skip
     records = [r for r in select_records(data, config.hand, selection=config.selection).records
                if r.split in config.splits]  # fmt: skip
-    path = matrix_path(out, config.hand, config.sim)
+    path = matrix_path(out, config.hand, config.sim, is_randomized(config))
     stored = _stored(path, run_header(config), columns)
     cluster_of = read_clusters(clusters) if clusters is not None else None
     _update_objects(stored, records, cluster_of, clusters)
@@ -113,7 +128,7 @@ def evaluate_experts(
     write = _writer(path, stored, data.root.resolve())
     write()
     if todo:
-        _run_cells(registry, data, config, todo, cells, write, report, progress)
+        _run_cells(dataset, registry, config, todo, cells, write, report, progress, fanout or Fanout())
     report.matrix = _this_run(stored, [r.object_id for r in records], [c.label for c in choices])
     report.seconds = time.perf_counter() - start
     return report
@@ -183,25 +198,28 @@ def _writer(path: Path, stored: dict, dataset: Path):
     return write
 
 
-def _run_cells(registry, data, config: BaselineConfig, todo, cells: dict, write, report: EvalReport, progress) -> None:
-    """Evaluate each (record, expert) of ``todo`` into ``cells``, writing the matrix after each."""
+def _run_cells(dataset, registry, config: BaselineConfig, todo, cells: dict, write, report, progress, fanout) -> None:
+    """Evaluate each (record, expert) of ``todo`` into ``cells`` (here or on ``fanout``), writing after each."""
     from tqdm import tqdm
 
-    hand, library = registry.build_hand(config.hand), library_for(data)
-    scene = dataset_scene(data, config.envs, config.scene)
+    jobs = [Cell(r.object_id, _cell_config(config, c)) for r, c in todo]
+    records = {r.object_id: r for r, _ in todo}
     wins = 0
-    bar = tqdm(todo, disable=not progress, unit="cell", desc=f"{config.hand}/{config.sim}", dynamic_ncols=True)
-    for record, choice in bar:
-        bar.set_description(f"{record.object_id} / {choice.label}"[:60])
-        cell_config = _cell_config(config, choice)
-        row = evaluate_object(registry, hand, record, library, cell_config, scene)
+    bar = tqdm(total=len(jobs), disable=not progress, unit="cell", desc=f"{config.hand}/{config.sim}",
+               dynamic_ncols=True)  # fmt: skip
+    for i, row in evaluate_cells(str(dataset), jobs, records, registry, fanout):
+        record, choice = todo[i]
         cells.setdefault(record.object_id, {})[choice.label] = _cell(row)
         write()
         report.evaluated += 1
         wins += row["paper_success"]
         if "error" in row:
             report.errors.append(f"{record.object_id} / {choice.label}: {row['error']}")
-        bar.set_postfix(success=f"{wins}/{report.evaluated * config.envs}")
+        bar.update(1)
+        bar.set_postfix(
+            success=f"{wins}/{report.evaluated * config.envs}", last=f"{record.object_id}/{choice.label}"[:40]
+        )
+    bar.close()
 
 
 def _cell_config(config: BaselineConfig, choice: ExpertChoice) -> BaselineConfig:

@@ -5,7 +5,7 @@
 >>> m.rates("paper")                        # (n_objects, n_experts) float64 success rates, NaN: not evaluated
 >>> best, which = m.oracle("paper")         # (n_objects,) best rate per object and the column giving it
 
-One JSON file, ``<out>/matrix-<hand>-<sim>.json`` (format ``ges.expert_matrix``, version 1; every key in
+One JSON file, ``<out>/matrix-<hand>-<sim>[-norand].json`` (format ``ges.expert_matrix``, version 1; every key in
 ``docs/experts.md``): the run's settings (``run``), one entry per expert column (``experts``: registry name and
 the full settings it ran with), one per object (``objects``: split, category, cluster, the key of its grasp) and
 one cell per object and expert (``cells[object][expert]``: episodes, successes under both protocols, end reasons,
@@ -47,9 +47,10 @@ PROTOCOLS: dict[str, str] = {
 """Success protocols: the key of a cell's success count -> what it counts (``docs/env.md``)."""
 
 
-def matrix_path(out: str | Path, hand: str, sim: str) -> Path:
-    """``<out>/matrix-<hand>-<sim>.json``."""
-    return Path(out) / f"matrix-{hand}-{sim}.json"
+def matrix_path(out: str | Path, hand: str, sim: str, randomized: bool = True) -> Path:
+    """``<out>/matrix-<hand>-<sim>.json``; ``matrix-<hand>-<sim>-norand.json`` for a run without randomization (so
+    the two runs of one hand and simulator sit side by side)."""
+    return Path(out) / f"matrix-{hand}-{sim}{'' if randomized else '-norand'}.json"
 
 
 @dataclass(frozen=True)

@@ -25,7 +25,6 @@ from ges_core.env.grasp_source import (
     SELECTIONS,
     GraspSelection,
     grasp_targets,
-    library_for,
     object_rest_pose,
     open_grasp_dataset,
     select_records,
@@ -208,13 +207,22 @@ def _settings_note(config: BaselineConfig) -> str:
 
 
 def evaluate_baseline(
-    dataset: str | Path, config: BaselineConfig, out: str | Path, *, registry=None, progress: bool = False
+    dataset: str | Path,
+    config: BaselineConfig,
+    out: str | Path,
+    *,
+    registry=None,
+    progress: bool = False,
+    fanout=None,
 ) -> BaselineReport:
     """Evaluate ``config.expert`` on the records of ``config.hand`` that pass ``config.selection``.
 
     registry: a :class:`~ges_core.registry.Registry` (default: ``load_registry()``). Results are
     written to :func:`results_path` after every object; stored results are reused (resume).
+    fanout: where the objects run (:class:`~ges_core.env.evaluate.fanout.Fanout`; default: here, in order).
     """
+    from ges_core.env.evaluate.fanout import Cell, Fanout, evaluate_cells
+
     start = time.perf_counter()
     data = open_grasp_dataset(dataset)
     if registry is None:
@@ -232,17 +240,17 @@ def evaluate_baseline(
     if todo:
         from tqdm import tqdm
 
-        hand, library, scene = (
-            registry.build_hand(config.hand),
-            library_for(data),
-            dataset_scene(data, config.envs, config.scene),
-        )
-        bar = tqdm(todo, disable=not progress, unit="object", desc=f"{config.hand}/{config.sim}", dynamic_ncols=True)
-        for record in bar:
-            store[record.object_id] = evaluate_object(registry, hand, record, library, config, scene)
-            report.evaluated.append(record.object_id)
+        cells = [Cell(r.object_id, config) for r in todo]
+        bar = tqdm(total=len(cells), disable=not progress, unit="object", desc=f"{config.hand}/{config.sim}",
+                   dynamic_ncols=True)  # fmt: skip
+        rows = evaluate_cells(str(dataset), cells, {r.object_id: r for r in todo}, registry, fanout or Fanout())
+        for i, row in rows:
+            store[cells[i].object_id] = row
+            report.evaluated.append(cells[i].object_id)
             write_results(path, header, data.root.resolve(), store)
+            bar.update(1)
             bar.set_postfix(success=sum(store[oid]["paper_success"] for oid in report.evaluated))
+        bar.close()
     report.results = [store[r.object_id] for r in records]
     report.seconds = time.perf_counter() - start
     return report

@@ -1,0 +1,119 @@
+"""Evaluation cells run here or on an executor: one task per (object, expert run settings), results to the caller.
+
+A cell is :func:`~ges_core.env.evaluate.runner.evaluate_object` of one record under one :class:`BaselineConfig`
+(``ges env baseline``: one cell per object; ``ges eval-experts``: one per object and expert). With one worker
+on the ``local`` executor the cells run in this process, in order, with the caller's registry object. Otherwise
+each cell is a task of :mod:`ges_core.executors` (``local`` worker processes or ``ray``): the worker opens the
+dataset and builds the registry from a :class:`~ges_core.synthesis.run.tasks.RegistrySpec` (a registry does not
+pickle) once per process, and the row comes back to the caller, which alone writes the results file. A cell's row
+depends on its record and settings only (a fresh simulator per cell), so every executor gives the same rows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+from ges_core.dataset import GraspRecord
+from ges_core.env.evaluate.config import BaselineConfig
+from ges_core.env.evaluate.runner import dataset_scene, evaluate_object
+from ges_core.env.grasp_source import library_for, open_grasp_dataset
+from ges_core.executors.base import TaskLostError
+
+__all__ = ["Cell", "Fanout", "evaluate_cells"]
+
+
+@dataclass(frozen=True)
+class Cell:
+    """One evaluation: the record of ``object_id`` (hand ``config.hand``) under ``config``."""
+
+    object_id: str
+    config: BaselineConfig
+
+
+@dataclass(frozen=True)
+class Fanout:
+    """Where cells run: ``executor`` (local, ray), ``workers`` (processes; 1 on local = this process), ``address``
+    (a Ray cluster), ``registry`` (how workers build the registry: a RegistrySpec; None: the default one)."""
+
+    executor: str = "local"
+    workers: int = 1
+    address: str | None = None
+    registry: Any = None
+
+    @property
+    def here(self) -> bool:
+        """Cells run in this process, with the caller's registry."""
+        return self.executor == "local" and self.workers == 1
+
+
+def evaluate_cells(
+    dataset: str, cells: Sequence[Cell], records: dict[str, GraspRecord], registry, fanout: Fanout
+) -> Iterator[tuple[int, dict]]:
+    """(index into ``cells``, row of :func:`evaluate_object`) per cell as each finishes.
+
+    records: object id -> record (this process's selection). A cell whose worker died on every attempt is left
+    out and, after every other row, raised as one TaskLostError naming its objects (a rerun resumes them).
+    """
+    if fanout.here:
+        yield from _here(dataset, cells, records, registry)
+        return
+    from ges_core.executors import make_executor
+    from ges_core.synthesis.run.tasks import RegistrySpec
+    from ges_core.threads import resolve_threads, set_torch_threads
+
+    spec = fanout.registry or RegistrySpec()
+    options = {"workers": fanout.workers, "setup": set_torch_threads, "setup_args": (resolve_threads(None),)}
+    lost = []
+    with make_executor(fanout.executor, address=fanout.address, **options) as pool:
+        for cell in cells:
+            pool.submit(cell_task, str(dataset), cell, spec)
+        for done in pool.as_completed():
+            if isinstance(done.error, TaskLostError):
+                lost.append(cells[done.ticket].object_id)
+                continue
+            yield done.ticket, done.result()
+    if lost:
+        raise TaskLostError(
+            f"{len(lost)} of {len(cells)} evaluation cells were lost (their worker died on every attempt): objects "
+            f"{', '.join(sorted(set(lost)))}. Every other cell is written; run the same command again to resume"
+        )
+
+
+def _here(dataset: str, cells: Sequence[Cell], records: dict[str, GraspRecord], registry) -> Iterator[tuple[int, dict]]:
+    sources = _Sources(dataset, registry)
+    for i, cell in enumerate(cells):
+        yield i, sources.evaluate(records[cell.object_id], cell.config)
+
+
+class _Sources:
+    """What every cell of one dataset needs, built once: the dataset, its object library, hands and scenes."""
+
+    def __init__(self, dataset: str, registry) -> None:
+        self.data, self.registry = open_grasp_dataset(dataset), registry
+        self.library = library_for(self.data)
+        self._hands: dict[str, Any] = {}
+        self._scenes: dict[tuple, Any] = {}
+
+    def evaluate(self, record: GraspRecord, c: BaselineConfig) -> dict:
+        if c.hand not in self._hands:
+            self._hands[c.hand] = self.registry.build_hand(c.hand)
+        key = (c.envs, c.scene.model_dump_json() if c.scene else None)
+        if key not in self._scenes:
+            self._scenes[key] = dataset_scene(self.data, c.envs, c.scene)
+        return evaluate_object(self.registry, self._hands[c.hand], record, self.library, c, self._scenes[key])
+
+
+_WORKER: dict[tuple, _Sources] = {}
+"""Per worker process: (dataset, registry spec) -> its sources; one run at a time."""
+
+
+def cell_task(dataset: str, cell: Cell, spec) -> dict:
+    """The task a worker runs: the dataset and registry opened once per process, then :func:`evaluate_object`."""
+    key = (dataset, spec)
+    if key not in _WORKER:
+        _WORKER.clear()
+        _WORKER[key] = _Sources(dataset, spec.load())
+    sources = _WORKER[key]
+    return sources.evaluate(sources.data.get(cell.object_id, cell.config.hand), cell.config)
