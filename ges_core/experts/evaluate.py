@@ -117,19 +117,14 @@ def evaluate_experts(
     records = [r for r in select_records(data, config.hand, selection=config.selection).records
                if r.split in config.splits]  # fmt: skip
     path = matrix_path(out, config.hand, config.sim, is_randomized(config))
-    stored = _stored(path, run_header(config), columns)
-    cluster_of = read_clusters(clusters) if clusters is not None else None
-    _update_objects(stored, records, cluster_of, clusters)
-    stored["experts"].update(columns)
-    stored["baseline"] = BASELINE.label
-    cells = stored["cells"]
-    todo = [(r, c) for r in records for c in choices if c.label not in cells.get(r.object_id, {})]
-    report = EvalReport(path, matrix_from_json(stored), reused=len(records) * len(choices) - len(todo))
-    write = _writer(path, stored, data.root.resolve())
-    write()
+    matrix = _MatrixFile.open(path, run_header(config), columns, data.root.resolve())
+    matrix.set_objects(records, clusters)
+    todo = [(r, c) for r in records for c in choices if not matrix.has(r.object_id, c.label)]
+    report = EvalReport(path, matrix.view(records, choices), reused=len(records) * len(choices) - len(todo))
+    matrix.write()
     if todo:
-        _run_cells(dataset, registry, config, todo, cells, write, report, progress, fanout or Fanout())
-    report.matrix = _this_run(stored, [r.object_id for r in records], [c.label for c in choices])
+        _run_cells(dataset, registry, config, todo, matrix, report, progress, fanout or Fanout())
+    report.matrix = matrix.view(records, choices)
     report.seconds = time.perf_counter() - start
     return report
 
@@ -143,20 +138,61 @@ def _columns(experts: list[ExpertChoice]) -> list[ExpertChoice]:
     return experts if BASELINE.label in labels else [BASELINE, *experts]
 
 
-def _stored(path: Path, header: dict, columns: dict[str, dict]) -> dict:
-    """The matrix file's contents (an empty matrix if there is none), checked against this run."""
-    empty = {
-        "dataset": "",
-        "run": header,
-        "experts": {},
-        "baseline": None,
-        "clusters": None,
-        "objects": {},
-        "cells": {},
-    }
-    if not path.is_file():
-        return empty
-    data = {**empty, **read_matrix_json(path)}
+class _MatrixFile:
+    """The matrix file being filled: its JSON (:mod:`~ges_core.experts.matrix`) and where it is written."""
+
+    def __init__(self, path: Path, data: dict, dataset: Path) -> None:
+        self.path, self.data, self.dataset = path, data, dataset
+
+    @classmethod
+    def open(cls, path: Path, header: dict, columns: dict[str, dict], dataset: Path) -> _MatrixFile:
+        """The file at ``path`` (empty if there is none), checked against this run's header and columns, with the
+        run's columns added (stored columns first, in their order)."""
+        data = {"run": header, "experts": {}, "baseline": None, "clusters": None, "objects": {}, "cells": {}}
+        if path.is_file():
+            data |= read_matrix_json(path)
+            _check_stored(path, data, header, columns)
+        data["experts"] |= columns
+        data["baseline"] = BASELINE.label
+        return cls(path, data, dataset)
+
+    def set_objects(self, records, clusters: str | Path | None) -> None:
+        """Object entries for ``records`` (dataset order, then objects only earlier runs chose); a changed grasp
+        drops the object's cells; a clusters file sets every object's cluster (else the stored one stays)."""
+        cluster_of = read_clusters(clusters) if clusters is not None else None
+        old, objects = self.data["objects"], {}
+        for r in records:
+            key, entry = grasp_key(r), old.get(r.object_id, {})
+            if entry.get("grasp_key") != key:
+                self.data["cells"].pop(r.object_id, None)
+            cluster = cluster_of.get(r.object_id) if cluster_of is not None else entry.get("cluster")
+            objects[r.object_id] = {"split": r.split, "category": r.category, "cluster": cluster, "grasp_key": key}
+        self.data["objects"] = objects | {oid: e for oid, e in old.items() if oid not in objects}
+        if clusters is not None:
+            self.data["clusters"] = str(Path(clusters).resolve())
+
+    def has(self, object_id: str, label: str) -> bool:
+        return label in self.data["cells"].get(object_id, {})
+
+    def put(self, object_id: str, label: str, cell: dict) -> None:
+        """Store one cell (an object's cells kept in column order) and rewrite the file."""
+        row = {**self.data["cells"].get(object_id, {}), label: cell}
+        self.data["cells"][object_id] = {lab: row[lab] for lab in self.data["experts"] if lab in row}
+        self.write()
+
+    def write(self) -> None:
+        write_matrix(self.path, {"dataset": str(self.dataset), **self.data})
+
+    def view(self, records, choices) -> SuccessMatrix:
+        """The matrix of ``records`` (rows) and ``choices`` (columns) only."""
+        objects, experts = self.data["objects"], self.data["experts"]
+        part = {**self.data, "objects": {r.object_id: objects[r.object_id] for r in records},
+                "experts": {c.label: experts[c.label] for c in choices}}  # fmt: skip
+        return matrix_from_json(part)
+
+
+def _check_stored(path: Path, data: dict, header: dict, columns: dict[str, dict]) -> None:
+    """ConfigError unless the stored run settings, and every stored column this run names, are this run's."""
     diffs = config_differences(data["run"], header)
     if diffs:
         raise ConfigError(
@@ -173,52 +209,25 @@ def _stored(path: Path, header: dict, columns: dict[str, dict]) -> dict:
                 f"({'; '.join(diffs)}); give this one another label (LABEL={column['name']}:...) or use another --out",
                 problems=diffs,
             )
-    return data
 
 
-def _update_objects(stored: dict, records, cluster_of: dict[str, int] | None, clusters) -> None:
-    """Object entries for ``records`` (dataset order first); a changed grasp drops the object's cells."""
-    old = stored["objects"]
-    objects = {}
-    for r in records:
-        key, entry = grasp_key(r), old.get(r.object_id, {})
-        if entry.get("grasp_key") != key:
-            stored["cells"].pop(r.object_id, None)
-        cluster = cluster_of.get(r.object_id) if cluster_of is not None else entry.get("cluster")
-        objects[r.object_id] = {"split": r.split, "category": r.category, "cluster": cluster, "grasp_key": key}
-    stored["objects"] = objects | {oid: e for oid, e in old.items() if oid not in objects}
-    if clusters is not None:
-        stored["clusters"] = str(Path(clusters).resolve())
-
-
-def _writer(path: Path, stored: dict, dataset: Path):
-    def write() -> None:
-        write_matrix(path, {**stored, "dataset": str(dataset)})
-
-    return write
-
-
-def _run_cells(dataset, registry, config: BaselineConfig, todo, cells: dict, write, report, progress, fanout) -> None:
-    """Evaluate each (record, expert) of ``todo`` into ``cells`` (here or on ``fanout``), writing after each."""
+def _run_cells(dataset, registry, config: BaselineConfig, todo, matrix: _MatrixFile, report, progress, fanout) -> None:
+    """Evaluate each (record, expert) of ``todo`` (here or on ``fanout``) into ``matrix``, written after each."""
     from tqdm import tqdm
 
     jobs = [Cell(r.object_id, _cell_config(config, c)) for r, c in todo]
-    records = {r.object_id: r for r, _ in todo}
     wins = 0
     bar = tqdm(total=len(jobs), disable=not progress, unit="cell", desc=f"{config.hand}/{config.sim}",
                dynamic_ncols=True)  # fmt: skip
-    for i, row in evaluate_cells(str(dataset), jobs, records, registry, fanout):
+    for i, row in evaluate_cells(str(dataset), jobs, {r.object_id: r for r, _ in todo}, registry, fanout):
         record, choice = todo[i]
-        cells.setdefault(record.object_id, {})[choice.label] = _cell(row)
-        write()
+        matrix.put(record.object_id, choice.label, _cell(row))
         report.evaluated += 1
         wins += row["paper_success"]
         if "error" in row:
             report.errors.append(f"{record.object_id} / {choice.label}: {row['error']}")
         bar.update(1)
-        bar.set_postfix(
-            success=f"{wins}/{report.evaluated * config.envs}", last=f"{record.object_id}/{choice.label}"[:40]
-        )
+        bar.set_postfix(success=f"{wins}/{report.evaluated * config.envs}", last=f"{record.object_id}/{choice.label}")
     bar.close()
 
 
@@ -233,16 +242,6 @@ def _cell(row: dict) -> dict:
     cell = {"episodes": row["envs"], "paper": row["paper_success"], "peers": row["peers_success"]}
     cell |= {k: row[k] for k in ("end_reasons", "max_rise", "steps", "seconds")}
     return cell | ({"error": row["error"]} if "error" in row else {})
-
-
-def _this_run(stored: dict, object_ids: list[str], labels: list[str]) -> SuccessMatrix:
-    """The matrix restricted to this run's objects and columns."""
-    part = {
-        **stored,
-        "objects": {oid: stored["objects"][oid] for oid in object_ids},
-        "experts": {label: stored["experts"][label] for label in labels},
-    }
-    return matrix_from_json(part)
 
 
 def read_clusters(path: str | Path) -> dict[str, int]:
