@@ -35,6 +35,7 @@ BUILTIN_PLUGINS: dict[str, str] = {
     "pointnet2": "ges_plugins.gates.pointnet2",
     "centroid": "ges_plugins.gates.centroid",
     "scripted": "ges_plugins.experts.scripted",
+    "ppo": "ges_plugins.experts.ppo",
 }
 """Plugin name -> registration module of every built-in plugin, registered first and in this order."""
 
