@@ -11,8 +11,6 @@ builds its base expert through the context's registry and acts ``clamp(base + re
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
-
 import torch
 from rsl_rl.models import MLPModel
 from tensordict import TensorDict
@@ -69,9 +67,7 @@ def _actor(model: dict, state: dict) -> MLPModel:
     return actor.eval()
 
 
-def build_expert(
-    context: ExpertContext, checkpoint: str | None = None, deterministic: bool = True, **_: Any
-) -> PPOExpert:
+def build_expert(context: ExpertContext, checkpoint: str | None = None, deterministic: bool = True) -> PPOExpert:
     """The expert factory (``registry.build_expert("ppo", context, checkpoint=PATH)``).
 
     ConfigError without a checkpoint, or when the checkpoint was made for another hand or other observation or
