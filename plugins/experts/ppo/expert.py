@@ -11,6 +11,7 @@ builds its base expert through the context's registry and acts ``clamp(base + re
 from __future__ import annotations
 
 from pathlib import Path
+
 import torch
 from rsl_rl.models import MLPModel
 from tensordict import TensorDict
