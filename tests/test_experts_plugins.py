@@ -176,3 +176,11 @@ def test_ges_list_and_info_show_the_expert(capsys):
     assert main(["info", "expert", "scripted"]) == 0
     out = capsys.readouterr().out
     assert "expert 'scripted'" in out and f"close_steps={ScriptedConfig().close_steps}" in out
+
+
+def test_ges_env_baseline_takes_an_expert_by_name(capsys, tmp_path):
+    args = ["env", "baseline", str(tmp_path), "--hand", "allegro", "--sim", "sapien", "--expert"]
+    assert main([*args, "scriptd:lift=0.1"]) == 1  # refused before the dataset is opened
+    assert "unknown expert 'scriptd'. Did you mean 'scripted'?" in capsys.readouterr().err
+    assert main([*args, "scripted:lift"]) == 1
+    assert "setting 'lift' must look like key=value" in capsys.readouterr().err

@@ -23,6 +23,7 @@ One job per module:
 * :mod:`~ges_core.env.evaluate.runner`: the episodes (:func:`evaluate_baseline`, :func:`evaluate_object`,
   :func:`run_episodes`); ``ges eval-experts`` (:mod:`ges_core.experts.evaluate`) runs :func:`evaluate_object`
   per object and expert;
+* :mod:`~ges_core.env.evaluate.fanout`: where objects run (:class:`Fanout`: here, local worker processes, Ray);
 * :mod:`~ges_core.env.evaluate.store`: the resumable results file (:func:`results_path`, :func:`grasp_key`);
 * :mod:`~ges_core.env.evaluate.table`: the per-split summary (:func:`summarize`, :func:`format_table`).
 """
@@ -30,6 +31,7 @@ One job per module:
 from __future__ import annotations
 
 from ges_core.env.evaluate.config import BaselineConfig
+from ges_core.env.evaluate.fanout import Cell, Fanout, evaluate_cells
 from ges_core.env.evaluate.runner import (
     BaselineReport,
     EpisodeOutcome,
@@ -49,11 +51,14 @@ __all__ = [
     "RESULTS_VERSION",
     "BaselineConfig",
     "BaselineReport",
+    "Cell",
     "EpisodeOutcome",
+    "Fanout",
     "SplitRow",
     "build_expert_for",
     "dataset_scene",
     "evaluate_baseline",
+    "evaluate_cells",
     "evaluate_object",
     "format_table",
     "grasp_key",
