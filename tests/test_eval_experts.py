@@ -205,3 +205,21 @@ def test_an_unevaluated_cell_is_nan_and_the_oracle_skips_it(tmp_path):
     assert np.isnan(m.rates("paper")[0, 0]) and m.rates("paper")[0, 1] == 0.25 and not m.complete
     best, which = m.oracle("peers")
     assert (best[0], which[0]) == (0.75, 1)
+
+
+def test_a_column_names_the_content_of_the_files_its_settings_name(tmp_path):
+    """A retrained checkpoint at the same path is another column identity (stored results are not reused for it)."""
+    from ges_core.experts.evaluate import _column
+
+    checkpoint = tmp_path / "model.pt"
+    checkpoint.write_bytes(b"weights 1")
+
+    class Settings:  # the registry's settings look-up only
+        def settings(self, kind, name):
+            return {"checkpoint": str(checkpoint), "deterministic": True}
+
+    first = _column(Settings(), parse_expert("ppo"))
+    assert first["settings"]["checkpoint"] == str(checkpoint) and set(first["files"]) == {"checkpoint"}
+    checkpoint.write_bytes(b"weights 2")
+    assert _column(Settings(), parse_expert("ppo"))["files"] != first["files"]
+    assert "files" not in _column(load_registry(), parse_expert("scripted"))

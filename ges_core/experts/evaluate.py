@@ -35,6 +35,7 @@ from ges_core.errors import AssetError, ConfigError
 from ges_core.experts.choice import ExpertChoice
 from ges_core.experts.matrix import SuccessMatrix, matrix_from_json, matrix_path, read_matrix_json, write_matrix
 from ges_core.experts.table import expert_table
+from ges_core.paths import file_sha256
 
 __all__ = ["BASELINE", "RANDOMIZED", "EvalReport", "evaluate_experts", "is_randomized", "read_clusters", "run_header"]
 
@@ -112,8 +113,7 @@ def evaluate_experts(
 
         registry = load_registry()
     choices = _columns(experts)
-    columns = {c.label: {"name": c.name, "settings": {**registry.settings("expert", c.name), **c.settings}}
-               for c in choices}  # fmt: skip
+    columns = {c.label: _column(registry, c) for c in choices}
     records = [r for r in select_records(data, config.hand, selection=config.selection).records
                if r.split in config.splits]  # fmt: skip
     path = matrix_path(out, config.hand, config.sim, is_randomized(config))
@@ -136,6 +136,14 @@ def _columns(experts: list[ExpertChoice]) -> list[ExpertChoice]:
     if twice:
         raise ConfigError(f"expert labels {twice} are given twice; label each column once (LABEL=NAME:settings)")
     return experts if BASELINE.label in labels else [BASELINE, *experts]
+
+
+def _column(registry, choice: ExpertChoice) -> dict:
+    """A column's identity: registry name, every setting it runs with and, per setting naming a file (a
+    checkpoint), the file's content hash (a retrained checkpoint at the same path is another expert)."""
+    settings = {**registry.settings("expert", choice.name), **choice.settings}
+    files = {k: file_sha256(v) for k, v in settings.items() if isinstance(v, str) and Path(v).is_file()}
+    return {"name": choice.name, "settings": settings} | ({"files": files} if files else {})
 
 
 class _MatrixFile:
