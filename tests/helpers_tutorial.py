@@ -72,6 +72,7 @@ def ges_runner(cwd: Path) -> Callable[..., subprocess.CompletedProcess]:
     lists (``Known sims: pybullet, sapien``) must not depend on what else the environment holds.
     """
     env = {**os.environ, "PYTHONPATH": str(REPO), "OMP_NUM_THREADS": "1", "GES_DISABLE_PLUGIN_AUTOLOAD": "1"}
+    env.pop("GES_REGISTRY", None)  # the pages use ./registry.yaml of the folder they work in
 
     def run(*args: str, timeout: float = 300) -> subprocess.CompletedProcess:
         return subprocess.run(

@@ -14,6 +14,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
 from helpers_tutorial import TUTORIALS, block_with, commands, console_output, ges_commands, ges_runner, tutorial
 
 import ges_core
@@ -86,6 +87,7 @@ def test_the_picture_is_what_the_script_draws(tmp_path: Path) -> None:
         assert drawn.read_bytes() == committed.read_bytes(), "rerun docs/tutorials/make_architecture.py and commit"
 
 
+@pytest.mark.sim
 def test_the_page_outputs(tmp_path: Path) -> None:
     ges = ges_runner(tmp_path)
     cmds = ges_commands(PAGE)

@@ -22,6 +22,7 @@ from ges_core.dataset import open_dataset
 from conftest import REPO
 
 PAGE = tutorial("cross-hand.md")
+pytestmark = [pytest.mark.sim, pytest.mark.slow]  # real engines, about 10-40 s of CPU
 OBJECTS = ("procedural/box/000", "procedural/can/000", "procedural/sphere/000")
 
 

@@ -21,6 +21,7 @@ from helpers_tutorial import block_with, commands, console_output, ges_commands,
 from conftest import REPO
 
 PAGE = tutorial("dataset-format.md")
+pytestmark = [pytest.mark.sim, pytest.mark.slow]  # real engines, about 10-40 s of CPU
 
 
 @pytest.fixture(scope="module")

@@ -21,6 +21,7 @@ from ges_core.dataset import open_dataset
 from ges_core.objects.library import ObjectLibrary
 
 PAGE = tutorial("own-objects.md")
+pytestmark = [pytest.mark.sim, pytest.mark.slow]  # real engines, about 10-40 s of CPU
 _NUMBER = re.compile(r"\d+\.\d+|\d+")
 
 

@@ -19,6 +19,7 @@ from ges_core.dataset import open_dataset
 from conftest import REPO
 
 PAGE = tutorial("switch-simulator.md")
+pytestmark = [pytest.mark.sim, pytest.mark.slow]  # real engines, about 10-40 s of CPU
 COMMANDS = ges_commands(PAGE)
 
 
