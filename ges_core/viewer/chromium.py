@@ -142,9 +142,22 @@ class HeadlessPage:
         import numpy as np
         from PIL import Image
 
-        data = base64.b64decode(self.call("Page.captureScreenshot", format="png")["data"])
+        data = base64.b64decode(self._capture()["data"])
         with Image.open(io.BytesIO(data)) as image:
             return np.asarray(image.convert("RGB"))
+
+    def _capture(self) -> dict:
+        """Page.captureScreenshot, retried while a navigation swaps the page ("Not attached to an active page")."""
+        import time
+
+        deadline = time.monotonic() + self.timeout
+        while True:
+            try:
+                return self.call("Page.captureScreenshot", format="png")
+            except BackendUnavailable:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
 
     def close(self) -> None:
         """Close the browser and remove its profile; calling twice is harmless."""
@@ -166,3 +179,29 @@ class HeadlessPage:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+VIEWER_PANEL_PX = 340
+"""Width of viser's side panel (320 px and its 20 px margin) on the right of the page: not 3D canvas."""
+
+
+def canvas_pixels(rgb) -> dict[str, int]:
+    """Pixel counts of a viewer page's 3D canvas, from an (H, W, 3) uint8 screenshot.
+
+    Counted away from the side panel (right :data:`VIEWER_PANEL_PX`), viser's software-WebGL notice (top left,
+    330 x 170 px) and its axes gizmo (bottom left, 70 x 70 px): ``scene`` pixels that are not the white background
+    (any channel below 243), ``object`` pixels of the object's orange (red over blue by > 50, r >= g >= b) and
+    ``hand`` pixels of the hand's blue-grey (blue over red by > 15). The thresholds separate the lit colours of
+    :mod:`ges_core.render.base` from white and from the grey table in viewer screenshots.
+    """
+    import numpy as np
+
+    h, w = rgb.shape[:2]
+    mask = np.ones((h, w), dtype=bool)
+    mask[:, w - VIEWER_PANEL_PX :], mask[:170, :330], mask[h - 70 :, :70] = False, False, False
+    r, g, b = (rgb[..., i].astype(int) for i in range(3))
+    return {
+        "scene": int(((rgb.min(axis=2) < 243) & mask).sum()),
+        "object": int(((r - b > 50) & (r >= g) & (g >= b) & mask).sum()),
+        "hand": int(((b - r > 15) & mask).sum()),
+    }
