@@ -164,9 +164,22 @@ def test_a_tied_category_goes_to_the_centre_nearest_its_mean():
         ObjectShape("tie/0", "tie", "train", np.array([0.0, 0.0])),
         ObjectShape("tie/1", "tie", "train", [8.5, 0.0]),
     ]
-    clusters = _cluster(shapes)
+    clusters = _cluster(shapes, category_share=0.5)  # a 1 : 1 category moves whole only with a share <= 0.5
     assert clusters.objects["tie/0"].kmeans_cluster != clusters.objects["tie/1"].kmeans_cluster
     assert clusters.categories["tie"] == clusters.categories["a"]
+
+
+def test_a_category_split_evenly_keeps_its_kmeans_clusters():
+    spec = [("a", 0, "train")] * 4 + [("b", 1, "train")] * 4 + [("c", 2, "train")] * 4
+    spec += [("loose", 0, "train")] * 3 + [("loose", 1, "train")] * 2  # 60 % in blob 0: under the default 2/3
+    clusters = _cluster(_shapes(spec))
+    assert "loose" not in clusters.categories
+    assert sorted(clusters.mixed_categories["loose"]) == [0, 2, 3]
+    loose = [m for m in clusters.objects.values() if m.category == "loose"]
+    assert {m.assigned_by for m in loose} == {"kmeans"} and all(m.cluster == m.kmeans_cluster for m in loose)
+    assert {m.cluster for m in loose} == {clusters.categories["a"], clusters.categories["b"]}
+    plain = _cluster(_shapes(spec), category_share=0.0)  # the plain rule: every category whole
+    assert plain.categories["loose"] == plain.categories["a"] and not plain.mixed_categories
 
 
 def test_unseen_objects_go_to_the_nearest_centre_and_do_not_move_it():
@@ -196,7 +209,8 @@ def test_small_clusters_are_recorded():
     lonely = _cluster(_shapes([("a", 0, "train")] * 4 + [("b", 1, "train")] * 4 + [("c", 2, "train")]))
     (line,) = lonely.warnings
     assert "holds one training object (c/008)" in line
-    two_categories = _cluster(_shapes([("a", 0, "train")] * 3 + [("b", 1, "train")] * 2 + [("b", 2, "train")] * 2))
+    spec = [("a", 0, "train")] * 3 + [("b", 1, "train")] * 2 + [("b", 2, "train")] * 2
+    two_categories = _cluster(_shapes(spec), category_share=0.0)  # 'b' moved whole: one cluster left empty
     assert any("holds no training object" in w for w in two_categories.warnings)
     assert 0 in two_categories.sizes()
 
@@ -271,6 +285,9 @@ def test_cluster_command_on_a_procedural_dataset(procedural_dataset, capsys):
         train = [m for m in clusters.objects.values() if m.category == category and m.split == "train"]
         assert {m.cluster for m in train} == {cluster}
     assert all(m.assigned_by == "nearest_centre" for m in clusters.objects.values() if m.split != "train")
+    for category, counts in clusters.mixed_categories.items():  # categories K-means splits keep its labels
+        train = [m for m in clusters.objects.values() if m.category == category and m.split == "train"]
+        assert all(m.cluster == m.kmeans_cluster for m in train) and sum(counts) == len(train)
     for c in range(3):
         assert f"{', '.join(sorted(k for k, v in clusters.categories.items() if v == c))}" in out
     assert "wrote" in out

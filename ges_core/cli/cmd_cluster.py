@@ -17,6 +17,10 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("dataset", type=Path, metavar="DATASET", help="a grasp dataset folder (ges synth / ges demo)")
     p.add_argument("-k", type=int, default=3, help="number of clusters, one expert each (default 3, as the paper)")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of point clouds and K-means (default 0)")
+    p.add_argument(
+        "--category-share", type=float, default=2 / 3, metavar="S",
+        help="a category moves whole to its majority cluster when it holds this share of it (default 2/3)",
+    )  # fmt: skip
     p.add_argument("--points", type=int, default=2048, metavar="N", help="surface points per object (default 2048)")
     p.add_argument(
         "--out", type=Path, metavar="PATH", help="clusters JSON to write (default DATASET/clusters.json; PNG beside)"
@@ -33,7 +37,8 @@ def run_cluster(args: argparse.Namespace) -> int:
     from ges_core.config import parse_model
 
     settings = {"k": args.k, "seed": args.seed, "points": args.points, "skip_bad": args.skip_bad}
-    config = parse_model(ClusterConfig, settings, where="cluster settings (-k, --seed, --points)")
+    settings["category_share"] = args.category_share
+    config = parse_model(ClusterConfig, settings, where="cluster settings (-k, --seed, --points, --category-share)")
     start = time.perf_counter()
     clusters, path = cluster_dataset(args.dataset, config, out=args.out, progress=not args.no_progress)
     print(summary_table(clusters))
@@ -49,12 +54,11 @@ def summary_table(clusters) -> str:
     """Per cluster: objects by split and the training categories it holds."""
     rows = [f"{'cluster':>7}  {'train':>5}  {'unseen obj':>10}  {'unseen cat':>10}  categories (train)"]
     for row in clusters.summary():
-        cats = ", ".join(row["categories"]) or "-"
+        mixed = [f"{cat} ({n}, mixed)" for cat, n in row["mixed"].items()]
+        cats = ", ".join(row["categories"] + mixed) or "-"
         rows.append(
             f"{row['cluster']:>7}  {row['train']:>5}  {row['unseen_object']:>10}  {row['unseen_category']:>10}  {cats}"
         )
-    total = len(clusters.objects)
-    rows.append(
-        f"{len(clusters.categories)} training categories, {total} objects, k = {clusters.k}, seed {clusters.seed}"
-    )
+    cats, total = len(clusters.categories) + len(clusters.mixed_categories), len(clusters.objects)
+    rows.append(f"{cats} training categories, {total} objects, k = {clusters.k}, seed {clusters.seed}")
     return "\n".join(rows)

@@ -39,9 +39,10 @@ CLUSTERS_VERSION = 1
 CLUSTERS_FILE = "clusters.json"
 """Default file name, inside the dataset folder (its picture: ``clusters.png`` beside it)."""
 
-ASSIGNED_BY = ("category", "nearest_centre")
-"""How an object got its cluster: its (training) category's cluster, or the nearest centre (see
-:mod:`.kmeans`)."""
+ASSIGNED_BY = ("category", "kmeans", "nearest_centre")
+"""How an object got its cluster: its training category's cluster, its own K-means cluster (a training object of
+a category K-means splits: ``mixed_categories``), or the nearest centre (objects outside the training split);
+see :mod:`.kmeans`."""
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -55,7 +56,8 @@ class ClusterMember:
     cluster: int
     """The cluster the object belongs to, 0..k-1 (the expert that owns it)."""
     assigned_by: str
-    """'category' (a training category's cluster) or 'nearest_centre' (objects outside the training split)."""
+    """'category' (its training category's cluster), 'kmeans' (its own K-means cluster: a category in
+    :attr:`Clusters.mixed_categories`) or 'nearest_centre' (objects outside the training split)."""
     features: np.ndarray
     """(F,) float64 raw shape features, in :attr:`Clusters.feature_names` order and units."""
     distance: float
@@ -85,7 +87,10 @@ class Clusters:
     objects: Mapping[str, ClusterMember]
     """object id -> member, sorted by id."""
     categories: Mapping[str, int]
-    """training category -> its cluster."""
+    """training category -> its cluster (the categories moved whole)."""
+    mixed_categories: Mapping[str, list[int]] = field(default_factory=dict)
+    """training category -> its training objects per cluster (k,), for the categories K-means splits too evenly
+    to move whole (``ClusterConfig.category_share``); their objects keep their K-means clusters."""
     warnings: tuple[str, ...] = ()
     """Recorded outcomes worth a look (a cluster of one object, an empty cluster), one line each."""
     skipped: Mapping[str, str] = field(default_factory=dict)
@@ -135,7 +140,8 @@ class Clusters:
             members = [m for m in self.objects.values() if m.cluster == cluster]
             by_split = {s: sum(m.split == s for m in members) for s in ("train", "unseen_object", "unseen_category")}
             cats = sorted(cat for cat, cl in self.categories.items() if cl == cluster)
-            out.append({"cluster": cluster, "size": len(members), **by_split, "categories": cats})
+            mixed = {cat: counts[cluster] for cat, counts in sorted(self.mixed_categories.items()) if counts[cluster]}
+            out.append({"cluster": cluster, "size": len(members), **by_split, "categories": cats, "mixed": mixed})
         return out
 
     def standardize(self, features: np.ndarray) -> np.ndarray:
@@ -194,6 +200,7 @@ def to_json(clusters: Clusters) -> dict:
         "centres": [_floats(row) for row in c.centres],
         "kmeans_centres": [_floats(row) for row in c.kmeans_centres],
         "categories": dict(sorted(c.categories.items())),
+        "mixed_categories": {cat: list(counts) for cat, counts in sorted(c.mixed_categories.items())},
         "clusters": c.summary(),
         "objects": {oid: _member_json(m) for oid, m in sorted(c.objects.items())},
         "skipped": dict(sorted(c.skipped.items())),
@@ -227,6 +234,7 @@ def from_json(data: dict) -> Clusters:
         std=_matrix(data["standardization"]["std"], (len(names),), "standardization.std"),
         centres=centres, kmeans_centres=_matrix(data["kmeans_centres"], (k, len(names)), "kmeans_centres"),
         objects=dict(sorted(objects.items())), categories={str(a): int(b) for a, b in data["categories"].items()},
+        mixed_categories={str(a): [int(n) for n in b] for a, b in data.get("mixed_categories", {}).items()},
         warnings=tuple(data.get("warnings", ())), skipped=dict(data.get("skipped", {})),
         config=dict(data.get("config", {})), dataset=str(data.get("dataset", "")), pca=dict(data.get("pca", {})),
         plot=data.get("plot"),
