@@ -32,6 +32,7 @@ _COMMAND_MODULES = (
     "ges_core.cli.cmd_train",
     "ges_core.cli.cmd_view",
     "ges_core.cli.cmd_cluster",
+    "ges_core.cli.cmd_gate",
 )
 """Modules that add sub-commands, in ``--help`` order."""
 

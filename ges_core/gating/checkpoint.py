@@ -1,0 +1,70 @@
+"""Gate checkpoints: one torch file naming the gate plugin, its settings and the experts it serves.
+
+Layout (a dict, readable with ``torch.load(path, weights_only=True)``)::
+
+    format: "ges-gate", version: 1
+    gate: plugin name ("curvenet", "pointnet2", "centroid")
+    experts: [expert names], the order of the gate's output columns
+    settings: the plugin's settings (JSON-like)
+    state: tensors (torch state_dict, or the centroid gate's centres)
+    train: {config, summary, train_ids, val_ids, dropped_ids} or {} for an untrained gate
+
+Written atomically: a reader or a killed run never sees half a file.
+"""
+
+from __future__ import annotations
+
+import io
+from pathlib import Path
+from typing import Any
+
+import torch
+
+from ges_core.errors import ConfigError, StorageError
+from ges_core.paths import atomic_write_bytes
+
+__all__ = ["FORMAT", "VERSION", "load_gate", "read_checkpoint", "write_checkpoint"]
+
+FORMAT = "ges-gate"
+VERSION = 1
+
+
+def write_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
+    """Write ``payload`` (the keys above, format/version added) to ``path`` atomically."""
+    buffer = io.BytesIO()
+    torch.save({"format": FORMAT, "version": VERSION, **payload}, buffer)
+    return atomic_write_bytes(path, buffer.getvalue(), fix="choose a writable --out path")
+
+
+def read_checkpoint(path: str | Path) -> dict[str, Any]:
+    """The checkpoint at ``path``; StorageError if unreadable, ConfigError if it is not a gate checkpoint."""
+    path = Path(path)
+    if not path.is_file():
+        raise StorageError(f"gate checkpoint {path} does not exist; train one with `ges train-gate`")
+    try:
+        data = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises several types for a corrupt or foreign file
+        raise ConfigError(f"{path} is not a readable gate checkpoint ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(data, dict) or data.get("format") != FORMAT:
+        raise ConfigError(f"{path} is not a gate checkpoint (no format '{FORMAT}'); train one with `ges train-gate`")
+    if data.get("version") != VERSION:
+        raise ConfigError(f"{path}: gate checkpoint version {data.get('version')}, this ges reads {VERSION}")
+    return data
+
+
+def load_gate(path: str | Path, registry=None, *, experts=None):
+    """The gate saved at ``path``, built through the registry by the plugin name the checkpoint gives.
+
+    ``experts``: if given, the experts it will be used with; a gate trained for others is a ConfigError
+    naming both lists.
+    """
+    if registry is None:
+        from ges_core.registry import load_registry
+
+        registry = load_registry()
+    name = read_checkpoint(path)["gate"]
+    factory = registry.spec("gate", name).load()
+    gate = factory.load(path)
+    if experts is not None:
+        gate.check_experts(experts)
+    return gate

@@ -1,0 +1,68 @@
+"""Batched point-cloud operations shared by the gate backbones (torch, any device).
+
+Every choice here depends on the points' positions only, never on their order in the tensor, so a
+backbone built from these operations gives the same answer for any permutation of its input points
+(up to floating-point rounding and exact distance ties): farthest-point sampling starts at the point
+farthest from the centroid, and neighbourhoods are the nearest points, not the first ones in memory.
+"""
+
+from __future__ import annotations
+
+import torch
+
+__all__ = ["ball_query", "farthest_point_sample", "gather_points", "knn", "square_distance"]
+
+
+def square_distance(a: torch.Tensor, b: torch.Tensor) -> torch.Tensor:
+    """Squared distances (B, N, M) between a: (B, N, 3) and b: (B, M, 3) (same unit as the inputs)."""
+    d = -2.0 * a @ b.transpose(1, 2)
+    d = d + (a * a).sum(-1, keepdim=True) + (b * b).sum(-1).unsqueeze(1)
+    return d.clamp_min(0.0)
+
+
+def gather_points(values: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
+    """Rows of values: (B, N, C) at idx: (B, ...) int64 -> (B, ..., C)."""
+    batch = values.shape[0]
+    flat = idx.reshape(batch, -1)
+    out = torch.gather(values, 1, flat.unsqueeze(-1).expand(-1, -1, values.shape[-1]))
+    return out.reshape(*idx.shape, values.shape[-1])
+
+
+def farthest_point_sample(xyz: torch.Tensor, m: int) -> torch.Tensor:
+    """Indices (B, m) int64 of a greedy farthest-point subset of xyz: (B, N, 3).
+
+    Starts at the point farthest from the cloud's centroid (order-independent, unlike index 0).
+    m >= N returns every index.
+    """
+    batch, n, _ = xyz.shape
+    if m >= n:
+        return torch.arange(n, device=xyz.device).expand(batch, n)
+    rows = torch.arange(batch, device=xyz.device)
+    chosen = torch.empty(batch, m, dtype=torch.long, device=xyz.device)
+    centre = xyz.mean(dim=1, keepdim=True)
+    current = ((xyz - centre) ** 2).sum(-1).argmax(dim=1)
+    dist = torch.full((batch, n), float("inf"), dtype=xyz.dtype, device=xyz.device)
+    for i in range(m):
+        chosen[:, i] = current
+        step = ((xyz - xyz[rows, current].unsqueeze(1)) ** 2).sum(-1)
+        dist = torch.minimum(dist, step)
+        current = dist.argmax(dim=1)
+    return chosen
+
+
+def knn(xyz: torch.Tensor, k: int, query: torch.Tensor | None = None) -> torch.Tensor:
+    """Indices (B, M, k) int64 of the k nearest points of xyz: (B, N, 3) to each query (B, M, 3), nearest
+    first (query defaults to xyz itself, whose nearest neighbour is then the point itself)."""
+    query = xyz if query is None else query
+    k = min(k, xyz.shape[1])
+    return square_distance(query, xyz).topk(k, dim=-1, largest=False).indices
+
+
+def ball_query(xyz: torch.Tensor, centres: torch.Tensor, radius: float, k: int) -> torch.Tensor:
+    """Indices (B, M, k) int64 of up to k nearest points of xyz: (B, N, 3) within ``radius`` of each centre
+    (B, M, 3); a ball with fewer repeats its nearest point (a centre drawn from xyz has at least itself)."""
+    k = min(k, xyz.shape[1])
+    d = square_distance(centres, xyz)
+    near_d, near = d.topk(k, dim=-1, largest=False)
+    outside = near_d > radius * radius
+    return torch.where(outside, near[..., :1].expand_as(near), near)

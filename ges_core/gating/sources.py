@@ -1,0 +1,72 @@
+"""Success rates from the matrix file ``ges eval-experts`` writes (:mod:`ges_core.experts.matrix`).
+
+The gate code itself reads only :class:`~ges_core.gating.data.SuccessRates`; this module is the one
+adapter from the file format.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from ges_core.errors import ConfigError
+from ges_core.gating.data import SuccessRates
+
+__all__ = ["MatrixRates", "load_rates", "rates_from_matrix"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class MatrixRates:
+    """The rates of one matrix file, every split, with what the gate run needs to know about its rows."""
+
+    rates: SuccessRates
+    splits: tuple[str, ...]
+    """Per row: train, unseen_object or unseen_category."""
+    dataset: str
+    """The Stage 1 dataset folder the matrix was evaluated on ('' if the file does not say)."""
+    incomplete: tuple[str, ...]
+    """Objects left out because a cell of theirs has no episodes yet (an evaluation still running)."""
+
+    def split(self, name: str) -> SuccessRates:
+        """The rows of split ``name``."""
+        return self.rates.subset([i for i, s in enumerate(self.splits) if s == name])
+
+
+def rates_from_matrix(
+    matrix, protocol: str = "paper", *, columns: list[str] | None = None
+) -> tuple[SuccessRates, tuple[str, ...], tuple[str, ...]]:
+    """(rates, splits per row, left-out ids) from a :class:`ges_core.experts.matrix.SuccessMatrix`.
+
+    columns: the expert columns to keep, in this order (None: every column but the scripted baseline's,
+    which the matrix carries for comparison; all if that leaves fewer than 2). Objects with an unevaluated
+    cell among them are left out (and returned) rather than guessed.
+    """
+    labels = list(columns) if columns is not None else [c for c in matrix.experts if c != matrix.baseline]
+    if columns is None and len(labels) < 2:
+        labels = list(matrix.experts)
+    unknown = [c for c in labels if c not in matrix.experts]
+    if unknown:
+        raise ConfigError(f"expert column(s) {unknown} not in the matrix; its columns: {list(matrix.experts)}")
+    cols = [matrix.experts.index(c) for c in labels]
+    all_rates = matrix.rates(protocol)[:, cols]
+    done = ~np.isnan(all_rates).any(axis=1)
+    left = tuple(o for o, ok in zip(matrix.object_ids, done, strict=True) if not ok)
+    if left:
+        log.warning("%d object(s) have unevaluated cells and are left out: %s", len(left), ", ".join(left[:5]))
+    rows = np.flatnonzero(done)
+    rates = SuccessRates(tuple(matrix.object_ids[i] for i in rows), tuple(labels), all_rates[rows])
+    return rates, tuple(matrix.splits[i] for i in rows), left
+
+
+def load_rates(path: str | Path, protocol: str = "paper", *, columns: list[str] | None = None) -> MatrixRates:
+    """:class:`MatrixRates` of the matrix file at ``path``."""
+    from ges_core.experts.matrix import matrix_from_json, read_matrix_json
+
+    data = read_matrix_json(path)
+    rates, splits, left = rates_from_matrix(matrix_from_json(data), protocol, columns=columns)
+    return MatrixRates(rates, splits, str(data.get("dataset") or ""), left)

@@ -1,0 +1,126 @@
+"""A gate whose scores come from a torch network on the object's point cloud (CurveNet, PointNet++).
+
+A plugin subclasses :class:`TorchGate`, names its settings model and builds its network; this class
+does the rest: input checks, scaling to network units, softmax, training (``fit``), checkpoints.
+"""
+
+from __future__ import annotations
+
+from abc import abstractmethod
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+from pydantic import Field
+
+from ges_core.config import ConfigModel, parse_model
+from ges_core.errors import ConfigError
+from ges_core.gating.checkpoint import read_checkpoint, write_checkpoint
+from ges_core.gating.inputs import gate_input
+from ges_core.gating.train import GateData, TrainConfig, TrainResult, train_model
+from ges_core.policy import Gate
+
+__all__ = ["GateSettings", "TorchGate"]
+
+
+class GateSettings(ConfigModel):
+    """Settings every point-cloud gate has (a plugin's settings model extends this)."""
+
+    n_points: int = Field(1024, ge=16, description="points per object cloud (the paper: 1024 beats 4096)")
+    input_scale: float = Field(
+        0.1,
+        gt=0,
+        description="metres per network unit: clouds are divided by it, so a 10 cm object spans ~1 unit (the "
+        "range the backbones' radii are given in) while its metric size, which decides the expert, is kept",
+    )
+
+
+class TorchGate(Gate):
+    """A gate scoring experts with ``softmax(network(points / input_scale))``."""
+
+    Settings: ClassVar[type[GateSettings]] = GateSettings
+
+    def __init__(self, **settings: Any) -> None:
+        self.settings = parse_model(self.Settings, settings, where=f"gate '{self.name}' settings")
+        self.experts: tuple[str, ...] = ()
+        self.model: torch.nn.Module | None = None
+        self.train_info: dict[str, Any] = {}
+
+    @abstractmethod
+    def build_model(self, n_experts: int) -> torch.nn.Module:
+        """A fresh network: (B, N, 3) clouds in network units -> (B, n_experts) logits."""
+
+    # -- use ----------------------------------------------------------------------------------
+    def predict(
+        self, points: torch.Tensor | Sequence[np.ndarray], object_ids: Sequence[str] | None = None
+    ) -> torch.Tensor:
+        """(n, k) float32 expert probabilities (rows sum to 1, columns :attr:`experts`) for clouds
+        (n, N, 3) or a list of (m_i, 3), object frame, metres; see :func:`ges_core.gating.inputs.gate_input`."""
+        model = self._trained()
+        x = gate_input(points, self.settings.n_points, object_ids)
+        model.eval()
+        with torch.no_grad():
+            return torch.softmax(model(x / self.settings.input_scale), dim=-1)
+
+    def _trained(self) -> torch.nn.Module:
+        if self.model is None:
+            raise ConfigError(f"gate '{self.name}' is not trained: fit it (ges train-gate) or load a checkpoint")
+        return self.model
+
+    # -- training -----------------------------------------------------------------------------
+    def fit(
+        self,
+        data: GateData,
+        config: TrainConfig | None = None,
+        *,
+        log_dir: str | Path | None = None,
+        on_epoch: Callable[[int, TrainResult], None] | None = None,
+    ) -> TrainResult:
+        """Train a fresh network on ``data`` (clouds in metres, any size: brought to ``n_points``); the
+        experts become ``data.rates.experts``. Seeded by ``config.seed``."""
+        config = config or TrainConfig()
+        ids = data.rates.object_ids
+        clouds = gate_input(data.clouds, self.settings.n_points, ids) / self.settings.input_scale
+        torch.manual_seed(config.seed)
+        self.experts = data.rates.experts
+        self.model = self.build_model(len(self.experts))
+        result = train_model(self.model, GateData(data.rates, clouds), config, log_dir=log_dir, on_epoch=on_epoch)
+        self.train_info = {
+            "config": config.model_dump(mode="json"),
+            "summary": result.summary(),
+            "train_ids": result.train_ids,
+            "val_ids": result.val_ids,
+            "dropped_ids": result.dropped_ids,
+        }
+        return result
+
+    # -- checkpoints --------------------------------------------------------------------------
+    def save(self, path: str | Path) -> None:
+        """Write the network, settings and experts to ``path`` (atomically)."""
+        model = self._trained()
+        write_checkpoint(
+            path,
+            {
+                "gate": self.name,
+                "experts": list(self.experts),
+                "settings": self.settings.model_dump(mode="json"),
+                "state": model.state_dict(),
+                "train": self.train_info,
+            },
+        )
+
+    @classmethod
+    def load(cls, path: str | Path) -> TorchGate:
+        """The gate saved at ``path`` by this plugin."""
+        data = read_checkpoint(path)
+        if data["gate"] != cls.name:
+            raise ConfigError(f"{path} holds a '{data['gate']}' gate, not a '{cls.name}' one; load it with that plugin")
+        gate = cls(**data["settings"])
+        gate.experts = tuple(data["experts"])
+        gate.model = gate.build_model(len(gate.experts))
+        gate.model.load_state_dict(data["state"])
+        gate.model.eval()
+        gate.train_info = data.get("train", {})
+        return gate

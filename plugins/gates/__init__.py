@@ -1,0 +1,1 @@
+"""Built-in gate plugins: CurveNet, PointNet++ (single-scale grouping) and the nearest-centroid baseline."""

@@ -1,0 +1,57 @@
+"""The CurveNet gate: settings and network factory (training and checkpoints: TorchGate)."""
+
+from __future__ import annotations
+
+from pydantic import Field
+
+from ges_core.config import ConfigModel
+from ges_core.gating.torch_gate import GateSettings, TorchGate
+from ges_plugins.gates.curvenet.model import CurveNet
+
+__all__ = ["CurveNetGate", "CurveNetSettings", "Stage"]
+
+
+class Stage(ConfigModel):
+    """One CurveNet stage (two CIC blocks)."""
+
+    channels: int = Field(..., ge=2, description="output width of the stage")
+    points: int | None = Field(..., ge=1, description="down-sample to this many farthest points first (None: keep all)")
+    radius: float = Field(..., gt=0, description="ball of the down-sampling max-pool, network units")
+    curves: tuple[int, int] | None = Field(..., description="(count, length) of the walks, None: no curve grouping")
+
+
+class CurveNetSettings(GateSettings):
+    """CurveNet. Defaults: the paper's classification layout (LPFA stem, four stages of two CIC blocks,
+    curves in the first two stages, 1024 -> 1024 -> 256 -> 64 points) at half its widths (32 .. 256
+    channels instead of 64 .. 512; a few experts, not 40 classes) and k = 16 neighbours instead of 20,
+    to keep inference near the issue's 10 ms per object on one CPU core (benchmarks/gate_speed.py)."""
+
+    k: int = Field(16, ge=2, description="neighbours of LPFA and of the walks (CurveNet: 20)")
+    stem: int = Field(16, ge=1, description="width of the LPFA stem (CurveNet: 32)")
+    stages: tuple[Stage, ...] = Field(
+        (
+            Stage(channels=32, points=None, radius=0.2, curves=(50, 10)),
+            Stage(channels=64, points=1024, radius=0.3, curves=(50, 10)),
+            Stage(channels=128, points=256, radius=0.5, curves=None),
+            Stage(channels=256, points=64, radius=1.0, curves=None),
+        ),
+        min_length=1,
+        description="stages, input to output",
+    )
+    embed: int = Field(256, ge=1, description="width before the max + mean pooling (CurveNet: 512)")
+    head: tuple[int, ...] = Field((256,), description="hidden widths of the classifier (CurveNet: 512)")
+    dropout: float = Field(0.5, ge=0, lt=1, description="dropout in the classifier (CurveNet: 0.5)")
+
+
+class CurveNetGate(TorchGate):
+    """Expert selection from a CurveNet embedding of the object cloud."""
+
+    name = "curvenet"
+    Settings = CurveNetSettings
+
+    def build_model(self, n_experts: int) -> CurveNet:
+        s = self.settings
+        stages = [st.model_dump() for st in s.stages]
+        return CurveNet(
+            n_experts, k=s.k, stem=s.stem, stages=stages, embed=s.embed, head=list(s.head), dropout=s.dropout
+        )
