@@ -19,7 +19,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of point clouds and K-means (default 0)")
     p.add_argument(
         "--category-share", type=float, default=2 / 3, metavar="S",
-        help="a category moves whole to its majority cluster when it holds this share of it (default 2/3)",
+        help="a category moves whole to the cluster holding most of its training objects when that cluster holds "
+        "at least this share of them (default 2/3; 0: always)",
     )  # fmt: skip
     p.add_argument("--points", type=int, default=2048, metavar="N", help="surface points per object (default 2048)")
     p.add_argument(
