@@ -7,9 +7,12 @@ With ``workers == 1`` (or a single call) the calls run in this process, one afte
 ``workers`` calls at a time.
 
 A worker that dies (SIGKILL, out of memory, a crash in native code) breaks a process pool as a whole: every
-call it was running fails with ``BrokenProcessPool``. Since at most ``workers`` calls are in flight, those are
-the calls that can be lost; they are run again in a fresh pool, each at most ``max_retries`` more times, and
-the calls already finished are kept. A call that dies in this process (``workers == 1``) ends the run, as before.
+call running then fails with ``BrokenProcessPool``, and the pool does not say whose worker died. At most
+``workers`` calls are in flight, so only those are affected: the finished calls are kept, and the broken ones
+are run again one at a time in a fresh pool, where a death names its call. A call whose worker dies alone is
+rerun at most ``max_retries`` times, then reported lost; the calls that merely shared the broken pool are not
+charged, and the rest of the queue goes on. A call that dies in this process (``workers == 1``) ends the run,
+as before.
 """
 
 from __future__ import annotations
@@ -56,24 +59,34 @@ class LocalExecutor(Executor):
 
     def _run_pool(self, calls: list[_Call]) -> Iterator[Done]:
         queue: deque[_Call] = deque(calls)
+        suspects: deque[_Call] = deque()
         attempts = {ticket: 0 for ticket, _, _ in calls}
-        while queue:
+        deaths = dict.fromkeys(attempts, 0)
+        while queue or suspects:
             broken: list[_Call] = []
-            yield from self._one_pool(queue, attempts, broken)
-            for call in reversed(broken):  # run them again first, in their order
-                if attempts[call[0]] > self.max_retries:
-                    yield self.lost(call[0], attempts[call[0]], "the process pool broke while it ran")
+            if not suspects:  # the normal case: up to `workers` calls at a time
+                yield from self._one_pool(queue, self.workers, attempts, broken)
+                suspects.extend(broken)
+                continue
+            yield from self._one_pool(suspects, 1, attempts, broken)  # alone: a death names its call
+            for call in broken:
+                deaths[call[0]] += 1
+                if deaths[call[0]] > self.max_retries:
+                    yield self.lost(call[0], attempts[call[0]], "a worker process of the pool died")
                 else:
-                    queue.appendleft(call)
+                    suspects.appendleft(call)
 
-    def _one_pool(self, queue: deque[_Call], attempts: dict[int, int], broken: list[_Call]) -> Iterator[Done]:
-        """Run ``queue`` in one pool until it is empty or the pool breaks (the calls lost then go to ``broken``)."""
+    def _one_pool(
+        self, queue: deque[_Call], limit: int, attempts: dict[int, int], broken: list[_Call]
+    ) -> Iterator[Done]:
+        """Run ``queue`` in one pool, ``limit`` calls at a time, until it is empty or the pool breaks (the calls
+        running then go to ``broken``)."""
         ctx = multiprocessing.get_context("spawn")
-        pool = ProcessPoolExecutor(max_workers=min(self.workers, len(queue)), mp_context=ctx)
+        pool = ProcessPoolExecutor(max_workers=min(limit, len(queue)), mp_context=ctx)
         running: dict[Future, _Call] = {}
         try:
             while queue or running:
-                while queue and len(running) < self.workers and not broken:
+                while queue and len(running) < limit and not broken:
                     call = queue.popleft()
                     attempts[call[0]] += 1
                     running[pool.submit(call_with_setup, self.setup, self.setup_args, call[1], call[2])] = call

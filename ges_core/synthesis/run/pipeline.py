@@ -32,7 +32,7 @@ from pathlib import Path
 
 from ges_core.dataset import DatasetWriter
 from ges_core.errors import ConfigError
-from ges_core.executors import TaskLostError, make_executor
+from ges_core.executors import DEFAULT_MAX_RETRIES, TaskLostError, make_executor
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.tasks import (
     RegistrySpec,
@@ -141,16 +141,18 @@ def _results(
     threads: int | None = None,
     executor: str = "local",
     address: str | None = None,
+    max_retries: int = DEFAULT_MAX_RETRIES,
 ) -> Generator[list, None, None]:
     """Records of each task as soon as it finishes, so that a slow task holds back no other task's records and
     a stopped run keeps every finished task. The dataset does not depend on this order: one file per
     (object, hand), and the manifest's index is sorted. ``runner``: a test double of :func:`run_task`
     (picklable: a module-level function). ``threads``: torch threads of the process(es) running the tasks
     (:func:`~ges_core.threads.set_torch_threads`). ``executor``/``address``: where the tasks run
-    (:mod:`ges_core.executors`). A task whose worker died on every attempt is left out and, once every other
-    task's records are yielded, raised as one TaskLostError naming its objects (a rerun resumes them)."""
+    (:mod:`ges_core.executors`). A task whose worker died on every attempt (1 + ``max_retries``) is left out and,
+    once every other task's records are yielded, raised as one TaskLostError naming its objects (a rerun resumes
+    them)."""
     lost: list[Task] = []
-    options = {"workers": workers, "setup": set_torch_threads, "setup_args": (threads,)}
+    options = {"workers": workers, "setup": set_torch_threads, "setup_args": (threads,), "max_retries": max_retries}
     with make_executor(executor, address=address, **options) as pool:
         for task in tasks:
             pool.submit(runner, task, context)

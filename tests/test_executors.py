@@ -1,0 +1,200 @@
+"""ges_core.executors without Ray: the local executor (this process and a spawned pool), worker deaths, stopping
+early, choosing by name and the command-line options. Ray's executor: tests/test_executor_ray.py."""
+
+from __future__ import annotations
+
+import argparse
+import os
+import signal
+import sys
+import time
+from pathlib import Path
+
+import pytest
+
+import ges_core.cli as cli
+from ges_core.errors import BackendUnavailable, ConfigError, UnknownNameError
+from ges_core.executors import (
+    LocalExecutor,
+    TaskLostError,
+    add_executor_options,
+    executor_options,
+    make_executor,
+)
+
+
+# -- task doubles (module level: a spawned worker imports them) ---------------------------------------------------
+def square_with_pid(i: int) -> tuple[int, int]:
+    return i * i, os.getpid()
+
+
+def fail_on_three(i: int) -> int:
+    if i == 3:
+        raise ValueError(f"task {i} fails on purpose")
+    return i
+
+
+def die_on_victim(i: int, victim: int, marker_dir: str, times: int) -> tuple[int, int]:
+    """SIGKILL this worker process when ``i == victim``, on its first ``times`` attempts (counted by marker files)."""
+    if i == victim:
+        marks = Path(marker_dir)
+        done = len(list(marks.glob("attempt-*")))
+        (marks / f"attempt-{done}").touch()
+        if done < times:
+            os.kill(os.getpid(), signal.SIGKILL)
+    return i, os.getpid()
+
+
+def slow_marked(i: int, marker_dir: str) -> int:
+    (Path(marker_dir) / f"started-{i}").touch()
+    time.sleep(0.3)
+    return i
+
+
+_SETUP_CALLS: list[int] = []
+
+
+def record_setup(value: int) -> None:
+    _SETUP_CALLS.append(value)
+    os.environ["GES_TEST_SETUP"] = str(value)
+
+
+def read_setup(_: int) -> str | None:
+    return os.environ.get("GES_TEST_SETUP")
+
+
+def _run(executor, fn, items, *extra) -> dict:
+    with executor as ex:
+        tickets = {ex.submit(fn, i, *extra): i for i in items}
+        return {tickets[d.ticket]: d for d in ex.as_completed()}
+
+
+# -- this process -----------------------------------------------------------------------------------------------
+def test_one_worker_runs_in_this_process_and_reports_a_failing_task():
+    done = _run(LocalExecutor(), fail_on_three, range(5))
+    assert sorted(done) == [0, 1, 2, 3, 4]
+    assert [done[i].result() for i in (0, 1, 2, 4)] == [0, 1, 2, 4]
+    assert isinstance(done[3].error, ValueError) and not done[3].ok
+    with pytest.raises(ValueError, match="task 3 fails on purpose"):
+        done[3].result()
+
+
+def test_setup_runs_in_this_process_before_the_tasks(monkeypatch):
+    monkeypatch.delenv("GES_TEST_SETUP", raising=False)
+    _SETUP_CALLS.clear()
+    done = _run(LocalExecutor(setup=record_setup, setup_args=(7,)), read_setup, range(2))
+    assert _SETUP_CALLS == [7] and {d.value for d in done.values()} == {"7"}
+
+
+# -- a spawned pool ------------------------------------------------------------------------------------------------
+def test_pool_gives_the_same_values_from_other_processes():
+    here = _run(LocalExecutor(), square_with_pid, range(6))
+    pool = _run(LocalExecutor(workers=2), square_with_pid, range(6))
+    assert {i: d.value[0] for i, d in here.items()} == {i: d.value[0] for i, d in pool.items()}
+    assert {d.value[1] for d in here.values()} == {os.getpid()}
+    assert os.getpid() not in {d.value[1] for d in pool.values()}
+
+
+def test_pool_runs_setup_in_each_worker_and_reports_a_failing_task():
+    done = _run(LocalExecutor(workers=2, setup=record_setup, setup_args=(5,)), read_setup, range(3))
+    assert {d.value for d in done.values()} == {"5"}
+    failing = _run(LocalExecutor(workers=2), fail_on_three, range(5))
+    assert isinstance(failing[3].error, ValueError) and all(failing[i].ok for i in (0, 1, 2, 4))
+
+
+def test_a_killed_pool_worker_loses_no_task(tmp_path):
+    """The victim kills its worker on the first attempt: the broken pool is replaced and the lost calls rerun."""
+    done = _run(LocalExecutor(workers=2), die_on_victim, range(6), 2, str(tmp_path), 1)
+    assert all(d.ok for d in done.values()), {i: d.error for i, d in done.items()}
+    assert {i: d.value[0] for i, d in done.items()} == {i: i for i in range(6)}
+    assert done[2].attempts == 2 and len(list(tmp_path.glob("attempt-*"))) == 2
+
+
+def test_a_task_that_always_kills_its_worker_is_reported_lost_and_the_others_finish(tmp_path):
+    done = _run(LocalExecutor(workers=2, max_retries=1), die_on_victim, range(6), 2, str(tmp_path), 99)
+    # one death beside another call (no one charged), then two alone: the first attempt and max_retries=1
+    assert isinstance(done[2].error, TaskLostError) and done[2].attempts == 3
+    assert "died on each of 3 attempt(s)" in str(done[2].error) and "run the same command again" in str(done[2].error)
+    others = [i for i in range(6) if i != 2]
+    assert all(done[i].ok and done[i].value[0] == i for i in others)
+
+
+def test_stopping_early_starts_no_queued_task(tmp_path):
+    with LocalExecutor(workers=2) as ex:
+        for i in range(8):
+            ex.submit(slow_marked, i, str(tmp_path))
+        first = next(iter(ex.as_completed()))
+    assert first.ok
+    started = len(list(tmp_path.glob("started-*")))
+    assert 1 <= started <= 4, f"{started} of 8 tasks started after the consumer stopped at the first result"
+
+
+def test_submit_after_iterating_is_refused():
+    ex = LocalExecutor()
+    ex.submit(square_with_pid, 1)
+    list(ex.as_completed())
+    with pytest.raises(RuntimeError, match="submit every task before"):
+        ex.submit(square_with_pid, 2)
+
+
+# -- choosing an executor ---------------------------------------------------------------------------------------------
+def test_make_executor_by_name_and_its_errors():
+    assert isinstance(make_executor("local", workers=2), LocalExecutor)
+    with pytest.raises(UnknownNameError, match="Did you mean 'ray'"):
+        make_executor("rya")
+    with pytest.raises(ConfigError, match="names a Ray cluster but the executor is 'local'; add --executor ray"):
+        make_executor("local", address="ray://head:10001")
+    with pytest.raises(ConfigError, match="workers must be a whole number >= 1, got 0"):
+        make_executor("local", workers=0)
+
+
+def test_missing_ray_says_how_to_install_it(monkeypatch):
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` raises ImportError, as where it is not installed
+    with pytest.raises(BackendUnavailable, match=r"needs Ray.*pip install 'ges-unigrasp\[ray\]'"):
+        make_executor("ray")
+
+
+def test_cli_options_and_address_without_ray_executor(tmp_path, capsys):
+    parser = argparse.ArgumentParser()
+    add_executor_options(parser)
+    assert executor_options(parser.parse_args([])) == {"executor": "local", "address": None}
+    assert executor_options(parser.parse_args(["--executor", "ray", "--address", "auto"])) == {
+        "executor": "ray",
+        "address": "auto",
+    }
+    with pytest.raises(ConfigError, match="--address auto is the address of a Ray cluster: add --executor ray"):
+        executor_options(parser.parse_args(["--address", "auto"]))
+    out = tmp_path / "ds"
+    argv = ["synth", "--hands", "allegro", "--objects", "procedural/cube/000", "--out", str(out), "--address", "auto"]
+    assert cli.main(argv) == 1 and not out.exists()
+    assert "add --executor ray" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        cli.main(["retarget", "ds", "--from", "shadow", "--to", "allegro", "--executor", "dask"])
+    assert "invalid choice: 'dask'" in capsys.readouterr().err
+
+
+# -- the synthesis pipeline's use -------------------------------------------------------------------------------------
+def runner_killing_its_worker(task, context) -> list[tuple[int, str]]:
+    """Test double of run_task: SIGKILLs its worker on the task of the object "victim", every time."""
+    if any(oid == "victim" for oid, _ in task.pairs):
+        os.kill(os.getpid(), signal.SIGKILL)
+    return [(task.index, oid) for oid, _ in task.pairs]
+
+
+@pytest.mark.slow  # 4 pools of spawned workers, each importing torch (set_torch_threads): ~10 s, a minute when loaded
+def test_a_lost_synthesis_task_is_raised_after_every_other_tasks_records():
+    """Through run_synthesis's task loop: the victim's worker dies on every attempt (no retry here: each retry
+    costs a fresh pool whose workers import torch)."""
+    from ges_core.synthesis.run import pipeline
+    from ges_core.synthesis.run.tasks import plan_tasks
+
+    tasks, _ = plan_tasks(["a", "b", "victim", "c"], ["allegro"], 1, lambda oid, hand: False)
+    got = []
+    with pytest.raises(TaskLostError) as lost:
+        for records in pipeline._results(tasks, None, 2, runner=runner_killing_its_worker, max_retries=0):
+            got += records
+    assert sorted(got) == [(0, "a"), (1, "b"), (3, "c")]
+    assert "1 of 4 synthesis tasks were lost" in str(lost.value)
+    assert "objects not written: victim (allegro)" in str(lost.value) and "run the same command again" in str(
+        lost.value
+    )
