@@ -127,6 +127,7 @@ class GraspRunner(OnPolicyRunner):
         with torch.inference_mode():
             for _ in range(self.cfg["num_steps_per_env"]):
                 actions = self.alg.act(obs)
+                self._keep_finite_transition(actions)
                 obs, rewards, dones, extras = self.env.step(actions)
                 self.alg.process_env_step(obs, rewards, dones, extras)
                 self.logger.process_env_step(rewards, dones, extras, None)
@@ -142,14 +143,33 @@ class GraspRunner(OnPolicyRunner):
         self._after_iteration(it, counts, collect, learn)
         return obs
 
+    def _keep_finite_transition(self, actions: torch.Tensor) -> None:
+        """The env gets ``actions`` as they are (a NaN row ends that episode ``unstable``), but the rollout stores
+        the policy's mean (zeros where that is not finite either) with its log-probability in such a row: one NaN
+        sample would make the whole update NaN."""
+        bad = ~torch.isfinite(actions).all(dim=1)
+        if bool(bad.any()):
+            t = self.alg.transition
+            mean = torch.nan_to_num(self.alg.actor.output_mean.detach(), nan=0.0, posinf=0.0, neginf=0.0)
+            t.actions = torch.where(bad[:, None], mean, actions)
+            t.actions_log_prob = self.alg.actor.get_output_log_prob(t.actions).detach()
+
     def _guarded_update(self) -> dict:
-        """``alg.update()``; restore the weights from before it if it left any non-finite one (counted)."""
-        before = copy.deepcopy((self.alg.actor.state_dict(), self.alg.critic.state_dict()))
-        loss = self.alg.update()
-        params = [*self.alg.actor.parameters(), *self.alg.critic.parameters()]
-        if not all(torch.isfinite(p).all() for p in params):
-            self.alg.actor.load_state_dict(before[0])
-            self.alg.critic.load_state_dict(before[1])
+        """``alg.update()``; if it fails on a non-finite value or leaves a non-finite weight, the weights and the
+        optimizer's state from before it are restored and the update is counted in ``bad_updates``."""
+        alg = self.alg
+        before = copy.deepcopy((alg.actor.state_dict(), alg.critic.state_dict(), alg.optimizer.state_dict()))
+        try:
+            loss = alg.update()
+            params = [*alg.actor.parameters(), *alg.critic.parameters()]
+            finite = all(bool(torch.isfinite(p).all()) for p in params)
+        except (RuntimeError, ValueError):  # torch.normal with a NaN std, a NaN in a distribution's arguments
+            alg.storage.clear()
+            loss, finite = {}, False
+        if not finite:
+            alg.actor.load_state_dict(before[0])
+            alg.critic.load_state_dict(before[1])
+            alg.optimizer.load_state_dict(before[2])
             self.totals["bad_updates"] += 1
         return loss
 
@@ -157,11 +177,13 @@ class GraspRunner(OnPolicyRunner):
         """Prime the observation normalizers with ``normalizer_warmup`` steps of the initial policy (not learned
         from; the episodes go on from there)."""
         steps = self.settings.ppo.normalizer_warmup
-        with torch.inference_mode():
-            for _ in range(steps):
+        for _ in range(steps):  # no inference_mode: the statistics it wrote could not be loaded or restored later
+            with torch.no_grad():
                 self.alg.actor.update_normalization(obs)
                 self.alg.critic.update_normalization(obs)
                 obs, _, _, _ = self.env.step(self.alg.actor(obs, stochastic_output=True))
+            for model in (self.alg.actor, self.alg.critic):
+                _floor_std(model)
         self.totals["env_steps"] += steps * self.env.num_envs
         return obs
 
@@ -265,6 +287,21 @@ class GraspRunner(OnPolicyRunner):
         self.logger.tot_timesteps = state["logger"]["tot_timesteps"]
         self.logger.tot_time = state["logger"]["tot_time"]
         self.warmed = True
+
+
+STD_FLOOR = 0.1
+"""Smallest standard deviation the normalizer keeps after the warm-up, in each feature's unit. A feature constant
+during the warm-up (contact flags and tip forces before any touch) has std 0 and would be divided by rsl-rl's eps
+(0.01) once it moves: inputs of 100 and more, policy means of 20-40 after a 2-env warm-up (test_train_expert)."""
+
+
+def _floor_std(model) -> None:
+    """Raise the running std (and variance) of ``model``'s observation normalizer to at least :data:`STD_FLOOR`."""
+    norm = getattr(model, "obs_normalizer", None)
+    if norm is None or not hasattr(norm, "_var"):
+        return
+    norm._var.clamp_(min=STD_FLOOR**2)
+    norm._std.copy_(norm._var.sqrt())
 
 
 def _num(value: float) -> float | None:

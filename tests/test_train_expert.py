@@ -1,0 +1,191 @@
+"""``ges train-expert``: a real (tiny) PPO run on the test dataset's grasps in SAPIEN: checkpoints, resume, seeded
+repeat, the checkpoint as an Expert, NaN actions, residual mode, a kill while writing a checkpoint."""
+
+from __future__ import annotations
+
+import json
+import os
+
+import numpy as np
+import pytest
+import torch
+
+from ges_core.cli import main
+from ges_core.clustering import ClusterMember, Clusters, save_clusters
+from ges_core.errors import ConfigError
+from ges_core.policy import ExpertContext
+from ges_core.registry import load_registry
+from ges_core.training.checkpoint import latest_loadable, read_checkpoint, write_checkpoint
+from ges_core.training.config import PRESETS, load_train_config
+from ges_core.training.run import train_expert
+
+pytestmark = pytest.mark.sim
+DATASET = os.path.join(os.path.dirname(__file__), "data", "dataset_v2")
+FAST = [
+    "num_envs=2", "ppo.num_steps_per_env=4", "ppo.normalizer_warmup=1", "ppo.actor_hidden=[32, 32]",
+    "ppo.critic_hidden=[32, 32]", "ppo.num_mini_batches=2", "env.reach_steps=4", "env.settle_steps=1",
+    "curriculum.max_iterations=1", "checkpoint_interval=1", "hand=allegro", "sim=sapien",
+]  # fmt: skip
+"""A PPO run of a few seconds: 2 envs x 4 steps per iteration, small networks, a short reach."""
+
+
+@pytest.fixture(scope="module")
+def clusters(tmp_path_factory) -> Clusters:
+    """Both training objects of the test dataset in cluster 0 (the box nearer its centre), hand-written."""
+    members = {
+        oid: ClusterMember(
+            object_id=oid,
+            category=oid.split("/")[1],
+            split="train",
+            cluster=0,
+            assigned_by="category",
+            features=np.array([d]),
+            distance=d,
+            nearest_cluster=0,
+        )  # fmt: skip
+        for oid, d in (("procedural/box/000", 0.1), ("procedural/sphere/000", 0.5))
+    }
+    c = Clusters(k=2, seed=0, feature_names=("f",), mean=np.zeros(1), std=np.ones(1), centres=np.zeros((2, 1)),
+                 kmeans_centres=np.zeros((2, 1)), objects=members, categories={"box": 0, "sphere": 0})  # fmt: skip
+    save_clusters(c, tmp_path_factory.mktemp("clusters") / "clusters.json")
+    return c
+
+
+def _train(out, clusters, *extra, resume=False, **kw):
+    cfg = load_train_config("tiny", overrides=[*FAST, *extra])
+    return train_expert(DATASET, cfg, out, registry=load_registry(), clusters=clusters, resume=resume, progress=False,
+                        **kw)  # fmt: skip
+
+
+def _weights(path) -> dict[str, torch.Tensor]:
+    return read_checkpoint(path)["actor_state_dict"]
+
+
+def test_run_checkpoint_resume_and_curriculum(tmp_path, clusters) -> None:
+    out = tmp_path / "run"
+    first = _train(out, clusters, "iterations=2")
+    assert first.iterations == 2 and first.env_steps == 2 * 4 * 2 + 2 * 1  # + the normalizer warm-up step
+    assert [json.loads(line)["iteration"] for line in (out / "history.jsonl").read_text().splitlines()] == [1, 2]
+    # stage 1 holds the box (ceil(0.3 x 2) = 1 object), the cap of 1 iteration promoted to 2, then to 3
+    assert [p.split(":")[0] for p in first.promotions] == ["iteration 1", "iteration 2"]
+    assert (out / "curriculum.log").read_text().count("curriculum stage") == 2
+    ckpt = read_checkpoint(out / "checkpoints" / "last.pt")
+    assert ckpt["iter"] == 2 and ckpt["ges"]["state"]["curriculum"]["index"] == 2
+    assert ckpt["ges"]["made_for"]["hand"] == "allegro" and ckpt["ges"]["objects"] == sorted(ckpt["ges"]["objects"])
+    before = _weights(out / "checkpoints" / "model_2.pt")
+    with pytest.raises(ConfigError, match="pass --resume"):
+        _train(out, clusters, "iterations=3")
+    again = _train(out, clusters, "iterations=3", resume=True)
+    assert again.iterations == 3 and again.resumed_from.endswith("last.pt") and again.stage == 3
+    assert read_checkpoint(out / "checkpoints" / "last.pt")["iter"] == 3
+    assert [json.loads(x)["iteration"] for x in (out / "history.jsonl").read_text().splitlines()] == [1, 2, 3]
+    after = _weights(out / "checkpoints" / "model_3.pt")
+    assert any(not torch.equal(before[k], after[k]) for k in before)  # the resumed iteration learned
+    assert {p.name for p in (out / "logs").iterdir() if p.name.startswith("events")}  # TensorBoard files
+
+
+def test_seeded_runs_repeat_exactly(tmp_path, clusters) -> None:
+    runs = [_train(tmp_path / name, clusters, "iterations=2", f"seed={seed}") for name, seed in
+            (("a", 3), ("b", 3), ("c", 4))]  # fmt: skip
+    a, b, c = (_weights(r.checkpoint) for r in runs)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert any(not torch.equal(a[k], c[k]) for k in a)
+
+
+def test_checkpoint_is_an_expert_and_refuses_another_hand(tmp_path, clusters) -> None:
+    from helpers_env import build_grasp_env
+
+    run = _train(tmp_path / "run", clusters, "iterations=1")
+    reg = load_registry()
+    env = build_grasp_env("sapien", 2, reach_steps=2, settle_steps=1)
+    env.reset_all()
+    expert = reg.build_expert("ppo", ExpertContext.of_env(env, registry=reg), checkpoint=run.checkpoint)
+    obs = env.observe()[0]
+    act = expert.act(obs)
+    assert act.shape == (2, 22) and torch.isfinite(act).all() and act.abs().max() <= 1.0
+    assert torch.equal(act, expert.act(obs))  # deterministic: the Gaussian's mean
+    env.close()
+    shadow = reg.build_hand("shadow")
+    sim = reg.build_sim("sapien")
+    from helpers_env import grasp_targets
+
+    from ges_core.env.grasp_env import EnvConfig, GraspEnv
+    from ges_core.objects.simple import box_asset
+
+    env = GraspEnv(sim, shadow, box_asset(), grasp_targets(shadow, 1), EnvConfig())
+    with pytest.raises(ConfigError, match=r"made for hand 'allegro'.*this environment has hand 'shadow'"):
+        reg.build_expert("ppo", ExpertContext.of_env(env), checkpoint=run.checkpoint)
+    env.close()
+
+
+def test_nan_actions_end_episodes_and_training_goes_on(tmp_path, clusters, monkeypatch) -> None:
+    """A policy output of NaN in one env: that episode ends unstable, the run counts it, and the rollout stores a
+    finite action in its place, so the update stays finite and the run finishes."""
+    from ges_core.training import runner as runner_mod
+
+    original = runner_mod.GraspRunner._iteration
+    injected = {"done": False}
+
+    def nan_once(self, *args):
+        act = self.alg.act
+
+        def poisoned(obs):
+            a = act(obs)
+            if not injected["done"]:
+                a[0] = float("nan")
+                injected["done"] = True
+            return a
+
+        monkeypatch.setattr(self.alg, "act", poisoned)
+        return original(self, *args)
+
+    monkeypatch.setattr(runner_mod.GraspRunner, "_iteration", nan_once)
+    run = _train(tmp_path / "run", clusters, "iterations=2", "curriculum.enabled=false")
+    assert run.nan_actions == 1 and run.bad_updates == 0 and run.iterations == 2
+    rows = [json.loads(x) for x in (tmp_path / "run" / "history.jsonl").read_text().splitlines()]
+    assert rows[0]["nan_actions"] == 1 and rows[0]["reasons"].get("unstable", 0) >= 1
+    assert all(torch.isfinite(w).all() for w in _weights(run.checkpoint).values())
+
+
+def test_residual_mode_starts_at_the_scripted_expert(tmp_path, clusters) -> None:
+    from helpers_env import build_grasp_env
+
+    run = _train(tmp_path / "run", clusters, "iterations=1", "action_mode=residual", "ppo.learning_rate=1e-9",
+                 "ppo.schedule=fixed")  # fmt: skip
+    reg = load_registry()
+    env = build_grasp_env("sapien", 2, reach_steps=2, settle_steps=1)
+    env.reset_all()
+    ctx = ExpertContext.of_env(env, registry=reg)
+    residual = reg.build_expert("ppo", ctx, checkpoint=run.checkpoint)
+    scripted = reg.build_expert("scripted", ctx)
+    obs = env.observe()[0]
+    assert residual.residual and torch.allclose(residual.act(obs), scripted.act(obs), atol=1e-4)
+    env.close()
+
+
+def test_a_kill_while_writing_leaves_the_previous_checkpoint(tmp_path, monkeypatch) -> None:
+    folder = tmp_path / "checkpoints"
+    good = {"ges": {"format": "ges.ppo_expert", "version": 1}, "iter": 1}
+    write_checkpoint(folder, good, 1, keep=3)
+
+    def killed(*args, **kwargs):
+        raise KeyboardInterrupt  # the process stops in the middle of writing the new file
+
+    monkeypatch.setattr(os, "fsync", killed)
+    with pytest.raises(KeyboardInterrupt):
+        write_checkpoint(folder, {**good, "iter": 2}, 2, keep=3)
+    monkeypatch.undo()
+    assert read_checkpoint(folder / "last.pt")["iter"] == 1 and not list(folder.glob(".*.tmp"))
+    (folder / "last.pt").write_bytes(b"half a file")  # a file system without atomic renames
+    path, data = latest_loadable(folder)
+    assert path.name == "model_1.pt" and data["iter"] == 1
+
+
+def test_presets_load_and_cli_errors(tmp_path, capsys) -> None:
+    for name in PRESETS:
+        assert load_train_config(name).preset == name
+    with pytest.raises(ConfigError, match="unknown training preset 'huge'"):
+        load_train_config("huge")
+    code = main(["train-expert", DATASET, "--out", str(tmp_path / "x"), "--no-progress", "--clusters",
+                 str(tmp_path / "none.json")])  # fmt: skip
+    assert code == 1 and "run 'ges cluster DATASET' first" in capsys.readouterr().err
