@@ -291,3 +291,42 @@ def test_page_in_headless_chromium_shows_the_scene(chromium, viewer, tmp_path):
     finally:
         for part in PARTS:
             viewer.set_visible(part, True)
+
+
+def test_browsing_by_split(tmp_path):
+    """A dataset with the box in 'train' and the sphere in 'unseen_object': the split lists and the viewer follow."""
+    source = ViewerData(DATASET).dataset
+    with DatasetWriter(tmp_path / "ds", source.run_config) as writer:
+        for record in source:
+            split = "train" if record.object_id == BOX else "unseen_object"
+            writer.add(dataclasses.replace(record, split=split, run_config_hash=None))
+    data = ViewerData(tmp_path / "ds")
+    assert data.splits() == ["train", "unseen_object"]
+    assert data.objects("unseen_object") == ["procedural/sphere/000"] and data.objects("train") == [BOX]
+    assert data.objects() == [BOX, "procedural/sphere/000"] and data.hands(BOX) == ["allegro", "shadow"]
+    pytest.importorskip("viser", reason="the viewer's server needs viser: pip install 'ges-unigrasp[view]'")
+    from ges_core.viewer import start
+
+    viewer = start(tmp_path / "ds", port=free_port(), initial=(BOX, "shadow"))
+    try:
+        viewer._split.value = "unseen_object"
+        viewer._on_split()  # what the dropdown's callback runs
+        assert viewer.shown == ("procedural/sphere/000", "shadow")
+        viewer.step(+1)  # the only object of the split: stays
+        assert viewer.shown == ("procedural/sphere/000", "shadow")
+        assert viewer._object.options == ("procedural/sphere/000",)
+        assert "object 1 of 1 · also: allegro" in viewer._position.content
+    finally:
+        viewer.server.stop()
+
+
+def test_canvas_pixels_tells_object_hand_and_background_apart():
+    from ges_core.render.base import HAND_COLOR
+    from ges_core.viewer.chromium import VIEWER_PANEL_PX, canvas_pixels
+
+    rgb = np.full((600, 960, 3), 255, dtype=np.uint8)
+    rgb[300:320, 400:450] = [round(255 * c) for c in OBJECT_COLOR]  # 1000 object pixels
+    rgb[400:420, 400:500] = [round(255 * c) for c in HAND_COLOR]  # 2000 hand pixels
+    rgb[500:510, 400:500] = 235  # 1000 table-grey pixels: scene, neither object nor hand
+    rgb[:, 960 - VIEWER_PANEL_PX :] = [20, 20, 200]  # the side panel is not canvas
+    assert canvas_pixels(rgb) == {"scene": 4000, "object": 1000, "hand": 2000}
