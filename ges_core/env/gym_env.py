@@ -4,7 +4,8 @@ Observation: ``Box(-inf, inf, (obs size,), float32)`` in :class:`~ges_core.env.l
 order; action: ``Box(-1, 1, (K + 6,), float32)`` in :class:`~ges_core.env.layout.ActionLayout` order.
 ``reset()`` is a full reset (stage one included, :meth:`GraspEnv.reset_all`). An episode ends
 ``terminated`` on success, dropped or unstable and ``truncated`` on not_lifted or timeout (the episode
-limit). The environment draws no random numbers yet: ``seed`` only seeds ``self.np_random``.
+limit). ``reset(seed=...)`` seeds ``self.np_random`` and restarts the environment's randomization and pool-draw
+streams from ``seed`` (:meth:`GraspEnv.reseed`); without a seed they go on.
 
 A NaN or inf in the action ends the episode ``terminated`` as ``unstable`` (reward 0, ``info["nan_action"]``
 True); a non-numeric action is an ArrayError; after :meth:`GraspGymEnv.close` ``step`` and ``reset`` raise
@@ -67,6 +68,8 @@ class GraspGymEnv(gym.Env[np.ndarray, np.ndarray]):
         self.env.check_open("GraspGymEnv.reset")
         if options:
             raise ConfigError(f"GraspGymEnv.reset: unknown options {sorted(options)}; it takes none")
+        if seed is not None:
+            self.env.reseed(seed)
         self.env.reset_all()
         self.metrics.reset(torch.arange(1))
         self._t, self._ended = 0, None
