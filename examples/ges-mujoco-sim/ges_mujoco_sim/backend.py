@@ -5,8 +5,9 @@ Every env holds its own ``MjData``; envs holding the same object share one compi
 object and moves those envs onto it, hand state and targets kept. Poses are wxyz as in MuJoCo, joint vectors
 in the hand's ``joint_names`` order (MuJoCo's depth-first order is mapped once, ``idx_sim_to_hand``).
 
-Reads: link poses come from ``mj_kinematics`` run lazily on the present state (``mj_step`` leaves the frames
-of the state before its integration); contact forces are the last step's (:mod:`.contacts`). A teleport
+A scene step (``config.timestep``) is ``substeps`` MuJoCo steps (:data:`DEFAULT_SUBSTEPS`). Reads: link poses
+come from ``mj_kinematics`` run lazily on the present state (``mj_step`` leaves the frames of the state before
+its integration); contact forces are the mean over the last scene step's substeps (:mod:`.contacts`). A teleport
 clears that env's solver warm start, so what happens next depends on the commands only, not on what came
 before (an env restored after a blow-up evolves like one that never blew up). A blown env is rebuilt by
 ``mj_resetData`` before the core resets it.
@@ -25,7 +26,7 @@ from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import ContactPair, SceneConfig, SimBackend
 from ges_core.urdf import absolutize_mesh_paths, add_floating_base, neighbour_link_pairs, root_link, strip_render_data
 
-from .contacts import contact_pairs, link_forces
+from .contacts import add_substep_forces, contact_pairs, link_forces
 from .model import HandSetup, SceneModel, build_scene
 from .shapes import lowest_point
 
@@ -77,6 +78,8 @@ class MujocoBackend(SimBackend):
         self._keys: list[_Key] = [None] * n
         self._scenes: list[SceneModel] = [self._model(None)] * n
         self._data = [mujoco.MjData(self._scenes[0].model) for _ in range(n)]
+        self._forces = [_force_table(self._scenes[0].model) for _ in range(n)]
+        """Per env, (nbody, nbody, 3) contact forces summed over the last scene step's substeps (:mod:`.contacts`)."""
         self._posed = [False] * n
         """Whether each env's frames (xpos, xquat) match its present qpos."""
         self._targets = np.zeros((n, 0))
@@ -102,6 +105,7 @@ class MujocoBackend(SimBackend):
         self._check_open()
         for e, (scene, data) in enumerate(zip(self._scenes, self._data, strict=True)):
             mujoco.mj_step(scene.model, data, self.substeps)
+            self._forces[e].fill(0.0)  # a raw step keeps no contact forces
             self._posed[e] = False
 
     # -- building ------------------------------------------------------------------------------
@@ -180,9 +184,13 @@ class MujocoBackend(SimBackend):
     def _step(self, n: int) -> dict[int, str]:
         """Every env ``n`` steps, each checked after every step; an env that blew up is not stepped further."""
         blown: dict[int, str] = {}
-        for e, (scene, data) in enumerate(zip(self._scenes, self._data, strict=True)):
+        for e, (scene, data, forces) in enumerate(zip(self._scenes, self._data, self._forces, strict=True)):
+            model = scene.model
             for _ in range(n):
-                mujoco.mj_step(scene.model, data, self.substeps)
+                forces.fill(0.0)
+                for _ in range(self.substeps):
+                    mujoco.mj_step(model, data)
+                    add_substep_forces(model, data, forces)
                 problem = _state_problem(e, scene, data)
                 if problem is not None:
                     blown[e] = problem
@@ -215,13 +223,10 @@ class MujocoBackend(SimBackend):
 
     def _contact_forces(self, links: Sequence[str], partner: str) -> np.ndarray:
         ids = self._resolve_links(links)
-        unique = list(dict.fromkeys(ids))
-        slots = {b: i for i, b in enumerate(unique)}
-        rows = [unique.index(b) for b in ids]
         out = np.empty((self.num_envs, len(ids), 3))
-        for e, (scene, data) in enumerate(zip(self._scenes, self._data, strict=True)):
-            partners = None if partner == "any" else frozenset([0 if partner == "table" else scene.object_body])
-            out[e] = link_forces(scene.model, data, slots, partners, len(unique))[rows]
+        for e, (scene, forces) in enumerate(zip(self._scenes, self._forces, strict=True)):
+            partners = None if partner == "any" else [0 if partner == "table" else scene.object_body]
+            out[e] = link_forces(forces, ids, partners, self.substeps)
         return out
 
     def _object_pose(self) -> np.ndarray:
@@ -274,6 +279,7 @@ class MujocoBackend(SimBackend):
                 data.mocap_pos[scene.root_mocap] = old.mocap_pos[old_scene.root_mocap]
                 data.mocap_quat[scene.root_mocap] = old.mocap_quat[old_scene.root_mocap]
         self._scenes[e], self._data[e], self._keys[e] = scene, data, key
+        self._forces[e] = _force_table(scene.model)
         self._posed[e] = False
         self._send_targets([e])
 
@@ -316,6 +322,11 @@ class MujocoBackend(SimBackend):
                     raise UnknownNameError("hand link", name, known)
             self._link_cache[key] = [known[name] for name in key]
         return self._link_cache[key]
+
+
+def _force_table(model: mujoco.MjModel) -> np.ndarray:
+    """An empty (nbody, nbody, 3) contact-force table for ``model``."""
+    return np.zeros((model.nbody, model.nbody, 3))
 
 
 def _state_problem(env: int, scene: SceneModel, data: mujoco.MjData) -> str | None:
