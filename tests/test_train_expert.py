@@ -189,3 +189,24 @@ def test_presets_load_and_cli_errors(tmp_path, capsys) -> None:
     code = main(["train-expert", DATASET, "--out", str(tmp_path / "x"), "--no-progress", "--clusters",
                  str(tmp_path / "none.json")])  # fmt: skip
     assert code == 1 and "run 'ges cluster DATASET' first" in capsys.readouterr().err
+
+
+def test_an_update_that_diverges_is_undone(tmp_path, clusters, monkeypatch) -> None:
+    """An update leaving a NaN weight: the weights from before it come back, the run counts it and goes on."""
+    from rsl_rl.algorithms import PPO
+
+    original = PPO.update
+    calls = {"n": 0}
+
+    def diverging(self):
+        loss = original(self)
+        calls["n"] += 1
+        if calls["n"] == 1:
+            with torch.no_grad():
+                next(self.actor.parameters()).fill_(float("nan"))
+        return loss
+
+    monkeypatch.setattr(PPO, "update", diverging)
+    run = _train(tmp_path / "run", clusters, "iterations=2", "curriculum.enabled=false")
+    assert run.bad_updates == 1 and run.iterations == 2 and calls["n"] == 2
+    assert all(torch.isfinite(w).all() for w in _weights(run.checkpoint).values())
