@@ -5,7 +5,6 @@
 
 from __future__ import annotations
 
-import logging
 from dataclasses import replace
 from pathlib import Path
 
@@ -16,8 +15,6 @@ from ges_core.clustering.store import Clusters, clusters_path, save_clusters
 from ges_core.errors import AssetError
 
 __all__ = ["cluster_dataset", "dataset_objects"]
-
-_LOG = logging.getLogger(__name__)
 
 
 def dataset_objects(dataset) -> list[tuple[str, str, str]]:
@@ -69,8 +66,7 @@ def _features(
                     f"cannot compute the shape features of '{oid}': {exc}. Pass --skip-bad (ClusterConfig.skip_bad) "
                     "to leave such objects out; they are then listed under 'skipped' in the clusters file"
                 ) from exc
-            skipped[oid] = str(exc)
-            _LOG.warning("left out %s: %s", oid, exc)
+            skipped[oid] = str(exc)  # the caller reports them (`ges cluster` prints each)
             continue
         shapes.append(ObjectShape(oid, category, split, features))
     return shapes, skipped
