@@ -11,6 +11,7 @@ import signal
 import socket
 import subprocess
 import sys
+import threading
 import time
 import urllib.request
 import xml.etree.ElementTree as ET
@@ -215,6 +216,8 @@ def test_command_prints_the_url_and_stops_on_ctrl_c():
     env = {**os.environ, "OMP_NUM_THREADS": "1"}
     cmd = [sys.executable, "-m", "ges_core.cli", "view", str(DATASET), "--port", str(port)]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env, cwd=REPO)
+    watchdog = threading.Timer(120, proc.kill)  # a server that never prints its URL fails the test, not hangs it
+    watchdog.start()
     try:
         line = ""
         while "ges view:" not in line:
@@ -227,6 +230,7 @@ def test_command_prints_the_url_and_stops_on_ctrl_c():
         assert proc.wait(timeout=30) == 0
         assert "ges view: stopped" in proc.stdout.read()
     finally:
+        watchdog.cancel()
         if proc.poll() is None:
             proc.kill()
             proc.wait()
@@ -315,7 +319,7 @@ def test_browsing_by_split(tmp_path):
         viewer.step(+1)  # the only object of the split: stays
         assert viewer.shown == ("procedural/sphere/000", "shadow")
         assert viewer._object.options == ("procedural/sphere/000",)
-        assert "object 1 of 1 · also: allegro" in viewer._position.content
+        assert "object 1 of 1 · also: allegro (same contacts)" in viewer._position.content
     finally:
         viewer.server.stop()
 

@@ -16,7 +16,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "(needs the [view] extra: viser)",
     )
     p.add_argument("path", type=Path, metavar="DATASET", help="dataset folder (holds manifest.json)")
-    p.add_argument("--port", type=int, default=8080, help="port to serve on (default 8080; taken: the next free one)")
+    p.add_argument("--port", type=_port, default=8080, help="port to serve on (default 8080; taken: the next free one)")
     p.add_argument("--host", default="127.0.0.1", help="address to listen on (default 127.0.0.1; 0.0.0.0: all)")
     p.add_argument("--object", metavar="ID", help="object shown first (default: the first one)")
     p.add_argument("--hand", metavar="NAME", help="hand shown first (default: the object's first hand)")
@@ -54,6 +54,17 @@ def run_view(args: argparse.Namespace) -> int:
         viewer.server.stop()
     print(f"wrote {args.screenshot} ({viewer.shown[0]}, hand {viewer.shown[1]})")
     return 0
+
+
+def _port(text: str) -> int:
+    """A TCP port number, 1-65535."""
+    try:
+        port = int(text)
+    except ValueError:
+        port = 0
+    if not 1 <= port <= 65535:
+        raise argparse.ArgumentTypeError(f"a port is a whole number from 1 to 65535, got '{text}'")
+    return port
 
 
 def _registry(args: argparse.Namespace):

@@ -27,8 +27,8 @@ PARTS = {
 }
 """Checkbox label -> scene-name prefixes it shows or hides."""
 _CAMERA_DISTANCE = 2.8
-"""Camera distance in scene radii: with viser's default 50° field of view the object and fingers fill about
-two thirds of the view's height."""
+"""Camera distance in scene radii: with viser's default 75° vertical field of view the scene's sphere spans
+2 asin(1 / 2.8) = 42°, a bit over half the view's height (room for the hand around the fingers)."""
 
 
 class GraspViewer:
@@ -181,11 +181,19 @@ class GraspViewer:
         finally:
             self._syncing = False
         self._other.disabled = len(hands) < 2
-        others = [h for h in hands if h != hand]
-        mate = f" · also: {', '.join(others)}" if others else " · no other hand has a record of it"
+        others = [self._mate(object_id, hand, h) for h in hands if h != hand]
+        mate = f" · also: {'; '.join(others)}" if others else " · no other hand has a record of it"
         self._position.content = f"object {objects.index(object_id) + 1} of {len(objects)}{mate}"
         self._figures.content = record_markdown(self.data.record(object_id, hand))
         self._notes.content = "\n\n".join(f"⚠ {n}" for n in self.scene.notes)
+
+    def _mate(self, object_id: str, hand: str, other: str) -> str:
+        """``other`` and how its contacts on the object compare with ``hand``'s."""
+        gap = self.data.contacts_gap(object_id, hand, other)
+        if gap is None:
+            return f"{other} (contacts of one of the two missing)"
+        # 1e-9 m: equal up to float rounding (a retargeted record copies its source's contacts exactly)
+        return f"{other} (same contacts)" if gap < 1e-9 else f"{other} (contacts up to {1000 * gap:.1f} mm apart)"
 
     def _frame_camera(self, scene: Scene) -> None:
         """Aim the initial camera (and every connected client's) at the scene's centre."""

@@ -82,6 +82,13 @@ class ViewerData:
                 return e
         raise KeyError(f"dataset {self.root} holds no record of object '{object_id}' with hand '{hand}'")
 
+    def contacts_gap(self, object_id: str, hand: str, other: str) -> float | None:
+        """Largest distance (m) between the contacts of two hands' records of one object; None if one has none."""
+        a, b = self.record(object_id, hand).contacts, self.record(object_id, other).contacts
+        if a is None or b is None:
+            return None
+        return float(np.linalg.norm(a.positions - b.positions, axis=1).max())
+
     # -- what one record needs ------------------------------------------------------------
     def record(self, object_id: str, hand: str) -> GraspRecord:
         """The record of (object, hand), read once."""
