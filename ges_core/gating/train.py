@@ -1,8 +1,10 @@
 """Training a torch gate with the paper's KL loss: seeded batches, validation split, TensorBoard curves.
 
 One epoch: the training objects in a seeded random order, in batches of ``batch_size`` to
-``2 batch_size - 1`` (BatchNorm needs 2+ objects per batch), each cloud augmented anew; then the loss and
-the gate accuracy of the training and validation objects, unaugmented, in eval mode. Repeatable on CPU:
+``2 batch_size - 1`` (BatchNorm needs 2+ objects per batch), each cloud augmented anew (``loss/train`` is
+the mean of these batch losses); then the loss and the gate accuracy of the training and validation
+objects, unaugmented, in eval mode (``loss/train_eval``, ``accuracy/train``, ``loss/val``, ``accuracy/val``).
+Repeatable on CPU:
 the same data, settings and seed give identical weights (torch's CPU kernels used here are deterministic).
 """
 
@@ -74,7 +76,8 @@ class TrainResult:
     dropped_ids: list[str]
     """Objects left out because every expert failed (all_failed = drop)."""
     history: list[dict[str, float]] = field(default_factory=list)
-    """Per epoch: epoch, loss/train, loss/val, accuracy/train, accuracy/val, lr."""
+    """Per epoch: epoch, lr, loss/train (mean over the epoch's batches, train mode, augmented: the objective),
+    loss/train_eval, accuracy/train, loss/val, accuracy/val (eval mode, unaugmented; val NaN without a split)."""
     kept_epoch: int = 0
 
     def summary(self) -> dict:
@@ -126,8 +129,13 @@ def train_model(
             lr = _cosine_lr(config, epoch)
             for group in optim.param_groups:
                 group["lr"] = lr
-            _epoch(model, optim, data.clouds, target, train_rows, config, gen)
-            row = {"epoch": epoch, "lr": lr, **_scores(model, data, target, train_rows, "train")}
+            row = {
+                "epoch": epoch,
+                "lr": lr,
+                "loss/train": _epoch(model, optim, data.clouds, target, train_rows, config, gen),
+            }
+            row.update(_scores(model, data, target, train_rows, "train_eval"))
+            row["accuracy/train"] = row.pop("accuracy/train_eval")
             row.update(_scores(model, data, target, val_rows, "val"))
             result.history.append(row)
             _log(writer, row)
@@ -139,6 +147,11 @@ def train_model(
     finally:
         if writer is not None:
             writer.close()
+    if best is None:
+        raise ConfigError(
+            f"gate training diverged: the {'validation' if len(val_rows) else 'training'} loss was never finite; "
+            "lower train.lr or check the clouds"
+        )
     model.load_state_dict(best)
     model.eval()
     return result
@@ -156,14 +169,18 @@ def _batches(rows: np.ndarray, batch_size: int, gen: torch.Generator) -> list[np
     return np.array_split(order, max(1, len(rows) // batch_size))
 
 
-def _epoch(model, optim, clouds, target, rows, config: TrainConfig, gen: torch.Generator) -> None:
+def _epoch(model, optim, clouds, target, rows, config: TrainConfig, gen: torch.Generator) -> float:
+    """One pass over ``rows``; returns the mean of the batches' losses (train mode, augmented: what is minimized)."""
     model.train()
+    total = 0.0
     for batch in _batches(rows, config.batch_size, gen):
         idx = torch.from_numpy(batch)
         loss = kl_loss(model(augment(clouds[idx], config.augment, gen)), target[idx])
         optim.zero_grad(set_to_none=True)
         loss.backward()
         optim.step()
+        total += float(loss.detach()) * len(batch)
+    return total / len(rows)
 
 
 def _scores(model, data: GateData, target, rows: np.ndarray, split: str) -> dict[str, float]:

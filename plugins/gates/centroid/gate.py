@@ -65,8 +65,11 @@ def cloud_features(points: np.ndarray, object_id: str = "?") -> np.ndarray:
     the points is the mesh (module docstring). ArrayError naming the object for a flat or degenerate cloud."""
     from ges_core.clustering import FEATURE_NAMES, shape_features
 
+    points = np.asarray(points, dtype=np.float64)
+    # sorted first: qhull's triangulation, and with it trimesh's oriented box, depends on the input order
+    points = points[np.lexsort(points.T[::-1])]
     try:
-        hull = trimesh.convex.convex_hull(np.asarray(points, dtype=np.float64))
+        hull = trimesh.convex.convex_hull(points)
     except Exception as exc:  # noqa: BLE001 - qhull raises its own error types for flat input
         raise ArrayError(f"object '{object_id}': no convex hull of its cloud ({exc}); is it flat or a line?") from exc
     features = shape_features(hull, points, volume=float(hull.volume))

@@ -1,0 +1,306 @@
+"""Gates (issue 14): the three plugins, the KL training, checkpoints and bad input.
+
+Data: real surface clouds of procedural library objects; the "success rates" are a geometric rule on
+their real sizes (expert "small" wins below the 1/3 quantile of the longest side, "large" above 2/3,
+"medium" between), so a gate has something real to learn without PPO experts. Models are tiny (settings).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import scipy.stats
+import torch
+import torch.nn.functional as F
+
+from ges_core.errors import ArrayError, ConfigError
+from ges_core.gating import (
+    AugmentConfig,
+    GateData,
+    ResampledCloudWarning,
+    SuccessRates,
+    TrainConfig,
+    augment,
+    fit_cloud,
+    gate_accuracy,
+    kl_loss,
+    library_clouds,
+    load_gate,
+    split_indices,
+    targets,
+)
+from ges_core.gating.ops import ball_query, farthest_point_sample, knn
+from ges_core.registry import load_registry
+
+N_POINTS = 128
+TINY = {
+    "curvenet": {
+        "n_points": N_POINTS,
+        "k": 8,
+        "stem": 8,
+        "stages": [
+            {"channels": 16, "points": None, "radius": 0.2, "curves": [8, 4]},
+            {"channels": 16, "points": 32, "radius": 0.5, "curves": None},
+        ],
+        "embed": 32,
+        "head": [16],
+    },
+    "pointnet2": {
+        "n_points": N_POINTS,
+        "levels": [{"centres": 32, "radius": 0.3, "group": 8, "mlp": [16, 16]}],
+        "global_mlp": [32],
+        "head": [16],
+    },
+    "centroid": {"n_points": N_POINTS},
+}
+EXPERTS = ("small", "medium", "large")
+FAST = TrainConfig(epochs=2, batch_size=8, val_fraction=0.25)
+
+
+@pytest.fixture(scope="module")
+def registry():
+    return load_registry()
+
+
+@pytest.fixture(scope="module")
+def data() -> GateData:
+    """24 procedural objects (3 per category), their clouds and size-rule success rates."""
+    from ges_core.objects.library import LibraryConfig, ObjectLibrary
+
+    library = ObjectLibrary(LibraryConfig(sources=("procedural",), procedural_count=3))
+    ids = [o.object_id for o in library.list()][:24]
+    size = np.array([library.extents(i).max() for i in ids])
+    lo, hi = np.quantile(size, [1 / 3, 2 / 3])
+    best = np.where(size < lo, 0, np.where(size < hi, 1, 2))
+    rates = np.full((len(ids), 3), 0.1)
+    rates[np.arange(len(ids)), best] = 0.9
+    return GateData(SuccessRates(ids, EXPERTS, rates), library_clouds(library, ids, N_POINTS))
+
+
+def build(registry, name: str):
+    return registry.spec("gate", name).load()(**TINY[name])
+
+
+@pytest.fixture(scope="module")
+def fitted(registry, data) -> dict:
+    """Each gate fitted for 2 epochs (the centroid gate: its centres)."""
+    gates = {}
+    for name in TINY:
+        gate = build(registry, name)
+        gate.fit(data, FAST)
+        gates[name] = gate
+    return gates
+
+
+# -- the three plugins -------------------------------------------------------------------------------
+def test_every_gate_is_registered_and_builds_by_name(registry):
+    assert {"curvenet", "pointnet2", "centroid"} <= set(registry.names("gate"))
+    for name in TINY:
+        gate = build(registry, name)
+        assert gate.name == name and gate.experts == ()
+
+
+@pytest.mark.parametrize("name", list(TINY))
+def test_predict_shapes_and_rows_sum_to_one(fitted, data, name):
+    gate = fitted[name]
+    probs = gate.predict(data.clouds[:5])
+    assert probs.shape == (5, 3) and probs.dtype == torch.float32
+    assert torch.allclose(probs.sum(dim=1), torch.ones(5), atol=1e-5) and (probs >= 0).all()
+    assert gate.experts == EXPERTS
+    assert torch.equal(gate.select(data.clouds[:5]), probs.argmax(dim=1))
+
+
+@pytest.mark.parametrize("name", list(TINY))
+def test_point_order_does_not_matter(fitted, data, name):
+    clouds = data.clouds[:6]
+    perm = torch.randperm(N_POINTS, generator=torch.Generator().manual_seed(3))
+    a, b = fitted[name].predict(clouds), fitted[name].predict(clouds[:, perm])
+    assert torch.allclose(a, b, atol=1e-4), (a - b).abs().max()
+
+
+@pytest.mark.parametrize("name", list(TINY))
+def test_save_load_round_trip_gives_identical_predictions(registry, fitted, data, name, tmp_path):
+    path = tmp_path / f"{name}.pt"
+    fitted[name].save(path)
+    loaded = load_gate(path, registry)
+    assert type(loaded) is type(fitted[name]) and loaded.experts == EXPERTS
+    assert torch.equal(loaded.predict(data.clouds), fitted[name].predict(data.clouds))
+    assert list(tmp_path.iterdir()) == [path]  # atomic write leaves no temporary file
+
+
+def test_gate_used_with_other_experts_names_both_lists(registry, fitted, tmp_path):
+    path = tmp_path / "g.pt"
+    fitted["pointnet2"].save(path)
+    with pytest.raises(ConfigError) as err:
+        load_gate(path, registry, experts=["small", "large", "medium"])
+    msg = str(err.value)
+    assert "['small', 'medium', 'large']" in msg and "['small', 'large', 'medium']" in msg
+    load_gate(path, registry, experts=list(EXPERTS)).check_experts(EXPERTS)  # the right list passes
+
+
+def test_a_checkpoint_of_one_gate_is_refused_by_another(registry, fitted, tmp_path):
+    path = tmp_path / "g.pt"
+    fitted["centroid"].save(path)
+    with pytest.raises(ConfigError, match="holds a 'centroid' gate"):
+        registry.spec("gate", "curvenet").load().load(path)
+    (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
+    with pytest.raises(ConfigError, match="not a readable gate checkpoint"):
+        load_gate(tmp_path / "junk.pt", registry)
+
+
+def test_an_untrained_gate_says_so(registry, data):
+    for name in TINY:
+        with pytest.raises(ConfigError, match="not (trained|fitted)"):
+            build(registry, name).predict(data.clouds[:1])
+
+
+# -- training ---------------------------------------------------------------------------------------
+def test_kl_loss_matches_torch_and_scipy():
+    gen = torch.Generator().manual_seed(0)
+    logits = torch.randn(7, 4, generator=gen, dtype=torch.float64)
+    p = torch.rand(7, 4, generator=gen, dtype=torch.float64)
+    p[0, 1] = 0.0  # a zero target entry: 0 log 0 = 0
+    p = p / p.sum(dim=1, keepdim=True)
+    ours = float(kl_loss(logits, p))
+    q = torch.softmax(logits, dim=1)
+    ref_torch = float(F.kl_div(torch.log_softmax(logits, dim=1), p, reduction="batchmean"))
+    ref_scipy = float(np.mean(scipy.stats.entropy(p.numpy(), q.numpy(), axis=1)))
+    assert ours == pytest.approx(ref_torch, rel=1e-9) and ours == pytest.approx(ref_scipy, rel=1e-9)
+    assert float(kl_loss(torch.log(p.clamp_min(1e-300)), p)) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_targets_normalize_and_all_failed_objects_are_dropped_or_uniform():
+    rates = SuccessRates(("a", "b", "c"), ("x", "y"), np.array([[0.5, 0.25], [0.0, 0.0], [0.0, 1.0]]))
+    kept, p = targets(rates)
+    assert kept.tolist() == [0, 2] and np.allclose(p, [[2 / 3, 1 / 3], [0.0, 1.0]])
+    kept, p = targets(rates, "uniform")
+    assert kept.tolist() == [0, 1, 2] and np.allclose(p[1], [0.5, 0.5]) and np.allclose(p.sum(axis=1), 1)
+
+
+def test_gate_accuracy_counts_a_pick_among_tied_best_experts():
+    rates = np.array([[0.5, 0.5, 0.0], [0.1, 0.9, 0.2], [0.3, 0.2, 0.1]])
+    probs = np.array([[0.1, 0.8, 0.1], [0.6, 0.3, 0.1], [0.5, 0.4, 0.1]])
+    assert gate_accuracy(probs, rates) == pytest.approx(2 / 3)  # row 0: tie counts, row 1 wrong, row 2 right
+
+
+def test_split_is_seeded_disjoint_and_complete():
+    tr, va = split_indices(20, 0.25, seed=1)
+    assert len(va) == 5 and sorted([*tr, *va]) == list(range(20))
+    assert np.array_equal(va, split_indices(20, 0.25, seed=1)[1])
+    assert not np.array_equal(va, split_indices(20, 0.25, seed=2)[1])
+
+
+def test_tiny_training_run_lowers_the_loss(registry, data):
+    gate = build(registry, "pointnet2")
+    config = TrainConfig(epochs=20, batch_size=6, val_fraction=0.25, lr=3e-3, keep="last")
+    history = gate.fit(data, config).history
+    losses = [h["loss/train"] for h in history]
+    assert np.mean(losses[-3:]) < 0.8 * np.mean(losses[:3]), [round(x, 3) for x in losses]
+
+
+def test_same_seed_gives_identical_weights_and_another_seed_does_not(registry, data, tmp_path):
+    def weights(seed: int) -> dict:
+        gate = build(registry, "curvenet")
+        gate.fit(data, TrainConfig(epochs=2, batch_size=8, seed=seed))
+        return gate.model.state_dict()
+
+    a, b, c = weights(0), weights(0), weights(1)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert not all(torch.equal(a[k], c[k]) for k in a)
+
+
+def test_training_writes_tensorboard_curves(registry, data, tmp_path):
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    build(registry, "pointnet2").fit(data, FAST, log_dir=tmp_path / "tb")
+    events = EventAccumulator(str(tmp_path / "tb"))
+    events.Reload()
+    tags = set(events.Tags()["scalars"])
+    assert {"loss/train", "loss/val", "accuracy/train", "accuracy/val", "lr"} <= tags
+    assert [e.step for e in events.Scalars("loss/train")] == [1, 2]
+
+
+def test_augmentation_rotates_about_z_and_scales_within_the_band():
+    gen = torch.Generator().manual_seed(0)
+    pts = torch.rand(4, 50, 3)
+    out = augment(pts, AugmentConfig(scale=0.1), gen)
+    factor = out[..., 2] / pts[..., 2]  # z only scales
+    assert torch.allclose(factor, factor[:, :1].expand_as(factor), atol=1e-5)
+    assert ((factor[:, 0] >= 0.9 - 1e-6) & (factor[:, 0] <= 1.1 + 1e-6)).all()
+    radial = out[..., :2].norm(dim=-1) / pts[..., :2].norm(dim=-1)  # xy norms scale by the same factor: a rotation
+    assert torch.allclose(radial, factor, atol=1e-4)
+    assert not torch.allclose(out[..., :2] / factor[..., None], pts[..., :2], atol=1e-3)  # it did rotate
+    assert torch.equal(augment(pts, AugmentConfig(enabled=False), gen), pts)
+    again = augment(pts, AugmentConfig(scale=0.1), torch.Generator().manual_seed(0))
+    assert torch.equal(again, out)
+
+
+# -- bad input -------------------------------------------------------------------------------------
+def test_a_short_cloud_is_resampled_with_a_warning_naming_the_object():
+    pts = np.random.default_rng(0).random((40, 3))
+    with pytest.warns(ResampledCloudWarning, match="procedural/mug/007.*40 points.*64"):
+        out = fit_cloud(pts, 64, "procedural/mug/007")
+    assert out.shape == (64, 3)
+    assert np.allclose(out[:40], pts, atol=1e-6)  # every original point kept, the rest repeats of them
+    assert all(np.isclose(out[40:, None], pts[None]).all(-1).any(-1))
+
+
+def test_a_long_cloud_is_thinned_by_farthest_points_without_warning(recwarn):
+    pts = np.random.default_rng(0).random((300, 3))
+    out = fit_cloud(pts, 64, "x")
+    assert out.shape == (64, 3) and not recwarn.list
+
+
+@pytest.mark.parametrize(
+    ("cloud", "match"),
+    [
+        (np.zeros((0, 3)), "object 'bowl/3': point cloud is empty"),
+        (np.array([[0.0, 0.0, np.nan]] * 5), "object 'bowl/3': 5 of 5 points are NaN"),
+        (np.zeros((10, 2)), r"object 'bowl/3': point cloud has shape \(10, 2\)"),
+    ],
+)
+def test_bad_clouds_are_errors_naming_the_object(cloud, match):
+    with pytest.raises(ArrayError, match=match):
+        fit_cloud(cloud, 64, "bowl/3")
+
+
+@pytest.mark.parametrize("name", list(TINY))
+def test_predict_names_the_object_of_a_nan_cloud_and_resamples_short_ones(fitted, data, name):
+    clouds = data.clouds[:3].clone()
+    clouds[1, 7, 0] = float("nan")
+    with pytest.raises(ArrayError, match="object 'b': 1 of 128 points are NaN"):
+        fitted[name].predict(clouds, object_ids=["a", "b", "c"])
+    with pytest.warns(ResampledCloudWarning, match="object 'a'"):
+        probs = fitted[name].predict([data.clouds[0, :50].numpy()], object_ids=["a"])
+    assert probs.shape == (1, 3)
+
+
+def test_bad_success_rates_are_clear_errors():
+    with pytest.raises(ArrayError, match="expert 'y' on object 'b' is 1.5"):
+        SuccessRates(("a", "b"), ("x", "y"), np.array([[0.1, 0.2], [0.3, 1.5]]))
+    with pytest.raises(ConfigError, match="at least 2 experts"):
+        SuccessRates(("a",), ("x",), np.array([[0.1]]))
+    with pytest.raises(ConfigError, match=r"object ids repeated: \['a'\]"):
+        SuccessRates(("a", "a"), ("x", "y"), np.zeros((2, 2)))
+
+
+# -- point operations --------------------------------------------------------------------------------
+def test_point_ops_against_brute_force():
+    gen = torch.Generator().manual_seed(0)
+    xyz = torch.rand(2, 200, 3, generator=gen)
+    d = ((xyz[:, :, None] - xyz[:, None]) ** 2).sum(-1)
+    idx = knn(xyz, 5)
+    assert torch.equal(idx[..., 0], torch.arange(200).expand(2, 200))  # itself first
+    assert torch.allclose(torch.gather(d, 2, idx), d.sort(dim=-1).values[..., :5], atol=1e-6)
+    fps = farthest_point_sample(xyz, 20)
+    assert all(len(set(row.tolist())) == 20 for row in fps)
+    chosen = torch.gather(xyz, 1, fps[..., None].expand(-1, -1, 3))
+    spacing = torch.cdist(chosen, chosen) + torch.eye(20) * 9
+    rand = xyz[:, :20]
+    assert (
+        spacing.min(-1).values.min(-1).values
+        > (torch.cdist(rand, rand) + torch.eye(20) * 9).min(-1).values.min(-1).values
+    ).all()
+    ball = ball_query(xyz, chosen, 0.1, 8)
+    dist = torch.gather(torch.cdist(chosen, xyz), 2, ball)
+    assert (dist <= 0.1 + 1e-6).all()
