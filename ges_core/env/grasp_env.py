@@ -44,6 +44,7 @@ from pydantic import Field
 from ges_core.arrays import as_numpy, checked_array
 from ges_core.config import ConfigModel
 from ges_core.env.layout import ActionLayout, ObservationLayout
+from ges_core.env.priors import PRIOR_PRESETS, open_hand_start_pose, prior_preset
 from ges_core.env.randomization import RandomizationConfig, Randomizer
 from ges_core.env.reward import TERMS, RewardConfig, RewardFunction, consistency_groups
 from ges_core.env.success import EndReason, SuccessConfig, SuccessTracker
@@ -54,11 +55,9 @@ from ges_core.sim import SimBackend
 from ges_core.sim_args import env_id_list
 from ges_core.transforms import (
     compose,
-    matrix_to_pose,
     quat_conj,
     quat_mul,
     quat_to_rotvec,
-    rotation_between_frames,
     rotvec_to_quat,
     unit_quat_to_matrix,
 )
@@ -99,22 +98,6 @@ class EnvConfig(ConfigModel):
     randomization: RandomizationConfig = Field(
         default_factory=RandomizationConfig, description="per-episode randomization (every kind off by default)"
     )
-
-
-PRIOR_PRESETS: dict[str, dict[str, bool]] = {
-    "init_goal": {"init_prior": True, "goal_prior": True},
-    "init_nogoal": {"init_prior": True, "goal_prior": False},
-    "noinit_goal": {"init_prior": False, "goal_prior": True},
-    "noinit_nogoal": {"init_prior": False, "goal_prior": False},
-}
-"""The paper's prior ablation: EnvConfig overrides per preset (``cfg.model_copy(update=prior_preset(name))``)."""
-
-
-def prior_preset(name: str) -> dict[str, bool]:
-    """The EnvConfig overrides of the prior-ablation preset ``name`` (a fresh dict)."""
-    if name not in PRIOR_PRESETS:
-        raise ConfigError(f"unknown prior preset '{name}'; choose one of {', '.join(PRIOR_PRESETS)}")
-    return dict(PRIOR_PRESETS[name])
 
 
 @dataclass(frozen=True)
@@ -499,26 +482,3 @@ class GraspEnv:
         reason = self.tracker.update(self._state_arrays(state)[0]["obj"], timeout)
         bad = as_numpy(unstable)
         return torch.from_numpy(np.where(bad, _UNSTABLE, reason.numpy())) if bad.any() else reason
-
-
-def open_hand_start_pose(hand: HandModel, obj_pos: np.ndarray, height: float) -> np.ndarray:
-    """(n, 7) base-link poses of the NoInit start: open hand, palm down, wrist link ``height`` m above ``obj_pos``.
-
-    obj_pos: (n, 3) object origins, world, m. Palm down per the hand's wrist convention: ``palm_normal``
-    along world -z, ``finger_direction`` toward world +x (as :func:`ges_core.sim_check.grasp_start_pose`).
-    """
-    from ges_core.kinematics import shared_kinematics
-
-    d = hand.description
-    q_open = torch.as_tensor(d.open_pose, dtype=torch.float64)[None]
-    base_to_wrist = shared_kinematics(hand).link_poses(q_open, [d.wrist.link])[0, 0].numpy()
-    rot = rotation_between_frames(
-        np.array(d.wrist.palm_normal),
-        np.array(d.wrist.finger_direction),
-        np.array([0.0, 0.0, -1.0]),
-        np.array([1.0, 0.0, 0.0]),
-    )
-    world_wrist = np.tile(np.eye(4), (len(obj_pos), 1, 1))
-    world_wrist[:, :3, :3] = rot
-    world_wrist[:, :3, 3] = np.asarray(obj_pos) + np.array([0.0, 0.0, height])
-    return matrix_to_pose(world_wrist @ np.linalg.inv(base_to_wrist))
