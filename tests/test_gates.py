@@ -7,6 +7,9 @@ their real sizes (expert "small" wins below the 1/3 quantile of the longest side
 
 from __future__ import annotations
 
+import json
+from pathlib import Path
+
 import numpy as np
 import pytest
 import scipy.stats
@@ -304,3 +307,72 @@ def test_point_ops_against_brute_force():
     ball = ball_query(xyz, chosen, 0.1, 8)
     dist = torch.gather(torch.cdist(chosen, xyz), 2, ball)
     assert (dist <= 0.1 + 1e-6).all()
+
+
+# -- ges train-gate on a matrix file ------------------------------------------------------------------
+DATASET = "tests/data/dataset_v2"  # its library: procedural (10 per category) + pybullet
+CLI_CONFIG = """
+gate: pointnet2
+settings:
+  n_points: 128
+  levels: [{centres: 32, radius: 0.3, group: 8, mlp: [16, 16]}]
+  global_mlp: [32]
+  head: [16]
+train: {epochs: 3, batch_size: 6, val_fraction: 0.25}
+checkpoint_every: 2
+"""
+
+
+def _matrix_file(tmp_path) -> tuple:
+    """A matrix file in ges eval-experts' format over 30 library objects of every split; the cells follow the
+    size rule (4 episodes each), plus the scripted baseline column that the gate must leave out."""
+    from ges_core.dataset import open_dataset
+    from ges_core.env.grasp_source import library_for
+    from ges_core.experts.matrix import write_matrix
+
+    library = library_for(open_dataset(DATASET))
+    infos = [o for o in library.list(source="procedural")][::2][:30]
+    size = np.array([library.extents(o.object_id).max() for o in infos])
+    lo, hi = np.quantile(size, [1 / 3, 2 / 3])
+    best = np.where(size < lo, 0, np.where(size < hi, 1, 2))
+    experts = {e: {"name": "scripted", "settings": {"close_steps": 40 + 10 * i}} for i, e in enumerate(EXPERTS)}
+    experts["scripted"] = {"name": "scripted", "settings": {}}
+    objects, cells = {}, {}
+    for o, b in zip(infos, best, strict=True):
+        objects[o.object_id] = {"split": o.split, "category": o.category, "cluster": None, "grasp_key": "k"}
+        wins = {e: (4 if i == b else 1) for i, e in enumerate(EXPERTS)} | {"scripted": 2}
+        cells[o.object_id] = {e: {"episodes": 4, "paper": w, "peers": w} for e, w in wins.items()}
+    path = tmp_path / "matrix-shadow-sapien.json"
+    write_matrix(path, {"dataset": str(Path(DATASET).resolve()), "run": {}, "experts": experts,
+                        "baseline": "scripted", "objects": objects, "cells": cells})  # fmt: skip
+    return path, infos
+
+
+def test_ges_train_gate_end_to_end_on_a_matrix_file(tmp_path, capsys, registry):
+    from ges_core.cli import main
+
+    matrix, infos = _matrix_file(tmp_path)
+    (tmp_path / "gate.yaml").write_text(CLI_CONFIG)
+    out = tmp_path / "gate"
+    assert main(["train-gate", str(matrix), "--config", str(tmp_path / "gate.yaml"), "--out", str(out)]) == 0
+    table = capsys.readouterr().out
+    assert "gate pointnet2 (128 points) over experts small, medium, large" in table
+    for split in ("train", "val", "unseen_object", "unseen_category"):
+        assert f"| {split} |" in table
+    assert {"gate.pt", "tb", "history.json", "summary.json", "clouds-128-0.pt"} <= {p.name for p in out.iterdir()}
+    summary = json.loads((out / "summary.json").read_text())
+    n_train = sum(o.split == "train" for o in infos)
+    assert summary["counts"]["train"] + summary["counts"]["val"] == n_train
+    assert len(json.loads((out / "history.json").read_text())) == 3
+    gate = load_gate(out / "gate.pt", registry, experts=list(EXPERTS))  # the baseline column is not an expert
+    assert gate.predict(torch.zeros(1, 128, 3) + torch.rand(1, 128, 3) * 0.05).shape == (1, 3)
+
+
+def test_ges_train_gate_errors_are_one_line(tmp_path, capsys):
+    from ges_core.cli import main
+
+    matrix, _ = _matrix_file(tmp_path)
+    assert main(["train-gate", str(matrix), "--gate", "nope", "--out", str(tmp_path / "o")]) == 1
+    assert "nope" in capsys.readouterr().err
+    assert main(["train-gate", str(matrix), "-o", "experts=[small,huge]", "--out", str(tmp_path / "o")]) == 1
+    assert "expert column(s) ['huge'] not in the matrix" in capsys.readouterr().err
