@@ -205,7 +205,8 @@ class GraspRunner(OnPolicyRunner):
             "collect_s": round(collect, 4), "learn_s": round(learn, 4), "stage": stage,
             "episodes": counts.episodes, "success_paper": _num(counts.rate("paper")),
             "success_peers": _num(counts.rate("peers")), "window_success": _num(self.curriculum.success_rate()),
-            "reasons": counts.reasons, "nan_actions": counts.nan_actions, "bad_updates": t["bad_updates"],
+            "reasons": counts.reasons, "per_object": counts.per_object, "nan_actions": counts.nan_actions,
+            "bad_updates": t["bad_updates"],
             "mean_reward": _num(float(np.mean(self.logger.rewbuffer)) if self.logger.rewbuffer else math.nan),
         }  # fmt: skip
         self._scalars(it, row, counts)

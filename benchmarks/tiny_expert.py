@@ -1,0 +1,96 @@
+"""The ``tiny`` expert runs: wall time, env steps and the success curve, read from their run folders.
+
+Reads ``history.jsonl`` and ``summary.json`` of each ``ges train-expert`` run folder given (default: every run
+under ``runs/tiny/experts``), prints a table of the success rate (paper protocol, per episode) in bins of
+iterations with the curriculum stage, writes ``benchmarks/results/tiny_expert.json`` and a PNG of the curves
+(``benchmarks/results/tiny_expert.png``). The training itself is ``ges train-expert`` (docs/training.md):
+
+    ges train-expert runs/tiny/dataset --cluster 1 --out runs/tiny/experts/expert1
+    ges train-expert runs/tiny/dataset --cluster 1 -o action_mode=residual --out runs/tiny/experts/expert1_residual
+    python benchmarks/tiny_expert.py [RUN_DIR ...] [--bin 25]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+from _results import code_state, write_results
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = Path(__file__).resolve().parent / "results" / "tiny_expert.json"
+PICTURE = RESULTS.with_suffix(".png")
+
+
+def read_run(folder: Path) -> dict:
+    """One run's config, summary and per-iteration rows."""
+    rows = [json.loads(line) for line in (folder / "history.jsonl").read_text().splitlines() if line.strip()]
+    summary = json.loads((folder / "summary.json").read_text()) if (folder / "summary.json").is_file() else None
+    config = (folder / "config.yaml").read_text() if (folder / "config.yaml").is_file() else ""
+    return {"run": folder.name, "rows": rows, "summary": summary, "config_yaml": config}
+
+
+def bins(rows: list[dict], size: int) -> list[dict]:
+    """Per ``size`` iterations: episodes, success (paper, peers) over those episodes, stage at the end, env steps."""
+    out = []
+    for start in range(0, len(rows), size):
+        chunk = rows[start : start + size]
+        episodes = sum(r["episodes"] for r in chunk)
+        paper = sum(round((r["success_paper"] or 0) * r["episodes"]) for r in chunk)
+        peers = sum(round((r["success_peers"] or 0) * r["episodes"]) for r in chunk)
+        out.append({
+            "iterations": f"{chunk[0]['iteration']}-{chunk[-1]['iteration']}", "env_steps": chunk[-1]["env_steps"],
+            "seconds": chunk[-1]["seconds"], "stage": chunk[-1]["stage"], "episodes": episodes,
+            "success_paper": round(paper / episodes, 3) if episodes else None,
+            "success_peers": round(peers / episodes, 3) if episodes else None,
+        })  # fmt: skip
+    return out
+
+
+def plot(runs: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7, 4))
+    for run in runs:
+        b = [x for x in run["bins"] if x["success_paper"] is not None]
+        ax.plot([x["env_steps"] for x in b], [x["success_paper"] for x in b], marker="o", label=run["run"])
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("success (paper protocol, per episode)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.legend()
+    ax.set_title("tiny experts (Allegro, SAPIEN, cluster 1)")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="*", type=Path)
+    parser.add_argument("--bin", type=int, default=25, help="iterations per row of the table")
+    args = parser.parse_args()
+    folders = args.runs or sorted(p for p in (ROOT / "runs" / "tiny" / "experts").iterdir() if p.is_dir())
+    runs = []
+    for folder in folders:
+        run = read_run(folder)
+        run["bins"] = bins(run["rows"], args.bin)
+        runs.append(run)
+        s = run["summary"] or {}
+        print(f"\n{run['run']}: {s.get('iterations')} iterations, {s.get('env_steps')} env steps, "
+              f"{s.get('seconds')} s, stopped {s.get('stopped')}, stage {s.get('stage')}")  # fmt: skip
+        print("| iterations | env steps | s | stage | episodes | success (paper) | success (peers) |")
+        print("|---|---|---|---|---|---|---|")
+        for b in run["bins"]:
+            print(f"| {b['iterations']} | {b['env_steps']:,} | {b['seconds']:.0f} | {b['stage']} | {b['episodes']} | "
+                  f"{b['success_paper']} | {b['success_peers']} |")  # fmt: skip
+    plot(runs, PICTURE)
+    for run in runs:
+        del run["rows"]  # the curve is in bins; history.jsonl stays in the run folder
+    write_results(RESULTS, {"benchmark": "tiny_expert", "runs": runs, "picture": PICTURE.name, "code": code_state()})
+
+
+if __name__ == "__main__":
+    main()
