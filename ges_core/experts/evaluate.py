@@ -123,7 +123,7 @@ def evaluate_experts(
     report = EvalReport(path, matrix.view(records, choices), reused=len(records) * len(choices) - len(todo))
     matrix.write()
     if todo:
-        _run_cells(dataset, registry, config, todo, matrix, report, progress, fanout or Fanout())
+        _run_cells(data, registry, config, todo, matrix, report, progress, fanout or Fanout())
     report.matrix = matrix.view(records, choices)
     report.seconds = time.perf_counter() - start
     return report
@@ -219,7 +219,7 @@ def _check_stored(path: Path, data: dict, header: dict, columns: dict[str, dict]
             )
 
 
-def _run_cells(dataset, registry, config: BaselineConfig, todo, matrix: _MatrixFile, report, progress, fanout) -> None:
+def _run_cells(data, registry, config: BaselineConfig, todo, matrix: _MatrixFile, report, progress, fanout) -> None:
     """Evaluate each (record, expert) of ``todo`` (here or on ``fanout``) into ``matrix``, written after each."""
     from tqdm import tqdm
 
@@ -227,7 +227,7 @@ def _run_cells(dataset, registry, config: BaselineConfig, todo, matrix: _MatrixF
     wins = 0
     bar = tqdm(total=len(jobs), disable=not progress, unit="cell", desc=f"{config.hand}/{config.sim}",
                dynamic_ncols=True)  # fmt: skip
-    for i, row in evaluate_cells(str(dataset), jobs, {r.object_id: r for r, _ in todo}, registry, fanout):
+    for i, row in evaluate_cells(data, jobs, {r.object_id: r for r, _ in todo}, registry, fanout):
         record, choice = todo[i]
         matrix.put(record.object_id, choice.label, _cell(row))
         report.evaluated += 1

@@ -49,15 +49,19 @@ class Fanout:
 
 
 def evaluate_cells(
-    dataset: str, cells: Sequence[Cell], records: dict[str, GraspRecord], registry, fanout: Fanout
+    data, cells: Sequence[Cell], records: dict[str, GraspRecord], registry, fanout: Fanout
 ) -> Iterator[tuple[int, dict]]:
     """(index into ``cells``, row of :func:`evaluate_object`) per cell as each finishes.
 
+    data: the opened grasp dataset (:func:`~ges_core.env.grasp_source.open_grasp_dataset`); workers reopen it
+    from its folder.
     records: object id -> record (this process's selection). A cell whose worker died on every attempt is left
     out and, after every other row, raised as one TaskLostError naming its objects (a rerun resumes them).
     """
     if fanout.here:
-        yield from _here(dataset, cells, records, registry)
+        sources = _Sources(data, registry)
+        for i, cell in enumerate(cells):
+            yield i, sources.evaluate(records[cell.object_id], cell.config)
         return
     from ges_core.executors import make_executor
     from ges_core.synthesis.run.tasks import RegistrySpec
@@ -68,7 +72,7 @@ def evaluate_cells(
     lost = []
     with make_executor(fanout.executor, address=fanout.address, **options) as pool:
         for cell in cells:
-            pool.submit(cell_task, str(dataset), cell, spec)
+            pool.submit(cell_task, str(data.root.resolve()), cell, spec)
         for done in pool.as_completed():
             if isinstance(done.error, TaskLostError):
                 lost.append(cells[done.ticket].object_id)
@@ -81,17 +85,11 @@ def evaluate_cells(
         )
 
 
-def _here(dataset: str, cells: Sequence[Cell], records: dict[str, GraspRecord], registry) -> Iterator[tuple[int, dict]]:
-    sources = _Sources(dataset, registry)
-    for i, cell in enumerate(cells):
-        yield i, sources.evaluate(records[cell.object_id], cell.config)
-
-
 class _Sources:
     """What every cell of one dataset needs, built once: the dataset, its object library, hands and scenes."""
 
-    def __init__(self, dataset: str, registry) -> None:
-        self.data, self.registry = open_grasp_dataset(dataset), registry
+    def __init__(self, data, registry) -> None:
+        self.data, self.registry = data, registry
         self.library = library_for(self.data)
         self._hands: dict[str, Any] = {}
         self._scenes: dict[tuple, Any] = {}
@@ -114,6 +112,6 @@ def cell_task(dataset: str, cell: Cell, spec) -> dict:
     key = (dataset, spec)
     if key not in _WORKER:
         _WORKER.clear()
-        _WORKER[key] = _Sources(dataset, spec.load())
+        _WORKER[key] = _Sources(open_grasp_dataset(dataset), spec.load())
     sources = _WORKER[key]
     return sources.evaluate(sources.data.get(cell.object_id, cell.config.hand), cell.config)

@@ -243,7 +243,7 @@ def evaluate_baseline(
         cells = [Cell(r.object_id, config) for r in todo]
         bar = tqdm(total=len(cells), disable=not progress, unit="object", desc=f"{config.hand}/{config.sim}",
                    dynamic_ncols=True)  # fmt: skip
-        rows = evaluate_cells(str(dataset), cells, {r.object_id: r for r in todo}, registry, fanout or Fanout())
+        rows = evaluate_cells(data, cells, {r.object_id: r for r in todo}, registry, fanout or Fanout())
         for i, row in rows:
             store[cells[i].object_id] = row
             report.evaluated.append(cells[i].object_id)
