@@ -124,6 +124,26 @@ def test_what_cannot_be_drawn_becomes_a_note(tmp_path):
     assert any("hand 'shadow' not drawn: unknown hand 'shadow'" in n for n in scene.notes)
 
 
+def test_failed_steps_and_foreign_joints_draw_what_exists(data):
+    """A record whose contacts step failed has only the object; joints the hand lacks drop the hand with a note."""
+    from ges_core.viewer import build_scene
+
+    record = data.record(BOX, "allegro")
+    mesh, view = data.object_mesh(BOX)[0], data.hand_view("allegro")[0]
+    bare = dataclasses.replace(record, contacts=None, grasp=None, pregrasp=None)
+    scene = build_scene(bare, object_mesh=mesh, hand=view)
+    assert [m.name for m in scene.meshes] == ["/table", "/object"] and scene.lines == ()
+    np.testing.assert_allclose(scene.center[:2], (mesh[0].min(axis=0) + mesh[0].max(axis=0))[:2] / 2, atol=1e-12)
+    renamed = dataclasses.replace(record, joint_names=("joint_0.0_old", *record.joint_names[1:]))
+    with pytest.raises(AssetError, match="hand 'allegro' has no joint.*joint_0.0_old.*another version"):
+        build_scene(renamed, object_mesh=mesh, hand=view)
+    fresh = ViewerData(DATASET)
+    fresh._records[(BOX, "allegro")] = renamed  # as if the record had been made with another version of the hand
+    scene = fresh.scene(BOX, "allegro")
+    assert scene.group("/grasp/") == () and len(scene.group("/contacts/")) == 5
+    assert "another version of this hand" in scene.notes[-1]
+
+
 def test_not_a_dataset_and_empty_dataset_are_clear_errors(tmp_path, capsys):
     with pytest.raises(AssetError, match="is not a grasp dataset: it has no manifest.json"):
         ViewerData(tmp_path)
