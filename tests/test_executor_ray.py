@@ -128,3 +128,27 @@ def test_ray_records_equal_the_local_ones_byte_for_byte_and_a_killed_ray_run_res
     assert validate_dataset(tmp_path / "ray") == []
     assert sorted(local.written) == sorted(r.key for r in open_dataset(tmp_path / "ray"))
     assert _record_bytes(tmp_path / "ray") == _record_bytes(tmp_path / "local")  # same files, same bytes
+
+
+@pytest.mark.sim
+def test_demo_and_retarget_run_on_ray(cluster, tmp_path, capsys):
+    """The CLI path on a running cluster (``--address``): the demo (its pictures drawn by the Ray workers), then
+    ``ges retarget``, whose workers read the source dataset's contacts."""
+    import numpy as np
+
+    import ges_core.cli as cli
+
+    ray_args = ["--executor", "ray", "--address", cluster, "--no-progress"]
+    fast = ["-o", "synthesis.validate.hold_steps=60", "-o", "synthesis.robust.enabled=false"]
+    demo = tmp_path / "demo"
+    assert cli.main(["demo", "--out", str(demo), "-o", "objects=1", "-o", "hands=[allegro]", *fast, *ray_args]) == 0
+    assert "1 grasps synthesized, 0 already in" in capsys.readouterr().out
+    assert (demo / "contact_sheet.png").is_file() and len(list((demo / "pictures" / "allegro").glob("*.png"))) == 1
+    out = tmp_path / "shadow"
+    argv = ["retarget", str(demo / "dataset"), "--from", "allegro", "--to", "shadow", "--out", str(out), *ray_args]
+    assert cli.main(argv) == 0
+    assert "| shadow | sapien | 1 |" in capsys.readouterr().out
+    (source,), (target,) = list(open_dataset(demo / "dataset")), list(open_dataset(out))
+    assert validate_dataset(out) == [] and target.hand == "shadow" and target.contacts_from == "allegro"
+    np.testing.assert_array_equal(target.contacts.positions, source.contacts.positions)
+    assert ray.is_initialized()  # the cluster given by --address is left running

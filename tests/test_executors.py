@@ -154,6 +154,15 @@ def test_missing_ray_says_how_to_install_it(monkeypatch):
         make_executor("ray")
 
 
+def test_a_ray_executor_with_nothing_to_do_starts_no_ray(monkeypatch):
+    """A fully resumed run submits nothing: it must not start (or even import) Ray."""
+    from ges_core.executors.ray_cluster import RayExecutor
+
+    monkeypatch.setitem(sys.modules, "ray", None)  # importing Ray now would fail
+    with RayExecutor(workers=2) as ex:
+        assert list(ex.as_completed()) == []
+
+
 def test_cli_options_and_address_without_ray_executor(tmp_path, capsys):
     parser = argparse.ArgumentParser()
     add_executor_options(parser)

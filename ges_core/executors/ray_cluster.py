@@ -59,12 +59,9 @@ class RayExecutor(Executor):
         self._owns_ray = False
         self._pending: list = []
 
-    def __enter__(self) -> RayExecutor:
-        self.connect()
-        return self
-
     def connect(self) -> None:
-        """Connect to (or start) Ray; a no-op when this executor is connected or Ray runs in this process."""
+        """Connect to (or start) Ray; a no-op when this executor is connected or Ray runs in this process. Done on
+        the first task (:meth:`as_completed`), so a run with nothing left to do starts no Ray."""
         if self._ray is not None:
             return
         ray = import_ray()
@@ -85,6 +82,8 @@ class RayExecutor(Executor):
         }
 
     def _run(self, calls: list[tuple[int, Callable, tuple]]) -> Iterator[Done]:
+        if not calls:  # e.g. a fully resumed run: no Ray to start
+            return
         self.connect()
         ray = self._ray
         remote = ray.remote(call_with_setup).options(
