@@ -21,6 +21,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ges_core.gating.layers import ConvBN, Pointwise
 from ges_core.gating.ops import ball_query, farthest_point_sample, gather_points, knn
 
 __all__ = ["CIC", "LPFA", "CurveAggregation", "CurveGrouping"]
@@ -34,12 +35,6 @@ def _neighbours(features: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
     return gather_points(features.transpose(1, 2), idx).movedim(-1, 1)
 
 
-def _conv_bn(c_in: int, c_out: int, dims: int = 1) -> nn.Sequential:
-    conv = nn.Conv1d if dims == 1 else nn.Conv2d
-    bn = nn.BatchNorm1d if dims == 1 else nn.BatchNorm2d
-    return nn.Sequential(conv(c_in, c_out, 1, bias=False), bn(c_out))
-
-
 class LPFA(nn.Module):
     """Local point-feature aggregation: (B, C_in, N) -> (B, C_out, N) over the k neighbours ``idx``.
 
@@ -50,11 +45,11 @@ class LPFA(nn.Module):
     def __init__(self, c_in: int, c_out: int, layers: int = 1, *, stem: bool = False) -> None:
         super().__init__()
         self.stem = stem
-        self.geometry = None if stem else _conv_bn(9, c_in, dims=2)
+        self.geometry = None if stem else ConvBN(9, c_in)
         mlp: list[nn.Module] = []
         c = 9 if stem else c_in
         for _ in range(layers):
-            mlp += [*_conv_bn(c, c_out, dims=2), nn.LeakyReLU(SLOPE)]
+            mlp += [ConvBN(c, c_out), nn.LeakyReLU(SLOPE)]
             c = c_out
         self.mlp = nn.Sequential(*mlp)
 
@@ -83,9 +78,9 @@ class CurveGrouping(nn.Module):
     def __init__(self, channels: int, count: int, length: int) -> None:
         super().__init__()
         self.count, self.length = count, length
-        self.start = nn.Conv1d(channels, 1, 1, bias=False)
-        self.policy = _conv_bn(2 * channels, 1, dims=2)
-        self.momentum = _conv_bn(2 * channels, 2, dims=1)
+        self.start = Pointwise(channels, 1)
+        self.policy = ConvBN(2 * channels, 1)
+        self.momentum = ConvBN(2 * channels, 2)
 
     def forward(self, x: torch.Tensor, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """x: (B, C, N) features; idx: (B, N, k) neighbours without the point itself. Returns the curves'
@@ -129,13 +124,13 @@ class CurveAggregation(nn.Module):
     def __init__(self, channels: int) -> None:
         super().__init__()
         mid = max(channels // 2, 1)
-        self.weight = nn.Conv2d(channels, 1, 1, bias=False)
-        self.key_across = nn.Conv1d(channels, mid, 1, bias=False)
-        self.key_along = nn.Conv1d(channels, mid, 1, bias=False)
-        self.query = nn.Conv1d(channels, mid, 1, bias=False)
-        self.value_across = nn.Conv1d(mid, mid, 1, bias=False)
-        self.value_along = nn.Conv1d(mid, mid, 1, bias=False)
-        self.out = _conv_bn(2 * mid, channels)
+        self.weight = Pointwise(channels, 1)
+        self.key_across = Pointwise(channels, mid)
+        self.key_along = Pointwise(channels, mid)
+        self.query = Pointwise(channels, mid)
+        self.value_across = Pointwise(mid, mid)
+        self.value_along = Pointwise(mid, mid)
+        self.out = ConvBN(2 * mid, channels)
 
     def forward(self, x: torch.Tensor, curves: torch.Tensor) -> torch.Tensor:
         w = self.weight(curves)  # (B, 1, count, length)
@@ -173,12 +168,12 @@ class CIC(nn.Module):
         super().__init__()
         self.k, self.points, self.radius = k, points, radius
         mid = max(c_in // bottleneck, 1)
-        self.reduce = nn.Sequential(*_conv_bn(c_in, mid), nn.LeakyReLU(SLOPE))
+        self.reduce = nn.Sequential(ConvBN(c_in, mid), nn.LeakyReLU(SLOPE))
         self.grouping = CurveGrouping(mid, *curves) if curves else None
         self.aggregation = CurveAggregation(mid) if curves else None
         self.lpfa = LPFA(mid, mid)
-        self.expand = _conv_bn(mid, c_out)
-        self.shortcut = _conv_bn(c_in, c_out) if c_in != c_out else nn.Identity()
+        self.expand = ConvBN(mid, c_out)
+        self.shortcut = ConvBN(c_in, c_out) if c_in != c_out else nn.Identity()
 
     def forward(
         self, xyz: torch.Tensor, x: torch.Tensor, idx: torch.Tensor | None = None

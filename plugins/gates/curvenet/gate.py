@@ -21,19 +21,21 @@ class Stage(ConfigModel):
 
 
 class CurveNetSettings(GateSettings):
-    """CurveNet. Defaults: the paper's classification layout (LPFA stem, four stages of two CIC blocks,
-    curves in the first two stages, 1024 -> 1024 -> 256 -> 64 points) at half its widths (32 .. 256
-    channels instead of 64 .. 512; a few experts, not 40 classes) and k = 16 neighbours instead of 20,
-    to keep inference near the issue's 10 ms per object on one CPU core (benchmarks/gate_speed.py)."""
+    """CurveNet. Defaults: the paper's classification layout (an LPFA stem, four stages of two CIC blocks,
+    curve grouping and aggregation in the first two stages, widths doubling per stage) made lighter for a
+    gate that picks among a few experts, not 40 classes, and for inference on one CPU core
+    (benchmarks/gate_speed.py): half the widths (32 .. 256 instead of 64 .. 512), k = 12 neighbours instead
+    of 20, 32 curves of 8 steps instead of 50 of 10 (or 100 of 5), and the stages on 1024 -> 256 -> 64 -> 16
+    points instead of 1024 -> 1024 -> 256 -> 64."""
 
-    k: int = Field(16, ge=2, description="neighbours of LPFA and of the walks (CurveNet: 20)")
+    k: int = Field(12, ge=2, description="neighbours of LPFA and of the walks (CurveNet: 20)")
     stem: int = Field(16, ge=1, description="width of the LPFA stem (CurveNet: 32)")
     stages: tuple[Stage, ...] = Field(
         (
-            Stage(channels=32, points=None, radius=0.2, curves=(50, 10)),
-            Stage(channels=64, points=1024, radius=0.3, curves=(50, 10)),
-            Stage(channels=128, points=256, radius=0.5, curves=None),
-            Stage(channels=256, points=64, radius=1.0, curves=None),
+            Stage(channels=32, points=None, radius=0.2, curves=(32, 8)),
+            Stage(channels=64, points=256, radius=0.3, curves=(32, 8)),
+            Stage(channels=128, points=64, radius=0.5, curves=None),
+            Stage(channels=256, points=16, radius=1.0, curves=None),
         ),
         min_length=1,
         description="stages, input to output",

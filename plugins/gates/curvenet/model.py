@@ -6,6 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from ges_core.gating.layers import ConvBN
 from ges_core.gating.ops import knn
 from ges_plugins.gates.curvenet.blocks import CIC, LPFA
 
@@ -33,7 +34,7 @@ class CurveNet(nn.Module):
             blocks.append(CIC(s["channels"], s["channels"], bottleneck=4, **common))
             c = s["channels"]
         self.blocks = nn.ModuleList(blocks)
-        self.embed = nn.Sequential(nn.Conv1d(c, embed, 1, bias=False), nn.BatchNorm1d(embed), nn.ReLU(inplace=True))
+        self.embed = nn.Sequential(ConvBN(c, embed), nn.ReLU(inplace=True))
         fc: list[nn.Module] = []
         c = 2 * embed
         for width in head:

@@ -10,6 +10,7 @@ from __future__ import annotations
 import torch
 from torch import nn
 
+from ges_core.gating.layers import ConvBN
 from ges_core.gating.ops import ball_query, farthest_point_sample, gather_points
 
 __all__ = ["PointNet2", "SetAbstraction"]
@@ -18,7 +19,7 @@ __all__ = ["PointNet2", "SetAbstraction"]
 def _shared_mlp(channels: list[int]) -> nn.Sequential:
     layers: list[nn.Module] = []
     for c_in, c_out in zip(channels[:-1], channels[1:], strict=False):
-        layers += [nn.Conv2d(c_in, c_out, 1, bias=False), nn.BatchNorm2d(c_out), nn.ReLU(inplace=True)]
+        layers += [ConvBN(c_in, c_out), nn.ReLU(inplace=True)]
     return nn.Sequential(*layers)
 
 

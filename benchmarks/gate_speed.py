@@ -1,0 +1,137 @@
+"""Gate inference time per object on one CPU core: CurveNet, PointNet++ and the centroid baseline.
+
+For each gate (its registered default settings) at 1024 and 4096 input points: the time of one
+``gate.predict`` call on one object's cloud (batch 1, the input checks included), median over repeats,
+wall clock and the process's CPU time, with ``torch.set_num_threads(1)``. The clouds are real: farthest
+points of procedural library objects' surfaces, object frame, metres. Network weights are a seeded
+initialization (inference cost does not depend on their values); the centroid gate is fitted to a
+size rule on the same objects (its cost is its feature computation). Also the per-object time when 32
+objects go in one call (how ``ges evaluate`` would call it).
+
+The issue's goal: <= 10 ms for CurveNet at 1024 points. The machine's load average is recorded: on a
+shared machine the wall time includes waiting for a core.
+
+Usage: python benchmarks/gate_speed.py [--repeats 15] [--objects 8]
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from ges_core.gating import GateData, SuccessRates, TrainConfig, fit_cloud, library_clouds  # noqa: E402
+from ges_core.objects.library import LibraryConfig, ObjectLibrary  # noqa: E402
+from ges_core.registry import load_registry  # noqa: E402
+
+from _results import code_state, write_results  # noqa: E402
+
+RESULTS = Path(__file__).resolve().parent / "results" / "gate_speed.json"
+GATES = ("curvenet", "pointnet2", "centroid")
+SIZES = (1024, 4096)
+EXPERTS = ("small", "medium", "large")
+
+
+def clouds(n_objects: int) -> tuple[list[str], torch.Tensor, np.ndarray]:
+    """Ids, (n, 4096, 3) surface clouds and (n, 3) size-rule success rates of procedural objects."""
+    library = ObjectLibrary(LibraryConfig(sources=("procedural",), procedural_count=1))
+    ids = [o.object_id for o in library.list()][:n_objects]
+    size = np.array([library.extents(i).max() for i in ids])
+    lo, hi = np.quantile(size, [1 / 3, 2 / 3])
+    best = np.where(size < lo, 0, np.where(size < hi, 1, 2))
+    rates = np.full((len(ids), 3), 0.1)
+    rates[np.arange(len(ids)), best] = 0.9
+    return ids, library_clouds(library, ids, max(SIZES)), rates
+
+
+def ready_gate(registry, name: str, n: int, ids, cloud_set: torch.Tensor, rates: np.ndarray):
+    """The gate ``name`` reading ``n`` points, ready to predict (seeded weights, or fitted centres)."""
+    gate = registry.spec("gate", name).load()(**{**registry.settings("gate", name), "n_points": n})
+    if name == "centroid":
+        gate.fit(GateData(SuccessRates(ids, EXPERTS, rates), cloud_set), TrainConfig(val_fraction=0.0))
+    else:
+        torch.manual_seed(0)
+        gate.experts, gate.model = EXPERTS, gate.build_model(len(EXPERTS)).eval()
+    return gate
+
+
+def timed(fn, repeats: int) -> tuple[float, float]:
+    """Median wall and CPU seconds of ``fn()`` over ``repeats`` calls (after one warm-up call)."""
+    fn()
+    wall, cpu = [], []
+    for _ in range(repeats):
+        w, c = time.perf_counter(), time.process_time()
+        fn()
+        wall.append(time.perf_counter() - w)
+        cpu.append(time.process_time() - c)
+    return statistics.median(wall), statistics.median(cpu)
+
+
+def measure(registry, repeats: int, n_objects: int) -> list[dict]:
+    ids, big, rates = clouds(n_objects)
+    rows = []
+    for n in SIZES:
+        sized = torch.stack([torch.from_numpy(fit_cloud(c.numpy(), n, i)) for c, i in zip(big, ids, strict=True)])
+        batch = sized[torch.arange(32) % len(ids)]
+        for name in GATES:
+            gate = ready_gate(registry, name, n, ids, sized, rates)
+            wall, cpu = timed(lambda g=gate, x=sized[:1]: g.predict(x), repeats)
+            wall32, _ = timed(lambda g=gate, x=batch: g.predict(x), max(3, repeats // 5))
+            rows.append({"gate": name, "points": n, "ms_per_object": 1e3 * wall, "cpu_ms_per_object": 1e3 * cpu,
+                         "ms_per_object_batch32": 1e3 * wall32 / 32})  # fmt: skip
+            print(f"{name:10s} {n:5d} points: {1e3 * wall:7.1f} ms wall, {1e3 * cpu:7.1f} ms CPU", flush=True)
+    return rows
+
+
+def table(rows: list[dict]) -> str:
+    lines = [
+        "| gate | points | ms / object (batch 1, wall) | CPU ms | ms / object (batch 32) |",
+        "|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(
+            f"| {r['gate']} | {r['points']} | {r['ms_per_object']:.1f} | {r['cpu_ms_per_object']:.1f} | "
+            f"{r['ms_per_object_batch32']:.1f} |"
+        )
+    return "\n".join(lines)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--repeats", type=int, default=15)
+    parser.add_argument("--objects", type=int, default=8)
+    args = parser.parse_args()
+    torch.set_num_threads(1)
+    load_before = os.getloadavg()[0]
+    rows = measure(load_registry(), args.repeats, args.objects)
+    print(table(rows))
+    write_results(
+        RESULTS,
+        {
+            "benchmark": "gate_speed",
+            "what": "gate.predict time per object, one CPU thread (torch.set_num_threads(1)), median over repeats",
+            "goal": "CurveNet at 1024 points <= 10 ms",
+            "repeats": args.repeats,
+            "machine": {
+                "cpus": os.cpu_count(),
+                "platform": platform.platform(),
+                "torch": torch.__version__,
+                "load_average_before_after": [load_before, os.getloadavg()[0]],
+            },  # fmt: skip
+            "code": code_state(),
+            "rows": rows,
+            "table": table(rows),
+        },
+    )
+
+
+if __name__ == "__main__":
+    main()
