@@ -210,3 +210,10 @@ def test_an_update_that_diverges_is_undone(tmp_path, clusters, monkeypatch) -> N
     run = _train(tmp_path / "run", clusters, "iterations=2", "curriculum.enabled=false")
     assert run.bad_updates == 1 and run.iterations == 2 and calls["n"] == 2
     assert all(torch.isfinite(w).all() for w in _weights(run.checkpoint).values())
+
+
+def test_shadow_in_pybullet_trains_too(tmp_path, clusters) -> None:
+    run = _train(tmp_path / "run", clusters, "iterations=1", "hand=shadow", "sim=pybullet")
+    data = read_checkpoint(run.checkpoint)
+    assert (run.hand, run.sim, data["iter"]) == ("shadow", "pybullet", 1)
+    assert data["ges"]["made_for"]["hand"] == "shadow" and len(data["ges"]["made_for"]["joint_names"]) == 24
