@@ -376,3 +376,57 @@ def test_ges_train_gate_errors_are_one_line(tmp_path, capsys):
     assert "nope" in capsys.readouterr().err
     assert main(["train-gate", str(matrix), "-o", "experts=[small,huge]", "--out", str(tmp_path / "o")]) == 1
     assert "expert column(s) ['huge'] not in the matrix" in capsys.readouterr().err
+
+
+# -- the centroid gate with a real clustering ----------------------------------------------------------
+@pytest.fixture(scope="module")
+def clusters_file(data, tmp_path_factory):
+    """``ges cluster``'s clustering (k = 3, mesh features) of the fixture's objects, written as clusters.json."""
+    from ges_core.clustering import ClusterConfig, ObjectShape, cluster_objects, object_features, save_clusters
+    from ges_core.objects.library import LibraryConfig, ObjectLibrary
+
+    library = ObjectLibrary(LibraryConfig(sources=("procedural",), procedural_count=3))
+    shapes = [
+        ObjectShape(oid, library.entry(oid).category, "train", object_features(library, oid, points=1024, seed=0))
+        for oid in data.rates.object_ids
+    ]
+    clusters = cluster_objects(shapes, ClusterConfig(k=3))
+    return save_clusters(clusters, tmp_path_factory.mktemp("clusters") / "clusters.json"), clusters
+
+
+def test_centroid_gate_uses_the_clustering_and_its_cluster_to_expert_map(registry, data, clusters_file):
+    path, clusters = clusters_file
+    mapping = {0: "large", 1: "small", 2: "medium"}
+    gate = registry.spec("gate", "centroid").load()(n_points=N_POINTS, clusters=str(path), cluster_experts=mapping)
+    gate.fit(data, FAST)
+    assert "clustering" in gate.train_info["centres"] and "cluster_experts setting" in gate.train_info["centres"]
+    # independently: the cloud's features, standardized as the clustering does, nearest of its centres
+    from ges_plugins.gates.centroid.gate import cloud_features
+
+    feats = np.stack([cloud_features(c.numpy()) for c in data.clouds])
+    nearest = np.linalg.norm(clusters.standardize(feats)[:, None] - clusters.centres[None], axis=-1).argmin(axis=1)
+    expected = [EXPERTS.index(mapping[c]) for c in nearest]
+    assert gate.select(data.clouds).tolist() == expected
+    # the hull stands in for the mesh: the cloud's nearest centre mostly agrees with the clustering's own
+    agree = np.mean(
+        [clusters.objects[o].nearest_cluster == c for o, c in zip(data.rates.object_ids, nearest, strict=True)]
+    )
+    assert agree >= 0.75, agree
+
+
+def test_centroid_gate_maps_each_cluster_to_its_best_expert_when_not_told(registry, data, clusters_file):
+    path, clusters = clusters_file
+    gate = registry.spec("gate", "centroid").load()(n_points=N_POINTS, clusters=str(path))
+    result = gate.fit(data, FAST)
+    train = [data.rates.object_ids.index(o) for o in result.train_ids]
+    for c in range(clusters.k):
+        rows = [r for r in train if clusters.objects[data.rates.object_ids[r]].cluster == c]
+        assert int(gate.state["owner"][c]) == int(data.rates.rates[rows].mean(axis=0).argmax())
+    with pytest.raises(ConfigError, match=r"missing \[2\]"):
+        registry.spec("gate", "centroid").load()(
+            n_points=N_POINTS, clusters=str(path), cluster_experts={0: "small", 1: "large"}
+        ).fit(data, FAST)
+
+
+def test_centroid_gate_without_clustering_says_so(registry, fitted):
+    assert fitted["centroid"].train_info["centres"].startswith("no clustering given")
