@@ -4,7 +4,9 @@ Rows (each a fresh dataset folder, the same objects and settings):
 
 * ``local, in-process``: ``workers=1``, the default (no pool: the tasks run in this process);
 * ``local pool, N``: a spawned process pool of N workers (N = 1 forces a pool of one);
-* ``ray, N``: a Ray instance of N CPUs started here (``ray.init`` timed apart as ``start s``).
+* ``ray, N``: a Ray instance of N CPUs started here (``ray.init`` timed apart as ``start s``);
+* ``ray, N, warm workers``: the same run again on that instance (a cluster's workers outlive a run: the
+  second run finds torch, the engines and the hand models loaded).
 
 Objects per second counts the whole ``run_synthesis`` call (a pool's workers start, importing torch and the
 engines, on their first task: included), Ray's start (``ray.init``, which also starts its idle workers) apart and
@@ -67,29 +69,33 @@ def _ray_start(workers: int) -> tuple:
     return ray, time.perf_counter() - start
 
 
-def synthesis_row(name: str, workers: int, ids: list[str], hand: str, config, work: Path) -> dict:
-    """One run of ``ids`` on executor ``name`` (``local-here``, ``local``, ``ray``) with ``workers``."""
+def synthesis_rows(name: str, workers: int, ids: list[str], hand: str, config, work: Path) -> list[dict]:
+    """Runs of ``ids`` on executor ``name`` (``local-here``, ``local``, ``ray``) with ``workers``: one row, and for
+    Ray a second one: the same run again (another folder) on the same Ray instance, whose workers are warm."""
     from ges_core.synthesis import run_synthesis
 
     ray, start = _ray_start(workers) if name == "ray" else (None, 0.0)
-    before, t0 = _load(), time.perf_counter()
-    out = work / f"{name}-{workers}"
+    label = {"local-here": "local, in-process", "local": f"local pool, {workers}", "ray": f"ray, {workers}"}[name]
+    rows = []
     try:
-        if name == "local":  # a pool even of one worker: LocalExecutor(in_process=False) through the pipeline
-            _pool_run(ids, hand, config, out, workers)
-        else:
-            run_synthesis(ids, [hand], config, out, workers=workers, executor="ray" if ray else "local")
-        seconds = time.perf_counter() - t0
+        for run in range(2 if ray else 1):
+            before, t0 = _load(), time.perf_counter()
+            out = work / f"{name}-{workers}-{run}"
+            if name == "local":  # a pool even of one worker: LocalExecutor(in_process=False) through the pipeline
+                _pool_run(ids, hand, config, out, workers)
+            else:
+                run_synthesis(ids, [hand], config, out, workers=workers, executor="ray" if ray else "local")
+            seconds, start = time.perf_counter() - t0, start if run == 0 else 0.0
+            rows.append({
+                "row": label + (", warm workers" if run else ""), "executor": name, "workers": workers,
+                "objects": len(ids), "seconds": round(seconds, 2), "objects_per_s": round(len(ids) / seconds, 3),
+                "start_s": round(start, 2), "objects_per_s_with_start": round(len(ids) / (seconds + start), 3),
+                "load_before": before, "load_after": _load(), "hashes": _hashes(out),
+            })  # fmt: skip
     finally:
         if ray is not None:
             ray.shutdown()
-    label = {"local-here": "local, in-process", "local": f"local pool, {workers}", "ray": f"ray, {workers}"}[name]
-    return {
-        "row": label, "executor": name, "workers": workers, "objects": len(ids), "seconds": round(seconds, 2),
-        "objects_per_s": round(len(ids) / seconds, 3), "start_s": round(start, 2),
-        "objects_per_s_with_start": round(len(ids) / (seconds + start), 3),
-        "load_before": before, "load_after": _load(), "hashes": _hashes(out),
-    }  # fmt: skip
+    return rows
 
 
 def _pool_run(ids: list[str], hand: str, config, out: Path, workers: int) -> None:
@@ -162,9 +168,9 @@ def main() -> None:
     rows = []
     with tempfile.TemporaryDirectory(prefix="scale_ray_") as tmp:
         for name, workers in (("local-here", 1), ("local", 1), ("local", 2), ("ray", 1), ("ray", 2)):
-            rows.append(synthesis_row(name, workers, ids, args.hand, config, Path(tmp)))
+            rows += synthesis_rows(name, workers, ids, args.hand, config, Path(tmp))
             print(f"  {rows[-1]['row']}: {rows[-1]['seconds']} s (load {rows[-1]['load_after']})", flush=True)
-        payload = _record_payload(Path(tmp) / "local-here-1")
+        payload = _record_payload(Path(tmp) / "local-here-1-0")
     reference = rows[0]["hashes"]
     for row in rows:
         row["identical_to_in_process"] = row.pop("hashes") == reference
