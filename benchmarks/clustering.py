@@ -72,7 +72,8 @@ def analyse(shapes: list[ObjectShape]) -> dict:
 
     base = cluster_objects(shapes, ClusterConfig(k=3, seed=0))
     train = sorted(o for o, m in base.objects.items() if m.split == "train")
-    labels = {s: [cluster_objects(shapes, ClusterConfig(k=3, seed=s)).objects[o].cluster for o in train] for s in SEEDS}
+    runs = {s: cluster_objects(shapes, ClusterConfig(k=3, seed=s)) for s in SEEDS}
+    labels = {s: [run.objects[o].cluster for o in train] for s, run in runs.items()}
     moved = sum(base.objects[o].kmeans_cluster != base.objects[o].cluster for o in train)
     per_k = {}
     for k in KS:
@@ -123,7 +124,7 @@ def print_table(results: dict) -> None:
         timing = f", features {t['total_s']:.0f} s ({1000 * t['mean_s']:.0f} ms/object)" if t else ""
         print(f"\n{name}: {r['objects']} objects, {r['train_objects']} training{timing}")
         for row in r["k3_seed0"]:
-            cats = ", ".join(row["categories"])
+            cats = ", ".join(row["categories"] + [f"{c} ({n}, mixed)" for c, n in row["mixed"].items()])
             print(f"  cluster {row['cluster']}: {row['train']:>4} train {row['unseen_object']:>4} unseen obj "
                   f"{row['unseen_category']:>4} unseen cat | {cats}")  # fmt: skip
         ari = ", ".join(f"{v:.2f}" for v in r["k3_ari_vs_seed0"].values())
