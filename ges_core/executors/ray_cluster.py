@@ -45,6 +45,12 @@ def import_ray() -> Any:
     return ray
 
 
+def _deaths(ray: Any) -> tuple[type, ...]:
+    """Ray's errors for a task whose worker process or node died (killed, Ray's memory monitor, a crash)."""
+    errors = ray.exceptions
+    return (errors.WorkerCrashedError, errors.NodeDiedError, errors.OutOfMemoryError)
+
+
 class RayExecutor(Executor):
     """Ray tasks on the cluster at ``address``, or on a Ray instance started here with ``workers`` CPUs."""
 
@@ -104,7 +110,7 @@ class RayExecutor(Executor):
         ray = self._ray
         try:
             return Done(ticket, ray.get(ref))
-        except (ray.exceptions.WorkerCrashedError, ray.exceptions.NodeDiedError) as exc:
+        except _deaths(ray) as exc:  # Ray ran it again max_retries times already
             return self.lost(ticket, self.max_retries + 1, type(exc).__name__)
         except ray.exceptions.RayTaskError as exc:  # the task raised: its own exception, as a local run gives it
             cause = exc.cause if isinstance(exc.cause, BaseException) else exc
