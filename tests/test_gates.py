@@ -430,3 +430,10 @@ def test_centroid_gate_maps_each_cluster_to_its_best_expert_when_not_told(regist
 
 def test_centroid_gate_without_clustering_says_so(registry, fitted):
     assert fitted["centroid"].train_info["centres"].startswith("no clustering given")
+
+
+def test_farthest_point_sampling_is_the_same_on_both_paths():
+    xyz = torch.rand(6, 300, 3, generator=torch.Generator().manual_seed(1))
+    batched = farthest_point_sample(xyz, 40)  # 6 > NUMPY_FPS_MAX_BATCH: the torch loop
+    one_by_one = torch.cat([farthest_point_sample(xyz[i : i + 1], 40) for i in range(6)])  # numpy
+    assert torch.equal(batched, one_by_one)

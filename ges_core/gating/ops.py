@@ -33,11 +33,14 @@ def farthest_point_sample(xyz: torch.Tensor, m: int) -> torch.Tensor:
     """Indices (B, m) int64 of a greedy farthest-point subset of xyz: (B, N, 3).
 
     Starts at the point farthest from the cloud's centroid (order-independent, unlike index 0).
-    m >= N returns every index.
+    m >= N returns every index. A few CPU clouds go through numpy (1.7 against 7.4 ms for 256 of 1024
+    points: the loop is all per-step overhead), a batch through torch (one step serves every cloud).
     """
     batch, n, _ = xyz.shape
     if m >= n:
         return torch.arange(n, device=xyz.device).expand(batch, n)
+    if xyz.device.type == "cpu" and batch <= NUMPY_FPS_MAX_BATCH:
+        return torch.from_numpy(np.stack([_fps_numpy(c, m) for c in xyz.detach().numpy()]))
     rows = torch.arange(batch, device=xyz.device)
     chosen = torch.empty(batch, m, dtype=torch.long, device=xyz.device)
     centre = xyz.mean(dim=1, keepdim=True)
@@ -48,6 +51,25 @@ def farthest_point_sample(xyz: torch.Tensor, m: int) -> torch.Tensor:
         step = ((xyz - xyz[rows, current].unsqueeze(1)) ** 2).sum(-1)
         dist = torch.minimum(dist, step)
         current = dist.argmax(dim=1)
+    return chosen
+
+
+NUMPY_FPS_MAX_BATCH = 4
+"""Up to this many clouds, :func:`farthest_point_sample` loops over them in numpy (faster below ~5)."""
+
+
+def _fps_numpy(points: np.ndarray, m: int) -> np.ndarray:
+    """:func:`farthest_point_sample` of one (N, 3) cloud, the same steps in the same precision."""
+    x, y, z = (np.ascontiguousarray(points[:, i]) for i in range(3))
+    centre = points.mean(axis=0)
+    current = int((((x - centre[0]) ** 2 + (y - centre[1]) ** 2) + (z - centre[2]) ** 2).argmax())
+    dist = np.full(len(points), np.inf, dtype=points.dtype)
+    chosen = np.empty(m, dtype=np.int64)
+    for i in range(m):
+        chosen[i] = current
+        dx, dy, dz = x - x[current], y - y[current], z - z[current]
+        np.minimum(dist, (dx * dx + dy * dy) + dz * dz, out=dist)
+        current = int(dist.argmax())
     return chosen
 
 
