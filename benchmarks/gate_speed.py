@@ -91,6 +91,13 @@ def measure(registry, repeats: int, n_objects: int) -> list[dict]:
     return rows
 
 
+def reference_gflops() -> float:
+    """Single-thread GFLOP/s of a 512^3 float32 matrix product: how fast this core was during the run."""
+    a, b = torch.rand(512, 512), torch.rand(512, 512)
+    _, cpu = timed(lambda: a @ b, 9)
+    return 2 * 512**3 / cpu / 1e9
+
+
 def table(rows: list[dict]) -> str:
     lines = [
         "| gate | points | ms / object (batch 1, wall) | CPU ms | ms / object (batch 32) |",
@@ -111,8 +118,10 @@ def main() -> None:
     args = parser.parse_args()
     torch.set_num_threads(1)
     load_before = os.getloadavg()[0]
+    gflops = reference_gflops()
     rows = measure(load_registry(), args.repeats, args.objects)
     print(table(rows))
+    print(f"reference: 512^3 matmul at {gflops:.1f} GFLOP/s on one thread; load average {os.getloadavg()[0]:.1f}")
     write_results(
         RESULTS,
         {
@@ -125,7 +134,8 @@ def main() -> None:
                 "platform": platform.platform(),
                 "torch": torch.__version__,
                 "load_average_before_after": [load_before, os.getloadavg()[0]],
-            },  # fmt: skip
+                "reference_matmul_gflops_one_thread": gflops,
+            },
             "code": code_state(),
             "rows": rows,
             "table": table(rows),

@@ -437,3 +437,13 @@ def test_farthest_point_sampling_is_the_same_on_both_paths():
     batched = farthest_point_sample(xyz, 40)  # 6 > NUMPY_FPS_MAX_BATCH: the torch loop
     one_by_one = torch.cat([farthest_point_sample(xyz[i : i + 1], 40) for i in range(6)])  # numpy
     assert torch.equal(batched, one_by_one)
+
+
+def test_curvenet_inference_walk_matches_the_training_walk(fitted, data):
+    model = fitted["curvenet"].model.eval()
+    x = data.clouds[:4] / fitted["curvenet"].settings.input_scale
+    with torch.no_grad():
+        fast = model(x)  # argmax and gather
+    with torch.enable_grad():
+        straight_through = model(x)  # one-hot products whose forward value is the same choice
+    assert torch.allclose(fast, straight_through.detach(), atol=1e-5)

@@ -100,11 +100,22 @@ class CurveGrouping(nn.Module):
             logits = self.policy(pair).squeeze(1)  # (B, count, k)
             if step_feature is not None:
                 logits = logits * self._no_turning_back(step_feature, descriptor, cand_feat)
-            choice = _straight_through_choice(logits)
-            step_feature = (cand_feat * choice.unsqueeze(1)).sum(dim=-1)  # (B, C, count)
-            current = torch.gather(candidates, -1, choice.argmax(dim=-1, keepdim=True)).squeeze(-1)
+            step_feature, pick = self._step(logits, cand_feat)  # (B, C, count), (B, count, 1)
+            current = torch.gather(candidates, -1, pick).squeeze(-1)
             steps.append(step_feature)
         return torch.stack(steps, dim=-1), x
+
+    @staticmethod
+    def _step(logits: torch.Tensor, cand_feat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The chosen candidate's features (B, C, count) and index (B, count, 1): a straight-through hard
+        choice when gradients are wanted, else the argmax's features gathered directly (same values, fewer
+        steps: the walk is mostly per-step overhead at inference)."""
+        if torch.is_grad_enabled():
+            choice = _straight_through_choice(logits)
+            return (cand_feat * choice.unsqueeze(1)).sum(dim=-1), choice.argmax(dim=-1, keepdim=True)
+        pick = logits.argmax(dim=-1, keepdim=True)
+        index = pick.unsqueeze(1).expand(-1, cand_feat.shape[1], -1, -1)
+        return torch.gather(cand_feat, -1, index).squeeze(-1), pick
 
     @staticmethod
     def _no_turning_back(here: torch.Tensor, descriptor: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
