@@ -25,6 +25,10 @@ def ges_register_sims(register: Callable[[SimSpec], None]) -> None:
             entry_point="ges_mujoco_sim.backend:MujocoBackend",
             requires=("mujoco",),
             install="pip install ges-mujoco-sim (or: pip install mujoco)",
+            # MuJoCo steps per scene step: fewer let fingertips tunnel into objects at 1/120 s (the measurement is
+            # at backend.DEFAULT_SUBSTEPS, the class default, which this repeats so `ges info sim mujoco` shows it).
+            # registry.yaml's settings.sim.mujoco overrides it.
+            settings={"substeps": 8},
             description="MuJoCo on the CPU: one MjData per env, implicit PD actuators, elliptic friction cones",
         )
     )

@@ -1,0 +1,122 @@
+"""The outside simulator package ``examples/ges-mujoco-sim``, installed as a user would, through ``ges``:
+
+1. the SimBackend contract (``tests/test_sim_contract.py``, which adds every registered outside backend that
+   declares ``contract_tolerances``) on ``mujoco``;
+2. ``ges list sim`` names it with its distribution, and ``ges sim check --sim mujoco`` closes the Shadow hand
+   on the box and lifts it;
+3. Stage 1 with MuJoCo refining and validating (``ges synth --sim mujoco``) on one demo object, then the Stage 2
+   scripted baseline (``ges env baseline --sim mujoco``) on that record.
+
+Install: when the environment already holds ``ges-mujoco-sim`` (``pip install -e examples/ges-mujoco-sim``) the
+commands use it; otherwise the package is built as a real wheel (``pip wheel --no-deps --no-build-isolation``)
+and installed with ``pip install --no-deps --target`` into a temporary folder that the commands see through
+``PYTHONPATH`` (the environment is left untouched; ``mujoco`` itself must be installed, as the package
+declares). Either way the simulator comes in through its ``ges.plugins`` entry point. About 45-60 s on two
+loaded cores, most of it the contract (23 checks) and the Stage 1 run.
+"""
+
+from __future__ import annotations
+
+import importlib.metadata
+import importlib.util
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from conftest import REPO
+
+pytestmark = pytest.mark.sim
+
+PACKAGE = REPO / "examples" / "ges-mujoco-sim"
+OBJECT = "procedural/box/000"
+"""A demo object Allegro grasps and lifts in all three engines (Table 1 run)."""
+
+if importlib.util.find_spec("mujoco") is None:  # the package's declared dependency
+    pytest.skip("mujoco is not installed: pip install mujoco (ges-mujoco-sim's dependency)", allow_module_level=True)
+
+
+def _installed() -> bool:
+    try:
+        importlib.metadata.distribution("ges-mujoco-sim")
+    except importlib.metadata.PackageNotFoundError:
+        return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def site(tmp_path_factory: pytest.TempPathFactory) -> Path | None:
+    """Folder holding the installed wheel, or None when the environment already has the package."""
+    if _installed():
+        return None
+    root = tmp_path_factory.mktemp("mujoco_pkg")
+    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
+    src = root / "src"
+    subprocess.run(["cp", "-r", str(PACKAGE), str(src)], check=True)  # build dirs stay out of the repo
+    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(root / "w"), str(src)], check=True)
+    (wheel,) = (root / "w").glob("ges_mujoco_sim-*.whl")
+    subprocess.run([*pip, "install", "--no-deps", "--target", str(root / "site"), str(wheel)], check=True)
+    return root / "site"
+
+
+@pytest.fixture(scope="module")
+def run(site: Path | None):
+    """``run(*argv)``: ``python ARGV`` in a fresh interpreter that sees the package; the finished process."""
+    paths = [str(site)] if site else []
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join([*paths, str(REPO)]), "OMP_NUM_THREADS": "1"}
+    env.pop("GES_DISABLE_PLUGIN_AUTOLOAD", None)
+
+    def call(*argv: str) -> subprocess.CompletedProcess:
+        return subprocess.run(
+            [sys.executable, *argv], env=env, capture_output=True, text=True, cwd=REPO, timeout=600, check=False
+        )
+
+    return call
+
+
+def test_contract_runs_on_the_plugin(run) -> None:
+    done = run("-m", "pytest", "-q", "-p", "no:cacheprovider", "tests/test_sim_contract.py", "-k", "mujoco")
+    assert done.returncode == 0, done.stdout[-3000:] + done.stderr[-2000:]
+    passed = re.search(r"(\d+) passed", done.stdout)
+    assert passed and int(passed.group(1)) >= 20, done.stdout[-2000:]  # every contract check, not a stray one
+    assert "skipped" not in done.stdout.splitlines()[-1], done.stdout[-500:]
+
+
+def test_listed_and_sim_check(run) -> None:
+    listed = run("-m", "ges_core.cli", "list", "sim")
+    assert listed.returncode == 0, listed.stderr
+    line = next(ln for ln in listed.stdout.splitlines() if ln.strip().startswith("mujoco"))
+    assert "ges-mujoco-sim 0.1.0" in line, line
+
+    check = run("-m", "ges_core.cli", "sim", "check", "--sim", "mujoco", "--hand", "shadow")
+    assert check.returncode == 0, check.stdout + check.stderr
+    assert "hand shadow in mujoco" in check.stdout and ": OK" in check.stdout, check.stdout
+    rose = float(re.search(r"box rose ([-\d.]+) mm", check.stdout).group(1))
+    assert rose > 25.0, check.stdout  # of the 50 mm the wrist rose: the box went up with the hand
+
+
+def test_stage1_validation_and_baseline(run, tmp_path: Path) -> None:
+    out = tmp_path / "ds"
+    synth = run("-m", "ges_core.cli", "synth", "--hands", "allegro", "--objects", OBJECT, "--sim", "mujoco",
+                "--out", str(out), "-o", "robust.enabled=false", "--no-progress")  # fmt: skip
+    assert synth.returncode == 0, synth.stdout + synth.stderr
+    (path,) = sorted((out / "records" / "allegro").glob("*.npz"))
+    with np.load(path, allow_pickle=False) as z:
+        record = json.loads(str(z["record_json"]))
+    assert record["simulator"] == "mujoco", record["simulator"]
+    assert set(record["validations"]) == {"mujoco"}, record["validations"]
+    verdict = record["validations"]["mujoco"]
+    assert verdict["success"], verdict  # lifted 0.2 m and held by the fingertips, in MuJoCo
+    assert verdict["flags"]["reached_grasp"] and verdict["flags"]["fingertips_touching"], verdict
+
+    base = run("-m", "ges_core.cli", "env", "baseline", str(out), "--hand", "allegro", "--sim", "mujoco",
+               "--out", str(tmp_path / "eval"), "--no-progress")  # fmt: skip
+    assert base.returncode == 0, base.stdout + base.stderr
+    assert "sim mujoco" in base.stdout, base.stdout
+    (results,) = (tmp_path / "eval").glob("baseline-allegro-mujoco*.json")
+    assert OBJECT in results.read_text(), results.read_text()[:500]
