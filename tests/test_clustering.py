@@ -305,8 +305,11 @@ def test_cluster_command_on_stage1_records(tmp_path, capsys):
     assert {clusters.cluster_of("procedural/box/000"), clusters.cluster_of("procedural/sphere/000")} == {0, 1}
     assert main(["cluster", str(dataset), "-k", "3", "--no-progress"]) == 1
     assert "cannot make k = 3 clusters from 2 training object(s)" in capsys.readouterr().err
-    assert main(["cluster", str(dataset), "-k", "0"]) == 1
-    assert "k: Input should be greater than or equal to 1" in capsys.readouterr().err
+    with pytest.raises(SystemExit) as exit_:  # argparse's usage error, before anything runs
+        main(["cluster", str(dataset), "-k", "0"])
+    assert exit_.value.code == 2 and "argument -k: '0' is not a whole number >= 1" in capsys.readouterr().err
+    assert main(["cluster", str(dataset), "--category-share", "1.5"]) == 1
+    assert "category_share: Input should be less than or equal to 1" in capsys.readouterr().err
     assert not (dataset / "clusters.json").exists()
 
 

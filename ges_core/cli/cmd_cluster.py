@@ -6,7 +6,7 @@ import argparse
 import time
 from pathlib import Path
 
-from ges_core.cli.args import non_negative_int
+from ges_core.cli.args import non_negative_int, positive_float, positive_int
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -15,14 +15,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "cluster", help="cluster a dataset's objects by shape features (writes DATASET/clusters.json and .png)"
     )
     p.add_argument("dataset", type=Path, metavar="DATASET", help="a grasp dataset folder (ges synth / ges demo)")
-    p.add_argument("-k", type=int, default=3, help="number of clusters, one expert each (default 3, as the paper)")
+    p.add_argument(
+        "-k", type=positive_int, default=3, help="number of clusters, one expert each (default 3, as the paper)"
+    )
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of point clouds and K-means (default 0)")
     p.add_argument(
-        "--category-share", type=float, default=2 / 3, metavar="S",
+        "--category-share", type=positive_float, default=2 / 3, metavar="S",
         help="a category moves whole to the cluster holding most of its training objects when that cluster holds "
-        "at least this share of them (default 2/3; 0: always)",
+        "at least this share of them (default 2/3; <= 1/k: always, as a majority holds at least 1/k)",
     )  # fmt: skip
-    p.add_argument("--points", type=int, default=2048, metavar="N", help="surface points per object (default 2048)")
+    p.add_argument(
+        "--points", type=positive_int, default=2048, metavar="N", help="surface points per object (default 2048)"
+    )
     p.add_argument(
         "--out", type=Path, metavar="PATH", help="clusters JSON to write (default DATASET/clusters.json; PNG beside)"
     )
