@@ -13,9 +13,10 @@ preferences are "small flat objects", "medium objects", "larger box-shaped objec
 - ``pca_ratio_2_1``, ``pca_ratio_3_1``: the surface points' covariance eigenvalues over the largest one
   (``l2/l1``, ``l3/l1``): scale-free elongation (rods: both small) and flatness (plates: only the last small);
   a sphere or a cube gives 1, 1.
-- ``log10_volume_m3``: how much there is to hold (mass at a given density). The logarithm: the library's volumes
-  span four decades (a 2 cm domino to a 30 cm bin), and raw volume would put every small object at one
-  standardized value while one large object became a cluster of its own.
+- ``log10_volume_m3``: how much there is to hold (mass at a given density). The logarithm: the library dataset's
+  volumes span six decades (a thin random_urdfs shell, 2e-9 m^3, to the YCB cracker box, 2e-3 m^3), and raw
+  volume would put every small object at one standardized value while one large object became a cluster of its
+  own.
 - ``hull_ratio``: volume / convex-hull volume (solidity). 1 for convex shapes, below for mugs, bowls, brackets:
   concavities and handles give a hand other surfaces to pinch or hook.
 - ``sphericity``: ``pi^(1/3) (6 V)^(2/3) / A``, the surface-area-to-volume ratio made scale-free (1 for a ball,
