@@ -1,4 +1,5 @@
-"""The SimBackend contract, checked the same way on every built-in backend.
+"""The SimBackend contract, checked the same way on every built-in backend and on every registered outside
+backend that declares its tolerances (:func:`_outside_backends`; ``examples/ges-mujoco-sim``).
 
 Tests that used to be written once per backend (test_sim_sapien.py, test_sim_pybullet.py) with the
 same scene and the same references: forward kinematics from pytorch-kinematics, rest heights of
