@@ -116,7 +116,8 @@ def measure_workers(dataset: Path, sim: str, envs: int, workers: int, seconds: f
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--dataset", type=Path, default=DEFAULT_DATASET if DEFAULT_DATASET.is_dir() else FALLBACK_DATASET)
+    default = DEFAULT_DATASET if DEFAULT_DATASET.is_dir() else FALLBACK_DATASET
+    parser.add_argument("--dataset", type=Path, default=default)
     parser.add_argument("--sims", nargs="+", default=["sapien", "pybullet"])
     parser.add_argument("--envs", nargs="+", type=int, default=[8, 32, 64])
     parser.add_argument("--iterations", type=int, default=3)
