@@ -15,7 +15,8 @@ before (an env restored after a blow-up evolves like one that never blew up). A 
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 
 import mujoco
 import numpy as np
@@ -103,10 +104,11 @@ class MujocoBackend(SimBackend):
     def engine_step(self) -> None:
         """One physics step (``substeps`` bare ``mj_step``) per env: no checks, no bookkeeping (benchmarks)."""
         self._check_open()
-        for e, (scene, data) in enumerate(zip(self._scenes, self._data, strict=True)):
-            mujoco.mj_step(scene.model, data, self.substeps)
-            self._forces[e].fill(0.0)  # a raw step keeps no contact forces
-            self._posed[e] = False
+        with _quiet():
+            for e, (scene, data) in enumerate(zip(self._scenes, self._data, strict=True)):
+                mujoco.mj_step(scene.model, data, self.substeps)
+                self._forces[e].fill(0.0)  # a raw step keeps no contact forces
+                self._posed[e] = False
 
     # -- building ------------------------------------------------------------------------------
     def _load_hand(self, hand: HandModel, floating: bool) -> None:
@@ -184,6 +186,12 @@ class MujocoBackend(SimBackend):
     def _step(self, n: int) -> dict[int, str]:
         """Every env ``n`` steps, each checked after every step; an env that blew up is not stepped further."""
         blown: dict[int, str] = {}
+        with _quiet():
+            self._step_envs(n, blown)
+        return blown
+
+    def _step_envs(self, n: int, blown: dict[int, str]) -> None:
+        """``n`` scene steps of every env (each ``substeps`` MuJoCo steps, forces summed); problems into ``blown``."""
         for e, (scene, data, forces) in enumerate(zip(self._scenes, self._data, self._forces, strict=True)):
             model = scene.model
             for _ in range(n):
@@ -196,7 +204,6 @@ class MujocoBackend(SimBackend):
                     blown[e] = problem
                     break
             self._posed[e] = False
-        return blown
 
     def _rebuild(self, ids: list[int]) -> None:
         """Clear the NaNs out of the blown envs' data (the core then teleports hand and object back)."""
@@ -322,6 +329,26 @@ class MujocoBackend(SimBackend):
                     raise UnknownNameError("hand link", name, known)
             self._link_cache[key] = [known[name] for name in key]
         return self._link_cache[key]
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """MuJoCo's warnings (a NaN state: "WARNING: Nan, Inf or huge value in QACC ...") go nowhere while stepping.
+
+    By default MuJoCo prints them and appends them to ``MUJOCO_LOG.TXT`` in the working directory; the backend
+    reads the same events from ``MjData.warning`` and reports them as a SimulationError. The previous handler is
+    restored afterwards, so other MuJoCo code in the process keeps its own.
+    """
+    previous = mujoco.get_mju_user_warning()
+    mujoco.set_mju_user_warning(_ignore)
+    try:
+        yield
+    finally:
+        mujoco.set_mju_user_warning(previous)
+
+
+def _ignore(message: str) -> None:
+    return None
 
 
 def _force_table(model: mujoco.MjModel) -> np.ndarray:
