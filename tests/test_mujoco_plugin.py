@@ -5,7 +5,10 @@
 2. ``ges list sim`` names it with its distribution, and ``ges sim check --sim mujoco`` closes the Shadow hand
    on the box and lifts it;
 3. Stage 1 with MuJoCo refining and validating (``ges synth --sim mujoco``) on one demo object, then the Stage 2
-   scripted baseline (``ges env baseline --sim mujoco``) on that record.
+   scripted baseline (``ges env baseline --sim mujoco``) on that record;
+4. a blow-up (what ``tests/test_sim_env_ids.py`` checks of the built-ins): a NaN in one env of three is reported
+   for that env only, the others stay bit-identical to an undisturbed backend given the same commands, and the
+   reset env then evolves bit-identically too, without MuJoCo printing or writing its log file.
 
 Install: when the environment already holds ``ges-mujoco-sim`` (``pip install -e examples/ges-mujoco-sim``) the
 commands use it; otherwise the package is built as a real wheel (``pip wheel --no-deps --no-build-isolation``)
@@ -120,3 +123,54 @@ def test_stage1_validation_and_baseline(run, tmp_path: Path) -> None:
     assert "sim mujoco" in base.stdout, base.stdout
     (results,) = (tmp_path / "eval").glob("baseline-allegro-mujoco*.json")
     assert OBJECT in results.read_text(), results.read_text()[:500]
+
+
+BLOWUP = """
+import sys
+import numpy as np
+sys.path.insert(0, "tests")
+from helpers_sim import allegro_test_hand, box_asset, open_q, UP
+from ges_core.errors import SimulationError
+from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig
+
+hand, registry = allegro_test_hand(), load_registry()
+
+def scene():
+    sim = registry.build_sim("mujoco", SceneConfig(num_envs=3))
+    sim.load_hand(hand)
+    sim.load_object(box_asset())
+    sim.set_hand_state(open_q(hand, 3), np.tile(UP, (3, 1)))
+    sim.set_joint_targets(np.tile(hand.description.closed_pose(0.5), (3, 1)))
+    sim.step(5)
+    return sim
+
+def state(sim):
+    return [*sim.joint_state(), sim.object_pose(), sim.contact_forces(list(hand.description.tip_links), "any")]
+
+calm, hit = scene(), scene()
+hit._data[1].qvel[hit._scenes[1].object_dof] = np.nan  # the object of env 1 only (engine internals: a test)
+for sim in (calm, hit):
+    try:
+        sim.step(3)
+        print("stepped", sim is hit)
+    except SimulationError as exc:
+        print("blown", list(exc.env_ids), str(exc).split(";")[0])
+print("others", all(np.array_equal(a[[0, 2]], b[[0, 2]]) for a, b in zip(state(calm), state(hit))))
+for sim in (calm, hit):
+    sim.reset(env_ids=[1])
+    sim.step(20)
+print("restored", all(np.array_equal(a, b) for a, b in zip(state(calm), state(hit))))
+"""
+
+
+def test_a_blown_env_is_reported_alone_and_restored(run) -> None:
+    done = run("-c", BLOWUP)
+    assert done.returncode == 0, done.stdout + done.stderr
+    lines = done.stdout.splitlines()
+    assert "stepped False" in lines, done.stdout  # the undisturbed backend stepped without error
+    blown = next(ln for ln in lines if ln.startswith("blown"))
+    assert blown.startswith("blown [1] mujoco env 1: "), blown
+    assert "others True" in lines and "restored True" in lines, done.stdout
+    assert "WARNING" not in done.stdout + done.stderr, done.stdout + done.stderr  # MuJoCo's own print
+    assert not (REPO / "MUJOCO_LOG.TXT").exists()
