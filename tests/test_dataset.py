@@ -708,6 +708,14 @@ def test_validate_reports_file_level_damage(dataset):
     assert any(p.startswith(f"{mug}: manifest.json index disagrees with the record on [") for p in problems)
 
 
+def test_validate_names_a_file_that_is_not_an_npz_archive(dataset):
+    file = record_relpath("procedural/box/000", "shadow")
+    (dataset / file).write_bytes(b"this is a text file, not a record\n")
+    problems = validate_dataset(dataset)
+    assert f"{file}: unreadable record (ValueError: not an .npz archive" in problems[0]
+    assert "pickled" not in problems[0]
+
+
 def test_validate_reports_non_object_json(dataset):
     file = record_relpath("procedural/box/000", "shadow")
     meta, arrays = read_raw((dataset / file).read_bytes())

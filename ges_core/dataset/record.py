@@ -463,6 +463,10 @@ def raw_to_bytes(meta: dict, arrays: Mapping[str, np.ndarray]) -> bytes:
 
 def read_raw(data: bytes) -> tuple[dict, dict[str, np.ndarray]]:
     """(scalars, arrays) of an ``.npz`` record; raises ValueError/OSError/KeyError on a damaged file."""
+    if not data.startswith(b"PK"):
+        # np.load reads any other bytes as a pickle and then says "contains pickled (object) data", which
+        # sends a user looking for pickles in a file that is simply not a record.
+        raise ValueError("not an .npz archive (the file does not start with a zip header)")
     with np.load(io.BytesIO(data), allow_pickle=False) as npz:
         arrays = {name: npz[name] for name in npz.files}  # reading every member checks its CRC
     meta = json.loads(str(arrays.pop(JSON_KEY)))
