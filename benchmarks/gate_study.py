@@ -48,7 +48,13 @@ def dataset(per_category: int, sizes: list[int]) -> dict[int, GateData]:
     library = ObjectLibrary(LibraryConfig(sources=("procedural",), procedural_count=per_category))
     ids = [o.object_id for o in library.list()]
     rates = SuccessRates(ids, EXPERTS, size_rule(np.array([library.extents(i).max() for i in ids])))
-    big = library_clouds(library, ids, max(sizes))
+    cache = Path(__file__).resolve().parent.parent / "runs" / f"gate_study_clouds_{per_category}_{max(sizes)}.pt"
+    if cache.is_file():
+        big = torch.load(cache, weights_only=True)
+    else:  # sampling 4096 farthest points of 16384 per object is minutes for the set: kept for reruns
+        big = library_clouds(library, ids, max(sizes))
+        cache.parent.mkdir(parents=True, exist_ok=True)
+        torch.save(big, cache)
     out = {}
     for n in sizes:
         clouds = torch.stack([torch.from_numpy(fit_cloud(c.numpy(), n, i)) for c, i in zip(big, ids, strict=True)])
@@ -60,8 +66,8 @@ def run(registry, data: dict[int, GateData], epochs: int, save) -> tuple[list[di
     """Fit every gate at every size; ``save(rows, curves)`` after each (a stopped run keeps what it did)."""
     rows, curves = [], {}
     config = TrainConfig(epochs=epochs, batch_size=8, val_fraction=0.25, seed=0)
-    for n, d in data.items():
-        for name in ("curvenet", "pointnet2", "centroid"):
+    for name in ("centroid", "pointnet2", "curvenet"):  # cheapest first: a stopped run has whole comparisons
+        for n, d in data.items():
             gate = registry.spec("gate", name).load()(**{**registry.settings("gate", name), "n_points": n})
             start = time.perf_counter()
             result = gate.fit(d, config)
