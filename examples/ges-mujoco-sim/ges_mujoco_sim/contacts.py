@@ -2,8 +2,8 @@
 
 A scene step is ``substeps`` MuJoCo steps. After each one, :func:`add_substep_forces` adds every contact's force
 into a body x body table; :func:`link_forces` reads the table divided by the number of substeps: the mean
-force over the scene step, as SAPIEN's impulse over its step divided by the step. (The last substep alone
-chatters: a fingertip resting on an object reads 0 in some substeps and twice its load in others.)
+force over the scene step, as SAPIEN's impulse over its step divided by the step (the last substep alone would
+report one 1/960 s slice of it).
 
 Forces: with elliptic cones (:data:`.model.CONE`) ``efc_force[efc_address : efc_address + 3]`` is a contact's
 force in its frame (rows of ``contact.frame``: normal, first and second tangent). It acts on ``geom[1]``'s
