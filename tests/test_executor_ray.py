@@ -102,26 +102,28 @@ def _record_bytes(root: Path) -> dict[str, bytes]:
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted((root / "records").rglob("*.npz"))}
 
 
-def _killed_ray_run(out: Path, address: str) -> None:
-    """``ges synth --executor ray --address`` in another process, SIGKILLed once its first record is written."""
+def _killed_ray_run(out: Path, address: str, log: Path) -> None:
+    """``ges synth --executor ray --address`` in another process, SIGKILLed once its first record is written.
+    Its output goes to ``log`` (a pipe nobody reads while waiting could fill up and stall the run)."""
     argv = [sys.executable, "-m", "ges_core.cli", "synth", "--hands", "allegro", "--objects", *OBJECTS]
     argv += ["--sim", "sapien", "--out", str(out), *(a for k, v in FAST.items() for a in ("-o", f"{k}={v}"))]
     argv += ["--no-progress", "--executor", "ray", "--address", address]
-    proc = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-    deadline = time.monotonic() + 600  # ~10 s normally; minutes on a 2-core machine at load 18 (full suite, -n 2)
-    while not list(out.glob("records/*/*.npz")) and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.05)
-    proc.send_signal(signal.SIGKILL)
-    err = proc.communicate()[1]
-    assert proc.returncode == -signal.SIGKILL, f"the run ended by itself before the kill:\n{err}"
-    assert list(out.glob("records/*/*.npz")), f"no record written within 600 s; the run said:\n{err}"
+    with log.open("w") as sink:
+        proc = subprocess.Popen(argv, stdout=sink, stderr=subprocess.STDOUT)
+        deadline = time.monotonic() + 600  # ~10 s normally; minutes on 2 cores at load 18 (full suite, -n 2)
+        while not list(out.glob("records/*/*.npz")) and proc.poll() is None and time.monotonic() < deadline:
+            time.sleep(0.05)
+        proc.send_signal(signal.SIGKILL)
+        proc.wait()
+    assert proc.returncode == -signal.SIGKILL, f"the run ended by itself before the kill:\n{log.read_text()}"
+    assert list(out.glob("records/*/*.npz")), f"no record written within 600 s; the run said:\n{log.read_text()}"
 
 
 @pytest.mark.sim
 def test_ray_records_equal_the_local_ones_byte_for_byte_and_a_killed_ray_run_resumes(cluster, tmp_path):
     config = _config()
     local = run_synthesis(OBJECTS, ["allegro"], config, tmp_path / "local")
-    _killed_ray_run(tmp_path / "ray", cluster)
+    _killed_ray_run(tmp_path / "ray", cluster, tmp_path / "killed_run.log")
     kept = set(_record_bytes(tmp_path / "ray"))
     assert 1 <= len(kept) < len(OBJECTS)
     resumed = run_synthesis(OBJECTS, ["allegro"], config, tmp_path / "ray", executor="ray", workers=2)
