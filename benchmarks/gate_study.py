@@ -10,9 +10,9 @@ exp(-((L - 0.105) / 0.025)^2). It tests that each gate learns a geometric prefer
 For each gate (curvenet, pointnet2, centroid) and input size (1024, 4096): ``gate.fit`` with the same
 seeded split (25 % validation), epochs and augmentation; train / validation gate accuracy and time. Writes
 benchmarks/results/gate_study.json and benchmarks/results/gate_curves.png (loss and validation accuracy
-per epoch, per backbone, at 1024 points).
+per epoch, per backbone, at the smallest size).
 
-Usage: python benchmarks/gate_study.py [--per-category 3] [--epochs 20] [--sizes 1024 4096]
+Usage: python benchmarks/gate_study.py [--per-category 3] [--epochs 20] [--sizes 1024 4096] [--replot]
 """
 
 from __future__ import annotations
@@ -123,7 +123,13 @@ def main() -> None:
     parser.add_argument("--per-category", type=int, default=3)
     parser.add_argument("--epochs", type=int, default=20)
     parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096])
+    parser.add_argument("--replot", action="store_true", help="only redraw the PNG from gate_study.json")
     args = parser.parse_args()
+    if args.replot:
+        import json
+
+        plot(json.loads((OUT / "gate_study.json").read_text())["curves"], OUT / "gate_curves.png")
+        return
     torch.set_num_threads(1)
     data = dataset(args.per_category, args.sizes)
     n_objects = len(next(iter(data.values())).rates.object_ids)
