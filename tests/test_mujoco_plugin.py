@@ -20,23 +20,19 @@ loaded cores, most of it the contract (23 checks) and the Stage 1 run.
 
 from __future__ import annotations
 
-import importlib.metadata
 import importlib.util
 import json
-import os
 import re
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers_packages import example_site, interpreter
 
 from conftest import REPO
 
 pytestmark = pytest.mark.sim
 
-PACKAGE = REPO / "examples" / "ges-mujoco-sim"
 OBJECT = "procedural/box/000"
 """A demo object Allegro grasps and lifts in all three engines (Table 1 run)."""
 
@@ -44,42 +40,16 @@ if importlib.util.find_spec("mujoco") is None:  # the package's declared depende
     pytest.skip("mujoco is not installed: pip install mujoco (ges-mujoco-sim's dependency)", allow_module_level=True)
 
 
-def _installed() -> bool:
-    try:
-        importlib.metadata.distribution("ges-mujoco-sim")
-    except importlib.metadata.PackageNotFoundError:
-        return False
-    return True
-
-
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path | None:
     """Folder holding the installed wheel, or None when the environment already has the package."""
-    if _installed():
-        return None
-    root = tmp_path_factory.mktemp("mujoco_pkg")
-    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
-    src = root / "src"
-    subprocess.run(["cp", "-r", str(PACKAGE), str(src)], check=True)  # build dirs stay out of the repo
-    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(root / "w"), str(src)], check=True)
-    (wheel,) = (root / "w").glob("ges_mujoco_sim-*.whl")
-    subprocess.run([*pip, "install", "--no-deps", "--target", str(root / "site"), str(wheel)], check=True)
-    return root / "site"
+    return example_site("ges-mujoco-sim", "ges-mujoco-sim", tmp_path_factory.mktemp("mujoco_pkg"))
 
 
 @pytest.fixture(scope="module")
 def run(site: Path | None):
     """``run(*argv)``: ``python ARGV`` in a fresh interpreter that sees the package; the finished process."""
-    paths = [str(site)] if site else []
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([*paths, str(REPO)]), "OMP_NUM_THREADS": "1"}
-    env.pop("GES_DISABLE_PLUGIN_AUTOLOAD", None)
-
-    def call(*argv: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [sys.executable, *argv], env=env, capture_output=True, text=True, cwd=REPO, timeout=600, check=False
-        )
-
-    return call
+    return interpreter(site)
 
 
 def test_contract_runs_on_the_plugin(run) -> None:

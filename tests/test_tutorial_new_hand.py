@@ -15,19 +15,13 @@ and the simulator runs; the tutorial's full-size figures come from the same comm
 
 from __future__ import annotations
 
-import importlib.metadata
 import json
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
+from helpers_packages import example_site, interpreter
 
-from conftest import REPO
-
-PACKAGE = REPO / "examples" / "ges-ability-hand"
 OBJECTS = ("procedural/can/000", "procedural/sphere/000")
 """Two demo objects the Ability hand validates on in both engines (20-object run in the tutorial)."""
 RUN = ("-o", "validate_sims=[sapien]", "-o", "robust.enabled=false", "--no-progress")
@@ -36,47 +30,16 @@ ROOT_WELDED = {"base", "thumb_base"}
 tutorial explains why that does not matter with a driven wrist (the only lint problems left)."""
 
 
-def _installed() -> bool:
-    try:
-        importlib.metadata.distribution("ges-ability-hand")
-    except importlib.metadata.PackageNotFoundError:
-        return False
-    return True
-
-
 @pytest.fixture(scope="module")
 def site(tmp_path_factory: pytest.TempPathFactory) -> Path | None:
     """Folder holding the package's wheel, or None when the environment already has the package."""
-    if _installed():
-        return None
-    root = tmp_path_factory.mktemp("ability_pkg")
-    pip = [sys.executable, "-m", "pip", "--disable-pip-version-check", "-q"]
-    src = root / "src"
-    subprocess.run(["cp", "-r", str(PACKAGE), str(src)], check=True)  # build dirs stay out of the repo
-    subprocess.run([*pip, "wheel", "--no-deps", "--no-build-isolation", "-w", str(root / "w"), str(src)], check=True)
-    (wheel,) = (root / "w").glob("ges_ability_hand-*.whl")
-    subprocess.run([*pip, "install", "--no-deps", "--target", str(root / "site"), str(wheel)], check=True)
-    return root / "site"
+    return example_site("ges-ability-hand", "ges-ability-hand", tmp_path_factory.mktemp("ability_pkg"))
 
 
 @pytest.fixture(scope="module")
 def ges(site: Path | None):
     """Run ``ges ARGS`` in a fresh interpreter that sees the package; returns the finished process."""
-    paths = [str(site)] if site else []
-    env = {**os.environ, "PYTHONPATH": os.pathsep.join([*paths, str(REPO)]), "OMP_NUM_THREADS": "1"}
-    env.pop("GES_DISABLE_PLUGIN_AUTOLOAD", None)
-
-    def run(*args: str) -> subprocess.CompletedProcess:
-        return subprocess.run(
-            [sys.executable, "-m", "ges_core.cli", *args],
-            env=env,
-            capture_output=True,
-            text=True,
-            cwd=REPO,
-            timeout=600,
-        )
-
-    return run
+    return interpreter(site, ("-m", "ges_core.cli"))
 
 
 def _records(root: Path, hand: str) -> dict[str, tuple[dict, dict]]:
