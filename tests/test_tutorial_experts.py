@@ -4,7 +4,7 @@ CurveNet gate on it. Commands are read from the page; the files each one writes 
 are checked against the outputs and the matrix.
 
 Real engines at the page's size (6 objects, SAPIEN, 2 envs x 2 iterations, 18 cells, 3 gate epochs): about 70 s
-on a quiet 2-core machine.
+on a quiet 2-core machine (81 s measured at a load average of 1.5).
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from helpers_tutorial import block_with, commands, console_output, ges_commands,
 from ges_core.experts.matrix import SuccessMatrix, load_matrix
 
 PAGE = tutorial("experts.md")
-pytestmark = [pytest.mark.sim, pytest.mark.slow]  # real engines, about 70 s of CPU
+pytestmark = [pytest.mark.sim, pytest.mark.slow]  # real engines, about 70 s of CPU, 81 s wall
 SPLITS = ("train", "unseen_object", "unseen_category")
 PAGE_SPLITS = {  # the page, step 1: which objects are in which split
     "procedural/box/003": "train",
