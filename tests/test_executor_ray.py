@@ -14,6 +14,9 @@ import pytest
 
 ray = pytest.importorskip("ray", reason="Ray is not installed: pip install 'ges-unigrasp[ray]'")
 
+import helpers_tasks  # noqa: E402
+from helpers_tasks import die_on_victim, fail_on_three, run_all, square_with_pid  # noqa: E402
+
 from ges_core.config import load_config  # noqa: E402
 from ges_core.dataset import open_dataset, validate_dataset  # noqa: E402
 from ges_core.executors import TaskLostError, make_executor  # noqa: E402
@@ -28,48 +31,20 @@ FAST = {"validate.hold_steps": "60", "robust.enabled": "false", "chunk_size": "1
 @pytest.fixture(scope="module")
 def cluster() -> str:
     """A Ray instance of 2 CPUs for this module (about 5 s to start); its address, for a second driver."""
-    # the tasks of this module are pickled by value: a Ray worker cannot import a test module by name
-    ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
+    # the task doubles are pickled by value: a Ray worker cannot import a test helper module by name
+    ray.cloudpickle.register_pickle_by_value(helpers_tasks)
     context = ray.init(num_cpus=2, object_store_memory=OBJECT_STORE_BYTES, include_dashboard=False, log_to_driver=False)
     yield context.address_info["address"]
     ray.shutdown()
 
 
-# -- task doubles ------------------------------------------------------------------------------------------------------
-def square_with_pid(i: int) -> tuple[int, int]:
-    return i * i, os.getpid()
-
-
-def fail_on_three(i: int) -> int:
-    if i == 3:
-        raise ValueError(f"task {i} fails on purpose")
-    return i
-
-
-def die_on_victim(i: int, victim: int, marker_dir: str, times: int) -> tuple[int, int]:
-    """SIGKILL this Ray worker process when ``i == victim``, on its first ``times`` attempts (marker files count)."""
-    if i == victim:
-        marks = Path(marker_dir)
-        done = len(list(marks.glob("attempt-*")))
-        (marks / f"attempt-{done}").touch()
-        if done < times:
-            os.kill(os.getpid(), signal.SIGKILL)
-    return i, os.getpid()
-
-
-def _run(executor, fn, items, *extra) -> dict:
-    with executor as ex:
-        tickets = {ex.submit(fn, i, *extra): i for i in items}
-        return {tickets[d.ticket]: d for d in ex.as_completed()}
-
-
 # -- the executor ---------------------------------------------------------------------------------------------------
 def test_ray_gives_the_local_values_and_each_tasks_own_error(cluster):
-    local = _run(make_executor("local"), square_with_pid, range(6))
-    remote = _run(make_executor("ray"), square_with_pid, range(6))
+    local = run_all(make_executor("local"), square_with_pid, range(6))
+    remote = run_all(make_executor("ray"), square_with_pid, range(6))
     assert {i: d.value[0] for i, d in remote.items()} == {i: d.value[0] for i, d in local.items()}
     assert os.getpid() not in {d.value[1] for d in remote.values()}  # they ran in Ray's workers
-    failing = _run(make_executor("ray"), fail_on_three, range(5))
+    failing = run_all(make_executor("ray"), fail_on_three, range(5))
     assert type(failing[3].error) is ValueError and "task 3 fails on purpose" in str(failing[3].error)
     assert all(failing[i].ok for i in (0, 1, 2, 4))
     assert ray.is_initialized()  # an executor leaves a Ray it did not start running
@@ -77,14 +52,14 @@ def test_ray_gives_the_local_values_and_each_tasks_own_error(cluster):
 
 def test_a_killed_ray_worker_loses_only_its_task(cluster, tmp_path):
     """The victim SIGKILLs its worker on the first attempt: Ray runs it again, every other task is kept."""
-    done = _run(make_executor("ray"), die_on_victim, range(6), 2, str(tmp_path), 1)
+    done = run_all(make_executor("ray"), die_on_victim, range(6), 2, str(tmp_path), 1)
     assert all(d.ok for d in done.values()), {i: d.error for i, d in done.items()}
     assert {i: d.value[0] for i, d in done.items()} == {i: i for i in range(6)}
     assert len(list(tmp_path.glob("attempt-*"))) == 2  # the victim ran twice: killed, then retried
 
 
 def test_a_task_that_kills_every_worker_is_lost_and_the_rest_finish(cluster, tmp_path):
-    done = _run(make_executor("ray", max_retries=1), die_on_victim, range(6), 2, str(tmp_path), 99)
+    done = run_all(make_executor("ray", max_retries=1), die_on_victim, range(6), 2, str(tmp_path), 99)
     assert isinstance(done[2].error, TaskLostError)
     assert "died on each of 2 attempt(s) (WorkerCrashedError)" in str(done[2].error)
     assert len(list(tmp_path.glob("attempt-*"))) == 2
@@ -102,7 +77,7 @@ def _record_bytes(root: Path) -> dict[str, bytes]:
     return {p.relative_to(root).as_posix(): p.read_bytes() for p in sorted((root / "records").rglob("*.npz"))}
 
 
-def _killed_ray_run(out: Path, address: str, log: Path) -> None:
+def _killed_rayrun_all(out: Path, address: str, log: Path) -> None:
     """``ges synth --executor ray --address`` in another process, SIGKILLed once its first record is written.
     Its output goes to ``log`` (a pipe nobody reads while waiting could fill up and stall the run)."""
     argv = [sys.executable, "-m", "ges_core.cli", "synth", "--hands", "allegro", "--objects", *OBJECTS]
@@ -123,7 +98,7 @@ def _killed_ray_run(out: Path, address: str, log: Path) -> None:
 def test_ray_records_equal_the_local_ones_byte_for_byte_and_a_killed_ray_run_resumes(cluster, tmp_path):
     config = _config()
     local = run_synthesis(OBJECTS, ["allegro"], config, tmp_path / "local")
-    _killed_ray_run(tmp_path / "ray", cluster, tmp_path / "killed_run.log")
+    _killed_rayrun_all(tmp_path / "ray", cluster, tmp_path / "killed_run.log")
     kept = set(_record_bytes(tmp_path / "ray"))
     assert 1 <= len(kept) < len(OBJECTS)
     resumed = run_synthesis(OBJECTS, ["allegro"], config, tmp_path / "ray", executor="ray", workers=2)

@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
+from helpers_tasks import die_on_victim, fail_on_three, run_all, square_with_pid
 
 import ges_core.cli as cli
 from ges_core.errors import BackendUnavailable, ConfigError, UnknownNameError
@@ -24,27 +25,6 @@ from ges_core.executors import (
 
 
 # -- task doubles (module level: a spawned worker imports them) ---------------------------------------------------
-def square_with_pid(i: int) -> tuple[int, int]:
-    return i * i, os.getpid()
-
-
-def fail_on_three(i: int) -> int:
-    if i == 3:
-        raise ValueError(f"task {i} fails on purpose")
-    return i
-
-
-def die_on_victim(i: int, victim: int, marker_dir: str, times: int) -> tuple[int, int]:
-    """SIGKILL this worker process when ``i == victim``, on its first ``times`` attempts (counted by marker files)."""
-    if i == victim:
-        marks = Path(marker_dir)
-        done = len(list(marks.glob("attempt-*")))
-        (marks / f"attempt-{done}").touch()
-        if done < times:
-            os.kill(os.getpid(), signal.SIGKILL)
-    return i, os.getpid()
-
-
 def slow_marked(i: int, marker_dir: str) -> int:
     (Path(marker_dir) / f"started-{i}").touch()
     time.sleep(0.3)
@@ -63,15 +43,9 @@ def read_setup(_: int) -> str | None:
     return os.environ.get("GES_TEST_SETUP")
 
 
-def _run(executor, fn, items, *extra) -> dict:
-    with executor as ex:
-        tickets = {ex.submit(fn, i, *extra): i for i in items}
-        return {tickets[d.ticket]: d for d in ex.as_completed()}
-
-
 # -- this process -----------------------------------------------------------------------------------------------
 def test_one_worker_runs_in_this_process_and_reports_a_failing_task():
-    done = _run(LocalExecutor(), fail_on_three, range(5))
+    done = run_all(LocalExecutor(), fail_on_three, range(5))
     assert sorted(done) == [0, 1, 2, 3, 4]
     assert [done[i].result() for i in (0, 1, 2, 4)] == [0, 1, 2, 4]
     assert isinstance(done[3].error, ValueError) and not done[3].ok
@@ -82,36 +56,36 @@ def test_one_worker_runs_in_this_process_and_reports_a_failing_task():
 def test_setup_runs_in_this_process_before_the_tasks(monkeypatch):
     monkeypatch.delenv("GES_TEST_SETUP", raising=False)
     _SETUP_CALLS.clear()
-    done = _run(LocalExecutor(setup=record_setup, setup_args=(7,)), read_setup, range(2))
+    done = run_all(LocalExecutor(setup=record_setup, setup_args=(7,)), read_setup, range(2))
     assert _SETUP_CALLS == [7] and {d.value for d in done.values()} == {"7"}
 
 
 # -- a spawned pool ------------------------------------------------------------------------------------------------
 def test_pool_gives_the_same_values_from_other_processes():
-    here = _run(LocalExecutor(), square_with_pid, range(6))
-    pool = _run(LocalExecutor(workers=2), square_with_pid, range(6))
+    here = run_all(LocalExecutor(), square_with_pid, range(6))
+    pool = run_all(LocalExecutor(workers=2), square_with_pid, range(6))
     assert {i: d.value[0] for i, d in here.items()} == {i: d.value[0] for i, d in pool.items()}
     assert {d.value[1] for d in here.values()} == {os.getpid()}
     assert os.getpid() not in {d.value[1] for d in pool.values()}
 
 
 def test_pool_runs_setup_in_each_worker_and_reports_a_failing_task():
-    done = _run(LocalExecutor(workers=2, setup=record_setup, setup_args=(5,)), read_setup, range(3))
+    done = run_all(LocalExecutor(workers=2, setup=record_setup, setup_args=(5,)), read_setup, range(3))
     assert {d.value for d in done.values()} == {"5"}
-    failing = _run(LocalExecutor(workers=2), fail_on_three, range(5))
+    failing = run_all(LocalExecutor(workers=2), fail_on_three, range(5))
     assert isinstance(failing[3].error, ValueError) and all(failing[i].ok for i in (0, 1, 2, 4))
 
 
 def test_a_killed_pool_worker_loses_no_task(tmp_path):
     """The victim kills its worker on the first attempt: the broken pool is replaced and the lost calls rerun."""
-    done = _run(LocalExecutor(workers=2), die_on_victim, range(6), 2, str(tmp_path), 1)
+    done = run_all(LocalExecutor(workers=2), die_on_victim, range(6), 2, str(tmp_path), 1)
     assert all(d.ok for d in done.values()), {i: d.error for i, d in done.items()}
     assert {i: d.value[0] for i, d in done.items()} == {i: i for i in range(6)}
     assert done[2].attempts == 2 and len(list(tmp_path.glob("attempt-*"))) == 2
 
 
 def test_a_task_that_always_kills_its_worker_is_reported_lost_and_the_others_finish(tmp_path):
-    done = _run(LocalExecutor(workers=2, max_retries=1), die_on_victim, range(6), 2, str(tmp_path), 99)
+    done = run_all(LocalExecutor(workers=2, max_retries=1), die_on_victim, range(6), 2, str(tmp_path), 99)
     # one death beside another call (no one charged), then two alone: the first attempt and max_retries=1
     assert isinstance(done[2].error, TaskLostError) and done[2].attempts == 3
     assert "died on each of 3 attempt(s)" in str(done[2].error) and "run the same command again" in str(done[2].error)
