@@ -6,7 +6,7 @@ import argparse
 from pathlib import Path
 
 from ges_core.cli.args import positive_int
-from ges_core.cli.cmd_experts import add_fanout_options, fanout_from_args
+from ges_core.cli.cmd_experts import add_episode_options, add_fanout_options, fanout_from_args
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -22,8 +22,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "on every object, as a success matrix: ges eval-experts.",
     )
     bp.add_argument("dataset", type=Path, metavar="DATASET", help="Stage 1 dataset folder (ges synth / ges demo)")
-    bp.add_argument("--hand", metavar="NAME", help="hand (default: registry.yaml defaults.hand)")
-    bp.add_argument("--sim", metavar="NAME", help="simulator of the episodes (default: registry.yaml defaults.sim)")
+    add_episode_options(bp)
     bp.add_argument(
         "--expert",
         default="scripted",
@@ -31,13 +30,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="expert plugin and its settings (default: scripted; ges list / ges info expert NAME)",
     )
     bp.add_argument("--envs", type=positive_int, default=1, metavar="N", help="episodes (envs) per object (default 1)")
-    bp.add_argument(
-        "--select",
-        default="validated",
-        choices=("validated", "refined", "any"),
-        help="which records give grasps: validated (default), refined, or any record with a grasp",
-    )
-    bp.add_argument("--split", action="append", metavar="SPLIT", help="only this split (repeatable; default all)")
     bp.add_argument("--out", type=Path, metavar="DIR", help="results folder (default: DATASET/../baseline)")
     bp.add_argument(
         "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",

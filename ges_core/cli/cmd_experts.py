@@ -27,16 +27,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="an expert column: registry name and settings, e.g. ppo:checkpoint=runs/e1/model.pt or "
         "slow=scripted:close_steps=60 (repeatable; the scripted baseline is always added)",
     )
-    p.add_argument("--hand", metavar="NAME", help="hand (default: registry.yaml defaults.hand)")
-    p.add_argument("--sim", metavar="NAME", help="simulator of the episodes (default: registry.yaml defaults.sim)")
+    add_episode_options(p)
     p.add_argument("--episodes", type=positive_int, default=4, metavar="E", help="episodes per object and expert (4)")
-    p.add_argument(
-        "--select",
-        default="validated",
-        choices=("validated", "refined", "any"),
-        help="which records give grasps: validated (default), refined, or any record with a grasp",
-    )
-    p.add_argument("--split", action="append", metavar="SPLIT", help="only this split (repeatable; default all)")
     p.add_argument("--clusters", type=Path, metavar="PATH", help="clusters file of ges cluster (stored per object)")
     p.add_argument("--out", type=Path, metavar="DIR", help="matrix folder (default: DATASET/../experts)")
     p.add_argument(
@@ -52,6 +44,20 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     add_fanout_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_eval_experts)
+
+
+def add_episode_options(p: argparse.ArgumentParser) -> None:
+    """The options saying which episodes an evaluation runs (``ges env baseline``, ``ges eval-experts``): hand,
+    simulator, which records give grasps, which splits."""
+    p.add_argument("--hand", metavar="NAME", help="hand (default: registry.yaml defaults.hand)")
+    p.add_argument("--sim", metavar="NAME", help="simulator of the episodes (default: registry.yaml defaults.sim)")
+    p.add_argument(
+        "--select",
+        default="validated",
+        choices=("validated", "refined", "any"),
+        help="which records give grasps: validated (default), refined, or any record with a grasp",
+    )
+    p.add_argument("--split", action="append", metavar="SPLIT", help="only this split (repeatable; default all)")
 
 
 def add_fanout_options(parser: argparse.ArgumentParser) -> None:
