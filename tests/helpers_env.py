@@ -1,4 +1,4 @@
-"""Small shared helpers for the Stage 2 environment tests: grasp targets and a real GraspEnv.
+"""Small shared helpers for the Stage 2 environment tests: grasp targets, a real GraspEnv, a small Stage 1 dataset.
 
 The same scene as tests/test_env_grasp_env.py: the registry's Allegro hand palm-down over a
 5 x 7 x 10 cm box resting at the origin, the pre-grasp 2 cm above the grasp.
@@ -6,20 +6,23 @@ The same scene as tests/test_env_grasp_env.py: the registry's Allegro hand palm-
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
+from pathlib import Path
 
 import numpy as np
 
+from ges_core.dataset import open_dataset
 from ges_core.env.grasp_env import EnvConfig, GraspEnv, GraspTargets
 from ges_core.hand import HandModel
+from ges_core.objects.library import LibraryConfig
 from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import grasp_start_pose
-from ges_core.synthesis import PregraspConfig, pregrasp
+from ges_core.synthesis import PregraspConfig, SynthesisConfig, pregrasp, run_synthesis
 from ges_core.synthesis.types import Grasp
 
-__all__ = ["HELD_CLOSURE", "build_grasp_env", "grasp_targets", "held_grasp_targets"]
+__all__ = ["HELD_CLOSURE", "build_grasp_env", "grasp_dataset", "grasp_targets", "held_grasp_targets"]
 
 HELD_CLOSURE = 0.5
 """Closure of :func:`held_grasp_targets`. Measured (PyBullet, Allegro, the scripted expert with the hand's squeeze,
@@ -72,3 +75,17 @@ def build_grasp_env(
     box = box_asset((0.025, 0.035, 0.05), density=300.0, object_id="test/box")
     grasps = targets(hand) if targets else grasp_targets(hand, n)
     return GraspEnv(sim, hand, box, grasps, EnvConfig(**cfg))
+
+
+def grasp_dataset(root: Path, candidates: Sequence[str], count: int = 2) -> tuple[str, ...]:
+    """Stage 1 (Allegro, 60-step hold) into ``root`` on ``candidates`` in order until ``count`` of them have a stored
+    grasp; those ids. Stage 1's verdicts change as it evolves, so the tests name candidates rather than the winners."""
+    library = LibraryConfig(sources=("procedural",), procedural_count=1)
+    config = SynthesisConfig.model_validate({"library": library, "validate": {"hold_steps": 60}})
+    found: list[str] = []
+    for oid in candidates:
+        run_synthesis([oid], ["allegro"], config, root)
+        found += [oid] if open_dataset(root).get(oid, "allegro").pregrasp is not None else []
+        if len(found) == count:
+            return tuple(found)
+    raise AssertionError(f"Stage 1 stored grasps for {found} only, of {list(candidates)}")

@@ -7,6 +7,7 @@ from collections import Counter
 
 import pytest
 import torch
+from helpers_env import grasp_dataset
 
 from ges_core.cli import main
 from ges_core.config import parse_model
@@ -23,10 +24,8 @@ from ges_core.env.grasp_env import GraspEnv
 from ges_core.env.grasp_source import load_grasp, select_records
 from ges_core.env.success import EndReason
 from ges_core.errors import AssetError, BackendUnavailable, ConfigError
-from ges_core.objects.library import LibraryConfig
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
-from ges_core.synthesis import SynthesisConfig, run_synthesis
 from ges_plugins.experts.scripted.expert import ScriptedExpert
 
 pytestmark = pytest.mark.sim
@@ -56,15 +55,7 @@ class CountingRegistry:
 def grown(tmp_path_factory) -> tuple:
     """(dataset folder, ids A and B of the two records holding grasps, sorted; records without one may be there)."""
     root = tmp_path_factory.mktemp("evaluate") / "ds"
-    library = LibraryConfig(sources=("procedural",), procedural_count=1)
-    config = SynthesisConfig.model_validate({"library": library, "validate": {"hold_steps": 60}})
-    found = []
-    for oid in CANDIDATES:
-        run_synthesis([oid], ["allegro"], config, root)
-        found += [oid] if open_dataset(root).get(oid, "allegro").pregrasp is not None else []
-        if len(found) == 2:
-            return root, tuple(sorted(found))
-    raise AssertionError(f"Stage 1 stored grasps for {found} only, of {CANDIDATES}")
+    return root, tuple(sorted(grasp_dataset(root, CANDIDATES)))
 
 
 @pytest.fixture(scope="module")

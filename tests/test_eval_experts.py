@@ -7,6 +7,7 @@ import json
 
 import numpy as np
 import pytest
+from helpers_env import grasp_dataset
 
 from ges_core.cli import main
 from ges_core.dataset import open_dataset
@@ -17,9 +18,7 @@ from ges_core.experts import parse_expert
 from ges_core.experts.evaluate import RANDOMIZED, evaluate_experts
 from ges_core.experts.matrix import load_matrix, matrix_path
 from ges_core.experts.table import expert_table, split_rates
-from ges_core.objects.library import LibraryConfig
 from ges_core.registry import load_registry
-from ges_core.synthesis import SynthesisConfig, run_synthesis
 
 pytestmark = pytest.mark.sim
 CANDIDATES = ("procedural/cube/000", "procedural/box/000", "procedural/sphere/000", "procedural/ellipsoid/000")
@@ -50,15 +49,8 @@ class InterruptingRegistry:
 @pytest.fixture(scope="module")
 def dataset(tmp_path_factory):
     root = tmp_path_factory.mktemp("eval_experts") / "ds"
-    library = LibraryConfig(sources=("procedural",), procedural_count=1)
-    config = SynthesisConfig.model_validate({"library": library, "validate": {"hold_steps": 60}})
-    found = []
-    for oid in CANDIDATES:
-        run_synthesis([oid], ["allegro"], config, root)
-        found += [oid] if open_dataset(root).get(oid, "allegro").pregrasp is not None else []
-        if len(found) == 2:
-            return root
-    raise AssertionError(f"Stage 1 stored grasps for {found} only, of {CANDIDATES}")
+    grasp_dataset(root, CANDIDATES)
+    return root
 
 
 def run_config(**kw) -> BaselineConfig:
