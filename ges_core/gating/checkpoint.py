@@ -36,8 +36,9 @@ def write_checkpoint(path: str | Path, payload: dict[str, Any]) -> Path:
     return atomic_write_bytes(path, buffer.getvalue(), fix="choose a writable --out path")
 
 
-def read_checkpoint(path: str | Path) -> dict[str, Any]:
-    """The checkpoint at ``path``; StorageError if unreadable, ConfigError if it is not a gate checkpoint."""
+def read_checkpoint(path: str | Path, *, gate: str | None = None) -> dict[str, Any]:
+    """The checkpoint at ``path``; StorageError if unreadable, ConfigError if it is not a gate checkpoint, or (with
+    ``gate``) not one of that gate plugin."""
     path = Path(path)
     if not path.is_file():
         raise StorageError(f"gate checkpoint {path} does not exist; train one with `ges train-gate`")
@@ -49,6 +50,8 @@ def read_checkpoint(path: str | Path) -> dict[str, Any]:
         raise ConfigError(f"{path} is not a gate checkpoint (no format '{FORMAT}'); train one with `ges train-gate`")
     if data.get("version") != VERSION:
         raise ConfigError(f"{path}: gate checkpoint version {data.get('version')}, this ges reads {VERSION}")
+    if gate is not None and data["gate"] != gate:
+        raise ConfigError(f"{path} holds a '{data['gate']}' gate, not a '{gate}' one; load it with that plugin")
     return data
 
 

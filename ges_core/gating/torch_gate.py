@@ -114,9 +114,7 @@ class TorchGate(Gate):
     @classmethod
     def load(cls, path: str | Path) -> TorchGate:
         """The gate saved at ``path`` by this plugin."""
-        data = read_checkpoint(path)
-        if data["gate"] != cls.name:
-            raise ConfigError(f"{path} holds a '{data['gate']}' gate, not a '{cls.name}' one; load it with that plugin")
+        data = read_checkpoint(path, gate=cls.name)
         gate = cls(**data["settings"])
         gate.experts = tuple(data["experts"])
         gate.model = gate.build_model(len(gate.experts))

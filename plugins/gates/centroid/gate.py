@@ -218,9 +218,7 @@ class CentroidGate(Gate):
     @classmethod
     def load(cls, path: str | Path) -> CentroidGate:
         """The centroid gate saved at ``path``."""
-        data = read_checkpoint(path)
-        if data["gate"] != cls.name:
-            raise ConfigError(f"{path} holds a '{data['gate']}' gate, not a 'centroid' one; load it with that plugin")
+        data = read_checkpoint(path, gate=cls.name)
         gate = cls(**data["settings"])
         gate.experts, gate.state, gate.train_info = tuple(data["experts"]), dict(data["state"]), data.get("train", {})
         return gate
