@@ -37,7 +37,18 @@ from ges_core.experts.matrix import SuccessMatrix, matrix_from_json, matrix_path
 from ges_core.experts.table import expert_table
 from ges_core.paths import file_sha256
 
-__all__ = ["BASELINE", "RANDOMIZED", "EvalReport", "evaluate_experts", "is_randomized", "read_clusters", "run_header"]
+__all__ = [
+    "BASELINE",
+    "RANDOMIZED",
+    "EvalReport",
+    "cell_config",
+    "column_identity",
+    "evaluate_experts",
+    "is_randomized",
+    "matrix_cell",
+    "read_clusters",
+    "run_header",
+]
 
 BASELINE = ExpertChoice("scripted", "scripted", {})
 """The scripted baseline column: the ``scripted`` expert with its registered settings."""
@@ -98,6 +109,7 @@ def evaluate_experts(
     registry=None,
     progress: bool = False,
     fanout: Fanout | None = None,
+    matrix_file: str | Path | None = None,
 ) -> EvalReport:
     """Evaluate ``experts`` (and the scripted baseline) on the records of ``config.hand`` passing ``config.selection``
     in ``config.splits``, ``config.envs`` episodes per cell; write and return the matrix (module docs).
@@ -105,6 +117,7 @@ def evaluate_experts(
     clusters: a clusters file (``ges cluster``) or a JSON mapping object id -> cluster; stored per object.
     fanout: where the cells run (:class:`~ges_core.env.evaluate.fanout.Fanout`: executor, workers, address;
     default here, in order); the matrix is written here, after each cell, whichever executor runs it.
+    matrix_file: the matrix file to fill (default: :func:`~ges_core.experts.matrix.matrix_path` in ``out``).
     """
     start = time.perf_counter()
     data = open_grasp_dataset(dataset)
@@ -113,10 +126,14 @@ def evaluate_experts(
 
         registry = load_registry()
     choices = _columns(experts)
-    columns = {c.label: _column(registry, c) for c in choices}
+    columns = {c.label: column_identity(registry, c) for c in choices}
     records = [r for r in select_records(data, config.hand, selection=config.selection).records
                if r.split in config.splits]  # fmt: skip
-    path = matrix_path(out, config.hand, config.sim, is_randomized(config))
+    path = (
+        Path(matrix_file)
+        if matrix_file is not None
+        else matrix_path(out, config.hand, config.sim, is_randomized(config))
+    )
     matrix = _MatrixFile.open(path, run_header(config), columns, data.root.resolve())
     matrix.set_objects(records, clusters)
     todo = [(r, c) for r in records for c in choices if not matrix.has(r.object_id, c.label)]
@@ -138,12 +155,15 @@ def _columns(experts: list[ExpertChoice]) -> list[ExpertChoice]:
     return experts if BASELINE.label in labels else [BASELINE, *experts]
 
 
-def _column(registry, choice: ExpertChoice) -> dict:
+def column_identity(registry, choice: ExpertChoice) -> dict:
     """A column's identity: registry name, every setting it runs with and, per setting naming a file (a
     checkpoint), the file's content hash (a retrained checkpoint at the same path is another expert)."""
     settings = {**registry.settings("expert", choice.name), **choice.settings}
     files = {k: file_sha256(v) for k, v in settings.items() if isinstance(v, str) and Path(v).is_file()}
     return {"name": choice.name, "settings": settings} | ({"files": files} if files else {})
+
+
+_column = column_identity  # the name tests/test_eval_experts.py imports
 
 
 class _MatrixFile:
@@ -223,13 +243,13 @@ def _run_cells(data, registry, config: BaselineConfig, todo, matrix: _MatrixFile
     """Evaluate each (record, expert) of ``todo`` (here or on ``fanout``) into ``matrix``, written after each."""
     from tqdm import tqdm
 
-    jobs = [Cell(r.object_id, _cell_config(config, c)) for r, c in todo]
+    jobs = [Cell(r.object_id, cell_config(config, c)) for r, c in todo]
     wins = 0
     bar = tqdm(total=len(jobs), disable=not progress, unit="cell", desc=f"{config.hand}/{config.sim}",
                dynamic_ncols=True)  # fmt: skip
     for i, row in evaluate_cells(data, jobs, {r.object_id: r for r, _ in todo}, registry, fanout):
         record, choice = todo[i]
-        matrix.put(record.object_id, choice.label, _cell(row))
+        matrix.put(record.object_id, choice.label, matrix_cell(row))
         report.evaluated += 1
         wins += row["paper_success"]
         if "error" in row:
@@ -239,13 +259,13 @@ def _run_cells(data, registry, config: BaselineConfig, todo, matrix: _MatrixFile
     bar.close()
 
 
-def _cell_config(config: BaselineConfig, choice: ExpertChoice) -> BaselineConfig:
+def cell_config(config: BaselineConfig, choice: ExpertChoice) -> BaselineConfig:
     """``config`` running ``choice``'s expert with its settings."""
     data = {**config.model_dump(), "expert": choice.name, "expert_settings": choice.settings}
     return parse_model(BaselineConfig, data, where=f"expert column '{choice.label}'")
 
 
-def _cell(row: dict) -> dict:
+def matrix_cell(row: dict) -> dict:
     """A matrix cell from :func:`evaluate_object`'s row."""
     cell = {"episodes": row["envs"], "paper": row["paper_success"], "peers": row["peers_success"]}
     cell |= {k: row[k] for k in ("end_reasons", "max_rise", "steps", "seconds")}
