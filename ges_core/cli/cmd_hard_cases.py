@@ -1,0 +1,56 @@
+"""``ges hard-cases MATRIX``: the training objects whose two best experts both fail often (the hard-case set)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+
+def add_parser(sub: argparse._SubParsersAction) -> None:
+    """Register ``ges hard-cases``."""
+    p = sub.add_parser(
+        "hard-cases",
+        help="the training objects whose two best experts both stay under a success threshold (hard-case expert)",
+        description="Reads an objects x experts success matrix (ges eval-experts), takes each training object's two "
+        "best expert columns (the scripted baseline left out unless --with-baseline) and lists the objects where "
+        "both stay under --threshold, as the paper picks its hard-case expert's objects. Prints the ges train-expert "
+        "line that trains that expert (curriculum stages 1-2); --out writes the set as JSON.",
+    )
+    p.add_argument("matrix", type=Path, metavar="MATRIX", help="success matrix JSON (ges eval-experts)")
+    p.add_argument("--threshold", type=float, default=0.5, help="success rate both best experts stay under (0.5)")
+    p.add_argument("--protocol", default="paper", choices=("paper", "peers"), help="success protocol (paper)")
+    p.add_argument("--split", default="train", help="rows to consider (train, as the paper)")
+    p.add_argument("--with-baseline", action="store_true", help="count the scripted baseline's column too")
+    p.add_argument("--dataset", type=Path, metavar="DIR", help="dataset for the printed command (default: the "
+                   "matrix run's dataset)")  # fmt: skip
+    p.add_argument("--out", type=Path, metavar="JSON", help="write the set and its evidence here")
+    p.set_defaults(func=run_hard_cases)
+
+
+def run_hard_cases(args: argparse.Namespace) -> int:
+    """Find the set, print the evidence and the training command."""
+    from ges_core.experts.hard_cases import find_hard_cases
+    from ges_core.experts.matrix import matrix_from_json, read_matrix_json
+    from ges_core.paths import atomic_write_text
+
+    data = read_matrix_json(args.matrix)
+    hard = find_hard_cases(
+        matrix_from_json(data), args.threshold, protocol=args.protocol, split=args.split,
+        with_baseline=args.with_baseline,
+    )  # fmt: skip
+    print(hard.table())
+    print(f"\n{len(hard.object_ids)} of {len(hard.best)} {args.split} object(s) are hard: both best of "
+          f"{', '.join(hard.experts)} under {args.threshold:g} ({args.protocol} protocol)")  # fmt: skip
+    if args.out:
+        record = {"matrix": str(args.matrix), "threshold": hard.threshold, "protocol": hard.protocol,
+                  "split": hard.split, "experts": list(hard.experts), "objects": list(hard.object_ids),
+                  "best": {o: [list(b) for b in best] for o, best in hard.best.items()}}  # fmt: skip
+        atomic_write_text(args.out, json.dumps(record, indent=1) + "\n")
+        print(f"wrote {args.out}")
+    if hard.object_ids:
+        dataset = args.dataset or data.get("dataset") or "DATASET"
+        print(f"\ntrain the hard-case expert:\n  {hard.train_command(dataset)}")
+    else:
+        print("no hard case: no hard-case expert is needed at this threshold")
+    return 0
