@@ -34,6 +34,7 @@ _COMMAND_MODULES = (
     "ges_core.cli.cmd_view",
     "ges_core.cli.cmd_cluster",
     "ges_core.cli.cmd_gate",
+    "ges_core.cli.cmd_evaluate",
 )
 """Modules that add sub-commands, in ``--help`` order."""
 
