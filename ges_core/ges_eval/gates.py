@@ -1,0 +1,142 @@
+"""The gates of a GES run: which checkpoints, checked against the run's experts, and the expert each picks per object.
+
+>>> gates = load_gates([parse_gate("runs/x/gate-curvenet/gate.pt")], registry, ["e1", "e2"])
+>>> picks = pick_experts(gates[0], clouds_for(library, ids, gates[0].n_points), ids)
+
+A gate reads each object's cloud exactly as ``ges train-gate`` fed it (:func:`ges_core.gating.library_clouds`:
+``n_points`` farthest points of ``4 n_points`` seeded surface samples, object frame, metres) and picks the expert
+with the highest score (the argmax of its distribution).
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from ges_core.errors import ConfigError, StorageError
+from ges_core.gating.checkpoint import load_gate, read_checkpoint
+from ges_core.gating.clouds import library_clouds
+from ges_core.paths import file_sha256
+
+__all__ = ["GateChoice", "LoadedGate", "Picks", "clouds_for", "load_gates", "parse_gate", "pick_experts"]
+
+_LABEL = re.compile(r"^[A-Za-z0-9_.+-]+$")
+"""What a gate label may hold: it is a JSON key and a table row name."""
+
+
+@dataclass(frozen=True)
+class GateChoice:
+    """One ``--gate [LABEL=]PATH``: the checkpoint and the row label (None: from the checkpoint)."""
+
+    path: Path
+    label: str | None = None
+
+
+def parse_gate(text: str) -> GateChoice:
+    """``[LABEL=]PATH`` -> :class:`GateChoice` (an '=' before any '/' ends a label)."""
+    head, eq, tail = text.partition("=")
+    if eq and "/" not in head and head:
+        if not _LABEL.match(head):
+            raise ConfigError(f"gate '{text}': the label '{head}' may hold letters, digits and _.+- only")
+        return GateChoice(Path(tail), head)
+    return GateChoice(Path(text))
+
+
+@dataclass(frozen=True)
+class LoadedGate:
+    """A gate ready to pick: its row label, plugin name, checkpoint (path and content hash) and input size."""
+
+    label: str
+    gate: object
+    """The :class:`~ges_core.policy.Gate`."""
+    plugin: str
+    path: Path
+    sha: str
+    n_points: int
+
+    def describe(self) -> dict:
+        """JSON-ready identity (stored with the results)."""
+        return {"gate": self.plugin, "path": str(self.path.resolve()), "sha": self.sha, "n_points": self.n_points,
+                "experts": list(self.gate.experts)}  # fmt: skip
+
+
+def load_gates(choices: Sequence[GateChoice], registry, experts: Sequence[str]) -> list[LoadedGate]:
+    """Each gate of ``choices``, checked against ``experts`` (the labels of the experts the run was given).
+
+    A missing or foreign file is a StorageError / ConfigError naming it; a gate trained for other experts than
+    ``experts`` is the gate's ConfigError naming both lists (:meth:`~ges_core.policy.Gate.check_experts`). Labels:
+    the given one, else the plugin name, else (two of one plugin) ``plugin-n_points``; still equal: ConfigError.
+    """
+    if not choices:
+        raise ConfigError("no gate given; pass --gate PATH (a gate.pt of ges train-gate), once per gate to compare")
+    loaded = [_load_one(c, registry, experts) for c in choices]
+    return _label(loaded, choices)
+
+
+def _load_one(choice: GateChoice, registry, experts: Sequence[str]) -> LoadedGate:
+    path = choice.path
+    if not path.is_file():
+        raise StorageError(f"--gate {path}: no such file; give the gate.pt that ges train-gate wrote (OUT/gate.pt)")
+    plugin = read_checkpoint(path)["gate"]
+    gate = load_gate(path, registry)
+    gate.check_experts(_in_gate_order(gate.experts, experts))
+    return LoadedGate(choice.label or plugin, gate, plugin, path, file_sha256(path), int(gate.settings.n_points))
+
+
+def _in_gate_order(gate_experts: Sequence[str], experts: Sequence[str]) -> list[str]:
+    """``experts`` in the gate's column order when they are the same set (the order of --expert is free), else as
+    given, so that check_experts fails naming both lists."""
+    return list(gate_experts) if sorted(gate_experts) == sorted(experts) else list(experts)
+
+
+def _label(loaded: list[LoadedGate], choices: Sequence[GateChoice]) -> list[LoadedGate]:
+    labels = [g.label for g in loaded]
+    out = []
+    for g, c in zip(loaded, choices, strict=True):
+        if c.label is None and labels.count(g.label) > 1:
+            g = LoadedGate(f"{g.plugin}-{g.n_points}", g.gate, g.plugin, g.path, g.sha, g.n_points)
+        out.append(g)
+    labels = [g.label for g in out]
+    twice = sorted({lab for lab in labels if labels.count(lab) > 1})
+    if twice:
+        raise ConfigError(f"gates labelled {twice} more than once; name each row: --gate LABEL=PATH")
+    return out
+
+
+def clouds_for(library, object_ids: Sequence[str], n_points: int, seed: int = 0) -> torch.Tensor:
+    """(n, n_points, 3) float32 clouds of the objects as gate training reads them (object frame, metres); an empty,
+    NaN or misshapen cloud is an ArrayError naming the object."""
+    return library_clouds(library, object_ids, n_points, seed=seed)
+
+
+@dataclass(frozen=True)
+class Picks:
+    """What one gate chose: per object, the expert label and the gate's scores."""
+
+    experts: tuple[str, ...]
+    """The gate's expert labels, the columns of ``scores``."""
+    chosen: dict[str, str]
+    """Object id -> the label of the expert with the highest score."""
+    scores: dict[str, list[float]]
+    """Object id -> the gate's distribution over ``experts`` (sums to 1)."""
+
+
+def pick_experts(gate: LoadedGate, clouds: torch.Tensor | Sequence[np.ndarray], object_ids: Sequence[str]) -> Picks:
+    """One expert per object: the argmax of ``gate``'s distribution on each cloud (a (n, N, 3) tensor or a list of
+    (m_i, 3) arrays, object frame, metres; clouds of another size are brought to the gate's, an empty or NaN cloud is
+    an ArrayError naming its object)."""
+    ids = list(object_ids)
+    if not ids:
+        return Picks(tuple(gate.gate.experts), {}, {})
+    with torch.no_grad():
+        probs = gate.gate.predict(clouds, ids).double()
+    names = tuple(gate.gate.experts)
+    best = probs.argmax(dim=1).tolist()
+    chosen = {oid: names[j] for oid, j in zip(ids, best, strict=True)}
+    scores = {oid: [round(float(p), 6) for p in row] for oid, row in zip(ids, probs, strict=True)}
+    return Picks(names, chosen, scores)

@@ -1,0 +1,236 @@
+"""``ges evaluate``: GES end to end. Per object each gate reads the cloud and picks one expert; the pre-grasp reaching
+runs and the picked expert executes, E episodes; Table 2 sets GES beside every expert, the baseline and the oracle.
+
+>>> report = evaluate_ges("runs/tiny/dataset", config, experts, [parse_gate("runs/tiny/gate/gate.pt")], "runs/tiny/ges",
+...                       matrix_file="runs/tiny/eval/matrix-allegro-sapien.json")
+>>> print(report.table.markdown("paper"))
+
+Steps: (1) the success matrix of the experts alone (and the scripted baseline) is completed for the run's objects
+by :func:`ges_core.experts.evaluate.evaluate_experts` under the same settings (a matrix of other settings is
+refused; cells it holds are reused, as ``ges eval-experts`` resumes); (2) each gate picks per object
+(:mod:`~ges_core.ges_eval.gates`); (3) the episodes of every (object, picked expert) run through the episode runner
+of ``ges eval-experts`` (:func:`ges_core.env.evaluate.fanout.evaluate_cells`, a fresh simulator per cell: stage-one
+reaching, then the expert), the results file (:mod:`~ges_core.ges_eval.results`) rewritten after each; (4) Table 2
+(:mod:`~ges_core.ges_eval.table`). With ``reuse_matrix`` step 3 takes the matrix cell of the picked expert instead
+of running it: step 1 has proven the settings identical (run header, expert identity with checkpoint hashes, grasp
+key), so the episodes would be the same ones; the cell is marked ``source: matrix`` and the summary says how many.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ges_core.env.evaluate import BaselineConfig
+from ges_core.env.evaluate.fanout import Cell, Fanout, evaluate_cells
+from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
+from ges_core.errors import ConfigError
+from ges_core.experts.choice import ExpertChoice
+from ges_core.experts.evaluate import (
+    cell_config,
+    column_identity,
+    evaluate_experts,
+    is_randomized,
+    matrix_cell,
+    run_header,
+)
+from ges_core.experts.matrix import PROTOCOLS, SuccessMatrix, matrix_path, read_matrix_json
+from ges_core.ges_eval.gates import GateChoice, LoadedGate, Picks, clouds_for, load_gates, pick_experts
+from ges_core.ges_eval.results import ResultsFile, results_path
+from ges_core.ges_eval.table import GesRow, Table2, table2
+
+__all__ = ["GesReport", "evaluate_ges"]
+
+
+@dataclass
+class GesReport:
+    """What :func:`evaluate_ges` did and found."""
+
+    path: Path
+    """The results file."""
+    matrix_path: Path
+    table: Table2
+    matrix: SuccessMatrix
+    """The matrix view of the run: its objects, the baseline and the GES experts."""
+    picks: dict[str, Picks]
+    """Gate label -> what it picked."""
+    ges_rows: list[GesRow] = field(default_factory=list)
+    """Per gate: its GES episodes per object (rows of ``matrix``)."""
+    matrix_evaluated: int = 0
+    matrix_reused: int = 0
+    ran: int = 0
+    """GES cells whose episodes this run ran."""
+    resumed: int = 0
+    """GES cells found in the results file."""
+    from_matrix: int = 0
+    """GES cells taken from the matrix (``reuse_matrix``: identical settings)."""
+    errors: list[str] = field(default_factory=list)
+    seconds: float = 0.0
+
+    def summary(self) -> str:
+        """Lines: objects, gates, cells run / resumed / reused, errors, time and where the files are."""
+        m = self.matrix
+        lines = [
+            f"{len(m.object_ids)} object(s), {len(self.picks)} gate(s) over experts {', '.join(self.table.experts)}",
+            f"matrix {self.matrix_path}: {self.matrix_evaluated} cell(s) evaluated, {self.matrix_reused} reused",
+            f"GES {self.path}: {self.ran} cell(s) run, {self.resumed} resumed"
+            + (f", {self.from_matrix} taken from the matrix (identical settings)" if self.from_matrix else ""),
+            f"{len(self.errors)} cell(s) with errors; {self.seconds:.1f} s",
+        ]
+        return "\n".join(lines)
+
+
+def evaluate_ges(
+    dataset: str | Path,
+    config: BaselineConfig,
+    experts: list[ExpertChoice],
+    gates: list[GateChoice],
+    out: str | Path,
+    *,
+    matrix_file: str | Path | None = None,
+    registry=None,
+    progress: bool = False,
+    fanout: Fanout | None = None,
+    reuse_matrix: bool = False,
+    cloud_seed: int = 0,
+) -> GesReport:
+    """Run GES with each gate on the records of ``config.hand`` passing ``config.selection`` in ``config.splits``
+    (module docs); write ``out``/ges-HAND-SIM.json and return the report with Table 2.
+
+    experts: the experts GES chooses among, labelled as in the matrix and the gates' checkpoints (the scripted
+    baseline is added to the matrix unless one is labelled ``scripted``). matrix_file: the success matrix to
+    complete and compare against (default: ``ges eval-experts``' file, DATASET/../experts/matrix-HAND-SIM.json).
+    cloud_seed: seed of the surface samples each gate's cloud is drawn from (``ges train-gate``'s, 0).
+    """
+    start = time.perf_counter()
+    registry = registry if registry is not None else _default_registry()
+    data = open_grasp_dataset(dataset)
+    labels = tuple(c.label for c in experts)
+    loaded = load_gates(gates, registry, labels)
+    records = _records(data, config, dataset)
+    mfile = Path(matrix_file) if matrix_file is not None else _default_matrix(data.root, config)
+    mreport = evaluate_experts(data.root, config, experts, mfile.parent, registry=registry, progress=progress,
+                               fanout=fanout, matrix_file=mfile)  # fmt: skip
+    ids = [r.object_id for r in records]
+    picks = _pick_all(loaded, library_for(data), ids, cloud_seed)
+    columns = {c.label: column_identity(registry, c) for c in experts}
+    results = ResultsFile.open(results_path(out, config.hand, config.sim, is_randomized(config)), run_header(config),
+                               columns, data.root.resolve(), mfile.resolve())  # fmt: skip
+    results.set_objects(records)
+    for g in loaded:
+        results.set_gate(g.label, g.describe(), picks[g.label])
+    results.write()
+    report = GesReport(results.path, mfile, Table2(), mreport.matrix, picks)
+    report.matrix_evaluated, report.matrix_reused = mreport.evaluated, mreport.reused
+    todo = _todo(records, picks, results, report)
+    if reuse_matrix:
+        todo = _take_from_matrix(todo, mfile, results, report)
+    _run(data, registry, config, {c.label: c for c in experts}, todo, results, report, progress, fanout or Fanout())
+    report.ges_rows = [_ges_row(mreport.matrix, g.label, picks, results) for g in loaded]
+    report.table = table2(mreport.matrix, labels, report.ges_rows)
+    report.seconds = time.perf_counter() - start
+    return report
+
+
+def _default_registry():
+    from ges_core.registry import load_registry
+
+    return load_registry()
+
+
+def _default_matrix(root: Path, config: BaselineConfig) -> Path:
+    return matrix_path(root.parent / "experts", config.hand, config.sim, is_randomized(config))
+
+
+def _records(data, config: BaselineConfig, dataset) -> list:
+    records = [r for r in select_records(data, config.hand, selection=config.selection).records
+               if r.split in config.splits]  # fmt: skip
+    if not records:
+        raise ConfigError(
+            f"dataset {dataset} has no '{config.selection}' records of hand '{config.hand}' in splits "
+            f"{list(config.splits)}; check --hand, --select and --split"
+        )
+    return records
+
+
+def _pick_all(gates: list[LoadedGate], library, ids: list[str], seed: int) -> dict[str, Picks]:
+    """Each gate's picks; clouds sampled once per size (an object with an empty or NaN cloud: ArrayError naming it)."""
+    clouds: dict[int, object] = {}
+    out = {}
+    for g in gates:
+        if g.n_points not in clouds:
+            clouds[g.n_points] = clouds_for(library, ids, g.n_points, seed)
+        out[g.label] = pick_experts(g, clouds[g.n_points], ids)
+    return out
+
+
+def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesReport) -> list[tuple]:
+    """(record, expert label) of every pick without a cell in the results file, in record order, each once."""
+    todo, seen = [], set()
+    for r in records:
+        for p in picks.values():
+            key = (r.object_id, p.chosen[r.object_id])
+            if key in seen:
+                continue
+            seen.add(key)
+            if results.cell(*key) is None:
+                todo.append((r, key[1]))
+            else:
+                report.resumed += 1
+    return todo
+
+
+def _take_from_matrix(todo: list[tuple], mfile: Path, results: ResultsFile, report: GesReport) -> list[tuple]:
+    """Store the matrix's cell for each (record, expert) it holds (settings proven identical by the matrix run's
+    checks); return the rest."""
+    cells = read_matrix_json(mfile).get("cells", {})
+    rest = []
+    for r, label in todo:
+        cell = cells.get(r.object_id, {}).get(label)
+        if cell is None or "error" in cell:
+            rest.append((r, label))
+            continue
+        results.put(r.object_id, label, {**cell, "source": "matrix"})
+        report.from_matrix += 1
+    return rest
+
+
+def _run(data, registry, config, choices: dict[str, ExpertChoice], todo, results, report, progress, fanout) -> None:
+    """Run each (record, expert label) of ``todo`` here or on ``fanout``; the results file rewritten after each."""
+    from tqdm import tqdm
+
+    if not todo:
+        return
+    jobs = [Cell(r.object_id, cell_config(config, choices[label])) for r, label in todo]
+    bar = tqdm(total=len(jobs), disable=not progress, unit="cell", desc="GES", dynamic_ncols=True)
+    wins = 0
+    for i, row in evaluate_cells(data, jobs, {r.object_id: r for r, _ in todo}, registry, fanout):
+        record, label = todo[i]
+        results.put(record.object_id, label, {**matrix_cell(row), "source": "run"})
+        report.ran += 1
+        wins += row["paper_success"]
+        if "error" in row:
+            report.errors.append(f"{record.object_id} / {label}: {row['error']}")
+        bar.update(1)
+        bar.set_postfix(success=f"{wins}/{report.ran * config.envs}", last=f"{record.object_id}/{label}")
+    bar.close()
+
+
+def _ges_row(matrix: SuccessMatrix, label: str, picks: dict[str, Picks], results: ResultsFile) -> GesRow:
+    """Gate ``label``'s episodes per object of ``matrix`` (its rows), from the results file."""
+    n = len(matrix.object_ids)
+    episodes = np.zeros(n, dtype=np.int64)
+    wins = {p: np.zeros(n, dtype=np.int64) for p in PROTOCOLS}
+    picked = np.zeros(n, dtype=np.int64)
+    chosen = picks[label].chosen
+    for i, oid in enumerate(matrix.object_ids):
+        picked[i] = matrix.column(chosen[oid])
+        cell = results.cell(oid, chosen[oid])
+        if cell is not None:
+            episodes[i] = cell["episodes"]
+            for p in PROTOCOLS:
+                wins[p][i] = cell[p]
+    return GesRow(label, wins, episodes, picked)
