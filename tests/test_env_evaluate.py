@@ -81,8 +81,10 @@ def short_config(**kw) -> BaselineConfig:
     return BaselineConfig.model_validate({**data, **kw})
 
 
-def direct_episode(dataset, object_id: str, config: BaselineConfig) -> tuple[list[str], list[bool], list[int]]:
-    """Reference: the same episode driven through GraspEnv alone (no VecEnv, no auto-reset)."""
+def direct_episode(dataset, object_id: str, config: BaselineConfig, metrics: dict | None = None) -> tuple:
+    """Reference: the same episode driven through GraspEnv alone (no VecEnv, no auto-reset): (end reasons, peers
+    flags, steps). ``metrics``, if given, receives the Table 3 metrics recomputed from each env's velocity
+    trajectory with the formulas of ges_core.env.metrics' docstring: name -> per env value."""
     registry = load_registry()
     hand = registry.build_hand(config.hand)
     asset, targets = load_grasp(
@@ -98,9 +100,11 @@ def direct_episode(dataset, object_id: str, config: BaselineConfig) -> tuple[lis
         expert = ScriptedExpert(env.obs_layout, env.act_layout, hand=hand)  # as the plugin's build_expert
         obs, _ = env.observe()
         reasons, peers, steps = [None] * config.envs, [False] * config.envs, [0] * config.envs
+        wrist_vel, joint_vel = [], []
         for t in range(1, config.env.episode_length + 1):
             unstable = env.apply_action(expert.act(obs))
             obs, state = env.observe()
+            wrist_vel.append(state["wrist_vel"].double().clone()), joint_vel.append(state["dq"].double().clone())
             reason = env.end_reasons(state, torch.full((config.envs,), t >= config.env.episode_length), unstable)
             for i in range(config.envs):
                 if reasons[i] is None and reason[i] != EndReason.RUNNING:
@@ -108,6 +112,16 @@ def direct_episode(dataset, object_id: str, config: BaselineConfig) -> tuple[lis
                     peers[i], steps[i] = bool(env.tracker.peer_success[i]), t
             if all(r is not None for r in reasons):
                 break
+        if metrics is not None:
+            dt, w, q = env.control_dt, torch.stack(wrist_vel), torch.stack(joint_vel)  # (T, n, 6), (T, n, K)
+            for name in ("arm_oscillation", "hand_oscillation", "fdc"):
+                metrics[name] = []
+            for i, t_end in enumerate(steps):
+                wi, qi = w[:t_end, i], q[:t_end, i]  # the env's own episode: steps 1..t_end
+                metrics["arm_oscillation"].append(float((wi[1:] - wi[:-1]).square().sum() / dt))
+                metrics["hand_oscillation"].append(float((qi[1:] - qi[:-1]).square().sum() / dt))
+                signs = torch.sign(qi[:, torch.as_tensor(env.groups)])  # (T, J, fingers)
+                metrics["fdc"].append(float(-signs.var(dim=2, unbiased=False).sum()))
     return reasons, peers, steps
 
 
@@ -115,8 +129,12 @@ def test_episodes_match_a_direct_run_of_the_env(full_run, dataset, pair):
     report, _ = full_run
     assert [r["object_id"] for r in report.results] == list(pair) and sorted(report.evaluated) == list(pair)
     res = report.results[0]
-    reasons, peers, steps = direct_episode(dataset, pair[0], report.config)
+    reference: dict = {}
+    reasons, peers, steps = direct_episode(dataset, pair[0], report.config, reference)
     assert (res["end_reasons"], res["peers"], res["steps"]) == (reasons, peers, steps)
+    for name, values in reference.items():  # Table 3 metrics: the VecEnv's running sums vs the whole trajectory
+        assert res["metrics"][name] == pytest.approx(values, rel=1e-4, abs=1e-6), name
+    assert min(res["metrics"]["arm_oscillation"]) > 0 and max(res["metrics"]["fdc"]) <= 0
     assert res["paper_success"] == reasons.count("success") and res["peers_success"] == sum(peers)
     for r in report.results:  # both envs run the same physics; the flags agree with the rise
         assert len(set(r["end_reasons"])) == 1 and len(set(r["max_rise"])) == 1 and "error" not in r

@@ -10,6 +10,8 @@ the (n,) EndReason codes, ``extras["peer_success"]`` (n,) bool and ``extras["max
 peers' protocol and the object's highest rise so far in each env's episode, read before finished envs
 restart (so an ended episode's values survive its reset); ``extras["entry"]`` (n,) int64 the pool entry
 each env's episode ran (:meth:`GraspEnv.from_pool`; -1 without a pool), read before the reset draws the next.
+On a step where an episode ended, ``extras["episode_metrics"]`` holds each env's Table 3 metrics so far (name ->
+(n,) float64, plus ``steps``), read before the reset: an ended env's entry is its whole episode's.
 
 Faults: an env whose action row holds NaN or inf (a diverging policy) ends that step ``unstable`` with reward 0
 and restarts like any finished env; the batch goes on. ``extras["log"]["/faults/nan_actions"]`` is, at every
@@ -100,6 +102,7 @@ class GraspVecEnv(VecEnv):
         extras["entry"] = torch.from_numpy(env.entry.copy())  # pool entry of each env's episode (-1: no pool)
         if any_done:
             ended = torch.from_numpy(done.nonzero()[0])
+            extras["episode_metrics"] = self.metrics.read(torch.arange(self.num_envs))
             env.reset_envs(ended)
             self.metrics.reset(ended)
             steps[done] = 0

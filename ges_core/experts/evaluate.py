@@ -268,7 +268,7 @@ def cell_config(config: BaselineConfig, choice: ExpertChoice) -> BaselineConfig:
 def matrix_cell(row: dict) -> dict:
     """A matrix cell from :func:`evaluate_object`'s row."""
     cell = {"episodes": row["envs"], "paper": row["paper_success"], "peers": row["peers_success"]}
-    cell |= {k: row[k] for k in ("end_reasons", "max_rise", "steps", "seconds")}
+    cell |= {k: row[k] for k in ("end_reasons", "max_rise", "steps", "metrics", "seconds") if k in row}
     return cell | ({"error": row["error"]} if "error" in row else {})
 
 

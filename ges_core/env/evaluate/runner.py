@@ -29,6 +29,7 @@ from ges_core.env.grasp_source import (
     open_grasp_dataset,
     select_records,
 )
+from ges_core.env.metrics import METRIC_NAMES
 from ges_core.env.success import EndReason
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import GesError, SimulationError
@@ -74,6 +75,9 @@ class EpisodeOutcome:
     """Highest rise of the object above its start, m."""
     steps: list[int]
     """Control steps the episode lasted."""
+    metrics: dict[str, list[float]] = field(default_factory=dict)
+    """Table 3 metric name (:data:`~ges_core.env.metrics.METRIC_NAMES`) -> per env its episode's value (sums over
+    the episode, :mod:`~ges_core.env.metrics`); NaN for an env that never acted (an error before the episode)."""
 
 
 def run_episodes(venv: GraspVecEnv, expert: Expert) -> EpisodeOutcome:
@@ -82,6 +86,7 @@ def run_episodes(venv: GraspVecEnv, expert: Expert) -> EpisodeOutcome:
     reason = torch.zeros(n, dtype=torch.long)
     peers, rise = torch.zeros(n, dtype=torch.bool), torch.zeros(n, dtype=torch.float64)
     steps, finished = torch.zeros(n, dtype=torch.long), torch.zeros(n, dtype=torch.bool)
+    metrics = {name: torch.full((n,), float("nan"), dtype=torch.float64) for name in METRIC_NAMES}
     expert.reset()
     obs = venv.get_observations()["policy"]
     for t in range(1, venv.max_episode_length + 1):
@@ -90,14 +95,18 @@ def run_episodes(venv: GraspVecEnv, expert: Expert) -> EpisodeOutcome:
         new = done & ~finished
         reason[new], peers[new] = extras["end_reason"][new], extras["peer_success"][new]
         rise[new], steps[new] = extras["max_rise"][new], t
+        if new.any():
+            for name, values in metrics.items():
+                values[new] = extras["episode_metrics"][name][new]
         finished |= new
         if finished.all():
             break
         if done.any():
             expert.reset(done.nonzero().flatten())
     return EpisodeOutcome(
-        [EndReason(int(r)).name.lower() for r in reason], peers.tolist(), rise.tolist(), steps.tolist()
-    )
+        [EndReason(int(r)).name.lower() for r in reason], peers.tolist(), rise.tolist(), steps.tolist(),
+        {name: values.tolist() for name, values in metrics.items()},
+    )  # fmt: skip
 
 
 def evaluate_object(registry, hand, record: GraspRecord, library, config: BaselineConfig, scene: SceneConfig) -> dict:
@@ -132,7 +141,7 @@ def evaluate_object(registry, hand, record: GraspRecord, library, config: Baseli
 
 def _failed(n: int, reason: str) -> EpisodeOutcome:
     """Every env ended with ``reason`` before the expert acted."""
-    return EpisodeOutcome([reason] * n, [False] * n, [0.0] * n, [0] * n)
+    return EpisodeOutcome([reason] * n, [False] * n, [0.0] * n, [0] * n, {m: [float("nan")] * n for m in METRIC_NAMES})
 
 
 def _episodes(env: GraspEnv, expert: Expert, config: BaselineConfig) -> tuple[EpisodeOutcome, GesError | None]:
@@ -159,8 +168,14 @@ def _result(result: dict, outcome: EpisodeOutcome, start: float, error: GesError
         "peers": outcome.peers,
         "max_rise": [round(float(x), 5) for x in outcome.max_rise],
         "steps": outcome.steps,
+        "metrics": {name: [_rounded(v) for v in values] for name, values in outcome.metrics.items()},
         "seconds": round(time.perf_counter() - start, 3),
     }
+
+
+def _rounded(value: float) -> float | None:
+    """A metric for JSON: 6 significant digits; None for NaN (no episode)."""
+    return None if value != value else float(f"{value:.6g}")
 
 
 # -- the run -------------------------------------------------------------------------------------
