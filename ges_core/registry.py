@@ -13,6 +13,7 @@ import types
 import typing
 from collections.abc import Callable
 from dataclasses import replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +65,9 @@ class Registry:
     def __init__(self, pm: pluggy.PluginManager, config: RegistryConfig | None = None) -> None:
         self.pm = pm
         self.config = config or RegistryConfig()
+        self.rebuild: Callable[[], Registry] | None = None
+        """A picklable callable building this registry again in another process (a registry does not pickle);
+        set by :func:`load_registry`, None for a registry built by hand."""
         self._specs: dict[str, dict[str, PluginSpec]] = {kind: {} for kind in KINDS}
         sources = plugin_sources(pm)
         for kind, (hook_name, spec_cls) in KINDS.items():
@@ -293,4 +297,8 @@ def load_registry(
     config = parse_model(RegistryConfig, apply_overrides(data, overrides), where=str(path or "registry"))
     base_dir = path.resolve().parent if path is not None else Path.cwd()
     pm = get_plugin_manager(local_plugins=config.plugins, base_dir=base_dir, blocked=blocked, autoload=autoload)
-    return Registry(pm, config)
+    registry = Registry(pm, config)
+    registry.rebuild = partial(
+        load_registry, path, overrides=tuple(overrides), blocked=tuple(blocked), autoload=autoload
+    )
+    return registry

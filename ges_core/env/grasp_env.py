@@ -126,9 +126,12 @@ class GraspEnv:
         cfg: EnvConfig,
         *,
         pool: GraspPool | None = None,
+        env_index=None,
     ) -> None:
         """One object: ``obj`` in every env, ``grasps`` one world-frame row per env. Pool: ``obj`` and ``grasps``
-        None, ``pool`` given (use :meth:`from_pool`); each env draws its own entry at every episode start."""
+        None, ``pool`` given (use :meth:`from_pool`); each env draws its own entry at every episode start.
+        env_index: (n,) global index of each env, seeding its random streams (None: 0..n-1; an env worker
+        process passes its slice, :mod:`ges_core.env.workers`)."""
         if (pool is None) == (obj is None or grasps is None) or (pool is not None and (obj, grasps) != (None, None)):
             raise ConfigError(
                 "GraspEnv: give either an object and its grasps (one object in every env) or a GraspPool "
@@ -168,7 +171,9 @@ class GraspEnv:
         self._last_terms: tuple[dict | None, np.ndarray | None] = (None, None)  # see terms_array
         self._last_state: tuple = (None, None, None)  # see _state_arrays
         self._quat_buf = (np.empty((2, self.n, 4)), np.empty((2, self.n, 4)), np.empty((3, self.n, 4)))
-        self.random = Randomizer(cfg.randomization, self.obs_layout.slices)
+        self.random = Randomizer(
+            cfg.randomization, self.obs_layout.slices, range(self.n) if env_index is None else env_index
+        )
         self.objects: list[ObjectAsset | None] = [None] * self.n
         """The object each env holds, as loaded (mass and friction randomization included)."""
         self.entry = np.full(self.n, -1, dtype=np.int64)
@@ -187,9 +192,9 @@ class GraspEnv:
         self._place(list(range(self.n)))
 
     @classmethod
-    def from_pool(cls, sim: SimBackend, hand: HandModel, pool: GraspPool, cfg: EnvConfig) -> GraspEnv:
+    def from_pool(cls, sim: SimBackend, hand: HandModel, pool: GraspPool, cfg: EnvConfig, env_index=None) -> GraspEnv:
         """A multi-object environment: every env draws its (object, grasp) from ``pool`` at each episode start."""
-        return cls(sim, hand, None, None, cfg, pool=pool)
+        return cls(sim, hand, None, None, cfg, pool=pool, env_index=env_index)
 
     @property
     def object_ids(self) -> list[str]:
@@ -207,14 +212,14 @@ class GraspEnv:
         The objects are left at their rest poses (a fresh load) or where they were: the caller teleports them
         to :attr:`start_pose`."""
         if self.pool is not None:
-            self.entry[ids] = self.pool.draw(self.random.pool_rng, len(ids))
+            self.entry[ids] = self.random.pool_entries(self.pool, ids)
             base = [self.pool.entries[k].asset for k in self.entry[ids]]
         else:
             base = [self.obj] * len(ids)
         changed: dict[int, list[int]] = {}  # id(asset) -> envs to load it into (one load_object call per asset)
         assets = {}
         for e, asset in zip(ids, base, strict=True):
-            asset = self.random.physics(asset)
+            asset = self.random.physics(asset, e)
             if asset is not self.objects[e]:
                 changed.setdefault(id(asset), []).append(e)
                 assets[id(asset)] = asset
@@ -226,7 +231,7 @@ class GraspEnv:
             self.rest_pose[loaded] = self.sim.object_pose()[loaded]
         if self.pool is not None:
             self._set_pool_grasps(ids)
-        self.start_pose[ids] = self.random.start_poses(self.rest_pose[ids])
+        self.start_pose[ids] = self.random.start_poses(self.rest_pose[ids], ids)
         if not self.cfg.init_prior:
             start = open_hand_start_pose(self.hand, self.rest_pose[ids, :3], self.cfg.noinit_height)
             self.noinit_start[ids] = torch.as_tensor(start)

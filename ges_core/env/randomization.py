@@ -1,9 +1,12 @@
 """Per-episode randomization of the grasp environment: object start pose, mass, friction, observation noise.
 
-Each kind is switched on its own in :class:`RandomizationConfig` and draws from its own random stream
-(``numpy.random.SeedSequence(seed).spawn``), so switching one kind on or off never changes what another
-draws: with the start pose on and the noise off, the poses are the same as with both on. The draws of an
-env happen when its episode starts (:meth:`GraspEnv.reset_envs`, :meth:`GraspEnv.reset_all`), in env order.
+Each env has its own random streams, one per kind (pool draws, start pose, mass and friction, noise), from
+``numpy.random.SeedSequence(seed, spawn_key=(env,)).spawn(4)`` where ``env`` is the env's *global* index
+(:attr:`Randomizer.env_index`): what an env draws depends only on the seed, its index and its own episode
+history, never on which other envs restarted with it or on how the envs are split between worker processes
+(:mod:`ges_core.env.workers`). Switching one kind on or off never changes what another draws: with the start pose
+on and the noise off, the poses are the same as with both on. The draws of an env happen when its episode starts
+(:meth:`GraspEnv.reset_envs`, :meth:`GraspEnv.reset_all`); its noise at every observation.
 
 A grasp that holds only on one exact float path is not a grasp: evaluate with randomization on and off
 (``RandomizationConfig(enabled=False)`` turns every kind off at once).
@@ -12,6 +15,7 @@ A grasp that holds only on one exact float path is not a grasp: evaluate with ra
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 
 import numpy as np
@@ -72,10 +76,11 @@ class RandomizationConfig(ConfigModel):
 
 
 class Randomizer:
-    """The random streams and draws of one environment's randomization (:class:`RandomizationConfig`)."""
+    """The per-env random streams and draws of one environment's randomization (:class:`RandomizationConfig`)."""
 
-    def __init__(self, cfg: RandomizationConfig, noise_slices: dict[str, slice]) -> None:
-        """noise_slices: observation block name -> slice of the flat observation (``ObservationLayout.slices``).
+    def __init__(self, cfg: RandomizationConfig, noise_slices: dict[str, slice], env_index: Sequence[int]) -> None:
+        """noise_slices: observation block name -> slice of the flat observation (``ObservationLayout.slices``);
+        env_index: (n,) the global index of each env (row) this randomizer serves, which seeds its streams.
 
         A ``noise_std`` block the layout lacks is a ConfigError (a NoGoal layout has no goal blocks)."""
         unknown = sorted(set(cfg.noise_std) - set(noise_slices))
@@ -85,50 +90,64 @@ class Randomizer:
                 f"its blocks: {', '.join(noise_slices)}"
             )
         self.cfg = cfg
-        self._noise = [(noise_slices[k], s) for k, s in cfg.noise_std.items() if s > 0]
+        self.env_index = tuple(int(e) for e in env_index)
+        """Global env index of each row (its streams' spawn key)."""
+        noisy = [(noise_slices[k], s) for k, s in cfg.noise_std.items() if s > 0]
+        self._noise_cols = np.concatenate([np.arange(w.start, w.stop) for w, _ in noisy] or [np.zeros(0, int)])
+        self._noise_std = np.concatenate([np.full(w.stop - w.start, s) for w, s in noisy] or [np.zeros(0)])
         self.reseed(cfg.seed)
 
     def reseed(self, seed: int) -> None:
-        """Restart every stream from ``seed``: pool draws, start pose, physics, noise (in that spawn order)."""
-        streams = np.random.SeedSequence(seed).spawn(4)
-        self.pool_rng, self._pose_rng, self._physics_rng, self._noise_rng = (np.random.default_rng(s) for s in streams)
+        """Restart every env's streams from ``seed``: pool draws, start pose, physics, noise (in that spawn order)."""
+        self._rngs = [
+            tuple(np.random.default_rng(s) for s in np.random.SeedSequence(seed, spawn_key=(e,)).spawn(4))
+            for e in self.env_index
+        ]
 
-    def state(self) -> list[dict]:
-        """The four streams' states (JSON-ready dicts), for a checkpoint."""
-        return [g.bit_generator.state for g in self._streams()]
+    def state(self) -> list[list[dict]]:
+        """Per env (row order), its four streams' states (JSON-ready dicts), for a checkpoint."""
+        return [[g.bit_generator.state for g in rngs] for rngs in self._rngs]
 
-    def set_state(self, state: list[dict]) -> None:
-        """Restore :meth:`state`."""
-        for g, s in zip(self._streams(), state, strict=True):
-            g.bit_generator.state = s
+    def set_state(self, state: list[list[dict]]) -> None:
+        """Restore :meth:`state`; ConfigError if it was taken with another number of envs (or by an older version,
+        with one stream per kind for all envs)."""
+        if len(state) != len(self._rngs) or any(not isinstance(s, list) or len(s) != 4 for s in state):
+            raise ConfigError(
+                f"randomization state: {len(state)} entries, this environment has {len(self._rngs)} envs with 4 "
+                "streams each; resume with the num_envs the state was saved with (a state from before per-env "
+                "streams cannot be restored: start the run anew)"
+            )
+        for rngs, states in zip(self._rngs, state, strict=True):
+            for g, s in zip(rngs, states, strict=True):
+                g.bit_generator.state = s
 
-    def _streams(self) -> tuple[np.random.Generator, ...]:
-        return self.pool_rng, self._pose_rng, self._physics_rng, self._noise_rng
+    def pool_entries(self, pool, rows: Sequence[int]) -> np.ndarray:
+        """(m,) int64: one entry of ``pool`` (a GraspPool) drawn for each env row in ``rows``, from its own stream."""
+        return np.array([pool.draw(self._rngs[r][0], 1)[0] for r in rows], dtype=np.int64)
 
-    def start_poses(self, rest: np.ndarray) -> np.ndarray:
-        """(m, 7) object start poses from rest poses (m, 7), world: shifted in x, y and turned about world z.
+    def start_poses(self, rest: np.ndarray, rows: Sequence[int]) -> np.ndarray:
+        """(m, 7) object start poses from rest poses (m, 7) of env rows ``rows``, world: shifted in x, y and turned
+        about world z.
 
         The turn is about the vertical through the object's origin, so an object resting on its base still
         rests; the rest poses themselves when the start pose is off (a copy)."""
         out = np.array(rest, dtype=np.float64)
         if not self.cfg.active("start_pose"):
             return out
-        m = len(out)
-        out[:, :2] += self._pose_rng.uniform(-self.cfg.max_shift, self.cfg.max_shift, (m, 2))
-        half = np.radians(self._pose_rng.uniform(-self.cfg.max_yaw, self.cfg.max_yaw, m)) / 2
-        yaw = np.stack([np.cos(half), np.zeros(m), np.zeros(m), np.sin(half)], axis=1)
-        out[:, 3:] = quat_mul(yaw, out[:, 3:])
+        shift, yaw = self.cfg.max_shift, self.cfg.max_yaw
+        draws = np.array([self._rngs[r][1].uniform([-shift, -shift, -yaw], [shift, shift, yaw]) for r in rows])
+        out[:, :2] += draws[:, :2]
+        half = np.radians(draws[:, 2]) / 2
+        zeros = np.zeros(len(out))
+        out[:, 3:] = quat_mul(np.stack([np.cos(half), zeros, zeros, np.sin(half)], axis=1), out[:, 3:])
         return out
 
-    def physics(self, asset: ObjectAsset) -> ObjectAsset:
-        """``asset`` with its mass (density) and friction scaled, as switched on; ``asset`` itself if neither is."""
-        cfg = self.cfg
-        scale_m = self._physics_rng.uniform(1 - cfg.mass_range, 1 + cfg.mass_range) if cfg.active("mass") else None
-        scale_f = (
-            self._physics_rng.uniform(1 - cfg.friction_range, 1 + cfg.friction_range)
-            if cfg.active("friction")
-            else None
-        )
+    def physics(self, asset: ObjectAsset, row: int) -> ObjectAsset:
+        """``asset`` with its mass (density) and friction scaled for env row ``row``, as switched on; ``asset``
+        itself if neither is."""
+        cfg, rng = self.cfg, self._rngs[row][2]
+        scale_m = rng.uniform(1 - cfg.mass_range, 1 + cfg.mass_range) if cfg.active("mass") else None
+        scale_f = rng.uniform(1 - cfg.friction_range, 1 + cfg.friction_range) if cfg.active("friction") else None
         if scale_m is None and scale_f is None:
             return asset
         changes: dict[str, float] = {}
@@ -139,9 +158,10 @@ class Randomizer:
         return replace(asset, **changes)
 
     def add_noise(self, obs: np.ndarray) -> None:
-        """Add the configured Gaussian noise to ``obs`` (n, obs size) float32 in place (nothing if it is off)."""
-        if not self.cfg.active("obs_noise"):
+        """Add the configured Gaussian noise to ``obs`` (n, obs size) float32 in place, row r from env row r's
+        stream (nothing if it is off)."""
+        if not self.cfg.active("obs_noise") or not len(self._noise_cols):
             return
-        for where, std in self._noise:
-            block = obs[:, where]
-            block += self._noise_rng.normal(0.0, std, block.shape).astype(np.float32)
+        k = len(self._noise_cols)
+        z = np.array([rngs[3].standard_normal(k) for rngs in self._rngs]).reshape(len(obs), k)
+        obs[:, self._noise_cols] += (z * self._noise_std).astype(np.float32)
