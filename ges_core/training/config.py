@@ -15,7 +15,15 @@ from ges_core.config import ConfigModel, apply_overrides, parse_model, read_yaml
 from ges_core.env.grasp_env import EnvConfig
 from ges_core.errors import ConfigError
 
-__all__ = ["PRESETS", "CurriculumConfig", "PPOSettings", "TrainConfig", "load_train_config", "preset_path"]
+__all__ = [
+    "PRESETS",
+    "CurriculumConfig",
+    "PPOSettings",
+    "TrainConfig",
+    "WarmStartConfig",
+    "load_train_config",
+    "preset_path",
+]
 
 PRESET_DIR = Path(__file__).resolve().parent / "presets"
 PRESETS = ("tiny", "small", "paper")
@@ -46,6 +54,12 @@ class PPOSettings(ConfigModel):
         0.5, gt=0, description="initial action std (absolute mode; normalized action units, range [-1, 1])"
     )
     obs_normalization: bool = Field(True, description="running mean/std normalization of the observation")
+    clipped_value_loss: bool = Field(
+        True,
+        description="rsl-rl's clipped value loss: each update moves a value at most clip_param from the rollout's. "
+        "False for the grasp rewards: returns are ~250 (about 2.5 per step over a 0.99 horizon, scripted rollouts "
+        "measured 2026-12-02), so a critic starting at 0 would need > 1,000 iterations to reach them",
+    )
     normalizer_warmup: int = Field(
         8,
         ge=0,
@@ -75,6 +89,57 @@ class CurriculumConfig(ConfigModel):
     )
 
 
+class WarmStartConfig(ConfigModel):
+    """Behaviour-cloning warm start of an absolute-mode actor (``ges_core.training.warm_start``, docs/training.md).
+
+    What it fixes: from the Init prior, PPO in the paper's absolute action mode starts with joint targets at
+    mid-range (a zero mean opens the hand) and action noise 0.5; success needs ~190 precise control steps of 200
+    (the scripted expert succeeds at step 189), and noise of 0.05 on the scripted expert's own actions already took
+    it from 16/16 to 0/16 (0.02: 15/16). The cold start lifted nothing in 2,820 episodes. Here the actor first
+    imitates the base expert's actions in the same absolute action space, then the critic learns its values with
+    the actor frozen, then PPO fine-tunes from a small action noise. The output stays the absolute action.
+    """
+
+    enabled: bool = Field(False, description="absolute mode only (residual mode already starts at its base expert)")
+    expert: str = Field("scripted", description="registry expert whose actions are imitated")
+    samples: int = Field(
+        8192, ge=1, description="demonstration samples (env steps x envs, rounded up to whole control steps)"
+    )
+    demo_noise: float = Field(
+        0.02,
+        ge=0,
+        description="Gaussian noise (normalized action units) added to the executed demonstration actions, the "
+        "labels stay clean (DART): the actor sees states slightly off the expert's path and how it corrects them; "
+        "0.02 keeps the scripted expert at 15/16 successes (0.05: 0/16, measured 2026-12-02)",
+    )
+    all_objects: bool = Field(
+        True,
+        description="demonstrations on every object of the curriculum (all stages), not only stage 1's; the pool's "
+        "weights are restored afterwards (episodes running then finish on their object)",
+    )
+    epochs: int = Field(60, ge=1, description="passes of the MSE regression over the demonstrations")
+    batch_size: int = Field(256, ge=1, description="samples per gradient step of the regression")
+    learning_rate: float = Field(1e-3, gt=0, description="Adam step size of the regression")
+    critic_iterations: int = Field(
+        8,
+        ge=0,
+        description="first PPO iterations that fit only the critic (value regression on the returns, actor frozen): "
+        "without it the first actor updates follow the advantages of a critic that outputs ~0 for returns of ~250",
+    )
+    critic_learning_rate: float = Field(1e-3, gt=0, description="Adam step size of the critic warm-up")
+    init_std: float = Field(
+        0.02,
+        gt=0,
+        description="action std after the warm start (replaces ppo.init_noise_std): 0.5 would erase the imitated "
+        "behaviour (noise 0.05 on the scripted expert: 0/16 held)",
+    )
+    freeze_actor_normalizer: bool = Field(
+        True,
+        description="keep the actor's observation normalizer at its fit on the demonstrations (the critic's goes on "
+        "updating): a drifting normalizer would shift every input of the cloned actor",
+    )
+
+
 class TrainConfig(ConfigModel):
     """Everything a ``ges train-expert`` run needs besides the dataset path."""
 
@@ -90,6 +155,12 @@ class TrainConfig(ConfigModel):
         None, description="train on these object ids instead of the cluster (the hard-case expert); stage 3 unused"
     )
     num_envs: int = Field(16, ge=1, description="parallel envs")
+    workers: int = Field(
+        1,
+        ge=1,
+        description="env worker processes the envs are split across (ges_core.env.workers, docs/training.md "
+        "'Env workers'); 1: the envs step in the training process itself. Same trajectories for any count",
+    )
     iterations: int = Field(100, ge=1, description="PPO iterations (each num_envs x ppo.num_steps_per_env steps)")
     seed: int = Field(0, ge=0, description="seeds torch, the pool draws and the randomization")
     action_mode: Literal["absolute", "residual"] = Field(
@@ -105,6 +176,7 @@ class TrainConfig(ConfigModel):
     env: EnvConfig = Field(default_factory=EnvConfig, description="the environment (randomization included)")
     ppo: PPOSettings = Field(default_factory=PPOSettings)
     curriculum: CurriculumConfig = Field(default_factory=CurriculumConfig)
+    warm_start: WarmStartConfig = Field(default_factory=WarmStartConfig)
     checkpoint_interval: int = Field(10, ge=1, description="iterations between checkpoints (and one at the end)")
     keep_checkpoints: int = Field(3, ge=1, description="numbered checkpoints kept besides last.pt")
     time_limit: float | None = Field(None, gt=0, description="seconds: stop (with a checkpoint) after this long")
