@@ -49,8 +49,14 @@ def fusion_figure(
         _selection(axes[0, k], rates[rows], experts, [_local(g, cols)[rows] for g in ges], [g.label for g in ges])
         axes[0, k].set_title(f"{split} ({len(rows)} objects)")
         _success(axes[1, k], rates[rows], [matrix.object_ids[i] for i in rows], experts, ges, cols, rows, protocol)
-    fig.suptitle(f"GES expert selection and per-expert success ({protocol} protocol)")
-    fig.tight_layout()
+    fig.suptitle(f"GES expert selection and per-expert success ({protocol} protocol); markers: each gate's pick")
+    handles, names = axes[1, 0].get_legend_handles_labels()
+    for ax in axes[1, 1:]:
+        if not handles:
+            handles, names = ax.get_legend_handles_labels()
+    if handles:
+        fig.legend(handles, names, loc="lower center", ncol=len(handles), fontsize=8)
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
     buffer = io.BytesIO()
     fig.savefig(buffer, format="png", dpi=110)
     plt.close(fig)
@@ -96,7 +102,7 @@ def _success(ax, rates, ids, experts, ges: list[GesRow], cols, rows, protocol: s
         eps = g.episodes[rows]
         ges_rate = np.where(eps > 0, g.successes[protocol][rows] / np.maximum(eps, 1), np.nan)
         ax.scatter(pick + offsets[gi], np.arange(n), marker=_MARKERS[gi % len(_MARKERS)], s=28,
-                   facecolors="none", edgecolors=f"C{gi}", linewidths=1.4, label=f"{g.label} pick")  # fmt: skip
+                   facecolors="white", edgecolors=f"C{gi}", linewidths=1.6, label=f"{g.label} pick")  # fmt: skip
         for y, r in enumerate(ges_rate):
             text = "-" if np.isnan(r) else f"{r:.2f}"
             ax.text(len(experts) - 0.45 + 0.5 * gi, y, text, fontsize=6, va="center", color=f"C{gi}")
@@ -104,6 +110,4 @@ def _success(ax, rates, ids, experts, ges: list[GesRow], cols, rows, protocol: s
     ax.set_xticks(np.arange(len(experts)), experts, rotation=20, fontsize=8)
     ax.set_yticks(np.arange(n), ids if n <= 40 else [""] * n, fontsize=6)
     ax.set_ylim(n - 0.5, -0.5)
-    ax.set_xlabel("expert alone (colour: success rate); right: GES rate per gate")
-    if ges and n:
-        ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.18), ncol=len(ges))
+    ax.set_xlabel("colour: expert alone; right: GES", fontsize=8)

@@ -24,7 +24,7 @@ def write_outputs(report, run: dict) -> dict[str, Path]:
                "matrix": str(report.matrix_path), "run": run, **table.to_json(),
                "picks": {label: p.chosen for label, p in report.picks.items()}}  # fmt: skip
     atomic_write_text(paths["json"], json.dumps(payload, indent=1) + "\n", fix="choose another --out")
-    text = "\n\n".join(table.markdown(p) for p in table.rows)
+    text = "\n\n".join([*(table.markdown(p) for p in table.rows), table.accuracy_markdown("paper")])
     atomic_write_text(paths["markdown"], f"# Table 2: GES against every expert and the oracle\n\n{text}\n")
     fusion_figure(paths["figure"], report.matrix, table.experts, report.ges_rows)
     return paths

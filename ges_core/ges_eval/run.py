@@ -125,7 +125,7 @@ def evaluate_ges(
     results.write()
     report = GesReport(results.path, mfile, Table2(), mreport.matrix, picks)
     report.matrix_evaluated, report.matrix_reused = mreport.evaluated, mreport.reused
-    todo = _todo(records, picks, results, report)
+    todo = _todo(records, picks, results, report, reuse_matrix)
     if reuse_matrix:
         todo = _take_from_matrix(todo, mfile, results, report)
     _run(data, registry, config, {c.label: c for c in experts}, todo, results, report, progress, fanout or Fanout())
@@ -167,8 +167,9 @@ def _pick_all(gates: list[LoadedGate], library, ids: list[str], seed: int) -> di
     return out
 
 
-def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesReport) -> list[tuple]:
-    """(record, expert label) of every pick without a cell in the results file, in record order, each once."""
+def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesReport, reuse_matrix: bool) -> list[tuple]:
+    """(record, expert label) of every pick without a cell in the results file, in record order, each once; a cell
+    an earlier run took from the matrix counts as missing unless this run reuses the matrix too."""
     todo, seen = [], set()
     for r in records:
         for p in picks.values():
@@ -176,8 +177,11 @@ def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesRep
             if key in seen:
                 continue
             seen.add(key)
-            if results.cell(*key) is None:
+            cell = results.cell(*key)
+            if cell is None or (cell.get("source") == "matrix" and not reuse_matrix):
                 todo.append((r, key[1]))
+            elif cell.get("source") == "matrix":
+                report.from_matrix += 1
             else:
                 report.resumed += 1
     return todo

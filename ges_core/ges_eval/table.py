@@ -58,6 +58,18 @@ class Table2:
                  for r in self.rows[protocol]]  # fmt: skip
         return "\n".join(head + lines)
 
+    def accuracy_markdown(self, protocol: str = "paper") -> str:
+        """Markdown: per gate and split, the share of objects whose pick is one of their best experts (objects
+        where every expert failed left out, as ``ges train-gate`` counts)."""
+        lines = ["| gate: pick among the best | " + " | ".join(s or "all" for s in COLUMNS) + " |",
+                 "|---" * (len(COLUMNS) + 1) + "|"]  # fmt: skip
+        for r in self.rows[protocol]:
+            if r["kind"] == "ges":
+                cells = [r["splits"][s or "all"]["pick_best"] for s in COLUMNS]
+                lines.append(f"| {r['gate']} | " + " | ".join("-" if c is None else f"{100 * c:.1f} %" for c in cells)
+                             + " |")  # fmt: skip
+        return "\n".join(lines)
+
     def to_json(self) -> dict:
         return {"experts": list(self.experts), "protocols": PROTOCOLS, "rows": self.rows}
 
