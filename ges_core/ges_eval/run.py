@@ -111,11 +111,10 @@ def evaluate_ges(
     labels = tuple(c.label for c in experts)
     loaded = load_gates(gates, registry, labels)
     records = _records(data, config, dataset)
+    picks = _pick_all(loaded, library_for(data), [r.object_id for r in records], cloud_seed)  # bad clouds fail early
     mfile = Path(matrix_file) if matrix_file is not None else _default_matrix(data.root, config)
     mreport = evaluate_experts(data.root, config, experts, mfile.parent, registry=registry, progress=progress,
                                fanout=fanout, matrix_file=mfile)  # fmt: skip
-    ids = [r.object_id for r in records]
-    picks = _pick_all(loaded, library_for(data), ids, cloud_seed)
     columns = {c.label: column_identity(registry, c) for c in experts}
     results = ResultsFile.open(results_path(out, config.hand, config.sim, is_randomized(config)), run_header(config),
                                columns, data.root.resolve(), mfile.resolve())  # fmt: skip
