@@ -91,6 +91,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     rand = "randomization off" if args.no_randomization else "randomized start pose, mass, friction, obs noise"
     print(f"GES | hand {hand} | sim {sim} | {args.episodes} episode(s) per object | {rand}\n")
     print(report.table.markdown("paper") + "\n\n" + report.table.markdown("peers") + "\n")
+    print(report.table.accuracy_markdown("paper") + "\n")
     for line in report.errors[:10]:
         print(f"error: {line}")
     print(report.summary())
