@@ -175,6 +175,23 @@ def test_reuse_matrix_takes_the_identical_cells(run, dataset, gate, tmp_path):
     assert again.table.rows == report.table.rows
 
 
+def test_reuse_matrix_runs_a_cell_that_other_code_made(run, dataset, gate, tmp_path):
+    """Equal settings under other code are not the same episodes: such a matrix cell is run, not reused."""
+    _, _, mfile, _ = run
+    root, ids = dataset
+    raw = json.loads(mfile.read_text())
+    raw["cells"][ids[1]]["low"]["code"] = "0123456789ab"
+    copy = tmp_path / "matrix.json"
+    copy.write_text(json.dumps(raw))
+    reg = Registry()
+    again = evaluate_ges(root, run_config(), [parse_expert(e) for e in EXPERTS], [GateChoice(gate)], tmp_path,
+                         matrix_file=copy, registry=reg, reuse_matrix=True)  # fmt: skip
+    assert (again.from_matrix, again.ran, reg.sims, again.matrix_other_code) == (1, 1, 2, 1)
+    cells = json.loads(again.path.read_text())["cells"]
+    assert cells[ids[0]]["scripted"]["source"] == "matrix" and cells[ids[1]]["low"]["source"] == "run"
+    assert "1 matrix cell(s) and 0 resumed GES cell(s) were run by other code" in again.summary()
+
+
 def test_a_results_file_of_other_settings_is_refused(run, dataset, gate):
     report, out, mfile, _ = run
     root, _ = dataset
@@ -228,7 +245,7 @@ def test_cli(run, dataset, gate, tmp_path, capsys):
     assert main([*base, *experts, "--gate", str(gate), "--reuse-matrix"]) == 0
     out = capsys.readouterr().out
     assert "| GES (centroid) |" in out and "| oracle (best of scripted, low per object) |" in out
-    assert "2 taken from the matrix (identical settings)" in out
+    assert "2 taken from the matrix (identical settings and code)" in out
     assert (tmp_path / "fusion-allegro-sapien.png").stat().st_size > 10_000
     assert main([*base, *experts, "--gate", str(tmp_path / "none.pt")]) == 1
     assert "none.pt: no such file" in capsys.readouterr().err

@@ -39,8 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--out", type=Path, metavar="DIR", help="results folder (default: DATASET/../ges)")
     p.add_argument(
         "--reuse-matrix", action="store_true",
-        help="take a picked expert's episodes from the matrix instead of running them again (its settings are "
-        "checked identical: same run header, expert and checkpoint hash, grasp); the summary counts them",
+        help="take a picked expert's episodes from the matrix instead of running them again where they are provably "
+        "the same (same run header, expert and checkpoint hash, grasp, and code stamp); the summary counts them",
     )  # fmt: skip
     p.add_argument("--cloud-seed", type=int, default=0, metavar="N", help="seed of the gate's cloud samples (0)")
     p.add_argument(

@@ -21,6 +21,8 @@ loses at most the cell in progress and a rerun evaluates only what is missing:
 
 from __future__ import annotations
 
+import functools
+import hashlib
 import json
 import time
 from dataclasses import dataclass, field
@@ -42,6 +44,7 @@ __all__ = [
     "RANDOMIZED",
     "EvalReport",
     "cell_config",
+    "code_stamp",
     "column_identity",
     "evaluate_experts",
     "is_randomized",
@@ -266,10 +269,34 @@ def cell_config(config: BaselineConfig, choice: ExpertChoice) -> BaselineConfig:
 
 
 def matrix_cell(row: dict) -> dict:
-    """A matrix cell from :func:`evaluate_object`'s row."""
+    """A matrix cell from :func:`evaluate_object`'s row, stamped with the code that ran it (:func:`code_stamp`)."""
     cell = {"episodes": row["envs"], "paper": row["paper_success"], "peers": row["peers_success"]}
     cell |= {k: row[k] for k in ("end_reasons", "max_rise", "steps", "metrics", "seconds") if k in row}
-    return cell | ({"error": row["error"]} if "error" in row else {})
+    return cell | ({"error": row["error"]} if "error" in row else {}) | {"code": code_stamp()}
+
+
+@functools.lru_cache(maxsize=1)
+def code_stamp() -> str:
+    """Which code ran a cell: in a git checkout, the commit (12 hex digits) plus, when tracked files under ges_core/
+    or plugins/ differ from it, ``+`` and 8 hex digits of the SHA-256 of that diff; installed, ``version X``.
+
+    Equal settings do not make equal episodes across code versions (a change of how the randomization seeds turn
+    into draws changed every episode of a stored matrix, measured in docs/evaluate.md); two cells with one stamp
+    were run by the same tracked code. Computed once per process."""
+    import subprocess
+
+    import ges_core
+
+    root = Path(ges_core.__file__).resolve().parents[1]
+    if (root / ".git").exists():
+        try:
+            git = {"cwd": root, "capture_output": True, "timeout": 30, "check": True}
+            commit = subprocess.run(["git", "rev-parse", "HEAD"], text=True, **git).stdout.strip()[:12]
+            diff = subprocess.run(["git", "diff", "HEAD", "--", "ges_core", "plugins"], **git).stdout
+            return f"{commit}+{hashlib.sha256(diff).hexdigest()[:8]}" if diff else commit
+        except (OSError, subprocess.SubprocessError):
+            pass
+    return f"version {ges_core.__version__}"
 
 
 def read_clusters(path: str | Path) -> dict[str, int]:

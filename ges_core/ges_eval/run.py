@@ -12,8 +12,10 @@ refused; cells it holds are reused, as ``ges eval-experts`` resumes); (2) each g
 of ``ges eval-experts`` (:func:`ges_core.env.evaluate.fanout.evaluate_cells`, a fresh simulator per cell: stage-one
 reaching, then the expert), the results file (:mod:`~ges_core.ges_eval.results`) rewritten after each; (4) Table 2
 (:mod:`~ges_core.ges_eval.table`). With ``reuse_matrix`` step 3 takes the matrix cell of the picked expert instead
-of running it: step 1 has proven the settings identical (run header, expert identity with checkpoint hashes, grasp
-key), so the episodes would be the same ones; the cell is marked ``source: matrix`` and the summary says how many.
+of running it when the episodes would be the same ones: step 1 has proven the settings identical (run header, expert
+identity with checkpoint hashes, grasp key) and the cell carries this code's
+:func:`~ges_core.experts.evaluate.code_stamp` (equal settings under other code gave other episodes: a change of the
+randomization streams changed every one); the cell is marked ``source: matrix`` and the summary says how many.
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ from ges_core.errors import ConfigError
 from ges_core.experts.choice import ExpertChoice
 from ges_core.experts.evaluate import (
     cell_config,
+    code_stamp,
     column_identity,
     evaluate_experts,
     is_randomized,
@@ -66,7 +69,11 @@ class GesReport:
     resumed: int = 0
     """GES cells found in the results file."""
     from_matrix: int = 0
-    """GES cells taken from the matrix (``reuse_matrix``: identical settings)."""
+    """GES cells taken from the matrix (``reuse_matrix``: identical settings and code)."""
+    matrix_other_code: int = 0
+    """Cells of the run's matrix rows and columns that other code ran (another :func:`code_stamp`, or none)."""
+    resumed_other_code: int = 0
+    """Resumed GES cells that other code ran."""
     errors: list[str] = field(default_factory=list)
     seconds: float = 0.0
 
@@ -77,9 +84,14 @@ class GesReport:
             f"{len(m.object_ids)} object(s), {len(self.picks)} gate(s) over experts {', '.join(self.table.experts)}",
             f"matrix {self.matrix_path}: {self.matrix_evaluated} cell(s) evaluated, {self.matrix_reused} reused",
             f"GES {self.path}: {self.ran} cell(s) run, {self.resumed} resumed"
-            + (f", {self.from_matrix} taken from the matrix (identical settings)" if self.from_matrix else ""),
+            + (f", {self.from_matrix} taken from the matrix (identical settings and code)" if self.from_matrix else ""),
             f"{len(self.errors)} cell(s) with errors; {self.seconds:.1f} s",
         ]
+        if self.matrix_other_code or self.resumed_other_code:
+            lines.append(
+                f"note: {self.matrix_other_code} matrix cell(s) and {self.resumed_other_code} resumed GES cell(s) were "
+                f"run by other code than this ({code_stamp()}): same settings, but not necessarily the same episodes"
+            )
         return "\n".join(lines)
 
 
@@ -124,6 +136,7 @@ def evaluate_ges(
     results.write()
     report = GesReport(results.path, mfile, Table2(), mreport.matrix, picks)
     report.matrix_evaluated, report.matrix_reused = mreport.evaluated, mreport.reused
+    report.matrix_other_code = _other_code(read_matrix_json(mfile).get("cells", {}), records, columns)
     todo = _todo(records, picks, results, report, reuse_matrix)
     if reuse_matrix:
         todo = _take_from_matrix(todo, mfile, results, report)
@@ -183,22 +196,32 @@ def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesRep
                 report.from_matrix += 1
             else:
                 report.resumed += 1
+                report.resumed_other_code += cell.get("code") != code_stamp()
     return todo
 
 
 def _take_from_matrix(todo: list[tuple], mfile: Path, results: ResultsFile, report: GesReport) -> list[tuple]:
-    """Store the matrix's cell for each (record, expert) it holds (settings proven identical by the matrix run's
-    checks); return the rest."""
+    """Store the matrix's cell for each (record, expert) it holds that this code ran (settings proven identical by
+    the matrix run's checks, code by :func:`code_stamp`); return the rest, to be run."""
     cells = read_matrix_json(mfile).get("cells", {})
     rest = []
     for r, label in todo:
         cell = cells.get(r.object_id, {}).get(label)
-        if cell is None or "error" in cell:
+        if cell is None or "error" in cell or cell.get("code") != code_stamp():
             rest.append((r, label))
             continue
         results.put(r.object_id, label, {**cell, "source": "matrix"})
         report.from_matrix += 1
     return rest
+
+
+def _other_code(cells: dict, records, columns: dict) -> int:
+    """How many matrix cells of ``records`` x ``columns`` another code version ran (or carry no stamp)."""
+    stamp = code_stamp()
+    return sum(
+        1 for r in records for label in columns
+        if (c := cells.get(r.object_id, {}).get(label)) is not None and c.get("code") != stamp
+    )  # fmt: skip
 
 
 def _run(data, registry, config, choices: dict[str, ExpertChoice], todo, results, report, progress, fanout) -> None:
