@@ -102,6 +102,12 @@ class WarmStartConfig(ConfigModel):
 
     enabled: bool = Field(False, description="absolute mode only (residual mode already starts at its base expert)")
     expert: str = Field("scripted", description="registry expert whose actions are imitated")
+    expert_settings: dict = Field(
+        default_factory=dict,
+        description="settings of the demonstrating expert (over its registered ones), e.g. the scripted expert's "
+        "pause_steps=0: its 5-step pause before the carry is timed by a clock the observation does not hold, so "
+        "the cloned actor averaged pause (wrist z 0) and carry (z 1) and carried at a fifth of the speed",
+    )
     samples: int = Field(
         8192, ge=1, description="demonstration samples (env steps x envs, rounded up to whole control steps)"
     )

@@ -27,7 +27,7 @@ from ges_core.training.config import TrainConfig, load_train_config
 from ges_core.training.envs import TrainingSetup, build_setup
 from ges_core.training.runner import GraspRunner
 
-__all__ = ["TrainSummary", "rsl_config", "train_expert", "train_from_args"]
+__all__ = ["TrainSummary", "rsl_config", "train_expert", "train_from_args", "warm_start_active"]
 
 
 @dataclass
@@ -55,6 +55,8 @@ class TrainSummary:
     bad_updates: int = 0
     checkpoint: str = ""
     resumed_from: str | None = None
+    warm_start: dict | None = None
+    """The behaviour-cloning warm start's record (``warm_start.json``); None when it did not run in this call."""
 
     def table(self) -> str:
         """A few lines for the terminal."""
@@ -67,10 +69,17 @@ class TrainSummary:
             *[f"    {p}" for p in self.promotions],
             f"  episodes {self.episodes}: success {_pct(self.success_paper)} (paper), {_pct(self.success_peers)} "
             f"(peers); last iteration {_pct(self.last_success_paper)} (paper)",
+            *([_warm_line(self.warm_start)] if self.warm_start else []),
             f"  NaN actions {self.nan_actions} (episodes ended unstable), undone updates {self.bad_updates}",
             f"  checkpoint {self.checkpoint}" + (f" (resumed from {self.resumed_from})" if self.resumed_from else ""),
         ]
         return "\n".join(lines)
+
+
+def _warm_line(w: dict) -> str:
+    loss = w["imitation_loss"]
+    return (f"  warm start: {w['demo_env_steps']:,} demonstration steps ({w['demo_successes']}/{w['demo_episodes']} "
+            f"episodes succeeded), imitation loss {loss[0]:.4f} -> {loss[-1]:.4f}")  # fmt: skip
 
 
 def _pct(x: float) -> str:
@@ -82,6 +91,8 @@ def rsl_config(cfg: TrainConfig, residual: bool) -> dict:
     p = cfg.ppo
     groups = ["policy", "base_action"] if residual else ["policy"]
     std = p.init_noise_std if not residual else min(p.init_noise_std, 0.1)  # see ges_core.training.residual
+    if warm_start_active(cfg):
+        std = cfg.warm_start.init_std  # a cloned actor keeps its behaviour only under small noise (warm_start.py)
     model = {"class_name": "MLPModel", "activation": p.activation, "obs_normalization": p.obs_normalization}
     return {
         "num_steps_per_env": p.num_steps_per_env,
@@ -95,10 +106,26 @@ def rsl_config(cfg: TrainConfig, residual: bool) -> dict:
             "num_learning_epochs": p.num_learning_epochs, "num_mini_batches": p.num_mini_batches,
             "clip_param": p.clip_param, "gamma": p.gamma, "lam": p.lam, "entropy_coef": p.entropy_coef,
             "value_loss_coef": p.value_loss_coef, "max_grad_norm": p.max_grad_norm,
+            "use_clipped_value_loss": p.clipped_value_loss,
         },
         "check_for_nan": True,
         "logger": "tensorboard",
     }  # fmt: skip
+
+
+def warm_start_active(cfg: TrainConfig) -> bool:
+    """The behaviour-cloning warm start runs: switched on and the absolute action mode."""
+    return cfg.warm_start.enabled and cfg.action_mode == "absolute"
+
+
+def _demonstrator(setup: TrainingSetup, cfg: TrainConfig, registry):
+    """The Expert the warm start imitates (None when it does not run)."""
+    if not warm_start_active(cfg):
+        return None
+    from ges_core.policy import ExpertContext
+
+    context = ExpertContext.of_env(setup.env, sim=setup.sim, registry=registry)
+    return registry.build_expert(cfg.warm_start.expert, context, **cfg.warm_start.expert_settings)
 
 
 def _meta(setup: TrainingSetup, cfg: TrainConfig, train_cfg: dict, runner: GraspRunner) -> dict:
@@ -151,7 +178,8 @@ def train_expert(
     setup = build_setup(dataset, cfg, registry, clusters)
     try:
         train_cfg = rsl_config(cfg, cfg.action_mode == "residual")
-        runner = GraspRunner(setup.venv, train_cfg, out, curriculum=setup.curriculum, meta={}, settings=cfg)
+        runner = GraspRunner(setup.venv, train_cfg, out, curriculum=setup.curriculum, meta={}, settings=cfg,
+                             demonstrator=_demonstrator(setup, cfg, registry))  # fmt: skip
         runner.meta = _meta(setup, cfg, train_cfg, runner)
         if cfg.action_mode == "residual":
             _zero_output_layer(runner)
@@ -204,6 +232,7 @@ def _summary(out: Path, setup, cfg: TrainConfig, runner: GraspRunner, stopped: s
         success_peers=t["peers"] / t["episodes"] if t["episodes"] else math.nan,
         last_success_paper=last.rate("paper"), nan_actions=t["nan_actions"], bad_updates=t["bad_updates"],
         checkpoint=str(ckpt) if ckpt.exists() else "", resumed_from=str(previous[0]) if previous else None,
+        warm_start=getattr(runner, "warm_start_record", None),
     )  # fmt: skip
 
 

@@ -78,10 +78,16 @@ class EpisodeCounts:
 class GraspRunner(OnPolicyRunner):
     """OnPolicyRunner over a GraspVecEnv (or ResidualVecEnv) with a curriculum and GES checkpoints (module docs)."""
 
-    def __init__(self, env, train_cfg: dict, run_dir: Path, *, curriculum, meta: dict, settings) -> None:
+    def __init__(self, env, train_cfg: dict, run_dir: Path, *, curriculum, meta: dict, settings,
+                 demonstrator=None) -> None:  # fmt: skip
         """run_dir: the run folder (logs/, checkpoints/, history.jsonl); meta: the checkpoint's fixed ``ges``
-        fields (made_for, model, ...); settings: the TrainConfig (checkpoint interval, time limit, warm-up)."""
+        fields (made_for, model, ...); settings: the TrainConfig (checkpoint interval, time limit, warm-up);
+        demonstrator: the Expert the behaviour-cloning warm start imitates (None: no warm start)."""
         self.run_dir, self.curriculum, self.meta, self.settings = Path(run_dir), curriculum, meta, settings
+        self.demonstrator = demonstrator
+        self.critic_iterations = settings.warm_start.critic_iterations if demonstrator is not None else 0
+        """The first iterations (absolute numbers) update only the critic (warm start, step 4)."""
+        self._critic_optimizer: torch.optim.Optimizer | None = None
         with contextlib.redirect_stdout(io.StringIO()):  # it prints both models; the summary says what ran
             super().__init__(env, train_cfg, log_dir=str(self.run_dir / "logs"), device="cpu")
         self.logger.git_status_repos = []  # else its logger runs git on the repository holding rsl_rl
@@ -102,12 +108,13 @@ class GraspRunner(OnPolicyRunner):
                 self.logger.init_logging_writer()
         obs = self.env.get_observations()
         self.alg.train_mode()
+        began = time.perf_counter() - self.seconds  # the warm-up counts toward the time limit
         if not self.warmed and self.current_learning_iteration == 0:
             obs = self._warm_up(obs)
+            self.seconds = time.perf_counter() - began
         self.warmed = True
         start = self.current_learning_iteration
         limit = self.settings.time_limit
-        began = time.perf_counter() - self.seconds
         for it in range(start, start + num_learning_iterations):
             obs = self._iteration(it, start, start + num_learning_iterations, obs)
             self.current_learning_iteration = it + 1
@@ -135,7 +142,7 @@ class GraspRunner(OnPolicyRunner):
             collect = time.perf_counter() - t0
             self.alg.compute_returns(obs)
         t1 = time.perf_counter()
-        loss = self._guarded_update()
+        loss = self._critic_update() if it < self.critic_iterations else self._guarded_update()
         learn = time.perf_counter() - t1
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints a page per iteration; tqdm shows progress
             self.logger.log(it, start, total, collect, learn, loss, self.alg.learning_rate,
@@ -173,9 +180,25 @@ class GraspRunner(OnPolicyRunner):
             self.totals["bad_updates"] += 1
         return loss
 
+    def _critic_update(self) -> dict:
+        """Warm-start iterations: fit the critic to this rollout's returns, the actor untouched."""
+        from ges_core.training.warm_start import critic_regression
+
+        alg, w = self.alg, self.settings.warm_start
+        if self._critic_optimizer is None:
+            self._critic_optimizer = torch.optim.Adam(alg.critic.parameters(), lr=w.critic_learning_rate)
+        value = critic_regression(alg.critic, alg.storage, self._critic_optimizer, alg.num_learning_epochs,
+                                  alg.num_mini_batches, alg.max_grad_norm)  # fmt: skip
+        alg.critic.update_normalization(alg.storage.observations.flatten(0, 1))
+        alg.storage.clear()
+        return {"value": value}
+
     def _warm_up(self, obs):
-        """Prime the observation normalizers with ``normalizer_warmup`` steps of the initial policy (not learned
-        from; the episodes go on from there)."""
+        """Before the first iteration: the behaviour-cloning warm start when a demonstrator is given, else prime
+        the observation normalizers with ``normalizer_warmup`` steps of the initial policy (not learned from;
+        the episodes go on from there)."""
+        if self.demonstrator is not None:
+            return self._warm_start()
         steps = self.settings.ppo.normalizer_warmup
         for _ in range(steps):  # no inference_mode: the statistics it wrote could not be loaded or restored later
             with torch.no_grad():
@@ -186,6 +209,34 @@ class GraspRunner(OnPolicyRunner):
                 _floor_std(model)
         self.totals["env_steps"] += steps * self.env.num_envs
         return obs
+
+    def _warm_start(self):
+        """Steps 1-3 of :mod:`ges_core.training.warm_start`; writes ``warm_start.json`` in the run folder."""
+        from ges_core.training import warm_start as ws
+
+        w, alg = self.settings.warm_start, self.alg
+        t0 = time.perf_counter()
+        gen = torch.Generator().manual_seed(self.settings.seed)
+        if w.all_objects:
+            self.pool.set_weights(dict.fromkeys(ws.demo_objects(self.curriculum), 1.0))
+        demo = ws.collect_demonstrations(self.env, self.demonstrator, w.samples, w.demo_noise, gen)
+        self.pool.set_weights(self.curriculum.weights())
+        collect = time.perf_counter() - t0
+        ws.fit_normalizer(alg.actor, demo.obs, freeze=w.freeze_actor_normalizer)
+        ws.fit_normalizer(alg.critic, demo.obs, freeze=False)
+        losses = ws.behaviour_clone(alg.actor, demo, epochs=w.epochs, batch_size=w.batch_size,
+                                    learning_rate=w.learning_rate, generator=gen)  # fmt: skip
+        self.totals["env_steps"] += demo.env_steps
+        record = {
+            "demo_env_steps": demo.env_steps, "demo_episodes": demo.episodes, "demo_successes": demo.successes,
+            "demo_reasons": demo.reasons, "collect_s": round(collect, 2),
+            "clone_s": round(time.perf_counter() - t0 - collect, 2), "imitation_loss": [round(x, 6) for x in losses],
+            "objects": ws.demo_objects(self.curriculum) if w.all_objects else self.curriculum.objects(),
+        }  # fmt: skip
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        (self.run_dir / "warm_start.json").write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
+        self.warm_start_record = record
+        return self.env.get_observations()
 
     def _after_iteration(self, it: int, counts: EpisodeCounts, collect: float, learn: float) -> None:
         """Totals, curriculum, TensorBoard scalars, one history line, the progress callback."""
@@ -206,7 +257,7 @@ class GraspRunner(OnPolicyRunner):
             "episodes": counts.episodes, "success_paper": _num(counts.rate("paper")),
             "success_peers": _num(counts.rate("peers")), "window_success": _num(self.curriculum.success_rate()),
             "reasons": counts.reasons, "per_object": counts.per_object, "nan_actions": counts.nan_actions,
-            "bad_updates": t["bad_updates"],
+            "bad_updates": t["bad_updates"], "update": "critic" if it < self.critic_iterations else "ppo",
             "mean_reward": _num(float(np.mean(self.logger.rewbuffer)) if self.logger.rewbuffer else math.nan),
         }  # fmt: skip
         self._scalars(it, row, counts)
@@ -288,6 +339,10 @@ class GraspRunner(OnPolicyRunner):
         self.logger.tot_timesteps = state["logger"]["tot_timesteps"]
         self.logger.tot_time = state["logger"]["tot_time"]
         self.warmed = True
+        if self.demonstrator is not None and self.settings.warm_start.freeze_actor_normalizer:
+            from ges_core.training.warm_start import freeze_normalizer
+
+            freeze_normalizer(self.alg.actor)  # ``until`` is not in the state dict
 
 
 STD_FLOOR = 0.1
