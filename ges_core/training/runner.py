@@ -88,6 +88,9 @@ class GraspRunner(OnPolicyRunner):
         self.critic_iterations = settings.warm_start.critic_iterations if demonstrator is not None else 0
         """The first iterations (absolute numbers) update only the critic (warm start, step 4)."""
         self._critic_optimizer: torch.optim.Optimizer | None = None
+        self._anchor_optimizer: torch.optim.Optimizer | None = None
+        self.demonstrations = None
+        """The warm start's Demonstrations (kept for the anchor steps; not in checkpoints: a resumed run has none)."""
         with contextlib.redirect_stdout(io.StringIO()):  # it prints both models; the summary says what ran
             super().__init__(env, train_cfg, log_dir=str(self.run_dir / "logs"), device="cpu")
         self.logger.git_status_repos = []  # else its logger runs git on the repository holding rsl_rl
@@ -143,6 +146,8 @@ class GraspRunner(OnPolicyRunner):
             self.alg.compute_returns(obs)
         t1 = time.perf_counter()
         loss = self._critic_update() if it < self.critic_iterations else self._guarded_update()
+        if it >= self.critic_iterations and self.demonstrations is not None and self.settings.warm_start.anchor_steps:
+            loss["anchor"] = self._anchor()
         learn = time.perf_counter() - t1
         with contextlib.redirect_stdout(io.StringIO()):  # rsl-rl prints a page per iteration; tqdm shows progress
             self.logger.log(it, start, total, collect, learn, loss, self.alg.learning_rate,
@@ -193,6 +198,17 @@ class GraspRunner(OnPolicyRunner):
         alg.storage.clear()
         return {"value": value}
 
+    def _anchor(self) -> float:
+        """The anchor steps after a PPO update (``warm_start.anchor_steps``); their mean imitation loss."""
+        from ges_core.training.warm_start import anchor
+
+        w = self.settings.warm_start
+        if self._anchor_optimizer is None:
+            self._anchor_optimizer = torch.optim.Adam(self.alg.actor.mlp.parameters(), lr=w.anchor_learning_rate)
+            self._anchor_rng = torch.Generator().manual_seed(self.settings.seed + 1)
+        return anchor(self.alg.actor, self.demonstrations, self._anchor_optimizer, w.anchor_steps, w.batch_size,
+                      self._anchor_rng)  # fmt: skip
+
     def _warm_up(self, obs):
         """Before the first iteration: the behaviour-cloning warm start when a demonstrator is given, else prime
         the observation normalizers with ``normalizer_warmup`` steps of the initial policy (not learned from;
@@ -236,6 +252,7 @@ class GraspRunner(OnPolicyRunner):
         self.run_dir.mkdir(parents=True, exist_ok=True)
         (self.run_dir / "warm_start.json").write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
         self.warm_start_record = record
+        self.demonstrations = demo
         return self.env.get_observations()
 
     def _after_iteration(self, it: int, counts: EpisodeCounts, collect: float, learn: float) -> None:

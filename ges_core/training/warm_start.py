@@ -14,7 +14,8 @@ action space*; the policy still outputs absolute joint targets and wrist motion,
 3. :func:`behaviour_clone`: MSE between the actor's mean and the labels, Adam, shuffled mini-batches from a
    seeded generator (a CPU run repeats exactly).
 4. The runner's first ``critic_iterations`` iterations fit only the critic (:func:`critic_regression`), then PPO
-   starts with the action std ``init_std``.
+   starts with the action std ``init_std``; with ``anchor_steps`` each PPO update is followed by that many steps
+   of the imitation loss on the same demonstrations (:func:`anchor`, as DAPG keeps a demonstration term).
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ from ges_core.errors import ConfigError
 
 __all__ = [
     "Demonstrations",
+    "anchor",
     "behaviour_clone",
     "collect_demonstrations",
     "critic_regression",
@@ -167,6 +169,22 @@ def behaviour_clone(actor, demo: Demonstrations, *, epochs: int, batch_size: int
     return losses
 
 
+def anchor(actor, demo: Demonstrations, optimizer: torch.optim.Optimizer, steps: int, batch_size: int,
+           generator: torch.Generator) -> float:  # fmt: skip
+    """``steps`` Adam steps of the imitation loss on random mini-batches of ``demo`` (the actor's MLP only);
+    the mean loss over them."""
+    total = 0.0
+    n = demo.obs.shape[0]
+    for _ in range(steps):
+        idx = torch.randint(n, (min(batch_size, n),), generator=generator)
+        loss = (actor(_td(demo.obs[idx])) - demo.actions[idx]).square().mean()
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+        total += float(loss.detach())
+    return total / max(steps, 1)
+
+
 def critic_regression(critic, storage, optimizer: torch.optim.Optimizer, epochs: int, mini_batches: int,
                       max_grad_norm: float) -> float:  # fmt: skip
     """One critic-only update on a filled rsl-rl rollout storage (returns computed): unclipped MSE of the value
@@ -179,5 +197,5 @@ def critic_regression(critic, storage, optimizer: torch.optim.Optimizer, epochs:
         loss.backward()
         torch.nn.utils.clip_grad_norm_(critic.parameters(), max_grad_norm)
         optimizer.step()
-        total, count = total + float(loss), count + 1
+        total, count = total + float(loss.detach()), count + 1
     return total / max(count, 1)
