@@ -372,12 +372,13 @@ class GraspEnv:
             unstable[list(err.env_ids) if err.env_ids else slice(None)] = True
         return torch.from_numpy(unstable)
 
-    def observe(self) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+    def observe(self, *, noise_rows=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Flat observation (n, obs size) float32 and the raw state (float64) reused by rewards.
 
         State: ``q``, ``dq`` (n, K); ``tip_world`` (n, F, 3) fingertip points, world, m; ``obj`` (n, 3)
         object origin, world, m; ``wrist_vel`` (n, 6). Each call advances the wrist velocity's finite
-        difference (a second call without physics in between reads zero).
+        difference (a second call without physics in between reads zero). noise_rows: the envs that draw
+        observation noise (None: all; the others' rows stay noise-free and their noise streams untouched).
         """
         self._check_open("observe")
         sim = self.sim
@@ -392,7 +393,7 @@ class GraspEnv:
         state = {name: torch.from_numpy(value) for name, value in arrays.items()}
         self._last_state = (state, arrays, blocks["goal_q"])
         flat = self.obs_layout.pack_np(blocks)
-        self.random.add_noise(flat)  # the policy's view only: the state (reward, success) stays exact
+        self.random.add_noise(flat, noise_rows)  # the policy's view only: the state (reward, success) stays exact
         return torch.from_numpy(flat), state
 
     def _state_arrays(self, state: dict[str, torch.Tensor]) -> tuple[dict[str, np.ndarray], np.ndarray]:

@@ -157,11 +157,12 @@ class Randomizer:
             changes["friction"] = asset.friction * scale_f
         return replace(asset, **changes)
 
-    def add_noise(self, obs: np.ndarray) -> None:
+    def add_noise(self, obs: np.ndarray, rows=None) -> None:
         """Add the configured Gaussian noise to ``obs`` (n, obs size) float32 in place, row r from env row r's
-        stream (nothing if it is off)."""
+        stream (nothing if it is off). rows: only these rows (a 1-D int array or tensor; None: every row)."""
         if not self.cfg.active("obs_noise") or not len(self._noise_cols):
             return
+        rows = range(len(obs)) if rows is None else [int(r) for r in rows]
         k = len(self._noise_cols)
-        z = np.array([rngs[3].standard_normal(k) for rngs in self._rngs]).reshape(len(obs), k)
-        obs[:, self._noise_cols] += (z * self._noise_std).astype(np.float32)
+        z = np.array([self._rngs[r][3].standard_normal(k) for r in rows]).reshape(len(rows), k)
+        obs[np.ix_(np.asarray(rows, dtype=np.int64), self._noise_cols)] += (z * self._noise_std).astype(np.float32)

@@ -106,14 +106,16 @@ class GraspVecEnv(VecEnv):
             env.reset_envs(ended)
             self.metrics.reset(ended)
             steps[done] = 0
-            fresh = self._observe()[0]  # reset envs: their first observation of the next episode
+            fresh = self._observe(ended)[0]  # reset envs: their first observation of the next episode
             obs = torch.where(torch.from_numpy(done)[:, None], fresh, obs)
         self._obs = obs  # the others keep this step's observation (a second read has zero wrist velocity)
         rew = _clean_reward(reward.numpy(), bad if any_bad else None)
         return self.get_observations(), torch.from_numpy(rew), torch.from_numpy(done.astype(np.int64)), extras
 
-    def _observe(self) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
-        obs, state = self.env.observe()
+    def _observe(self, noise_rows=None) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """noise_rows: the envs whose observation is kept (None: all), the only ones drawing observation noise, so
+        an env's noise stream never depends on other envs' resets (workers give the same noise as one process)."""
+        obs, state = self.env.observe(noise_rows=noise_rows)
         if not math.isfinite(np.add.reduce(obs.numpy(), axis=None)):  # a finite sum: every value is finite
             obs = torch.nan_to_num(obs, nan=0.0, posinf=0.0, neginf=0.0)
         return obs, state

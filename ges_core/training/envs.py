@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
 
 from ges_core.env.grasp_env import EnvConfig, GraspEnv
@@ -10,12 +11,13 @@ from ges_core.env.grasp_pool import GraspPool
 from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
 from ges_core.env.reward import reward_preset
 from ges_core.env.vec_env import GraspVecEnv
-from ges_core.errors import AssetError
+from ges_core.env.workers import SubprocVecEnv
+from ges_core.errors import AssetError, ConfigError
 from ges_core.sim import SceneConfig
 from ges_core.training.config import TrainConfig
 from ges_core.training.curriculum import Curriculum
 
-__all__ = ["TrainingSetup", "build_setup", "env_config", "training_pool"]
+__all__ = ["TrainingSetup", "build_setup", "env_config", "training_pool", "worker_env"]
 
 
 @dataclass
@@ -27,12 +29,14 @@ class TrainingSetup:
     pool: GraspPool
     curriculum: Curriculum
     venv: object
-    """A GraspVecEnv, or a ResidualVecEnv around one (``action_mode: residual``)."""
+    """A GraspVecEnv (``workers: 1``) or a SubprocVecEnv, or a ResidualVecEnv around one (``action_mode:
+    residual``)."""
     rejected: dict[str, str]
     """Training objects left out by the grasp selection: object id -> why."""
 
     @property
-    def env(self) -> GraspEnv:
+    def env(self):
+        """The GraspEnv, or with env workers its :class:`~ges_core.env.workers.EnvView` (no simulator here)."""
         return self.venv.env
 
 
@@ -64,16 +68,37 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
     pool, rejected = training_pool(dataset_path, hand, cfg)
     curriculum = _curriculum(cfg, clusters, pool)
     pool.set_weights(curriculum.weights())
-    sim = registry.build_sim(sim_name, SceneConfig(num_envs=cfg.num_envs))
-    env = GraspEnv.from_pool(sim, hand, pool, env_config(cfg))
-    venv = GraspVecEnv(env, seed=cfg.seed)
+    venv = _vec_env(cfg, registry, hand, sim_name, pool)
     if cfg.action_mode == "residual":
         from ges_core.policy import ExpertContext
         from ges_core.training.residual import ResidualVecEnv
 
-        base = registry.build_expert(cfg.base_expert, ExpertContext.of_env(env, sim=sim_name, registry=registry))
-        venv = ResidualVecEnv(venv, base, cfg.residual_scale)
+        context = ExpertContext.of_env(venv.env, sim=sim_name, registry=registry)
+        venv = ResidualVecEnv(venv, registry.build_expert(cfg.base_expert, context), cfg.residual_scale)
     return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, rejected)
+
+
+def _vec_env(cfg: TrainConfig, registry, hand, sim_name: str, pool: GraspPool) -> GraspVecEnv | SubprocVecEnv:
+    """``cfg.workers == 1``: a GraspVecEnv in this process; more: a SubprocVecEnv whose workers each build their
+    slice of the envs (the registry rebuilt there through ``registry.rebuild``; the pool, weights included,
+    pickled)."""
+    if cfg.workers == 1:
+        sim = registry.build_sim(sim_name, SceneConfig(num_envs=cfg.num_envs))
+        return GraspVecEnv(GraspEnv.from_pool(sim, hand, pool, env_config(cfg)), seed=cfg.seed)
+    if getattr(registry, "rebuild", None) is None:
+        raise ConfigError(
+            "env workers rebuild the registry in each worker process: build it with ges_core.registry.load_registry "
+            "(it records how), or set workers=1"
+        )
+    make = partial(worker_env, registry.rebuild, hand.name, sim_name, pool, env_config(cfg))
+    return SubprocVecEnv(make, cfg.num_envs, cfg.workers, hand=hand, pool=pool, seed=cfg.seed)
+
+
+def worker_env(rebuild, hand_name: str, sim_name: str, pool: GraspPool, cfg: EnvConfig, env_ids) -> GraspEnv:
+    """One env worker's GraspEnv (called in the worker): envs ``env_ids`` (global ids, seeding their streams)."""
+    registry = rebuild()
+    sim = registry.build_sim(sim_name, SceneConfig(num_envs=len(env_ids)))
+    return GraspEnv.from_pool(sim, registry.build_hand(hand_name), pool, cfg, env_index=env_ids)
 
 
 def _curriculum(cfg: TrainConfig, clusters, pool: GraspPool) -> Curriculum:

@@ -1,0 +1,211 @@
+"""Env workers (ges_core.env.workers): the same trajectories as one process, clear faults, no orphans, PPO on top.
+
+Real SAPIEN envs on the test dataset's grasps throughout; a worker process costs a few seconds to start (imports).
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import textwrap
+import time
+from functools import partial
+
+import numpy as np
+import pytest
+import torch
+
+from ges_core.env.success import EndReason
+from ges_core.env.workers import SubprocVecEnv, split_envs
+from ges_core.errors import ConfigError, SimulationError
+from ges_core.registry import load_registry
+from ges_core.training.config import load_train_config
+from ges_core.training.envs import build_setup, env_config, worker_env
+
+pytestmark = pytest.mark.sim
+DATASET = os.path.join(os.path.dirname(__file__), "data", "dataset_v2")
+FAST = ["env.reach_steps=4", "env.settle_steps=1", "env.episode_length=10", "curriculum.enabled=false",
+        "hand=allegro", "sim=sapien"]  # fmt: skip
+"""Short episodes (10 control steps) so 30 steps see several auto-resets; the tiny preset's randomization (start
+pose, mass, friction, observation noise) stays on."""
+METRIC_RTOL = 1e-12
+"""The Table 3 oscillation sums go through a (n, 6 + K) @ (6 + K, 2) BLAS product whose rounding depends on the
+batch's row count, so workers (fewer rows each) agree with one process to the last bits only; everything else is
+compared bit for bit."""
+
+
+def _setup(workers: int, num_envs: int = 4, *extra: str):
+    cfg = load_train_config("tiny", overrides=[*FAST, f"num_envs={num_envs}", f"workers={workers}", *extra])
+    return build_setup(DATASET, cfg, load_registry())
+
+
+def _rollout(venv, steps: int = 30) -> list:
+    """Seeded random actions; a NaN row in env 1 at step 5; the pool narrowed to one object at step 12."""
+    gen = torch.Generator().manual_seed(1)
+    out = [venv.get_observations()["policy"].clone()]
+    for t in range(steps):
+        actions = torch.rand(venv.num_envs, venv.num_actions, generator=gen) * 2 - 1
+        if t == 5:
+            actions[1, 3] = float("nan")
+        if t == 12:
+            venv.env.pool.set_weights({venv.env.pool.keys[0]: 1.0})
+        out.append(venv.step(actions))
+    return out
+
+
+def _same(a, b, key: str) -> None:
+    if key.startswith("/metrics/") or key.startswith("episode_metrics"):
+        assert torch.allclose(a, b, rtol=METRIC_RTOL, atol=0, equal_nan=True), (key, a, b)
+    else:
+        assert a.dtype == b.dtype and a.shape == b.shape and torch.equal(a.nan_to_num(7.0), b.nan_to_num(7.0)), key
+
+
+def test_two_workers_step_exactly_like_one_process_and_close_cleanly() -> None:
+    one, two = _setup(1).venv, _setup(2).venv
+    assert isinstance(two, SubprocVecEnv) and two.slices == [(0, 1), (2, 3)]
+    a, b = _rollout(one), _rollout(two)
+    _same(a[0], b[0], "first observation")
+    ended, unstable = 0, 0
+    for t, ((oa, ra, da, xa), (ob, rb, db, xb)) in enumerate(zip(a[1:], b[1:], strict=True)):
+        _same(oa["policy"], ob["policy"], f"obs {t}")
+        _same(ra, rb, f"reward {t}")
+        _same(da, db, f"done {t}")
+        assert xa.keys() == xb.keys() and xa["log"].keys() == xb["log"].keys(), t
+        for key in xa["log"]:
+            _same(xa["log"][key], xb["log"][key], key)
+        for key in set(xa) - {"log", "episode_metrics"}:
+            _same(xa[key], xb[key], key)
+        for key in xa.get("episode_metrics", {}):
+            _same(xa["episode_metrics"][key], xb["episode_metrics"][key], f"episode_metrics/{key}")
+        ended += int(da.sum())
+        unstable += int((xa["end_reason"] == int(EndReason.UNSTABLE)).sum())
+    # not a trivial trajectory: episodes ended (and restarted from the pool), the NaN row ended one unstable,
+    # the observations moved, the narrowed pool reached the workers
+    assert ended >= 8 and unstable >= 1 and two.fault_counts == one.fault_counts == {"nan_actions": 1}
+    assert not torch.equal(a[1][0]["policy"], a[-1][0]["policy"])
+    assert set(b[-1][3]["entry"].tolist()) == {0}
+    assert torch.equal(one.episode_length_buf, two.episode_length_buf)
+    assert one.env.random.state() == two.env.random.state()  # per env, env order: checkpoints move across counts
+    procs = list(two._procs)
+    two.close()
+    two.close()
+    assert all(p.exitcode == 0 for p in procs)
+    with pytest.raises(SimulationError, match="closed"):
+        two.step(torch.zeros(4, two.num_actions))
+    one.close()
+
+
+def _make(num_envs: int):
+    cfg = load_train_config("tiny", overrides=[*FAST, f"num_envs={num_envs}"])
+    setup = build_setup(DATASET, cfg, load_registry())
+    setup.venv.close()
+    registry = load_registry()
+    return partial(worker_env, registry.rebuild, "allegro", "sapien", setup.pool, env_config(cfg)), setup
+
+
+def test_a_dead_or_hung_worker_is_a_clear_error_never_a_hang() -> None:
+    make, setup = _make(2)
+    venv = SubprocVecEnv(make, 2, 1, hand=setup.env.hand, pool=setup.pool, timeout=3.0)
+    venv.step(torch.zeros(2, venv.num_actions))
+    os.kill(venv._procs[0].pid, signal.SIGSTOP)  # hung: alive, silent
+    t0 = time.monotonic()
+    with pytest.raises(SimulationError, match=r"env worker 0 \(pid \d+, envs 0-1 of 2\) gave no answer in 3 s"):
+        venv.step(torch.zeros(2, venv.num_actions))
+    assert time.monotonic() - t0 < 10 and not venv._procs[0].is_alive()  # the stopped worker was killed
+    with pytest.raises(SimulationError, match="closed"):
+        venv.step(torch.zeros(2, venv.num_actions))
+
+    venv = SubprocVecEnv(make, 2, 2, hand=setup.env.hand, pool=setup.pool)
+    os.kill(venv._procs[1].pid, signal.SIGKILL)
+    with pytest.raises(SimulationError, match=r"env worker 1 \(pid \d+, envs 1-1 of 2\) died \(killed by SIGKILL\)"):
+        venv.step(torch.zeros(2, venv.num_actions))
+    assert not venv._procs[0].is_alive()
+    venv.close()
+
+
+def _raise_runtime(env_ids):
+    raise RuntimeError(f"boom in envs {env_ids}")
+
+
+def _raise_config(env_ids):
+    raise ConfigError("sapien: contact_offset=5 m; give a value in (0, 0.1] or leave it unset")
+
+
+def test_worker_exceptions_reach_the_main_process() -> None:
+    hand = load_registry().build_hand("allegro")
+    with pytest.raises(SimulationError, match=r"(?s)env worker \d .*raised an exception.*RuntimeError: boom in envs"):
+        SubprocVecEnv(_raise_runtime, 2, 1, hand=hand)
+    with pytest.raises(ConfigError, match="contact_offset=5 m"):  # our own errors come through as they are
+        SubprocVecEnv(_raise_config, 2, 1, hand=hand)
+    with pytest.raises(ConfigError, match="3 worker"):
+        split_envs(2, 3)
+
+
+PARENT = textwrap.dedent("""
+    import sys, time
+    sys.path.insert(0, {tests!r})
+    from test_env_workers import _make
+    from ges_core.env.workers import SubprocVecEnv
+
+    if __name__ == "__main__":
+        make, setup = _make(2)
+        venv = SubprocVecEnv(make, 2, 2, hand=setup.env.hand, pool=setup.pool)
+        print(" ".join(str(p.pid) for p in venv._procs), flush=True)
+        time.sleep(600)
+""")
+
+
+def _gone(pid: int) -> bool:
+    """True once ``pid`` no longer runs (exited, or a zombie nobody reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
+def test_workers_exit_when_the_parent_is_killed(tmp_path) -> None:
+    script = tmp_path / "parent.py"
+    script.write_text(PARENT.format(tests=os.path.dirname(__file__)))
+    parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
+    try:
+        pids = [int(p) for p in parent.stdout.readline().split()]
+        assert len(pids) == 2 and not any(_gone(p) for p in pids)
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 10
+    while not all(_gone(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert all(_gone(p) for p in pids), pids
+
+
+def test_ppo_with_two_workers_learns_exactly_what_one_process_learns(tmp_path) -> None:
+    from ges_core.training.checkpoint import read_checkpoint
+    from ges_core.training.run import train_expert
+
+    fast = [*FAST, "num_envs=2", "ppo.num_steps_per_env=12", "ppo.normalizer_warmup=1", "ppo.num_mini_batches=2",
+            "ppo.actor_hidden=[32, 32]", "ppo.critic_hidden=[32, 32]", "iterations=1"]  # fmt: skip
+    runs = {}
+    for workers in (1, 2):
+        cfg = load_train_config("tiny", overrides=[*fast, f"workers={workers}"])
+        out = tmp_path / f"w{workers}"
+        summary = train_expert(DATASET, cfg, out, registry=load_registry(), progress=False)
+        runs[workers] = (summary, read_checkpoint(out / "checkpoints" / "last.pt"))
+    (s1, c1), (s2, c2) = runs[1], runs[2]
+    assert s2.iterations == 1 and s2.env_steps == s1.env_steps == 2 * 12 + 2 and s2.episodes == s1.episodes >= 1
+    for key, value in c1["actor_state_dict"].items():
+        assert torch.equal(value, c2["actor_state_dict"][key]), key
+    assert c1["ges"]["state"]["env_rng"] == c2["ges"]["state"]["env_rng"] and len(c2["ges"]["state"]["env_rng"]) == 2
+
+
+def test_residual_mode_runs_on_workers() -> None:
+    setup = _setup(2, 2, "action_mode=residual")
+    td = setup.venv.get_observations()
+    assert td["base_action"].shape == (2, setup.venv.num_actions) and np.isfinite(td["base_action"].numpy()).all()
+    td, reward, done, _ = setup.venv.step(torch.zeros(2, setup.venv.num_actions))
+    assert torch.isfinite(reward).all() and td["base_action"].abs().sum() > 0
+    setup.venv.close()
