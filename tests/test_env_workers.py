@@ -5,6 +5,7 @@ Real SAPIEN envs on the test dataset's grasps throughout; a worker process costs
 
 from __future__ import annotations
 
+import json
 import os
 import signal
 import subprocess
@@ -88,6 +89,10 @@ def test_two_workers_step_exactly_like_one_process_and_close_cleanly() -> None:
     assert set(b[-1][3]["entry"].tolist()) == {0}
     assert torch.equal(one.episode_length_buf, two.episode_length_buf)
     assert one.env.random.state() == two.env.random.state()  # per env, env order: checkpoints move across counts
+    # other GraspEnv state reads through from the workers, joined in env order
+    assert np.array_equal(one.env.wrist_target, two.env.wrist_target) and one.env.object_ids == two.env.object_ids
+    with pytest.raises(AttributeError, match="no_such_thing"):
+        two.env.no_such_thing  # noqa: B018
     procs = list(two._procs)
     two.close()
     two.close()
@@ -184,19 +189,21 @@ def test_workers_exit_when_the_parent_is_killed(tmp_path) -> None:
 
 
 def test_ppo_with_two_workers_learns_exactly_what_one_process_learns(tmp_path) -> None:
+    from ges_core.cli import main
     from ges_core.training.checkpoint import read_checkpoint
     from ges_core.training.run import train_expert
 
     fast = [*FAST, "num_envs=2", "ppo.num_steps_per_env=12", "ppo.normalizer_warmup=1", "ppo.num_mini_batches=2",
             "ppo.actor_hidden=[32, 32]", "ppo.critic_hidden=[32, 32]", "iterations=1"]  # fmt: skip
-    runs = {}
-    for workers in (1, 2):
-        cfg = load_train_config("tiny", overrides=[*fast, f"workers={workers}"])
-        out = tmp_path / f"w{workers}"
-        summary = train_expert(DATASET, cfg, out, registry=load_registry(), progress=False)
-        runs[workers] = (summary, read_checkpoint(out / "checkpoints" / "last.pt"))
-    (s1, c1), (s2, c2) = runs[1], runs[2]
-    assert s2.iterations == 1 and s2.env_steps == s1.env_steps == 2 * 12 + 2 and s2.episodes == s1.episodes >= 1
+    s1 = train_expert(DATASET, load_train_config("tiny", overrides=fast), tmp_path / "w1", registry=load_registry(),
+                      progress=False)  # fmt: skip
+    overrides = [x for item in fast for x in ("-o", item)]
+    code = main(["train-expert", DATASET, "--workers", "2", "--out", str(tmp_path / "w2"), "--no-progress", *overrides])
+    summary = json.loads((tmp_path / "w2" / "summary.json").read_text())
+    assert code == 0 and summary["iterations"] == 1 and summary["env_steps"] == s1.env_steps == 2 * 12 + 2
+    assert summary["episodes"] == s1.episodes >= 1
+    c1, c2 = (read_checkpoint(tmp_path / w / "checkpoints" / "last.pt") for w in ("w1", "w2"))
+    assert c2["ges"]["train_config"]["workers"] == 2
     for key, value in c1["actor_state_dict"].items():
         assert torch.equal(value, c2["actor_state_dict"][key]), key
     assert c1["ges"]["state"]["env_rng"] == c2["ges"]["state"]["env_rng"] and len(c2["ges"]["state"]["env_rng"]) == 2

@@ -26,6 +26,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--hand", metavar="NAME", help="hand (default: the preset's, else registry.yaml defaults.hand)")
     p.add_argument("--sim", metavar="NAME", help="simulator (default: the preset's, else registry.yaml defaults.sim)")
     p.add_argument("--envs", type=positive_int, metavar="N", help="parallel envs (default: the preset's)")
+    p.add_argument(
+        "--workers", type=positive_int, metavar="N",
+        help="env worker processes the envs are split across (default 1: in this process; 2 uses both cores of "
+        "a 2-core machine, same trajectories; docs/training.md 'Env workers')",
+    )  # fmt: skip
     p.add_argument("--iterations", type=positive_int, metavar="N", help="PPO iterations (default: the preset's)")
     p.add_argument("--seed", type=non_negative_int, metavar="N", help="seed of the run (default: the preset's)")
     p.add_argument("--out", type=Path, metavar="DIR", help="run folder (default: DATASET/../experts/<name>)")
@@ -46,6 +51,8 @@ def run_train_cmd(args: argparse.Namespace) -> int:
     from ges_core.training.run import train_from_args
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
+    if args.workers is not None:
+        args.overrides = [*args.overrides, f"workers={args.workers}"]
     summary = train_from_args(args, registry_from_args(args))
     print(summary.table())
     return 0

@@ -122,7 +122,7 @@ def worker_main(conn, make_env: Callable[[tuple[int, ...]], GraspEnv], env_ids: 
 
 def _serve(conn, venv: WorkerVecEnv) -> None:
     """Answer commands: ('buffers', dict), ('step', weights | None), ('rng_state', None), ('set_rng_state',
-    states), ('reseed', seed), ('close', None)."""
+    states), ('reseed', seed), ('attr', name), ('close', None)."""
     while True:
         cmd, arg = conn.recv()
         if cmd == "close":
@@ -141,9 +141,22 @@ def _serve(conn, venv: WorkerVecEnv) -> None:
             out = venv.env.random.set_state(arg)
         elif cmd == "reseed":
             out = venv.env.reseed(arg)
+        elif cmd == "attr":
+            out = _attribute(venv.env, arg)
         else:
             raise ValueError(f"env worker: unknown command {cmd!r}")
         conn.send(("ok", out))
+
+
+def _attribute(env: GraspEnv, name: str) -> tuple[str, object]:
+    """('value', the env's attribute ``name`` with tensors as numpy arrays) or ('missing', why)."""
+    try:
+        value = getattr(env, name)
+    except AttributeError as exc:
+        return "missing", str(exc)
+    if isinstance(value, dict):
+        return "value", {k: _by_value(v) for k, v in value.items()}
+    return "value", _by_value(value)
 
 
 def _report(conn, exc: BaseException) -> None:

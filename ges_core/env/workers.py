@@ -334,6 +334,17 @@ class SubprocVecEnv(VecEnv):
             )
         self._call("set_rng_state", [state[ids[0] : ids[-1] + 1] for ids in self.slices], "restore random states")
 
+    def env_attribute(self, name: str):
+        """A GraspEnv attribute read in every worker and joined in env order: arrays and tensors (first axis: envs)
+        concatenated, lists joined, dicts of those key by key, anything else as worker 0 has it; tensors come
+        back as numpy arrays. A copy: writing to it changes nothing in the workers. AttributeError if the GraspEnv
+        has none."""
+        self._check_open(f"env.{name}")
+        answers = self._call("attr", [name] * len(self._procs), f"read env.{name}")
+        if answers[0][0] == "missing":
+            raise AttributeError(f"{answers[0][1]} (read through SubprocVecEnv.env, the env workers' GraspEnv)")
+        return _join([value for _, value in answers])
+
     def reseed(self, seed: int) -> None:
         """Restart every env's random streams from ``seed`` (GraspEnv.reseed in each worker)."""
         self._check_open("env.reseed")
@@ -375,10 +386,29 @@ class EnvView:
     def close(self) -> None:
         self._venv.close()
 
+    def __getattr__(self, name: str):
+        """Any other GraspEnv attribute (``wrist_target``, ``entry``, ``object_ids``, ...), read from the workers
+        and joined in env order (:meth:`SubprocVecEnv.env_attribute`): a copy, one round trip per read."""
+        if name.startswith("_"):
+            raise AttributeError(name)
+        return self._venv.env_attribute(name)
+
     def check_open(self, who: str) -> None:
         """SimulationError naming ``who`` once the environment is closed."""
         if self.closed:
             raise SimulationError(f"{who}: the environment is closed; build a new one")
+
+
+def _join(parts: list):
+    """Per-worker values of one attribute joined in env order (see :meth:`SubprocVecEnv.env_attribute`)."""
+    first = parts[0]
+    if isinstance(first, np.ndarray) and first.ndim:
+        return np.concatenate(parts)
+    if isinstance(first, list):
+        return [v for part in parts for v in part]
+    if isinstance(first, dict):
+        return {k: _join([p[k] for p in parts]) for k in first}
+    return first
 
 
 @contextlib.contextmanager
