@@ -114,9 +114,8 @@ def test_anchor_steps_pull_the_actor_back_toward_the_demonstrations(tmp_path, cl
         _train(out, clusters, "iterations=3", *WARM, "ppo.learning_rate=3e-3", "ppo.schedule=fixed",
                f"warm_start.anchor_steps={steps}", "warm_start.anchor_learning_rate=1e-3")  # fmt: skip
         runs[name] = read_checkpoint(out / "checkpoints" / "last.pt")
-    # the same seed: both cloned the same demonstrations; measure each final actor on them
-    from test_train_expert import load_registry  # noqa: F401  (the module imports what the runner needs)
-
+    # the same seed: both cloned the same demonstrations; measure each final actor on fresh scripted ones
+    from ges_core.registry import load_registry
     from ges_core.training.config import load_train_config
     from ges_core.training.envs import build_setup
     from ges_core.training.run import rsl_config
