@@ -5,6 +5,7 @@ oracle (best expert per object); the issue's goals checked per split (paper prot
 expert, and within 2 points of the oracle; the gate's accuracy (pick among the best); what the run cost.
 
     python benchmarks/ges_evaluate.py                      # runs/tiny: its matrix, abs + residual PPO experts
+    python benchmarks/ges_evaluate.py --matrix runs/tiny/ges/matrix-allegro-sapien.json --gate ...   # a fresh matrix
     python benchmarks/ges_evaluate.py --train-gate centroid --train-gate curvenet --gate-epochs 30
     python benchmarks/ges_evaluate.py DATASET --matrix M --expert e1=ppo:checkpoint=... --expert e2=... --gate G.pt
 
@@ -108,6 +109,8 @@ def main() -> None:
         print("\n" + report.table.markdown(protocol))
     print("\n" + report.table.accuracy_markdown() + "\n\n" + report.summary())
     checks = goals(report.table)
+    pairs = paired(report, args.matrix)
+    print(f"GES cells equal to the picked expert's matrix cell (same code): {pairs['identical']}/{pairs['compared']}")
     for gate, per in checks.items():
         for split, c in per.items():
             print(f"{gate} {split}: GES {100 * c['ges']:.1f} % | best expert {100 * c['best_expert']:.1f} % | "
@@ -120,9 +123,28 @@ def main() -> None:
         "objects": len(report.matrix.object_ids), "ges_cells_run": report.ran, "ges_cells_resumed": report.resumed,
         "ges_cells_from_matrix": report.from_matrix, "matrix_cells_evaluated": report.matrix_evaluated,
         "seconds": round(wall, 1), "seconds_per_cell_run": round(_cell_seconds(report), 2),
+        "paired_with_matrix": paired(report, args.matrix), "matrix_cells_other_code": report.matrix_other_code,
         "table": report.table.to_json(), "goals": checks, "picks": {k: p.chosen for k, p in report.picks.items()},
         "files": {k: str(v) for k, v in paths.items()}, "code": code_state(),
     })  # fmt: skip
+
+
+def paired(report, matrix: Path) -> dict:
+    """How many GES cells equal the matrix cell of the picked expert episode for episode (end reasons and highest
+    rise within 1 mm), among those both ran with this code: the episodes are seeded, so all of them should."""
+    import json
+
+    cells = json.loads(matrix.read_text())["cells"]
+    same = compared = 0
+    for oid, row in json.loads(report.path.read_text())["cells"].items():
+        for label, cell in row.items():
+            ref = cells.get(oid, {}).get(label)
+            if cell.get("source") != "run" or ref is None or ref.get("code") != cell.get("code"):
+                continue
+            compared += 1
+            rise = max((abs(a - b) for a, b in zip(cell["max_rise"], ref["max_rise"], strict=True)), default=0.0)
+            same += cell["end_reasons"] == ref["end_reasons"] and rise <= 1e-3
+    return {"compared": compared, "identical": same}
 
 
 def _cell_seconds(report) -> float:

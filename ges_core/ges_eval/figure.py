@@ -4,7 +4,7 @@ One PNG, one column per split (train, unseen objects, unseen categories):
 
 * top: the expert-selection distribution, the share of the split's objects each gate sent to each expert, beside
   the oracle's (the share where each expert is an object's best; ties split evenly);
-* bottom: per object (rows) the success rate of every expert alone (colour, 0 white to 1 dark green, from the
+* bottom: per object (rows) the success rate of every expert alone (grey, 0 white to 1 mid-grey, from the
   matrix), each gate's pick marked in its cell (one marker per gate) with the rate GES reached on that object.
 """
 
@@ -94,7 +94,8 @@ def _success(ax, rates, ids, experts, ges: list[GesRow], cols, rows, protocol: s
         ax.text(0.5, 0.5, "no objects", ha="center", va="center", transform=ax.transAxes)
         ax.set_axis_off()
         return
-    ax.imshow(np.nan_to_num(rates, nan=0.0).reshape(n, len(experts)), cmap="Greens", vmin=0, vmax=1,
+    # grey, 1.0 at mid-grey (vmax 1.6): the gates' coloured markers stay visible on any rate
+    ax.imshow(np.nan_to_num(rates, nan=0.0).reshape(n, len(experts)), cmap="Greys", vmin=0, vmax=1.6,
               aspect="auto", interpolation="nearest")  # fmt: skip
     offsets = np.linspace(-0.25, 0.25, len(ges)) if len(ges) > 1 else [0.0]
     for gi, g in enumerate(ges):
@@ -110,4 +111,4 @@ def _success(ax, rates, ids, experts, ges: list[GesRow], cols, rows, protocol: s
     ax.set_xticks(np.arange(len(experts)), experts, rotation=20, fontsize=8)
     ax.set_yticks(np.arange(n), ids if n <= 40 else [""] * n, fontsize=6)
     ax.set_ylim(n - 0.5, -0.5)
-    ax.set_xlabel("colour: expert alone; right: GES", fontsize=8)
+    ax.set_xlabel("grey: expert alone (white 0, darker higher); right: GES", fontsize=8)
