@@ -60,9 +60,11 @@ class TorchGate(Gate):
         (n, N, 3) or a list of (m_i, 3), object frame, metres; see :func:`ges_core.gating.inputs.gate_input`."""
         model = self._trained()
         x = gate_input(points, self.settings.n_points, object_ids)
-        model.eval()
-        with torch.no_grad():
-            return torch.softmax(model(x / self.settings.input_scale), dim=-1)
+        if model.training:
+            model.eval()
+        with torch.inference_mode():  # no autograd bookkeeping at all (no_grad still counts tensor versions)
+            probs = torch.softmax(model(x / self.settings.input_scale), dim=-1)
+        return probs.clone()  # an ordinary tensor: an inference tensor cannot enter autograd later
 
     def _trained(self) -> torch.nn.Module:
         if self.model is None:

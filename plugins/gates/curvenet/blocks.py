@@ -1,7 +1,8 @@
 """CurveNet's building blocks (Xiang et al., "Walk in the Cloud", ICCV 2021), written from the paper.
 
-Tensors are channels-first as in the paper's figures: features (B, C, N), coordinates (B, N, 3) in
-network units, neighbour indices (B, N, k) nearest first.
+Tensors are channels-last, so that a neighbourhood is one row gather: features (B, N, C), coordinates
+(B, N, 3) in network units, neighbour indices (B, N, k) nearest first. (The state dict is the same as
+the channels-first version's: layers keep their (C_out, C_in) weights.)
 
 - :class:`LPFA` (local point-feature aggregation): each neighbour's feature difference to its centre plus
   a learned encoding of (p_i, p_j, p_j - p_i), through an MLP, averaged over the k neighbours.
@@ -13,16 +14,30 @@ network units, neighbour indices (B, N, k) nearest first.
   every point attend to both summaries; the result is added to the point features.
 - :class:`CIC` (curve intervention convolution): a residual bottleneck of curve grouping + aggregation
   and LPFA, after an optional down-sampling (farthest points, max-pool of each one's ball).
+
+Speed (inference on one CPU core is what a gate is for, benchmarks/gate_speed.py): a layer applied to a
+concatenation is split into the parts' maps (``W [a; b] = W_a a + W_b b``), and a part that depends on a
+point alone is computed once per point and gathered, instead of once per (point, neighbour) pair or per walk
+step: the LPFA geometry encoding (9 -> C on N k pairs becomes 3 -> C on N points, twice) and the walk's
+policy layer (its candidate half). The values are those of the direct formulas
+up to rounding (tests/test_gate_ops.py keeps the direct version and compares, in train and eval mode).
 """
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from ges_core.gating.layers import ConvBN, Pointwise
-from ges_core.gating.ops import ball_query, farthest_point_sample, gather_points, knn
+from ges_core.gating.layers import ConvBN, Pointwise, sequential_last
+from ges_core.gating.ops import (
+    ball_from_neighbours,
+    farthest_point_sample,
+    gather_points,
+    knn,
+    max_over_neighbours,
+)
 
 __all__ = ["CIC", "LPFA", "CurveAggregation", "CurveGrouping"]
 
@@ -30,13 +45,16 @@ SLOPE = 0.2
 """LeakyReLU negative slope used throughout CurveNet (as in DGCNN, which it builds on)."""
 
 
-def _neighbours(features: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-    """features (B, C, N), idx (B, ...) -> (B, C, ...) the features at idx."""
-    return gather_points(features.transpose(1, 2), idx).movedim(-1, 1)
+def _geometry_parts(layer: ConvBN, xyz: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """The linear part of ``layer`` (9 -> C) on the rows (p_i, p_j, p_j - p_i), split per point: returns
+    own (B, N, C) (bias included) and other (B, N, C) with ``pre(i, j) = own[i] + other[j]``."""
+    weight, bias = layer.folded()
+    w_centre, w_neighbour, w_offset = weight[:, :3], weight[:, 3:6], weight[:, 6:9]
+    return F.linear(xyz, w_centre - w_offset, bias), F.linear(xyz, w_neighbour + w_offset)
 
 
 class LPFA(nn.Module):
-    """Local point-feature aggregation: (B, C_in, N) -> (B, C_out, N) over the k neighbours ``idx``.
+    """Local point-feature aggregation: (B, N, C_in) -> (B, N, C_out) over the k neighbours ``idx``.
 
     ``stem``: the first block, which has no input features; it encodes the 9-d geometry of each
     neighbour directly and max-pools (a point's own coordinates are its only feature there).
@@ -54,15 +72,20 @@ class LPFA(nn.Module):
         self.mlp = nn.Sequential(*mlp)
 
     def forward(self, x: torch.Tensor | None, xyz: torch.Tensor, idx: torch.Tensor) -> torch.Tensor:
-        centre = xyz.unsqueeze(2).expand(-1, -1, idx.shape[-1], -1)  # (B, N, k, 3)
-        neighbour = gather_points(xyz, idx)
-        geometry = torch.cat([centre, neighbour, neighbour - centre], dim=-1).permute(0, 3, 1, 2)  # (B, 9, N, k)
+        """x: (B, N, C_in) or None for the stem; xyz: (B, N, 3); idx: (B, N, k) -> (B, N, C_out)."""
         if self.stem:
-            return self.mlp(geometry).max(dim=-1).values
+            first = self.mlp[0]
+            own, other = _geometry_parts(first, xyz)
+            local = first.normalize(gather_points(other, idx).add_(own.unsqueeze(2)))  # (B, N, k, C_out)
+            return max_over_neighbours(sequential_last(list(self.mlp)[1:], local, fresh=True))
         assert x is not None and self.geometry is not None
-        diff = _neighbours(x, idx) - x.unsqueeze(-1)  # (B, C, N, k)
-        local = F.leaky_relu(diff + self.geometry(geometry), SLOPE)
-        return self.mlp(local).mean(dim=-1)
+        own, other = _geometry_parts(self.geometry, xyz)
+        if self.training:  # the encoding's BatchNorm needs its batch statistics: build it
+            encoding = self.geometry.normalize(gather_points(other, idx) + own.unsqueeze(2))
+            local = (gather_points(x, idx) - x.unsqueeze(2)).add_(encoding)
+        else:  # x_j - x_i + own_i + other_j: one gather of (x + other)
+            local = gather_points(x + other, idx).add_((own - x).unsqueeze(2))  # (B, N, k, C_in)
+        return sequential_last(self.mlp, F.leaky_relu_(local, SLOPE)).mean(dim=2)
 
 
 def _straight_through_choice(logits: torch.Tensor) -> torch.Tensor:
@@ -73,64 +96,129 @@ def _straight_through_choice(logits: torch.Tensor) -> torch.Tensor:
 
 
 class CurveGrouping(nn.Module):
-    """Curves of ``count`` walks of ``length`` steps: x (B, C, N) -> (B, C, count, length) features."""
+    """Curves of ``count`` walks of ``length`` steps: x (B, N, C) -> (B, count, length, C) features."""
 
     def __init__(self, channels: int, count: int, length: int) -> None:
         super().__init__()
         self.count, self.length = count, length
         self.start = Pointwise(channels, 1)
-        self.policy = ConvBN(2 * channels, 1)
-        self.momentum = ConvBN(2 * channels, 2)
+        self.policy = ConvBN(2 * channels, 1)  # on (candidate features, descriptor)
+        self.momentum = ConvBN(2 * channels, 2)  # on (last step's features, descriptor)
 
     def forward(self, x: torch.Tensor, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """x: (B, C, N) features; idx: (B, N, k) neighbours without the point itself. Returns the curves'
-        features (B, C, count, length) and the features re-weighted by the start attention (B, C, N)."""
-        score = torch.sigmoid(self.start(x))  # (B, 1, N)
+        """x: (B, N, C) features; idx: (B, N, k) neighbours without the point itself. Returns the curves'
+        features (B, count, length, C) and the features re-weighted by the start attention (B, N, C).
+
+        The walk works on rows of the (B N) points: each step gathers its candidates' rows (features and
+        the candidate half of the policy, computed once per point) with one ``index_select``.
+        """
+        score = torch.sigmoid(self.start.last(x))  # (B, N, 1)
         x = x * score
-        current = score.squeeze(1).topk(min(self.count, x.shape[-1]), dim=-1).indices  # (B, count)
-        descriptor = _neighbours(x, current)  # (B, C, count)
-        step_feature, steps = None, []
+        b, n, c = x.shape
+        count = min(self.count, n)
+        w_policy, b_policy = self.policy.folded()
+        w_momentum, b_momentum = self.momentum.folded()
+        offset = torch.arange(b, device=x.device).view(b, 1) * n  # row number of each cloud's first point
+        points = x.reshape(b * n, c)
+        rows = torch.cat([x, F.linear(x, w_policy[:, :c])], dim=-1).view(b * n, c + 1)
+        neighbours = (idx + offset.unsqueeze(-1)).view(b * n, -1)  # (B N, k) row numbers
+        current = (score.view(b, n).topk(count, dim=-1).indices + offset).view(-1)  # (B count,) start rows
+        if not self.training and not torch.is_grad_enabled() and x.device.type == "cpu":
+            walked = _walk_numpy(
+                points, rows, neighbours, current, w_policy, b_policy, w_momentum, b_momentum, self.length
+            )
+            return walked.view(b, count, self.length, c), x
+        descriptor = points.index_select(0, current)  # (B count, C)
+        step: torch.Tensor | None = None
+        steps = []
         for _ in range(self.length):
-            if step_feature is not None:  # blend the last step into the running descriptor
-                w = torch.softmax(self.momentum(torch.cat([step_feature, descriptor], dim=1)), dim=1)
-                descriptor = w[:, :1] * step_feature + w[:, 1:] * descriptor
-            candidates = gather_points(idx, current)  # (B, count, k) int64
-            cand_feat = _neighbours(x, candidates)  # (B, C, count, k)
-            pair = torch.cat([cand_feat, descriptor.unsqueeze(-1).expand_as(cand_feat)], dim=1)
-            logits = self.policy(pair).squeeze(1)  # (B, count, k)
-            if step_feature is not None:
-                logits = logits * self._no_turning_back(step_feature, descriptor, cand_feat)
-            step_feature, pick = self._step(logits, cand_feat)  # (B, C, count), (B, count, 1)
-            current = torch.gather(candidates, -1, pick).squeeze(-1)
-            steps.append(step_feature)
-        return torch.stack(steps, dim=-1), x
+            if step is not None:  # blend the last step into the running descriptor
+                w = self.momentum.normalize(F.linear(torch.cat([step, descriptor], dim=-1), w_momentum, b_momentum))
+                # softmax over the two weights = (sigmoid(w0 - w1), 1 - that)
+                descriptor = torch.lerp(descriptor, step, torch.sigmoid(w[:, :1] - w[:, 1:]))
+            candidates = neighbours.index_select(0, current)  # (B count, k)
+            cand = rows.index_select(0, candidates.view(-1)).view(b * count, -1, c + 1)  # (B count, k, C + 1)
+            pre = cand[..., c] + F.linear(descriptor, w_policy[:, c:], b_policy)  # (B count, k)
+            logits = self.policy.normalize(pre.unsqueeze(-1)).squeeze(-1)
+            if step is not None:
+                logits = logits * self._no_turning_back(step, descriptor, cand[..., :c])
+            step, current = self._step(logits, candidates, cand[..., :c], points)
+            steps.append(step)
+        return torch.stack(steps, dim=1).view(b, count, self.length, c), x
 
     @staticmethod
-    def _step(logits: torch.Tensor, cand_feat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """The chosen candidate's features (B, C, count) and index (B, count, 1): a straight-through hard
-        choice when gradients are wanted, else the argmax's features gathered directly (same values, fewer
-        steps: the walk is mostly per-step overhead at inference)."""
+    def _step(
+        logits: torch.Tensor, candidates: torch.Tensor, cand_feat: torch.Tensor, points: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The chosen candidate's features (B count, C) and row (B count,): a straight-through hard choice
+        when gradients are wanted, else the argmax's row gathered directly (same values, fewer steps: the
+        walk is mostly per-step overhead at inference). logits, candidates: (B count, k); cand_feat:
+        (B count, k, C); points: (B N, C)."""
         if torch.is_grad_enabled():
-            choice = _straight_through_choice(logits)
-            return (cand_feat * choice.unsqueeze(1)).sum(dim=-1), choice.argmax(dim=-1, keepdim=True)
-        pick = logits.argmax(dim=-1, keepdim=True)
-        index = pick.unsqueeze(1).expand(-1, cand_feat.shape[1], -1, -1)
-        return torch.gather(cand_feat, -1, index).squeeze(-1), pick
+            choice = _straight_through_choice(logits)  # (B count, k)
+            pick = choice.argmax(dim=-1, keepdim=True)
+            feature = (cand_feat * choice.unsqueeze(-1)).sum(dim=1)
+            return feature, torch.gather(candidates, -1, pick).squeeze(-1)
+        current = torch.gather(candidates, -1, logits.argmax(dim=-1, keepdim=True)).squeeze(-1)
+        return points.index_select(0, current), current
 
     @staticmethod
     def _no_turning_back(here: torch.Tensor, descriptor: torch.Tensor, cand: torch.Tensor) -> torch.Tensor:
-        """(B, count, k) in [0, 1]: 1 + cos of the angle between the walk's last move (here - descriptor)
+        """(B count, k) in [0, 1]: 1 + cos of the angle between the walk's last move (here - descriptor)
         and the move to each candidate, clipped; a candidate behind the walk gets ~0 (crossover
-        suppression). No gradient: it shapes the choice, it is not learned."""
+        suppression). No gradient: it shapes the choice, it is not learned. here, descriptor:
+        (B count, C); cand: (B count, k, C)."""
         with torch.no_grad():
-            came = (here - descriptor).unsqueeze(-1)  # (B, C, count, 1)
-            go = cand - here.unsqueeze(-1)  # (B, C, count, k)
-            cos = F.cosine_similarity(came, go, dim=1, eps=1e-8)
+            came = (here - descriptor).unsqueeze(1)  # (B count, 1, C)
+            go = cand - here.unsqueeze(1)  # (B count, k, C)
+            cos = F.cosine_similarity(came, go, dim=-1, eps=1e-8)
             return (1.0 + cos).clamp(0.0, 1.0)
 
 
+def _walk_numpy(
+    points: torch.Tensor,
+    rows: torch.Tensor,
+    neighbours: torch.Tensor,
+    current: torch.Tensor,
+    w_policy: torch.Tensor,
+    b_policy: torch.Tensor,
+    w_momentum: torch.Tensor,
+    b_momentum: torch.Tensor,
+    length: int,
+) -> torch.Tensor:
+    """:meth:`CurveGrouping.forward`'s walk at inference on the CPU (eval mode, BatchNorm folded, argmax
+    choices), in numpy: the same steps, whose small array operations cost ~0.5 us each against ~2 us for
+    torch's (0.48 against 0.95 ms for 32 curves of 8 steps on 1024 points, one core). Arguments as there:
+    points (B N, C), rows (B N, C + 1), neighbours (B N, k) and current (B count,) rows, the folded
+    weights; returns (B count, length, C). tests/test_gate_ops.py checks it against the torch walk."""
+    pts, rws, nbr, cur = (t.detach().numpy() for t in (points, rows, neighbours, current))
+    c = pts.shape[1]
+    wp, bp = w_policy.detach().numpy()[0, c:], b_policy.detach().numpy()[0]
+    wm, bm = w_momentum.detach().numpy(), b_momentum.detach().numpy()
+    w_gate, b_gate = wm[0] - wm[1], bm[0] - bm[1]  # softmax over two logits = sigmoid of their difference
+    every = np.arange(len(cur))
+    out = np.empty((len(cur), length, c), dtype=pts.dtype)
+    descriptor, step = pts[cur], None
+    for i in range(length):
+        if step is not None:
+            gate = 0.5 + 0.5 * np.tanh(0.5 * (step @ w_gate[:c] + descriptor @ w_gate[c:] + b_gate))  # sigmoid
+            descriptor = descriptor + gate[:, None] * (step - descriptor)
+        candidates = nbr[cur]  # (B count, k)
+        cand = rws[candidates]  # (B count, k, C + 1)
+        logits = cand[..., c] + (descriptor @ wp + bp)[:, None]
+        if step is not None:  # crossover suppression, as CurveGrouping._no_turning_back
+            came, go = step - descriptor, cand[..., :c] - step[:, None]
+            norms = (
+                np.maximum(np.sqrt((go * go).sum(-1)), 1e-8) * np.maximum(np.sqrt((came * came).sum(-1)), 1e-8)[:, None]
+            )
+            logits = logits * np.clip(1.0 + np.einsum("qkc,qc->qk", go, came) / norms, 0.0, 1.0)
+        cur = candidates[every, logits.argmax(axis=1)]
+        step = out[:, i] = pts[cur]
+    return torch.from_numpy(out)
+
+
 class CurveAggregation(nn.Module):
-    """Adds what the curves say to every point: x (B, C, N), curves (B, C, count, length) -> (B, C, N)."""
+    """Adds what the curves say to every point: x (B, N, C), curves (B, count, length, C) -> (B, N, C)."""
 
     def __init__(self, channels: int) -> None:
         super().__init__()
@@ -144,21 +232,20 @@ class CurveAggregation(nn.Module):
         self.out = ConvBN(2 * mid, channels)
 
     def forward(self, x: torch.Tensor, curves: torch.Tensor) -> torch.Tensor:
-        w = self.weight(curves)  # (B, 1, count, length)
-        per_curve = (curves * torch.softmax(w, dim=-1)).sum(dim=-1)  # (B, C, count): each curve summarized
-        per_step = (curves * torch.softmax(w, dim=-2)).sum(dim=-2)  # (B, C, length): each step across curves
-        k_across, k_along = self.key_across(per_curve), self.key_along(per_step)
-        q = self.query(x).transpose(1, 2)  # (B, N, mid)
-        att_across = torch.softmax(q @ k_across, dim=-1)  # (B, N, count)
-        att_along = torch.softmax(q @ k_along, dim=-1)  # (B, N, length)
-        got_across = att_across @ self.value_across(k_across).transpose(1, 2)  # (B, N, mid)
-        got_along = att_along @ self.value_along(k_along).transpose(1, 2)
-        merged = torch.cat([got_across, got_along], dim=-1).transpose(1, 2)  # (B, 2 mid, N)
-        return F.leaky_relu(x + self.out(merged), SLOPE)
+        w = self.weight.last(curves)  # (B, count, length, 1)
+        per_curve = (curves * torch.softmax(w, dim=2)).sum(dim=2)  # (B, count, C): each curve summarized
+        per_step = (curves * torch.softmax(w, dim=1)).sum(dim=1)  # (B, length, C): each step across curves
+        k_across, k_along = self.key_across.last(per_curve), self.key_along.last(per_step)  # (B, count|length, mid)
+        q = self.query.last(x)  # (B, N, mid)
+        att_across = torch.softmax(q @ k_across.transpose(1, 2), dim=-1)  # (B, N, count)
+        att_along = torch.softmax(q @ k_along.transpose(1, 2), dim=-1)  # (B, N, length)
+        got_across = att_across @ self.value_across.last(k_across)  # (B, N, mid)
+        got_along = att_along @ self.value_along.last(k_along)
+        return F.leaky_relu_(self.out.last(torch.cat([got_across, got_along], dim=-1)).add_(x), SLOPE)
 
 
 class CIC(nn.Module):
-    """Curve intervention convolution: (xyz (B, N, 3), x (B, C_in, N)) -> (xyz (B, M, 3), (B, C_out, M), kNN).
+    """Curve intervention convolution: (xyz (B, N, 3), x (B, N, C_in)) -> (xyz (B, M, 3), (B, M, C_out), kNN).
 
     ``points``: down-sample to this many farthest points first (each keeps the max of its ``k`` nearest
     within ``radius``), None to keep all. ``curves``: (count, length) of the curve grouping, None for a
@@ -190,21 +277,23 @@ class CIC(nn.Module):
         self, xyz: torch.Tensor, x: torch.Tensor, idx: torch.Tensor | None = None
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """``idx``: the (B, N, k + 1) nearest neighbours of ``xyz`` (self first) if known; returns the
-        block's points, features and their neighbours (reused by the next block on the same points: the
-        kNN of 1024 points is most of CurveNet's CPU time otherwise)."""
-        if self.points is not None and self.points < xyz.shape[1]:
-            xyz, x = self._pool(xyz, x)
-            idx = None
+        block's points, features and their neighbours. One kNN per resolution: the next block on the
+        same points reuses it, and so does the down-sampling's ball query (its centres are among these
+        points)."""
         if idx is None:
             idx = knn(xyz, self.k + 1)  # nearest first: column 0 is the point itself
-        y = self.reduce(x)
+        if self.points is not None and self.points < xyz.shape[1]:
+            xyz, x = self._pool(xyz, x, idx)
+            idx = knn(xyz, self.k + 1)
+        y = sequential_last(self.reduce, x)
         if self.grouping is not None and self.aggregation is not None:
             curves, y = self.grouping(y, idx[..., 1:])
             y = self.aggregation(y, curves)
-        y = self.expand(self.lpfa(y, xyz, idx[..., : self.k]))
-        return xyz, F.leaky_relu(y + self.shortcut(x), SLOPE), idx
+        y = self.expand.last(self.lpfa(y, xyz, idx[..., : self.k]))
+        shortcut = x if isinstance(self.shortcut, nn.Identity) else self.shortcut.last(x)
+        return xyz, F.leaky_relu_(y.add_(shortcut), SLOPE), idx  # y: made here, free to overwrite
 
-    def _pool(self, xyz: torch.Tensor, x: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        centres = gather_points(xyz, farthest_point_sample(xyz, self.points))
-        idx = ball_query(xyz, centres, self.radius, self.k)  # (B, M, k)
-        return centres, _neighbours(x, idx).max(dim=-1).values
+    def _pool(self, xyz: torch.Tensor, x: torch.Tensor, idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        chosen = farthest_point_sample(xyz, self.points)  # (B, M)
+        ball = ball_from_neighbours(xyz, chosen, idx, self.radius, self.k)  # (B, M, k)
+        return gather_points(xyz, chosen), max_over_neighbours(gather_points(x, ball))

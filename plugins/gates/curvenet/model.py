@@ -3,10 +3,9 @@
 from __future__ import annotations
 
 import torch
-import torch.nn.functional as F
 from torch import nn
 
-from ges_core.gating.layers import ConvBN
+from ges_core.gating.layers import ConvBN, sequential_last
 from ges_core.gating.ops import knn
 from ges_plugins.gates.curvenet.blocks import CIC, LPFA
 
@@ -44,9 +43,8 @@ class CurveNet(nn.Module):
 
     def forward(self, xyz: torch.Tensor) -> torch.Tensor:
         idx = knn(xyz, self.k + 1)  # shared by the stem and every block until the points are down-sampled
-        x = self.stem(None, xyz, idx[..., : self.k])
+        x = self.stem(None, xyz, idx[..., : self.k])  # (B, N, stem): channels-last from here on
         for block in self.blocks:
             xyz, x, idx = block(xyz, x, idx)
-        x = self.embed(x)
-        pooled = torch.cat([F.adaptive_max_pool1d(x, 1), F.adaptive_avg_pool1d(x, 1)], dim=1).squeeze(-1)
-        return self.head(pooled)
+        x = sequential_last(self.embed, x)  # (B, M, embed)
+        return self.head(torch.cat([x.amax(dim=1), x.mean(dim=1)], dim=-1))
