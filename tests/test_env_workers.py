@@ -216,3 +216,37 @@ def test_residual_mode_runs_on_workers() -> None:
     td, reward, done, _ = setup.venv.step(torch.zeros(2, setup.venv.num_actions))
     assert torch.isfinite(reward).all() and td["base_action"].abs().sum() > 0
     setup.venv.close()
+
+
+def test_each_env_draws_from_its_own_streams_whatever_the_split() -> None:
+    """One randomizer over envs 0-3 against two over 0-1 and 2-3 (as two workers hold them): the same start poses,
+    physics scales and noise per env, also when only some envs restart; states round-trip; bad states are errors."""
+    from ges_core.env.randomization import RandomizationConfig, Randomizer
+    from ges_core.objects.simple import box_asset
+
+    cfg = RandomizationConfig(seed=4, start_pose=True, mass=True, friction=True, obs_noise=True)
+    slices = {"q": slice(0, 3), "dq": slice(3, 6), "tip_pos": slice(6, 9), "wrist_pose": slice(9, 12),
+              "obj_pos": slice(12, 15)}  # fmt: skip
+    whole, halves = Randomizer(cfg, slices, range(4)), [Randomizer(cfg, slices, ids) for ids in ((0, 1), (2, 3))]
+    rest = np.tile([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0], (4, 1))
+    box = box_asset((0.02, 0.02, 0.02), object_id="test/box")
+    for rows in ([0, 1, 2, 3], [1, 3], [3]):  # restarts of some envs only: the others' streams must not move
+        poses = whole.start_poses(rest[rows], rows)
+        split = [h.start_poses(rest[[r % 2]], [r % 2]) for r in rows for h in [halves[r // 2]]]
+        assert np.array_equal(poses, np.concatenate(split)) and not np.allclose(poses, rest[rows])
+        assert [whole.physics(box, r).density for r in rows] == [halves[r // 2].physics(box, r % 2).density
+                                                                 for r in rows]  # fmt: skip
+    obs = np.zeros((4, 15), dtype=np.float32)
+    parts = [np.zeros((2, 15), dtype=np.float32) for _ in halves]
+    whole.add_noise(obs, [1, 2])
+    halves[0].add_noise(parts[0], [1])
+    halves[1].add_noise(parts[1], [0])
+    assert np.array_equal(obs, np.concatenate(parts)) and not obs[[0, 3]].any() and obs[[1, 2]].all()
+    assert whole.state() == halves[0].state() + halves[1].state()
+    again = Randomizer(cfg.model_copy(update={"seed": 5}), slices, range(4))
+    again.set_state(whole.state())
+    assert again.state() == whole.state()
+    with pytest.raises(ConfigError, match="2 entries, this environment has 4 envs"):
+        again.set_state(whole.state()[:2])
+    with pytest.warns(UserWarning, match="restart from the seed"):  # a checkpoint from before per-env streams
+        again.set_state([{}, {}, {}, {}])

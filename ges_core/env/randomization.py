@@ -15,6 +15,7 @@ A grasp that holds only on one exact float path is not a grasp: evaluate with ra
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Sequence
 from dataclasses import replace
 
@@ -109,13 +110,19 @@ class Randomizer:
         return [[g.bit_generator.state for g in rngs] for rngs in self._rngs]
 
     def set_state(self, state: list[list[dict]]) -> None:
-        """Restore :meth:`state`; ConfigError if it was taken with another number of envs (or by an older version,
-        with one stream per kind for all envs)."""
+        """Restore :meth:`state`; ConfigError if it was taken with another number of envs. A state saved before
+        per-env streams (four dicts, one stream per kind for all envs) cannot map onto them: the streams stay as
+        they are (seeded) and a warning says so, so such a checkpoint still resumes."""
+        if len(state) == 4 and all(isinstance(s, dict) for s in state):
+            warnings.warn(
+                "randomization state from before per-env random streams: the streams restart from the seed",
+                stacklevel=2,
+            )
+            return
         if len(state) != len(self._rngs) or any(not isinstance(s, list) or len(s) != 4 for s in state):
             raise ConfigError(
                 f"randomization state: {len(state)} entries, this environment has {len(self._rngs)} envs with 4 "
-                "streams each; resume with the num_envs the state was saved with (a state from before per-env "
-                "streams cannot be restored: start the run anew)"
+                "streams each; resume with the num_envs the state was saved with"
             )
         for rngs, states in zip(self._rngs, state, strict=True):
             for g, s in zip(rngs, states, strict=True):

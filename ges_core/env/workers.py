@@ -327,6 +327,9 @@ class SubprocVecEnv(VecEnv):
     def set_rng_state(self, state: list) -> None:
         """Restore :meth:`rng_state` (a list of one entry per env, in env order)."""
         self._check_open("env.random.set_state")
+        if len(state) == 4 and all(isinstance(s, dict) for s in state):  # saved before per-env streams
+            self._call("set_rng_state", [state] * len(self._procs), "restore random states")
+            return
         if len(state) != self.num_envs:
             raise ConfigError(
                 f"randomization state: {len(state)} entries, this environment has {self.num_envs} envs; resume with "
