@@ -8,10 +8,11 @@ level pools the whole cloud. A fully connected head gives one logit per expert.
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
-from ges_core.gating.layers import ConvBN
-from ges_core.gating.ops import ball_query, farthest_point_sample, gather_points
+from ges_core.gating.layers import ConvBN, sequential_last
+from ges_core.gating.ops import ball_query, farthest_point_sample, gather_points, max_over_neighbours
 
 __all__ = ["PointNet2", "SetAbstraction"]
 
@@ -26,7 +27,11 @@ def _shared_mlp(channels: list[int]) -> nn.Sequential:
 class SetAbstraction(nn.Module):
     """One level: (B, N, 3) xyz, (B, N, C) features -> (B, M, 3) centres, (B, M, C') pooled features.
 
-    ``centres`` None pools the whole cloud into one point at the origin.
+    ``centres`` None pools the whole cloud into one point at the origin. Channels-last throughout (a group
+    is one row gather); the first layer of the shared MLP, linear in (offset / radius, features), is split
+    into a per-point part (computed once per point, gathered) and a per-centre part (the centre's own
+    offset), instead of running on every (centre, member) row: the same values up to rounding
+    (tests/test_gate_ops.py compares with the direct formula).
     """
 
     def __init__(self, centres: int | None, radius: float, group: int, in_channels: int, mlp: list[int]) -> None:
@@ -37,16 +42,22 @@ class SetAbstraction(nn.Module):
     def forward(self, xyz: torch.Tensor, features: torch.Tensor | None) -> tuple[torch.Tensor, torch.Tensor]:
         if self.centres is None:
             new_xyz = xyz.new_zeros(xyz.shape[0], 1, 3)
-            grouped = xyz.unsqueeze(1)  # (B, 1, N, 3): every point in one group
-            feats = None if features is None else features.unsqueeze(1)
-        else:
-            new_xyz = gather_points(xyz, farthest_point_sample(xyz, self.centres))
-            idx = ball_query(xyz, new_xyz, self.radius, self.group)  # (B, M, K)
-            grouped = (gather_points(xyz, idx) - new_xyz.unsqueeze(2)) / self.radius
-            feats = None if features is None else gather_points(features, idx)
-        x = grouped if feats is None else torch.cat([grouped, feats], dim=-1)  # (B, M, K, 3 + C)
-        x = self.mlp(x.permute(0, 3, 1, 2))  # (B, C', M, K)
-        return new_xyz, x.max(dim=-1).values.transpose(1, 2)
+            x = xyz if features is None else torch.cat([xyz, features], dim=-1)  # (B, N, 3 + C): one group
+            return new_xyz, sequential_last(self.mlp, x).amax(dim=1, keepdim=True)
+        new_xyz = gather_points(xyz, farthest_point_sample(xyz, self.centres))
+        idx = ball_query(xyz, new_xyz, self.radius, self.group)  # (B, M, K)
+        first = self.mlp[0]
+        weight, bias = first.folded()
+        w_offset = weight[:, :3] / self.radius  # pre(m, j) = w_offset (p_j - c_m) + w_feat f_j + bias
+        point = F.linear(xyz, w_offset)  # (B, N, C1): the members' part, once per point
+        if features is not None:
+            point = point.add_(F.linear(features, weight[:, 3:]))
+        centre = F.linear(new_xyz, w_offset)
+        if bias is not None:
+            centre = centre - bias
+        pre = gather_points(point, idx).sub_(centre.unsqueeze(2))  # (B, M, K, C1)
+        out = sequential_last(list(self.mlp)[1:], first.normalize(pre), fresh=True)
+        return new_xyz, max_over_neighbours(out)
 
 
 class PointNet2(nn.Module):
