@@ -30,7 +30,7 @@ def test_cloning_lowers_the_imitation_loss_and_repeats_exactly(tmp_path, cluster
             for name, seed in (("a", 5), ("b", 5), ("c", 6))}  # fmt: skip
     rec = _record(tmp_path / "a")
     loss = rec["imitation_loss"]
-    assert len(loss) == 30 + 1 and loss[-1] < 0.5 * loss[0]  # measured 0.28 -> 0.07 at seed 5
+    assert len(loss) == 30 + 1 and loss[-1] < 0.5 * loss[0]  # measured 0.28 -> 0.004 at seed 5
     assert rec["demo_env_steps"] == 48 and set(rec["objects"]) == {"procedural/box/000", "procedural/sphere/000"}
     assert runs["a"].env_steps == 48 + 2 * 4  # the demonstrations count, then one iteration of 2 envs x 4 steps
     assert runs["a"].warm_start["imitation_loss"] == loss
