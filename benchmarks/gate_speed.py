@@ -1,4 +1,4 @@
-"""Gate inference time per object on one CPU core: CurveNet, PointNet++ and the centroid baseline.
+"""Gate inference time per object on one CPU core: CurveNet, PointNet++ and the centroid baseline, old code beside new.
 
 For each gate (its registered default settings) at 1024 and 4096 input points: the time of one
 ``gate.predict`` call on one object's cloud (batch 1, the input checks included), median over repeats,
@@ -8,10 +8,16 @@ initialization (inference cost does not depend on their values); the centroid ga
 size rule on the same objects (its cost is its feature computation). Also the per-object time when 32
 objects go in one call (how ``ges evaluate`` would call it).
 
-The issue's goal: <= 10 ms for CurveNet at 1024 points. The machine's load average is recorded: on a
-shared machine the wall time includes waiting for a core.
+Old against new, in the same run: CurveNet and PointNet++ are also built from the code of git revision
+``--baseline`` (benchmarks/_gate_baseline.py: the last commit before the inference rewrite), given the
+same weights, and timed call by call alternately with today's on the same cloud, so that both see the
+same machine load; the table gives both medians, their ratio and the largest difference between the two
+codes' expert probabilities on the objects (the rewrite computes the same function).
 
-Usage: python benchmarks/gate_speed.py [--repeats 15] [--objects 8]
+The issue's goal: <= 10 ms for CurveNet at 1024 points. The machine's load average is recorded per row:
+on a shared machine the wall time includes waiting for a core.
+
+Usage: python benchmarks/gate_speed.py [--repeats 15] [--objects 8] [--baseline REV | --no-baseline]
 """
 
 from __future__ import annotations
@@ -28,6 +34,8 @@ import numpy as np
 import torch
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _gate_baseline import BASELINE_REV, baseline_gate_class  # noqa: E402
+
 from ges_core.gating import GateData, SuccessRates, TrainConfig, fit_cloud, library_clouds  # noqa: E402
 from ges_core.objects.library import LibraryConfig, ObjectLibrary  # noqa: E402
 from ges_core.registry import load_registry  # noqa: E402
@@ -75,7 +83,30 @@ def timed(fn, repeats: int) -> tuple[float, float]:
     return statistics.median(wall), statistics.median(cpu)
 
 
-def measure(registry, repeats: int, n_objects: int) -> list[dict]:
+def timed_pair(old, new, repeats: int) -> tuple[tuple[float, float], tuple[float, float]]:
+    """:func:`timed` of two functions, called alternately (old, new, old, ...) so both meet the same load."""
+    old(), new()
+    samples: dict[str, list[list[float]]] = {"old": [[], []], "new": [[], []]}
+    for _ in range(repeats):
+        for key, fn in (("old", old), ("new", new)):
+            w, c = time.perf_counter(), time.process_time()
+            fn()
+            samples[key][0].append(time.perf_counter() - w)
+            samples[key][1].append(time.process_time() - c)
+    med = {k: (statistics.median(v[0]), statistics.median(v[1])) for k, v in samples.items()}
+    return med["old"], med["new"]
+
+
+def baseline_twin(gate, rev: str):
+    """The gate as the code of git revision ``rev`` builds it, with the same settings, experts and weights."""
+    old = baseline_gate_class(rev, gate.name)(**gate.settings.model_dump())
+    old.experts, old.model = gate.experts, old.build_model(len(gate.experts))
+    old.model.load_state_dict(gate.model.state_dict())
+    old.model.eval()
+    return old
+
+
+def measure(registry, repeats: int, n_objects: int, baseline: str | None) -> list[dict]:
     ids, big, rates = clouds(n_objects)
     rows = []
     for n in SIZES:
@@ -83,11 +114,24 @@ def measure(registry, repeats: int, n_objects: int) -> list[dict]:
         batch = sized[torch.arange(32) % len(ids)]
         for name in GATES:
             gate = ready_gate(registry, name, n, ids, sized, rates)
-            wall, cpu = timed(lambda g=gate, x=sized[:1]: g.predict(x), repeats)
+            one = sized[:1]
+            row = {"gate": name, "points": n}
+            if baseline is not None and name != "centroid":
+                old = baseline_twin(gate, baseline)
+                diff = (old.predict(sized) - gate.predict(sized)).abs().max().item()
+                (old_wall, old_cpu), (wall, cpu) = timed_pair(
+                    lambda o=old, x=one: o.predict(x), lambda g=gate, x=one: g.predict(x), repeats
+                )
+                row.update({"old_ms_per_object": 1e3 * old_wall, "old_cpu_ms_per_object": 1e3 * old_cpu,
+                            "speedup": old_wall / wall, "max_probability_difference": diff})  # fmt: skip
+            else:
+                wall, cpu = timed(lambda g=gate, x=one: g.predict(x), repeats)
             wall32, _ = timed(lambda g=gate, x=batch: g.predict(x), max(3, repeats // 5))
-            rows.append({"gate": name, "points": n, "ms_per_object": 1e3 * wall, "cpu_ms_per_object": 1e3 * cpu,
-                         "ms_per_object_batch32": 1e3 * wall32 / 32})  # fmt: skip
-            print(f"{name:10s} {n:5d} points: {1e3 * wall:7.1f} ms wall, {1e3 * cpu:7.1f} ms CPU", flush=True)
+            row.update({"ms_per_object": 1e3 * wall, "cpu_ms_per_object": 1e3 * cpu,
+                        "ms_per_object_batch32": 1e3 * wall32 / 32, "load_average": os.getloadavg()[0]})  # fmt: skip
+            rows.append(row)
+            was = f" (old {row['old_ms_per_object']:.1f} ms, x{row['speedup']:.2f})" if "speedup" in row else ""
+            print(f"{name:10s} {n:5d} points: {1e3 * wall:7.1f} ms wall, {1e3 * cpu:7.1f} ms CPU{was}", flush=True)
     return rows
 
 
@@ -100,13 +144,19 @@ def reference_gflops() -> float:
 
 def table(rows: list[dict]) -> str:
     lines = [
-        "| gate | points | ms / object (batch 1, wall) | CPU ms | ms / object (batch 32) |",
-        "|---|---|---|---|---|",
+        "| gate | points | old ms / object | new ms / object | speedup | old CPU ms | new CPU ms "
+        "| new ms / object (batch 32) | max prob. diff | load avg |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        old = (
+            (f"{r['old_ms_per_object']:.1f}", f"x{r['speedup']:.2f}", f"{r['old_cpu_ms_per_object']:.1f}",
+             f"{r['max_probability_difference']:.1e}")
+            if "speedup" in r else ("-", "-", "-", "-")
+        )  # fmt: skip
         lines.append(
-            f"| {r['gate']} | {r['points']} | {r['ms_per_object']:.1f} | {r['cpu_ms_per_object']:.1f} | "
-            f"{r['ms_per_object_batch32']:.1f} |"
+            f"| {r['gate']} | {r['points']} | {old[0]} | {r['ms_per_object']:.1f} | {old[1]} | {old[2]} | "
+            f"{r['cpu_ms_per_object']:.1f} | {r['ms_per_object_batch32']:.1f} | {old[3]} | {r['load_average']:.1f} |"
         )
     return "\n".join(lines)
 
@@ -115,20 +165,25 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--repeats", type=int, default=15)
     parser.add_argument("--objects", type=int, default=8)
+    parser.add_argument("--baseline", default=BASELINE_REV, help="git revision of the old code (default: %(default)s)")
+    parser.add_argument("--no-baseline", action="store_true", help="time today's code only")
     args = parser.parse_args()
+    baseline = None if args.no_baseline else args.baseline
     torch.set_num_threads(1)
     load_before = os.getloadavg()[0]
     gflops = reference_gflops()
-    rows = measure(load_registry(), args.repeats, args.objects)
+    rows = measure(load_registry(), args.repeats, args.objects, baseline)
     print(table(rows))
     print(f"reference: 512^3 matmul at {gflops:.1f} GFLOP/s on one thread; load average {os.getloadavg()[0]:.1f}")
     write_results(
         RESULTS,
         {
             "benchmark": "gate_speed",
-            "what": "gate.predict time per object, one CPU thread (torch.set_num_threads(1)), median over repeats",
+            "what": "gate.predict time per object, one CPU thread (torch.set_num_threads(1)), median over repeats; "
+            "old_*: the same gate built from the baseline revision's code with the same weights, timed alternately",
             "goal": "CurveNet at 1024 points <= 10 ms",
             "repeats": args.repeats,
+            "baseline": baseline,
             "machine": {
                 "cpus": os.cpu_count(),
                 "platform": platform.platform(),

@@ -96,19 +96,19 @@ NUMPY_FPS_MAX_BATCH = 4
 def _fps_numpy(points: np.ndarray, m: int) -> np.ndarray:
     """:func:`farthest_point_sample` of one (N, 3) cloud, the same steps in the same precision (the squared
     distance summed as (dx^2 + dy^2) + dz^2 there too). Coordinates as rows of a (3, N) array, so a step is
-    five numpy calls on it, written into preallocated arrays (1.5 against 1.7 ms for 256 of 1024 points
+    five ufunc calls on it, written into preallocated arrays (1.2 against 1.7 ms for 256 of 1024 points
     with three separate coordinate arrays)."""
     rows = np.ascontiguousarray(points.T)  # (3, N)
     centre = points.mean(axis=0)
     step = np.empty_like(rows)
     np.subtract(rows, centre[:, None], out=step)
-    current = int(np.square(step, out=step).sum(axis=0).argmax())
+    current = int(np.add.reduce(np.square(step, out=step), axis=0).argmax())
     dist = np.full(len(points), np.inf, dtype=points.dtype)
     chosen = np.empty(m, dtype=np.int64)
     for i in range(m):
         chosen[i] = current
         np.subtract(rows, rows[:, current : current + 1], out=step)
-        np.minimum(dist, np.square(step, out=step).sum(axis=0), out=dist)
+        np.minimum(dist, np.add.reduce(np.square(step, out=step), axis=0), out=dist)  # (ufunc: no wrapper)
         current = int(dist.argmax())
     return chosen
 

@@ -192,28 +192,28 @@ def _walk_numpy(
     points (B N, C), rows (B N, C + 1), neighbours (B N, k) and current (B count,) rows, the folded
     weights; returns (B count, length, C). tests/test_gate_ops.py checks it against the torch walk."""
     pts, rws, nbr, cur = (t.detach().numpy() for t in (points, rows, neighbours, current))
-    c = pts.shape[1]
+    c, k = pts.shape[1], nbr.shape[1]
     wp, bp = w_policy.detach().numpy()[0, c:], b_policy.detach().numpy()[0]
     wm, bm = w_momentum.detach().numpy(), b_momentum.detach().numpy()
     w_gate, b_gate = wm[0] - wm[1], bm[0] - bm[1]  # softmax over two logits = sigmoid of their difference
-    every = np.arange(len(cur))
+    first_of_row = np.arange(len(cur)) * k  # flat index of each curve's first candidate
     out = np.empty((len(cur), length, c), dtype=pts.dtype)
-    descriptor, step = pts[cur], None
+    descriptor, step = pts.take(cur, axis=0), None  # take: cheaper than fancy indexing on small arrays
     for i in range(length):
         if step is not None:
             gate = 0.5 + 0.5 * np.tanh(0.5 * (step @ w_gate[:c] + descriptor @ w_gate[c:] + b_gate))  # sigmoid
             descriptor = descriptor + gate[:, None] * (step - descriptor)
-        candidates = nbr[cur]  # (B count, k)
-        cand = rws[candidates]  # (B count, k, C + 1)
+        candidates = nbr.take(cur, axis=0)  # (B count, k)
+        cand = rws.take(candidates, axis=0)  # (B count, k, C + 1)
         logits = cand[..., c] + (descriptor @ wp + bp)[:, None]
         if step is not None:  # crossover suppression, as CurveGrouping._no_turning_back
             came, go = step - descriptor, cand[..., :c] - step[:, None]
-            norms = (
-                np.maximum(np.sqrt((go * go).sum(-1)), 1e-8) * np.maximum(np.sqrt((came * came).sum(-1)), 1e-8)[:, None]
-            )
-            logits = logits * np.clip(1.0 + np.einsum("qkc,qc->qk", go, came) / norms, 0.0, 1.0)
-        cur = candidates[every, logits.argmax(axis=1)]
-        step = out[:, i] = pts[cur]
+            go_norm = np.maximum(np.sqrt(np.einsum("qkc,qkc->qk", go, go)), 1e-8)
+            came_norm = np.maximum(np.sqrt(np.einsum("qc,qc->q", came, came)), 1e-8)
+            cos = np.einsum("qkc,qc->qk", go, came) / (go_norm * came_norm[:, None])
+            logits = logits * np.minimum(np.maximum(1.0 + cos, 0.0), 1.0)
+        cur = candidates.take(first_of_row + logits.argmax(axis=1))
+        step = out[:, i] = pts.take(cur, axis=0)
     return torch.from_numpy(out)
 
 
