@@ -1,19 +1,24 @@
 """PPO training throughput: env-steps/s for whole iterations (collection + update) of ``ges train-expert``.
 
-For each simulator x env count: a multi-object training setup exactly as ``ges train-expert`` builds it (the
-dataset's training grasps as a pool, the tiny preset's randomization, Allegro, absolute actions, curriculum off),
-one untimed warm-up iteration, then ``--iterations`` timed ones (``num_steps_per_env`` x envs steps each).
-Reported per row: env-steps/s over collection + update, collection alone, the update's share, and the load
-average before and after (the machine is shared).
+For each simulator x env count x env-worker count (``--ppo-workers``, default 1 and 2): a multi-object training
+setup exactly as ``ges train-expert --workers W`` builds it (the dataset's training grasps as a pool, the tiny
+preset's randomization, Allegro, absolute actions, curriculum off; W > 1: a SubprocVecEnv, the envs split across
+W worker processes, ``ges_core.env.workers``), one untimed warm-up iteration, then ``--iterations`` timed ones
+(``num_steps_per_env`` x envs steps each). Reported per row: env-steps/s over collection + update, collection
+alone, the update's share, the build time (W > 1: starting the workers) and the load average before and after
+(the machine is shared), and per (sim, envs) the speed-up of W workers over one process. On a loaded machine the
+wall-clock figures fall with the share of a core each process gets, so each row also gives the CPU time per
+env-step of the main process (policy, PPO update, bookkeeping; the physics too with W = 1) and of each worker,
+and a projection for free cores from them: env-steps / (main CPU + the busiest worker's CPU), i.e. assuming
+the main process and the workers alternate and the workers run side by side without waiting (a projection from
+measured CPU times, not a measurement).
 
-Workers (``--workers``): whether env workers in subprocesses would pay on this machine. Its upper bound is
-measured: W processes each stepping envs/W envs with seeded random actions for the same wall time, no PPO and no
-inter-process traffic at all (a real subprocess VecEnv only adds pickling and waiting to this), against one
-process stepping all envs. If the aggregate rate of W processes is not clearly above one process, workers
-cannot pay here.
+Upper bound (``--workers``): W processes each stepping envs/W envs with seeded random actions for the same wall
+time, no PPO and no inter-process traffic at all, against one process stepping all envs: what the real
+SubprocVecEnv rows above could reach at most.
 
     python benchmarks/ppo_throughput.py [--dataset runs/tiny/dataset] [--sims sapien pybullet] [--envs 8 32 64]
-        [--iterations 3] [--workers 2] [--worker-seconds 20]
+        [--ppo-workers 1 2] [--iterations 3] [--workers 2] [--worker-seconds 10]
 """
 
 from __future__ import annotations
@@ -47,37 +52,58 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def _config(sim: str, envs: int, steps: int):
+def _config(sim: str, envs: int, steps: int, workers: int = 1):
     return load_train_config(
         "tiny", overrides=[f"sim={sim}", f"num_envs={envs}", f"ppo.num_steps_per_env={steps}",
-                           "curriculum.enabled=false", "time_limit=null"],
+                           "curriculum.enabled=false", "time_limit=null", f"workers={workers}"],
     )  # fmt: skip
 
 
-def measure_ppo(dataset: Path, sim: str, envs: int, iterations: int, steps: int, out: Path) -> dict:
-    """Timed PPO iterations of one setup (collection + update)."""
-    cfg = _config(sim, envs, steps)
+def measure_ppo(dataset: Path, sim: str, envs: int, iterations: int, steps: int, out: Path, workers: int = 1) -> dict:
+    """Timed PPO iterations of one setup (collection + update), its envs in ``workers`` processes."""
+    cfg = _config(sim, envs, steps, workers)
     torch.manual_seed(0)
     load_before = _load()
     t0 = time.perf_counter()
     setup = build_setup(dataset, cfg, load_registry())
     build_s = time.perf_counter() - t0
-    runner = GraspRunner(setup.venv, rsl_config(cfg, False), out / f"{sim}-{envs}", curriculum=setup.curriculum,
-                         meta={}, settings=cfg.model_copy(update={"checkpoint_interval": 10**6}))  # fmt: skip
-    rows = []
-    runner.on_iteration = lambda done, row: rows.append(row)
+    runner = GraspRunner(setup.venv, rsl_config(cfg, False), out / f"{sim}-{envs}-w{workers}",
+                         curriculum=setup.curriculum, meta={},
+                         settings=cfg.model_copy(update={"checkpoint_interval": 10**6}))  # fmt: skip
+    rows, cpu = [], []
+    pids = getattr(setup.venv, "pids", [])
+
+    def record(done: int, row: dict) -> None:
+        rows.append(row)
+        if done in (1, 1 + iterations):  # after the warm-up iteration and after the last
+            cpu.append((time.process_time(), [_cpu_seconds(p) for p in pids]))
+
+    runner.on_iteration = record
     runner.learn(1 + iterations)
     timed = rows[1:]
     collect = sum(r["collect_s"] for r in timed)
     learn = sum(r["learn_s"] for r in timed)
     n = iterations * steps * envs
     setup.venv.close()
+    main_cpu = cpu[1][0] - cpu[0][0]
+    worker_cpu = [b - a for a, b in zip(cpu[0][1], cpu[1][1], strict=True)]
     return {
-        "sim": sim, "hand": setup.hand, "envs": envs, "iterations": iterations, "steps_per_iteration": steps * envs,
+        "sim": sim, "hand": setup.hand, "envs": envs, "workers": workers, "iterations": iterations,
+        "steps_per_iteration": steps * envs,
         "objects": len(setup.pool), "build_s": round(build_s, 2),
         "env_steps_per_s": round(n / (collect + learn), 1), "collect_steps_per_s": round(n / collect, 1),
         "update_share": round(learn / (collect + learn), 3), "load_before": load_before, "load_after": _load(),
+        "cpu_us_per_step_main": round(1e6 * main_cpu / n, 1),
+        "cpu_us_per_step_workers": [round(1e6 * c / n, 1) for c in worker_cpu],
+        "projected_free_cores_steps_per_s": round(n / (main_cpu + max(worker_cpu, default=0.0)), 1),
     }  # fmt: skip
+
+
+def _cpu_seconds(pid: int) -> float:
+    """User + system CPU seconds a process has used so far (Linux /proc)."""
+    with open(f"/proc/{pid}/stat") as fh:
+        fields = fh.read().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
 def _stepper(dataset: str, sim: str, envs: int, seconds: float, seed: int, queue) -> None:
@@ -122,37 +148,57 @@ def main() -> None:
     parser.add_argument("--envs", nargs="+", type=int, default=[8, 32, 64])
     parser.add_argument("--iterations", type=int, default=3)
     parser.add_argument("--steps", type=int, default=24, help="num_steps_per_env (the tiny preset's)")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--ppo-workers", nargs="+", type=int, default=[1, 2], help="env worker counts of the rows")
+    parser.add_argument("--workers", type=int, default=2, help="processes of the upper-bound section (1: skip it)")
     parser.add_argument("--worker-envs", type=int, default=32)
-    parser.add_argument("--worker-seconds", type=float, default=20.0)
+    parser.add_argument("--worker-seconds", type=float, default=10.0)
     parser.add_argument("--out", type=Path, default=Path("/tmp/ppo_throughput_runs"))
     args = parser.parse_args()
     torch.set_num_threads(1)
     rows = []
     for sim in args.sims:
         for envs in args.envs:
-            row = measure_ppo(args.dataset, sim, envs, args.iterations, args.steps, args.out)
-            rows.append(row)
-            print(row, flush=True)
+            for workers in args.ppo_workers:
+                row = measure_ppo(args.dataset, sim, envs, args.iterations, args.steps, args.out, workers)
+                rows.append(row)
+                print(row, flush=True)
+    speedups = _speedups(rows)
     workers = [measure_workers(args.dataset, sim, args.worker_envs, args.workers, args.worker_seconds)
                for sim in args.sims] if args.workers > 1 else []  # fmt: skip
     for w in workers:
         print(w, flush=True)
-    _table(rows, workers)
+    _table(rows, speedups, workers)
     write_results(RESULTS, {
         "benchmark": "ppo_throughput", "goal_env_steps_per_s": GOAL, "dataset": str(args.dataset),
-        "rows": rows, "workers": workers, "cpu": platform.processor() or platform.machine(),
+        "rows": rows, "speedups": speedups, "workers": workers, "cpu": platform.processor() or platform.machine(),
         "cores": os.cpu_count(), "software": software_versions(), "code": code_state(),
     })  # fmt: skip
 
 
-def _table(rows: list[dict], workers: list[dict]) -> None:
-    print("\n| sim | hand | envs | env-steps/s (collect + update) | collect only | update share | load before/after |")
-    print("|---|---|---|---|---|---|---|")
+def _speedups(rows: list[dict]) -> list[dict]:
+    """Per (sim, envs): each worker count's collect + update rate over the one-process row's."""
+    base = {(r["sim"], r["envs"]): r for r in rows if r["workers"] == 1}
+    return [{"sim": r["sim"], "envs": r["envs"], "workers": r["workers"],
+             "speedup": round(r["env_steps_per_s"] / base[r["sim"], r["envs"]]["env_steps_per_s"], 2),
+             "collect_speedup": round(r["collect_steps_per_s"] / base[r["sim"], r["envs"]]["collect_steps_per_s"], 2)}
+            for r in rows if r["workers"] > 1 and (r["sim"], r["envs"]) in base]  # fmt: skip
+
+
+def _table(rows: list[dict], speedups: list[dict], workers: list[dict]) -> None:
+    print("\n| sim | hand | envs | workers | env-steps/s (collect + update) | collect only | update share | build s "
+          "| CPU us/step main | CPU us/step workers | projected, free cores | load before/after |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
-        print(f"| {r['sim']} | {r['hand']} | {r['envs']} | {r['env_steps_per_s']:,.0f} | "
-              f"{r['collect_steps_per_s']:,.0f} | {100 * r['update_share']:.0f} % | "
+        per_worker = " + ".join(f"{c:.0f}" for c in r["cpu_us_per_step_workers"]) or "-"
+        print(f"| {r['sim']} | {r['hand']} | {r['envs']} | {r['workers']} | {r['env_steps_per_s']:,.0f} | "
+              f"{r['collect_steps_per_s']:,.0f} | {100 * r['update_share']:.0f} % | {r['build_s']} | "
+              f"{r['cpu_us_per_step_main']:.0f} | {per_worker} | {r['projected_free_cores_steps_per_s']:,.0f} | "
               f"{r['load_before']} / {r['load_after']} |")  # fmt: skip
+    if speedups:
+        print("\n| sim | envs | workers | speed-up (collect + update) | speed-up (collect) |")
+        print("|---|---|---|---|---|")
+        for s in speedups:
+            print(f"| {s['sim']} | {s['envs']} | {s['workers']} | x{s['speedup']} | x{s['collect_speedup']} |")
     if workers:
         print("\n| sim | envs | 1 process (steps/s) | 2 processes (aggregate) | speedup | load before/after |")
         print("|---|---|---|---|---|---|")

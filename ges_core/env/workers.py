@@ -190,6 +190,11 @@ class SubprocVecEnv(VecEnv):
     def closed(self) -> bool:
         return self._closed
 
+    @property
+    def pids(self) -> list[int]:
+        """Process ids of the workers, worker order (for CPU accounting; the processes end with :meth:`close`)."""
+        return [p.pid for p in self._procs]
+
     # -- extras ------------------------------------------------------------------------------------
     def _extras(self, code: np.ndarray, done: np.ndarray, nan_actions: int, replies: list[dict]) -> dict:
         """GraspVecEnv.step's extras for the whole batch, from the per-env values the workers wrote."""
