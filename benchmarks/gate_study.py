@@ -13,11 +13,13 @@ benchmarks/results/gate_study.json and benchmarks/results/gate_curves.png (loss 
 per epoch, per backbone, at the smallest size).
 
 Usage: python benchmarks/gate_study.py [--per-category 3] [--epochs 20] [--sizes 1024 4096] [--replot]
+       [--gates curvenet ...] [--settings '{"curvenet": {"k": 10}}'] [--out NAME]
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 import time
 from pathlib import Path
@@ -62,13 +64,20 @@ def dataset(per_category: int, sizes: list[int]) -> dict[int, GateData]:
     return out
 
 
-def run(registry, data: dict[int, GateData], epochs: int, save) -> tuple[list[dict], dict]:
-    """Fit every gate at every size; ``save(rows, curves)`` after each (a stopped run keeps what it did)."""
+GATES = ("centroid", "pointnet2", "curvenet")  # cheapest first: a stopped run has whole comparisons
+
+
+def run(
+    registry, data: dict[int, GateData], epochs: int, save, gates=GATES, overrides: dict | None = None
+) -> tuple[list[dict], dict]:
+    """Fit every gate at every size; ``save(rows, curves)`` after each (a stopped run keeps what it did).
+    ``overrides``: per gate name, settings that replace the registered defaults."""
     rows, curves = [], {}
     config = TrainConfig(epochs=epochs, batch_size=8, val_fraction=0.25, seed=0)
-    for name in ("centroid", "pointnet2", "curvenet"):  # cheapest first: a stopped run has whole comparisons
+    for name in gates:
         for n, d in data.items():
-            gate = registry.spec("gate", name).load()(**{**registry.settings("gate", name), "n_points": n})
+            settings = {**registry.settings("gate", name), **(overrides or {}).get(name, {}), "n_points": n}
+            gate = registry.spec("gate", name).load()(**settings)
             start = time.perf_counter()
             result = gate.fit(d, config)
             seconds = time.perf_counter() - start
@@ -124,24 +133,29 @@ def main() -> None:
     parser.add_argument("--epochs", type=int, default=20)
     parser.add_argument("--sizes", type=int, nargs="+", default=[1024, 4096])
     parser.add_argument("--replot", action="store_true", help="only redraw the PNG from gate_study.json")
+    parser.add_argument("--gates", nargs="+", default=list(GATES), choices=GATES)
+    parser.add_argument(
+        "--settings", default="{}", help='JSON: per gate, settings replacing the defaults, e.g. {"curvenet": {"k": 10}}'
+    )
+    parser.add_argument("--out", default="gate_study", help="results name: OUT/<name>.json and OUT/<name>_curves.png")
     args = parser.parse_args()
     if args.replot:
-        import json
-
-        plot(json.loads((OUT / "gate_study.json").read_text())["curves"], OUT / "gate_curves.png")
+        plot(json.loads((OUT / f"{args.out}.json").read_text())["curves"], OUT / _png(args.out))
         return
+    overrides = json.loads(args.settings)
     torch.set_num_threads(1)
     data = dataset(args.per_category, args.sizes)
     n_objects = len(next(iter(data.values())).rates.object_ids)
 
     def save(rows: list[dict], curves: dict) -> None:
         write_results(
-            OUT / "gate_study.json",
+            OUT / f"{args.out}.json",
             {
                 "benchmark": "gate_study",
                 "rates": "size rule on real object extents (module docstring), not expert evaluations",
                 "objects": n_objects,
                 "epochs": args.epochs,
+                "settings_overrides": overrides,
                 "code": code_state(),
                 "rows": rows,
                 "table": table(rows),
@@ -149,9 +163,13 @@ def main() -> None:
             },
         )
 
-    rows, curves = run(load_registry(), data, args.epochs, save)
+    rows, curves = run(load_registry(), data, args.epochs, save, args.gates, overrides)
     print(table(rows))
-    plot(curves, OUT / "gate_curves.png")
+    plot(curves, OUT / _png(args.out))
+
+
+def _png(out: str) -> str:
+    return "gate_curves.png" if out == "gate_study" else f"{out}_curves.png"
 
 
 if __name__ == "__main__":
