@@ -84,6 +84,11 @@ class ValidateConfig(ConfigModel):
     # keep the rule at 100 % of the hold steps in both engines; one held with a 0.01 N thumb, 42 %.
     hold_fraction: float = Field(0.9, gt=0, le=1, description="share of hold steps the fingertip rule must hold")
     reach_tolerance: float = Field(0.01, gt=0, description="base position error still 'at the grasp', m")
+    # Off by default (the paper's trial drives the hand uncapped). A hand whose PD gains ask far more than its
+    # actuators give turns it on in its YAML (settings.validate.drive_limits: the Ability, docs/hands/assets.md).
+    drive_limits: bool = Field(
+        False, description="cap the hand's drives at HandDescription.effort_limits in the nominal trial too"
+    )
 
 
 @dataclass(frozen=True)
@@ -119,11 +124,14 @@ def validate_grasp(
     object_shift: (7,) or None; a perturbation (:mod:`ges_core.synthesis.physics.robust`): the object is put
     ``object_shift[:3]`` m (world frame) from its resting pose and turned by the quaternion ``object_shift[3:]``
     about its own origin, while the hand still aims at the resting pose. drive_limits: (K,) N·m or None; the
-    hand's drives are capped there (:meth:`ges_core.sim.SimBackend.set_drive_limits`) for this trial only.
+    hand's drives are capped there (:meth:`ges_core.sim.SimBackend.set_drive_limits`) for this trial only; None
+    with ``config.drive_limits`` caps them at the hand's effort limits.
     """
     config = config or ValidateConfig()
     start = time.perf_counter()
     d = hand.description
+    if drive_limits is None and config.drive_limits:
+        drive_limits = d.effort_limits_array  # None when the hand declares no effort limits
     check_grasp(d, grasp, "validate_grasp grasp")
     check_grasp(d, pregrasp_grasp, "validate_grasp pregrasp")
     flags = dict.fromkeys(("reached_grasp", "fingertips_touching", "lifted", "held"), False)

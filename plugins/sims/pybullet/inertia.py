@@ -1,0 +1,159 @@
+"""Find link inertias that no body of the link's mass and size can have, and the geometry's tensor instead.
+
+A body of mass ``m`` whose every point lies within ``R`` of its centre of mass has every moment of inertia
+about that centre at most ``m R^2`` (``I_k = sum m_i d_ik^2 <= sum m_i |d_i|^2 <= m R^2``). mani-skill's
+Ability hand URDF (``ability_hand_right.urdf``, PSYONIC's values) breaks this on every phalanx, 38-182x over
+the bound (the tensors look computed with the mass in grams): ``thumb_L2`` has 5.5 g and a largest moment of
+1.8e-3 kg m^2, a radius of gyration of 0.57 m on a 7 cm link, whose bound is 9.9e-6 kg m^2.
+
+**Not applied when PyBullet loads a hand** (measured, 2026-12-02, ``docs/hands/assets.md``): replacing the
+Ability's tensors by :func:`implausible_inertias`' geometry tensors cured the grasps PyBullet dropped because a
+finger sank into the object (sphere/000, sphere/001, wedge) but broke five others (box/001, capsule, cube,
+cylinder, random_urdfs/002): with ~1e-6 kg m^2 links PyBullet's solver delivers 0.2-1.3 N m of a drive whose
+force limit is 195-377 N m, and the object slides out. Demo set: PyBullet 9/20 -> 7/20. The module stays as
+the check a linter can run (``implausible_inertias``) and as the measured record of what replacing does.
+
+Links within the bound, links at most :data:`PLACEHOLDER_MOMENT` (deliberate placeholders) and links whose
+geometry cannot be read are not reported: no link of the built-in Allegro and Shadow hands is.
+"""
+
+from __future__ import annotations
+
+import warnings
+import xml.etree.ElementTree as ET
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from ges_core.errors import AssetError
+from ges_core.urdf import parse_urdf
+
+__all__ = ["InertiaFix", "geometry_points", "implausible_inertias", "plausible_inertias"]
+
+BOUND_SLACK = 1e-6
+"""Relative room above ``m R^2`` before a tensor counts as impossible: only rounding, the bound is exact."""
+PLACEHOLDER_MOMENT = 1e-5
+"""kg m^2: a tensor whose largest moment is at most this is left alone even above ``m R^2``. Tiny links carry
+such regularised placeholders on purpose: the Shadow's ``thbase`` (10 g) and ``thhub`` (2 g) keep MuJoCo's
+1e-5 (333x and 1667x their bound); near-zero knuckle inertias flung grasped boxes in PyBullet
+(``docs/hands/shadow.md``). The Ability's phalanges are 8-180x above 1e-5."""
+
+
+@dataclass(frozen=True)
+class InertiaFix:
+    """One link whose file inertia exceeds what its mass and size allow."""
+
+    link: str
+    mass: float
+    """kg (the file's, kept)."""
+    largest: float
+    """The file's largest principal moment, kg m^2."""
+    bound: float
+    """``m R^2``, kg m^2."""
+    tensor: np.ndarray
+    """(3, 3) replacement, kg m^2, in the frame of the link's ``<inertial><origin>``."""
+
+
+def plausible_inertias(text: str, base_dir: Path) -> str:
+    """``text`` with every impossible link inertia replaced by its geometry's (module docs: not used when loading
+    a hand into PyBullet); the same string if none is."""
+    fixes = implausible_inertias(text, base_dir)
+    if not fixes:
+        return text
+    root = parse_urdf(text)
+    by_link = {f.link: f for f in fixes}
+    for link in root.findall("link"):
+        fix = by_link.get(link.get("name"))
+        if fix is None:
+            continue
+        node = link.find("inertial").find("inertia")
+        t = fix.tensor
+        values = {"ixx": t[0, 0], "iyy": t[1, 1], "izz": t[2, 2], "ixy": t[0, 1], "ixz": t[0, 2], "iyz": t[1, 2]}
+        for key, value in values.items():
+            node.set(key, repr(float(value)))
+    return ET.tostring(root, encoding="unicode")
+
+
+def implausible_inertias(text: str, base_dir: Path) -> list[InertiaFix]:
+    """Every link of the URDF ``text`` whose inertia exceeds ``m R^2``, with the tensor that replaces it.
+
+    base_dir: the folder relative mesh names start from (absolute names ignore it).
+    """
+    out = []
+    for link in parse_urdf(text).findall("link"):
+        inertial = link.find("inertial")
+        if inertial is None or inertial.find("inertia") is None or link.find("collision") is None:
+            continue
+        mass = float(inertial.find("mass").get("value", "0")) if inertial.find("mass") is not None else 0.0
+        if mass <= 0:
+            continue
+        com, rotation = _origin(inertial.find("origin"))
+        tensor = _tensor(inertial.find("inertia"))
+        points = geometry_points(link, base_dir, ("collision", "visual"))
+        if points is None:
+            continue
+        bound = mass * float(np.max(np.sum((points - com) ** 2, axis=1)))
+        largest = float(np.linalg.eigvalsh(tensor).max())
+        if largest <= max(bound * (1 + BOUND_SLACK), PLACEHOLDER_MOMENT):
+            continue
+        hull_points = geometry_points(link, base_dir, ("collision",))
+        replacement = _hull_tensor(hull_points, mass, com)
+        out.append(InertiaFix(link.get("name"), mass, largest, bound, rotation.T @ replacement @ rotation))
+    return out
+
+
+def geometry_points(link: ET.Element, base_dir: Path, kinds: tuple[str, ...]) -> np.ndarray | None:
+    """(P, 3) points spanning the hull of the link's ``kinds`` elements (``collision``, ``visual``), link frame, m.
+
+    None when an element's geometry cannot be read (an unknown tag, a missing or unreadable mesh): the caller
+    then keeps the file's inertia rather than judge it on part of the link.
+    """
+    from ges_core.hand_prep.geometry import link_shapes
+
+    elements = [e for kind in kinds for e in link.findall(kind)]
+    if not elements:
+        return None
+    probe = ET.Element("robot", name="probe")
+    holder = ET.SubElement(probe, "link", name="probe")
+    for e in elements:
+        copy = ET.SubElement(holder, "collision")
+        copy.extend(list(e))
+    try:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            shapes = link_shapes(ET.tostring(probe, encoding="unicode"), base_dir).get("probe", [])
+    except (AssetError, OSError, ValueError):
+        return None
+    if len(shapes) != len(elements):
+        return None
+    return np.concatenate([np.asarray(s.mesh.vertices, dtype=np.float64) for s in shapes])
+
+
+def _hull_tensor(points: np.ndarray, mass: float, com: np.ndarray) -> np.ndarray:
+    """(3, 3) inertia about ``com`` (link frame) of the convex hull of ``points`` filled uniformly with ``mass``."""
+    import trimesh
+
+    hull = trimesh.convex.convex_hull(points)
+    centred = hull.moment_inertia * (mass / hull.volume)  # trimesh: density 1, about the hull's centroid
+    d = com - hull.center_mass
+    return centred + mass * (float(d @ d) * np.eye(3) - np.outer(d, d))
+
+
+def _origin(node: ET.Element | None) -> tuple[np.ndarray, np.ndarray]:
+    """Position (3,) and rotation (3, 3) of an ``<origin>`` (URDF rpy: fixed axes x, y, z)."""
+    xyz = np.array(node.get("xyz", "0 0 0").split(), dtype=float) if node is not None else np.zeros(3)
+    rpy = np.array(node.get("rpy", "0 0 0").split(), dtype=float) if node is not None else np.zeros(3)
+    return xyz, Rotation.from_euler("xyz", rpy).as_matrix()
+
+
+def _tensor(node: ET.Element) -> np.ndarray:
+    get = lambda k: float(node.get(k, "0"))  # noqa: E731
+    return np.array(
+        [
+            [get("ixx"), get("ixy"), get("ixz")],
+            [get("ixy"), get("iyy"), get("iyz")],
+            [get("ixz"), get("iyz"), get("izz")],
+        ]
+    )

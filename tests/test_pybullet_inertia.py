@@ -1,0 +1,88 @@
+"""The impossible-inertia check (plugins/sims/pybullet/inertia.py; not applied when loading, see its docs).
+
+Independent references: a box's inertia in closed form, the physical bound m R^2, the built-in hands' URDFs
+left byte for byte as they are."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from ges_core.registry import load_registry
+from ges_plugins.sims.pybullet.inertia import PLACEHOLDER_MOMENT, implausible_inertias, plausible_inertias
+
+SIZE = np.array([0.04, 0.02, 0.01])
+"""m, the test link's box."""
+MASS = 0.005
+"""kg."""
+RPY = (0.3, -0.2, 0.5)
+"""The inertial origin's rotation: the tensor is written in that frame."""
+
+
+def _box_inertia() -> np.ndarray:
+    """(3, 3) a solid box's inertia about its centre, box axes: m (b^2 + c^2) / 12 ..."""
+    a, b, c = SIZE
+    return MASS / 12 * np.diag([b * b + c * c, a * a + c * c, a * a + b * b])
+
+
+def _urdf(ixx: float, com=(0.0, 0.0, 0.0), mesh: str | None = None) -> str:
+    geometry = f'<mesh filename="{mesh}"/>' if mesh else f'<box size="{" ".join(map(str, SIZE))}"/>'
+    x, y, z = com
+    return f"""<robot name="t"><link name="a">
+      <inertial><origin xyz="{x} {y} {z}" rpy="{" ".join(map(str, RPY))}"/><mass value="{MASS}"/>
+        <inertia ixx="{ixx}" iyy="{ixx}" izz="{ixx}" ixy="0" ixz="0" iyz="0"/></inertial>
+      <collision><geometry>{geometry}</geometry></collision></link></robot>"""
+
+
+def test_an_impossible_tensor_becomes_the_geometry_s_in_the_inertial_frame(tmp_path):
+    """1e-3 kg m^2 on a 5 g, 4 cm box (bound m R^2 = 2.6e-6) -> the solid box's tensor, expressed in the
+    rotated inertial frame, shifted to the file's centre of mass by the parallel-axis rule."""
+    com = np.array([0.004, 0.0, -0.002])
+    (fix,) = implausible_inertias(_urdf(1e-3, com), tmp_path)
+    r = Rotation.from_euler("xyz", RPY).as_matrix()
+    about_com = _box_inertia() + MASS * (com @ com * np.eye(3) - np.outer(com, com))
+    assert fix.link == "a" and fix.largest == pytest.approx(1e-3)
+    assert fix.bound == pytest.approx(MASS * float(np.sum((SIZE / 2 + np.abs(com)) ** 2)), rel=1e-6)
+    assert np.allclose(fix.tensor, r.T @ about_com @ r, rtol=1e-6, atol=1e-12)
+    text = plausible_inertias(_urdf(1e-3, com), tmp_path)
+    assert 'ixx="0.001"' not in text and text.count("<inertia ") == 1
+
+
+def test_possible_placeholder_and_unreadable_tensors_are_kept(tmp_path):
+    """The true box tensor (any orientation: 2.6e-6 > every moment), the placeholder level and a link whose
+    mesh is missing are left alone, and the text comes back as the very same string."""
+    fine = _box_inertia().max()
+    for text in (
+        _urdf(fine),
+        _urdf(PLACEHOLDER_MOMENT),
+        _urdf(1e-3, mesh=str(tmp_path / "missing.obj")),
+    ):
+        assert implausible_inertias(text, tmp_path) == []
+        assert plausible_inertias(text, tmp_path) is text
+
+
+@pytest.mark.parametrize("name", ["allegro", "shadow"])
+def test_builtin_hands_have_no_impossible_inertia(name):
+    """No Allegro or Shadow link is reported (the Shadow's 1e-5 placeholders are kept): the text comes back as is."""
+    from ges_core.hand_prep.engine_urdf import engine_urdf
+
+    hand = load_registry().build_hand(name)
+    text = engine_urdf(hand.urdf_text(), hand.urdf_path().parent)
+    assert plausible_inertias(text, hand.urdf_path().parent) is text
+
+
+@pytest.mark.parametrize("name", ["ability"])
+def test_ability_phalanges_are_far_over_the_bound(name):
+    """mani-skill's Ability URDF: every phalanx (and the palm) exceeds m R^2, the phalanges by more than 30x."""
+    pytest.importorskip("ges_ability_hand")
+    from ges_core.hand_prep.engine_urdf import engine_urdf
+
+    hand = load_registry().build_hand(name)
+    fixes = implausible_inertias(engine_urdf(hand.urdf_text(), hand.urdf_path().parent), hand.urdf_path().parent)
+    phalanges = {f"{finger}_L{k}" for finger in ("thumb", "index", "middle", "ring", "pinky") for k in (1, 2)}
+    assert phalanges <= {f.link for f in fixes}
+    for fix in fixes:
+        assert np.linalg.eigvalsh(fix.tensor).max() <= fix.bound  # the replacement is itself possible
+        if fix.link in phalanges:
+            assert fix.largest > 30 * fix.bound
