@@ -188,7 +188,7 @@ def _walk_numpy(
 ) -> torch.Tensor:
     """:meth:`CurveGrouping.forward`'s walk at inference on the CPU (eval mode, BatchNorm folded, argmax
     choices), in numpy: the same steps, whose small array operations cost ~0.5 us each against ~2 us for
-    torch's (0.48 against 0.95 ms for 32 curves of 8 steps on 1024 points, one core). Arguments as there:
+    torch's (0.33 against 0.95 ms for 32 curves of 8 steps on 1024 points, one core). Arguments as there:
     points (B N, C), rows (B N, C + 1), neighbours (B N, k) and current (B count,) rows, the folded
     weights; returns (B count, length, C). tests/test_gate_ops.py checks it against the torch walk."""
     pts, rws, nbr, cur = (t.detach().numpy() for t in (points, rows, neighbours, current))
