@@ -144,6 +144,8 @@ def test_worker_exceptions_reach_the_main_process() -> None:
         SubprocVecEnv(_raise_runtime, 2, 1, hand=hand)
     with pytest.raises(ConfigError, match="contact_offset=5 m"):  # our own errors come through as they are
         SubprocVecEnv(_raise_config, 2, 1, hand=hand)
+    with pytest.raises(ConfigError, match="make_env must be picklable"):
+        SubprocVecEnv(lambda env_ids: None, 2, 1, hand=hand)
     with pytest.raises(ConfigError, match="3 worker"):
         split_envs(2, 3)
 

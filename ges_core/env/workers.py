@@ -104,7 +104,15 @@ class SubprocVecEnv(VecEnv):
                 parent, child = ctx.Pipe()
                 proc = ctx.Process(target=worker_main, args=(child, make_env, ids, seed, os.getpid()), daemon=True,
                                    name=f"ges-env-worker-{len(self._procs)}")  # fmt: skip
-                proc.start()
+                try:
+                    proc.start()
+                except (pickle.PicklingError, AttributeError, TypeError) as exc:  # spawn pickles the arguments
+                    parent.close()
+                    child.close()
+                    raise ConfigError(
+                        f"env workers: make_env must be picklable (a module-level function or a functools.partial of "
+                        f"one), got {make_env!r}: {exc}"
+                    ) from exc
                 child.close()  # the worker holds the only other end: its death is our end-of-file
                 self._procs.append(proc)
                 self._conns.append(parent)
