@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ges_core.cli.args import positive_int
+from ges_core.cli.args import non_negative_int, positive_int
 from ges_core.cli.cmd_experts import add_episode_options, add_fanout_options, fanout_from_args
 
 
@@ -42,7 +42,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="take a picked expert's episodes from the matrix instead of running them again where they are provably "
         "the same (same run header, expert and checkpoint hash, grasp, and code stamp); the summary counts them",
     )  # fmt: skip
-    p.add_argument("--cloud-seed", type=int, default=0, metavar="N", help="seed of the gate's cloud samples (0)")
+    p.add_argument(
+        "--cloud-seed", type=non_negative_int, default=0, metavar="N", help="seed of the gate's cloud samples (0)"
+    )
     p.add_argument(
         "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
         help="override a run setting (BaselineConfig), e.g. seed=1",

@@ -6,6 +6,8 @@ import argparse
 import json
 from pathlib import Path
 
+from ges_core.cli.args import unit_fraction
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ges hard-cases``."""
@@ -18,7 +20,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "line that trains that expert (curriculum stages 1-2); --out writes the set as JSON.",
     )
     p.add_argument("matrix", type=Path, metavar="MATRIX", help="success matrix JSON (ges eval-experts)")
-    p.add_argument("--threshold", type=float, default=0.5, help="success rate both best experts stay under (0.5)")
+    p.add_argument(
+        "--threshold", type=unit_fraction, default=0.5, help="success rate both best experts stay under (0.5)"
+    )
     p.add_argument("--protocol", default="paper", choices=("paper", "peers"), help="success protocol (paper)")
     p.add_argument("--split", default="train", help="rows to consider (train, as the paper)")
     p.add_argument("--with-baseline", action="store_true", help="count the scripted baseline's column too")
