@@ -137,6 +137,11 @@ def test_anchor_steps_pull_the_actor_back_toward_the_demonstrations(tmp_path, cl
     finally:
         setup.venv.close()
     assert losses["anchored"] < losses["free"]
+    # a resumed anchored run reads its demonstrations back from the run folder
+    resumed = _train(tmp_path / "anchored", clusters, "iterations=4", *WARM, "warm_start.anchor_steps=40",
+                     resume=True)  # fmt: skip
+    assert resumed.iterations == 4 and (tmp_path / "anchored" / "demonstrations.pt").is_file()
+    assert not (tmp_path / "free" / "demonstrations.pt").exists()
 
 
 def _context(setup):

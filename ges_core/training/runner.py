@@ -253,6 +253,12 @@ class GraspRunner(OnPolicyRunner):
         (self.run_dir / "warm_start.json").write_text(json.dumps(record, indent=1) + "\n", encoding="utf-8")
         self.warm_start_record = record
         self.demonstrations = demo
+        if w.anchor_steps:  # a resumed run reads them back for its anchor steps
+            from ges_core.paths import atomic_write_bytes
+
+            buf = io.BytesIO()
+            torch.save({"obs": demo.obs, "actions": demo.actions, "env_steps": demo.env_steps}, buf)
+            atomic_write_bytes(self.run_dir / DEMOS, buf.getvalue())
         return self.env.get_observations()
 
     def _after_iteration(self, it: int, counts: EpisodeCounts, collect: float, learn: float) -> None:
@@ -360,6 +366,26 @@ class GraspRunner(OnPolicyRunner):
             from ges_core.training.warm_start import freeze_normalizer
 
             freeze_normalizer(self.alg.actor)  # ``until`` is not in the state dict
+        if self.demonstrator is not None and self.settings.warm_start.anchor_steps:
+            self.demonstrations = _read_demonstrations(self.run_dir / DEMOS)
+
+
+DEMOS = "demonstrations.pt"
+"""The warm start's demonstrations in the run folder (written when ``anchor_steps`` > 0; read on resume)."""
+
+
+def _read_demonstrations(path: Path):
+    """The Demonstrations saved at ``path``; AssetError saying how to go on when the file is missing."""
+    from ges_core.errors import AssetError
+    from ges_core.training.warm_start import Demonstrations
+
+    if not path.is_file():
+        raise AssetError(
+            f"{path} is missing: the run's anchor steps (warm_start.anchor_steps) need the warm start's "
+            "demonstrations; resume with -o warm_start.anchor_steps=0, or start a new run"
+        )
+    data = torch.load(path, weights_only=True)
+    return Demonstrations(data["obs"], data["actions"], int(data["env_steps"]))
 
 
 STD_FLOOR = 0.1
