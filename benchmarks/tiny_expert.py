@@ -7,7 +7,12 @@ iterations with the curriculum stage, writes ``benchmarks/results/tiny_expert.js
 
     ges train-expert runs/tiny/dataset --cluster 1 --out runs/tiny/experts/expert1
     ges train-expert runs/tiny/dataset --cluster 1 -o action_mode=residual --out runs/tiny/experts/expert1_residual
-    python benchmarks/tiny_expert.py [RUN_DIR ...] [--bin 25]
+    ges train-expert runs/tiny/dataset --cluster 1 -o warm_start.enabled=true -o warm_start.anchor_steps=10 \
+        --out runs/tiny/experts/expert1_abs_bc_anchor
+    python benchmarks/tiny_expert.py [RUN_DIR ...] [--bin 25] [--matrix MATRIX.json ...]
+
+``--matrix``: success matrices of ``ges eval-experts`` (randomization on, and the ``-norand`` file for off): their
+per-split table (paper and peers protocols) goes into the results beside the curves.
 """
 
 from __future__ import annotations
@@ -23,12 +28,49 @@ RESULTS = Path(__file__).resolve().parent / "results" / "tiny_expert.json"
 PICTURE = RESULTS.with_suffix(".png")
 
 
+LABELS = {
+    "expert1": "absolute, cold start (the paper's action, PPO from scratch; before the warm start)",
+    "expert1_residual": "residual on the scripted expert",
+    "expert1_abs_bconly": "absolute, behaviour cloning only (warm start, 1 critic iteration, no PPO update)",
+    "expert1_abs_bc": "absolute, warm start + PPO without anchor (stopped by hand at 83 iterations)",
+    "expert1_abs_bc_anchor": "absolute, warm start + PPO with anchor_steps 10",
+    "expert1_abs_bc36k_anchor": "absolute, warm start on 36,864 demonstration samples + PPO with anchor_steps 10",
+}
+"""What each run folder under runs/tiny/experts is (folders not listed are labelled by name)."""
+
+
 def read_run(folder: Path) -> dict:
-    """One run's config, summary and per-iteration rows."""
+    """One run's label, config, summary, warm-start record and per-iteration rows."""
     rows = [json.loads(line) for line in (folder / "history.jsonl").read_text().splitlines() if line.strip()]
     summary = json.loads((folder / "summary.json").read_text()) if (folder / "summary.json").is_file() else None
     config = (folder / "config.yaml").read_text() if (folder / "config.yaml").is_file() else ""
-    return {"run": folder.name, "rows": rows, "summary": summary, "config_yaml": config}
+    warm = folder / "warm_start.json"
+    warm_start = json.loads(warm.read_text()) if warm.is_file() else None
+    if warm_start:
+        loss = warm_start.pop("imitation_loss")
+        warm_start["imitation_loss_first_last"] = [loss[0], loss[-1]]
+    return {"run": folder.name, "label": LABELS.get(folder.name, folder.name), "rows": rows, "summary": summary,
+            "warm_start": warm_start, "config_yaml": config}  # fmt: skip
+
+
+def read_matrix(path: Path) -> dict:
+    """Per split and protocol, each expert column's success rate and episodes, from a ges eval-experts matrix."""
+    from ges_core.experts.matrix import load_matrix
+    from ges_core.experts.table import expert_table, split_rates
+    from ges_core.objects.splits import SPLITS
+
+    matrix = load_matrix(path)
+    out = {"matrix": str(path), "experts": list(matrix.experts), "splits": {}}
+    for split in (*SPLITS, None):
+        rows = matrix.rows(split)
+        out["splits"][split or "all"] = {
+            "objects": int(rows.sum()),
+            "episodes": [int(x) for x in matrix.episodes[rows].sum(axis=0)],
+            **{p: split_rates(matrix, p, split) for p in ("paper", "peers")},
+        }
+    out["table_paper"] = expert_table(matrix, "paper")
+    out["table_peers"] = expert_table(matrix, "peers")
+    return out
 
 
 def bins(rows: list[dict], size: int) -> list[dict]:
@@ -57,11 +99,12 @@ def plot(runs: list[dict], path: Path) -> None:
     fig, ax = plt.subplots(figsize=(7, 4))
     for run in runs:
         b = [x for x in run["bins"] if x["success_paper"] is not None]
-        ax.plot([x["env_steps"] for x in b], [x["success_paper"] for x in b], marker="o", label=run["run"])
+        ax.plot([x["env_steps"] for x in b], [x["success_paper"] for x in b], marker="o",
+                label=f"{run['run']}: {run['label'].split(' (')[0]}")  # fmt: skip
     ax.set_xlabel("env steps")
     ax.set_ylabel("success (paper protocol, per episode)")
     ax.set_ylim(-0.02, 1.02)
-    ax.legend()
+    ax.legend(fontsize=7)
     ax.set_title("tiny experts (Allegro, SAPIEN, cluster 1)")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
@@ -71,6 +114,7 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="*", type=Path)
     parser.add_argument("--bin", type=int, default=25, help="iterations per row of the table")
+    parser.add_argument("--matrix", type=Path, nargs="*", default=[], help="ges eval-experts matrices to tabulate")
     args = parser.parse_args()
     folders = args.runs or sorted(p for p in (ROOT / "runs" / "tiny" / "experts").iterdir() if p.is_dir())
     runs = []
@@ -79,7 +123,7 @@ def main() -> None:
         run["bins"] = bins(run["rows"], args.bin)
         runs.append(run)
         s = run["summary"] or {}
-        print(f"\n{run['run']}: {s.get('iterations')} iterations, {s.get('env_steps')} env steps, "
+        print(f"\n{run['run']} ({run['label']}): {s.get('iterations')} iterations, {s.get('env_steps')} env steps, "
               f"{s.get('seconds')} s, stopped {s.get('stopped')}, stage {s.get('stage')}")  # fmt: skip
         print("| iterations | env steps | s | stage | episodes | success (paper) | success (peers) |")
         print("|---|---|---|---|---|---|---|")
@@ -89,7 +133,15 @@ def main() -> None:
     plot(runs, PICTURE)
     for run in runs:
         del run["rows"]  # the curve is in bins; history.jsonl stays in the run folder
-    write_results(RESULTS, {"benchmark": "tiny_expert", "runs": runs, "picture": PICTURE.name, "code": code_state()})
+    evals = []
+    for path in args.matrix:
+        ev = read_matrix(path)
+        print(f"\n{path} ({'randomization off' if 'norand' in path.name else 'randomization on'})")
+        print(ev["table_paper"])
+        print(ev["table_peers"])
+        evals.append(ev)
+    write_results(RESULTS, {"benchmark": "tiny_expert", "runs": runs, "evaluations": evals, "picture": PICTURE.name,
+                            "code": code_state()})  # fmt: skip
 
 
 if __name__ == "__main__":
