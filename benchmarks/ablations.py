@@ -1,0 +1,209 @@
+"""The paper's two Stage 2 ablations on the ``tiny`` preset: rewards (Table 3) and priors (the priors figure).
+
+**Reward** (``--study reward``): one expert per reward preset (``udgr``, ``tsr``, ``tsr_scr``; ges_core/env/reward.py),
+same seed, objects, curriculum and iteration budget; then ``ges eval-experts`` runs the three (and the scripted
+baseline) on every object of the three splits with randomization on, and the table gives success (paper and
+peers protocols) and the Table 3 metrics per episode (arm oscillation, hand oscillation, FDC; ges_core/env/metrics.py)
+averaged over every episode. The paper's claim: TSR+SCR has the lowest oscillation.
+
+**Prior** (``--study prior``): Init/NoInit x Goal/NoGoal (``env.init_prior``, ``env.goal_prior``): success
+against environment steps from each run's ``history.jsonl``, one PNG, as the paper's ablation figure.
+
+Each training run is ``ges train-expert`` in a subprocess (skipped when its run folder already has a summary with
+the asked iterations: rerunning the script resumes), each evaluation ``ges eval-experts`` (resumable itself).
+
+    python benchmarks/ablations.py --study reward [--iterations 150] [--action-mode residual] [--episodes 4]
+    python benchmarks/ablations.py --study prior [--iterations 150] [--action-mode absolute]
+
+Results: ``benchmarks/results/ablation_<study>.json`` (+ ``ablation_prior.png``); runs under
+``runs/ablations/<study>/``. The scripted expert needs the goal in the observation, so the residual action mode
+cannot run the NoGoal arms of the prior study: that study uses the absolute (paper's) action.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+from _results import code_state, write_results
+
+ROOT = Path(__file__).resolve().parent.parent
+RESULTS = Path(__file__).resolve().parent / "results"
+REWARD_ARMS = {"udgr": ["reward_preset=udgr"], "tsr": ["reward_preset=tsr"], "tsr_scr": ["reward_preset=tsr_scr"]}
+PRIOR_ARMS = {
+    "init_goal": ["env.init_prior=true", "env.goal_prior=true"],
+    "init_nogoal": ["env.init_prior=true", "env.goal_prior=false"],
+    "noinit_goal": ["env.init_prior=false", "env.goal_prior=true"],
+    "noinit_nogoal": ["env.init_prior=false", "env.goal_prior=false"],
+}
+METRICS = ("arm_oscillation", "hand_oscillation", "fdc")
+
+
+def ges(*args: str) -> None:
+    """Run ``ges ARGS`` from the repository root; its output goes to ours; a failure stops the study."""
+    cmd = [sys.executable, "-m", "ges_core.cli", *args]
+    print("$ ges " + " ".join(args), flush=True)
+    subprocess.run(cmd, cwd=ROOT, check=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
+
+
+def train(study: str, arm: str, overrides: list[str], args: argparse.Namespace) -> Path:
+    """Train one arm (or reuse a finished run of the same budget); its run folder."""
+    out = ROOT / "runs" / "ablations" / study / arm
+    summary = out / "summary.json"
+    if summary.is_file() and json.loads(summary.read_text()).get("iterations", 0) >= args.iterations:
+        print(f"{arm}: reusing {out.relative_to(ROOT)}", flush=True)
+        return out
+    opts = [f"action_mode={args.action_mode}", f"iterations={args.iterations}", "time_limit=null", *overrides,
+            *args.override]  # fmt: skip
+    resume = ["--resume"] if (out / "checkpoints").is_dir() else []
+    cli = ["train-expert", str(args.dataset), "--cluster", str(args.cluster), "--seed", str(args.seed),
+           "--envs", str(args.envs), "--out", str(out), "--no-progress", *resume]  # fmt: skip
+    for o in opts:
+        cli += ["-o", o]
+    ges(*cli)
+    return out
+
+
+def history(run: Path) -> list[dict]:
+    return [json.loads(line) for line in (run / "history.jsonl").read_text().splitlines() if line.strip()]
+
+
+def reward_table(matrix_file: Path, arms: list[str]) -> list[dict]:
+    """Per column of the matrix: success rates and the mean Table 3 metrics over every episode of every split."""
+    data = json.loads(matrix_file.read_text())
+    rows = []
+    for label in [*arms, data["baseline"]]:
+        cells = [c[label] for c in data["cells"].values() if label in c]
+        episodes = sum(c["episodes"] for c in cells)
+        row = {"expert": label, "objects": len(cells), "episodes": episodes}
+        row["success_paper"] = round(sum(c["paper"] for c in cells) / max(episodes, 1), 3)
+        row["success_peers"] = round(sum(c["peers"] for c in cells) / max(episodes, 1), 3)
+        per_split: dict[str, list[int]] = {}
+        for oid, obj in data["objects"].items():
+            cell = data["cells"].get(oid, {}).get(label)
+            if cell:
+                s = per_split.setdefault(obj["split"], [0, 0])
+                s[0], s[1] = s[0] + cell["paper"], s[1] + cell["episodes"]
+        row["success_paper_by_split"] = {k: round(v[0] / v[1], 3) for k, v in sorted(per_split.items()) if v[1]}
+        for name in METRICS:
+            values = [v for c in cells for v in c.get("metrics", {}).get(name, []) if v is not None]
+            row[name] = round(float(np.mean(values)), 2) if values else None
+            row[f"{name}_median"] = round(float(np.median(values)), 2) if values else None
+        rows.append(row)
+    return rows
+
+
+def run_reward(args: argparse.Namespace) -> dict:
+    runs = {arm: train("reward", arm, o, args) for arm, o in REWARD_ARMS.items()}
+    out = ROOT / "runs" / "ablations" / "reward" / "eval"
+    cli = ["eval-experts", str(args.dataset), "--hand", "allegro", "--sim", "sapien", "--episodes", str(args.episodes),
+           "--out", str(out), "--no-progress"]  # fmt: skip
+    for arm, run in runs.items():
+        cli += ["--expert", f"{arm}=ppo:checkpoint={run / 'checkpoints' / 'last.pt'}"]
+    ges(*cli)
+    rows = reward_table(out / "matrix-allegro-sapien.json", list(runs))
+    print(f"\n{'expert':<10} {'episodes':>8} {'paper':>6} {'peers':>6} {'arm osc':>9} {'hand osc':>9} {'FDC':>8}   "
+          "paper by split")  # fmt: skip
+    for r in rows:
+        print(f"{r['expert']:<10} {r['episodes']:>8} {r['success_paper']:>6.3f} {r['success_peers']:>6.3f} "
+              f"{_num(r['arm_oscillation']):>9} {_num(r['hand_oscillation']):>9} {_num(r['fdc']):>8}   "
+              f"{r['success_paper_by_split']}")  # fmt: skip
+    curves = {arm: _curve(history(run)) for arm, run in runs.items()}
+    return {"rows": rows, "curves": curves, "matrix": str(out / "matrix-allegro-sapien.json")}
+
+
+def run_prior(args: argparse.Namespace) -> dict:
+    runs = {arm: train("prior", arm, o, args) for arm, o in PRIOR_ARMS.items()}
+    curves = {arm: _curve(history(run)) for arm, run in runs.items()}
+    _plot(curves, RESULTS / "ablation_prior.png", args)
+    print(f"\n{'arm':<14} {'env steps':>10} {'episodes':>9} {'success (last 20 %)':>20} {'best bin':>9}")
+    for arm, c in curves.items():
+        tail = c[-max(1, len(c) // 5) :]
+        eps = sum(b["episodes"] for b in tail)
+        rate = sum(b["successes"] for b in tail) / eps if eps else float("nan")
+        best = max((b["success_paper"] for b in c if b["success_paper"] is not None), default=float("nan"))
+        print(f"{arm:<14} {c[-1]['env_steps'] if c else 0:>10} {sum(b['episodes'] for b in c):>9} {rate:>20.3f} "
+              f"{best:>9.3f}")  # fmt: skip
+    return {"curves": curves, "picture": str(RESULTS / "ablation_prior.png")}
+
+
+def _curve(rows: list[dict], size: int = 10) -> list[dict]:
+    """Success (paper protocol) per bin of ``size`` iterations, against env steps at the bin's end."""
+    out = []
+    for start in range(0, len(rows), size):
+        chunk = rows[start : start + size]
+        episodes = sum(r["episodes"] for r in chunk)
+        wins = sum(round((r["success_paper"] or 0) * r["episodes"]) for r in chunk)
+        rewards = [r["mean_reward"] for r in chunk if r.get("mean_reward") is not None]
+        out.append({"env_steps": chunk[-1]["env_steps"], "seconds": chunk[-1]["seconds"], "stage": chunk[-1]["stage"],
+                    "episodes": episodes, "successes": wins,
+                    "success_paper": round(wins / episodes, 3) if episodes else None,
+                    "mean_reward": round(float(np.mean(rewards)), 2) if rewards else None})  # fmt: skip
+    return out
+
+
+def _plot(curves: dict, path: Path, args: argparse.Namespace) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax, rx) = plt.subplots(1, 2, figsize=(12, 4))
+    for arm, c in curves.items():
+        b = [x for x in c if x["success_paper"] is not None]
+        ax.plot([x["env_steps"] for x in b], [x["success_paper"] for x in b], marker=".", label=arm)
+        r = [x for x in c if x["mean_reward"] is not None]
+        rx.plot([x["env_steps"] for x in r], [x["mean_reward"] for x in r], marker=".", label=arm)
+    ax.set_xlabel("env steps")
+    ax.set_ylabel("success (paper protocol, training episodes)")
+    ax.set_ylim(-0.02, 1.02)
+    ax.legend()
+    rx.set_xlabel("env steps")
+    rx.set_ylabel("mean episode reward (rsl-rl)")
+    rx.legend()
+    fig.suptitle(f"prior ablation: tiny, Allegro, SAPIEN, cluster {args.cluster}, {args.action_mode} actions")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+
+
+def _num(x) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--study", choices=("reward", "prior"), required=True)
+    parser.add_argument("--dataset", type=Path, default=ROOT / "runs" / "tiny" / "dataset")
+    parser.add_argument("--cluster", type=int, default=1)
+    parser.add_argument("--iterations", type=int, default=150, help="PPO iterations per arm (the same budget each)")
+    parser.add_argument("--envs", type=int, default=32)
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--episodes", type=int, default=4, help="reward study: episodes per object and expert")
+    parser.add_argument(
+        "--action-mode",
+        default=None,
+        choices=("absolute", "residual"),
+        help="default: residual for reward, absolute for prior (NoGoal has no residual base)",
+    )
+    parser.add_argument("-o", action="append", default=[], dest="override", help="more TrainConfig overrides")
+    args = parser.parse_args()  # fmt: skip
+    args.action_mode = args.action_mode or ("residual" if args.study == "reward" else "absolute")
+    start = time.perf_counter()
+    body = run_reward(args) if args.study == "reward" else run_prior(args)
+    settings = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
+    result = {"benchmark": f"ablation_{args.study}", "settings": settings, **body,
+              "wall_seconds": round(time.perf_counter() - start, 1), "load_after": os.getloadavg()[0],
+              "code": code_state()}  # fmt: skip
+    write_results(RESULTS / f"ablation_{args.study}.json", result)
+    print(f"\nwrote {RESULTS / f'ablation_{args.study}.json'} ({result['wall_seconds']} s)")
+
+
+if __name__ == "__main__":
+    main()
