@@ -14,7 +14,8 @@ concatenation is the sum of the parts' maps) takes :meth:`ConvBN.folded` and :me
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -54,6 +55,7 @@ class ConvBN(nn.Module):
         self.conv = Pointwise(c_in, c_out)
         self.bn = nn.BatchNorm1d(c_out)
         self._folded: tuple[tuple, tuple[torch.Tensor, torch.Tensor]] | None = None  # see folded()
+        self._derived: dict[str, tuple[torch.Tensor, Any]] = {}  # see derived()
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if self.training:
@@ -96,6 +98,20 @@ class ConvBN(nn.Module):
             with torch.inference_mode(False), torch.no_grad():  # ordinary tensors: usable outside inference mode
                 self._folded = (key, self._fold())
         return self._folded[1]
+
+    def derived(self, name: str, make: Callable[[torch.Tensor, torch.Tensor | None], Any]) -> Any:
+        """``make(*self.folded())``: constants a network derives from the layer's linear part (weight
+        slices and sums, numpy copies). At inference (eval, no gradients) computed once and kept with the
+        fold (renewed when the fold is: :meth:`folded`), so a forward pass does not redo those small
+        operations: ~10 tensor calls per layer and call (CurveNet's LPFA geometry and walk policy)."""
+        weight, bias = self.folded()
+        if self.training or torch.is_grad_enabled():
+            return make(weight, bias)
+        entry = self._derived.get(name)
+        if entry is None or entry[0] is not weight:  # the fold's tensors are new whenever it was renewed
+            with torch.inference_mode(False), torch.no_grad():
+                entry = self._derived[name] = (weight, make(weight, bias))
+        return entry[1]
 
     def _fold(self) -> tuple[torch.Tensor, torch.Tensor]:
         bn = self.bn
