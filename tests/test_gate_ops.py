@@ -327,6 +327,47 @@ def test_folded_batchnorm_follows_every_change_of_the_layer():
         assert layer(x.double()).dtype == torch.float64
 
 
+def test_derived_constants_follow_the_fold():
+    """ConvBN.derived: made once at inference, made anew after a change of the layer, never kept with gradients."""
+    layer = randomized(ConvBN(4, 3), 1).eval()
+    calls = []
+
+    def make(weight, bias):
+        calls.append(1)
+        return weight.sum(dim=1) + bias
+
+    def expected():
+        weight, bias = layer._fold()
+        return weight.detach().sum(dim=1) + bias.detach()
+
+    with torch.no_grad():
+        first, again = layer.derived("sum", make), layer.derived("sum", make)
+    assert len(calls) == 1 and again is first and torch.allclose(first, expected())
+    with torch.no_grad():
+        layer.conv.weight.mul_(2.0)  # an in-place change: the fold and what is derived from it renewed
+        changed = layer.derived("sum", make)
+    assert len(calls) == 2 and torch.allclose(changed, expected()) and not torch.allclose(changed, first)
+    with torch.enable_grad():
+        layer.derived("sum", make), layer.derived("sum", make)
+    assert len(calls) == 4
+
+
+def test_inference_after_loading_other_weights_matches_the_direct_formulas():
+    """The cached folds and derived constants (LPFA geometry, walk policy) follow load_state_dict."""
+    model, other = network("curvenet", 11).eval(), network("curvenet", 12).eval()
+    xyz = clouds(13)
+    with torch.inference_mode():
+        before = model(xyz)  # fills the caches
+    model.load_state_dict(other.state_dict())
+    with torch.no_grad():
+        expected = ref_curvenet(other, xyz)
+    with torch.inference_mode():
+        after = model(xyz)
+    scale = expected.abs().max()
+    assert not torch.allclose(before, after, atol=1e-3 * scale)
+    assert torch.allclose(after, expected, atol=1e-5 * scale, rtol=1e-4), (after - expected).abs().max()
+
+
 def test_a_prediction_is_an_ordinary_tensor():
     """predict runs under inference_mode; what it returns can still be edited and used with autograd."""
     from ges_plugins.gates.curvenet.gate import CurveNetGate
