@@ -102,15 +102,21 @@ def _fps_numpy(points: np.ndarray, m: int) -> np.ndarray:
     centre = points.mean(axis=0)
     step = np.empty_like(rows)
     np.subtract(rows, centre[:, None], out=step)
-    current = int(np.add.reduce(np.square(step, out=step), axis=0).argmax())
+    current = np.add.reduce(np.square(step, out=step), axis=0).argmax()
     dist = np.full(len(points), np.inf, dtype=points.dtype)
-    chosen = np.empty(m, dtype=np.int64)
+    near = np.empty_like(dist)
+    chosen = [0] * m
+    # bound ufuncs and methods, a (3, 1) column view per point and the reduction written into ``near``:
+    # 1.17 -> 1.02 ms for 256 of 1024 points (the same operations, fewer lookups and allocations)
+    sub, square, add, minimum, argmax = np.subtract, np.square, np.add.reduce, np.minimum, dist.argmax
+    columns = rows.T[:, :, None]  # (N, 3, 1)
     for i in range(m):
         chosen[i] = current
-        np.subtract(rows, rows[:, current : current + 1], out=step)
-        np.minimum(dist, np.add.reduce(np.square(step, out=step), axis=0), out=dist)  # (ufunc: no wrapper)
-        current = int(dist.argmax())
-    return chosen
+        sub(rows, columns[current], out=step)
+        add(square(step, out=step), axis=0, out=near)
+        minimum(dist, near, out=dist)
+        current = argmax()
+    return np.array(chosen, dtype=np.int64)
 
 
 def knn(xyz: torch.Tensor, k: int, query: torch.Tensor | None = None) -> torch.Tensor:
