@@ -19,7 +19,7 @@ what the code gained from what the lighter defaults gained.
 The issue's goal: <= 10 ms for CurveNet at 1024 points. The machine's load average is recorded per row:
 on a shared machine the wall time includes waiting for a core.
 
-Usage: python benchmarks/gate_speed.py [--repeats 15] [--objects 8] [--baseline REV | --no-baseline]
+Usage: python benchmarks/gate_speed.py [--repeats 15] [--objects 8] [--baseline REV | --no-baseline] [--label TEXT]
 """
 
 from __future__ import annotations
@@ -180,6 +180,7 @@ def main() -> None:
     parser.add_argument("--objects", type=int, default=8)
     parser.add_argument("--baseline", default=BASELINE_REV, help="git revision of the old code (default: %(default)s)")
     parser.add_argument("--no-baseline", action="store_true", help="time today's code only")
+    parser.add_argument("--label", default="", help="what the machine was doing (recorded with the results)")
     args = parser.parse_args()
     baseline = None if args.no_baseline else args.baseline
     torch.set_num_threads(1)
@@ -196,6 +197,7 @@ def main() -> None:
             "old_*: the gate built by the baseline revision's code with its default settings and today's weights; "
             "old_code_same_settings_*: that code with today's settings (the same function); all timed in turn",
             "goal": "CurveNet at 1024 points <= 10 ms",
+            "label": args.label,
             "repeats": args.repeats,
             "baseline": baseline,
             "machine": {
