@@ -310,8 +310,8 @@ def test_vec_env_log_means_skip_unstable_envs() -> None:
     states = []
     observe = env.observe
 
-    def recording_observe():
-        states.append(observe())
+    def recording_observe(**kw):  # noise_rows: GraspVecEnv passes it through
+        states.append(observe(**kw))
         return states[-1]
 
     env.observe = recording_observe

@@ -129,8 +129,8 @@ def test_vec_env_logs_the_metrics_of_ended_episodes() -> None:
     env = build_grasp_env("sapien", 2, reach_steps=5, settle_steps=2, episode_length=4)
     states, observe = [], env.observe
 
-    def recording_observe():
-        obs, state = observe()
+    def recording_observe(**kw):  # noise_rows: GraspVecEnv passes it through
+        obs, state = observe(**kw)
         states.append(state)
         return obs, state
 

@@ -92,12 +92,12 @@ def serve(path: str | Path, *, host: str = "127.0.0.1", port: int = 8080, **kwar
     """:func:`start`, print the URL, and serve until Ctrl-C (then stop the server and return)."""
     t0 = time.perf_counter()
     viewer = start(path, host=host, port=port, **kwargs)
-    print(
-        f"ges view: {len(viewer.data)} records of {viewer.data.root} at {viewer.url} "
-        f"(ready in {time.perf_counter() - t0:.1f} s; Ctrl-C to stop)",
-        flush=True,
-    )
-    try:
+    try:  # the URL is printed inside: a Ctrl-C right after it (the page already served) still stops cleanly
+        print(
+            f"ges view: {len(viewer.data)} records of {viewer.data.root} at {viewer.url} "
+            f"(ready in {time.perf_counter() - t0:.1f} s; Ctrl-C to stop)",
+            flush=True,
+        )
         while True:
             time.sleep(3600)
     except KeyboardInterrupt:
