@@ -95,7 +95,15 @@ def test_hard_case_set_runs_stages_one_and_two_nearest_its_own_centre(tmp_path) 
     cur = Curriculum.for_cluster(cfg, _clusters(tmp_path), 0, ALL, objects=["a/0", "a/2", "a/5", "b/0"])
     # features (d, 1 - d): the set's mean d is 0.325; nearest a/2 and b/0 (both 0.3; ties by id)
     assert cur.stage_objects[1] == ["a/2", "b/0"] and sorted(cur.stage_objects[2]) == ["a/0", "a/2", "a/5", "b/0"]
-    assert cur.end_iteration(1).to_stage == 2 and cur.end_iteration(2) is None
+    promotion = cur.end_iteration(1)
+    assert promotion.to_stage == 2 and cur.end_iteration(2) is None
+    assert "stage 1 -> 2 (whole set)" in promotion.describe()  # no cluster to name
+    resumed = Curriculum.for_cluster(cfg, _clusters(tmp_path), 0, ALL, objects=["a/0", "a/2", "a/5", "b/0"])
+    state = cur.state_dict()
+    for p in state["history"]:
+        p.pop("stage_name")  # a checkpoint written before the name was stored
+    resumed.load_state_dict(state)
+    assert "(whole cluster)" in resumed.history[0].describe()
     with pytest.raises(ConfigError, match="not in the clustering"):
         Curriculum.for_cluster(cfg, _clusters(tmp_path), 0, ALL, objects=["zzz"])
 

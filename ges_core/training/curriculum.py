@@ -27,9 +27,11 @@ import numpy as np
 from ges_core.errors import AssetError, ConfigError
 from ges_core.training.config import CurriculumConfig
 
-__all__ = ["STAGE_NAMES", "Curriculum", "Promotion"]
+__all__ = ["SET_STAGE_NAMES", "STAGE_NAMES", "Curriculum", "Promotion"]
 
 STAGE_NAMES = {1: "cluster centre", 2: "whole cluster", 3: "all training objects"}
+SET_STAGE_NAMES = {1: "centre of the set", 2: "whole set", 3: "whole set"}
+"""Stage names of an expert trained on a given object set (the hard-case expert): it has no cluster."""
 
 
 @dataclass(frozen=True)
@@ -45,20 +47,26 @@ class Promotion:
     """Success rate over the window when it happened (NaN: no episode ended in the stage)."""
     episodes: int
     """Episodes the stage saw."""
+    stage_name: str = ""
+    """What the new stage trains on (empty in records written before it was stored: STAGE_NAMES then)."""
 
     def describe(self) -> str:
         rate = "no episode" if math.isnan(self.success_rate) else f"success {self.success_rate:.2f}"
+        name = self.stage_name or STAGE_NAMES[self.to_stage]
         return (
             f"iteration {self.iteration}: curriculum stage {self.from_stage} -> {self.to_stage} "
-            f"({STAGE_NAMES[self.to_stage]}), {self.reason}: {rate} over the last {self.episodes} episode(s)"
+            f"({name}), {self.reason}: {rate} over the last {self.episodes} episode(s)"
         )
 
 
 class Curriculum:
     """Stage objects, the success window and the promotion rule (module docs)."""
 
-    def __init__(self, cfg: CurriculumConfig, stage_objects: dict[int, list[str]]) -> None:
-        """stage_objects: stage number -> object ids of that stage (each non-empty)."""
+    def __init__(
+        self, cfg: CurriculumConfig, stage_objects: dict[int, list[str]], names: dict[int, str] | None = None
+    ) -> None:
+        """stage_objects: stage number -> object ids of that stage (each non-empty). names: stage number -> what
+        it trains on, for the log (default :data:`STAGE_NAMES`)."""
         empty = [s for s in cfg.stages if not stage_objects.get(s)]
         if empty:
             raise AssetError(f"curriculum stage(s) {empty} have no object with a usable grasp")
@@ -70,6 +78,7 @@ class Curriculum:
         self.window: deque[bool] = deque(maxlen=cfg.window)
         self.episodes_in_stage = 0
         self.history: list[Promotion] = []
+        self.names = dict(names or STAGE_NAMES)
 
     @classmethod
     def for_cluster(
@@ -99,7 +108,7 @@ class Curriculum:
             )
         centre = group[: max(1, math.ceil(cfg.centre_fraction * len(group)))]
         everything = [o for o in available if o in usable] if objects is None else group
-        return cls(cfg, {1: centre, 2: group, 3: everything})
+        return cls(cfg, {1: centre, 2: group, 3: everything}, None if objects is None else SET_STAGE_NAMES)
 
     @property
     def stage(self) -> int:
@@ -135,7 +144,8 @@ class Curriculum:
             reason = "iteration_cap"
         else:
             return None
-        promotion = Promotion(iteration, self.stage, self.stages[self.index + 1], reason, rate, len(self.window))
+        to = self.stages[self.index + 1]
+        promotion = Promotion(iteration, self.stage, to, reason, rate, len(self.window), self.names[to])
         self.index += 1
         self.iterations_in_stage, self.episodes_in_stage = 0, 0
         self.window.clear()
