@@ -5,8 +5,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from ges_core.cli.args import non_negative_int, positive_int
-from ges_core.cli.cmd_experts import add_episode_options, add_fanout_options, fanout_from_args
+from ges_core.cli.args import non_negative_int
+from ges_core.cli.cmd_experts import (
+    add_episode_options,
+    add_fanout_options,
+    add_run_options,
+    fanout_from_args,
+    randomization_text,
+    run_from_args,
+)
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -31,7 +38,6 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="a gate checkpoint of ges train-gate (repeatable: one Table 2 row per gate)",
     )  # fmt: skip
     add_episode_options(p)
-    p.add_argument("--episodes", type=positive_int, default=4, metavar="E", help="episodes per object and expert (4)")
     p.add_argument(
         "--matrix", type=Path, metavar="PATH",
         help="success matrix to complete and compare against (default: DATASET/../experts/matrix-HAND-SIM.json)",
@@ -45,15 +51,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--cloud-seed", type=non_negative_int, default=0, metavar="N", help="seed of the gate's cloud samples (0)"
     )
-    p.add_argument(
-        "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-        help="override a run setting (BaselineConfig), e.g. seed=1",
-    )  # fmt: skip
-    p.add_argument(
-        "--no-randomization",
-        action="store_true",
-        help="episodes without per-episode randomization (files named -norand); on by default",
-    )
+    add_run_options(p)
     add_fanout_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_evaluate)
@@ -62,36 +60,24 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run_evaluate(args: argparse.Namespace) -> int:
     """Evaluate, write Table 2 and the figure, print both tables and the summary."""
     from ges_core.cli import registry_from_args
-    from ges_core.config import apply_overrides, parse_model
-    from ges_core.env.evaluate import BaselineConfig
     from ges_core.errors import ConfigError
-    from ges_core.experts.choice import parse_expert
-    from ges_core.experts.evaluate import RANDOMIZED
     from ges_core.ges_eval import evaluate_ges, parse_gate
     from ges_core.ges_eval.outputs import write_outputs
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()
     registry = registry_from_args(args)
-    hand, sim = args.hand or registry.default("hand"), args.sim or registry.default("sim")
     if len(args.expert) < 2:
         raise ConfigError("ges evaluate needs the experts GES chooses among: --expert LABEL=NAME:... twice or more")
-    experts = [parse_expert(text) for text in args.expert]
-    registry.spec("hand", hand), registry.spec("sim", sim)
-    for choice in experts:
-        registry.spec("expert", choice.name)
-    data = {"hand": hand, "sim": sim, "envs": args.episodes, "selection": args.select}
-    data |= {"splits": tuple(args.split)} if args.split else {}
-    data["env"] = {"randomization": {"enabled": False} if args.no_randomization else RANDOMIZED}
-    config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where="ges evaluate")
+    experts, config = run_from_args(args, registry, "ges evaluate")
     report = evaluate_ges(
         args.dataset, config, experts, [parse_gate(g) for g in args.gate], args.out or args.dataset.parent / "ges",
         matrix_file=args.matrix, registry=registry, progress=not args.no_progress, fanout=fanout_from_args(args),
         reuse_matrix=args.reuse_matrix, cloud_seed=args.cloud_seed,
     )  # fmt: skip
     paths = write_outputs(report, config.model_dump(mode="json"))
-    rand = "randomization off" if args.no_randomization else "randomized start pose, mass, friction, obs noise"
-    print(f"GES | hand {hand} | sim {sim} | {args.episodes} episode(s) per object | {rand}\n")
+    print(f"GES | hand {config.hand} | sim {config.sim} | {args.episodes} episode(s) per object | "
+          f"{randomization_text(args)}\n")  # fmt: skip
     print(report.table.markdown("paper") + "\n\n" + report.table.markdown("peers") + "\n")
     print(report.table.accuracy_markdown("paper") + "\n")
     for line in report.errors[:10]:

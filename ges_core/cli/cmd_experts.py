@@ -4,8 +4,13 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ges_core.cli.args import positive_int
+
+if TYPE_CHECKING:
+    from ges_core.env.evaluate import BaselineConfig
+    from ges_core.experts.choice import ExpertChoice
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -28,19 +33,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "slow=scripted:close_steps=60 (repeatable; the scripted baseline is always added)",
     )
     add_episode_options(p)
-    p.add_argument("--episodes", type=positive_int, default=4, metavar="E", help="episodes per object and expert (4)")
     p.add_argument("--clusters", type=Path, metavar="PATH", help="clusters file of ges cluster (stored per object)")
     p.add_argument("--out", type=Path, metavar="DIR", help="matrix folder (default: DATASET/../experts)")
-    p.add_argument(
-        "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
-        help="override a run setting (BaselineConfig), e.g. env.episode_length=150 or seed=1",
-    )  # fmt: skip
-    p.add_argument(
-        "--no-randomization",
-        action="store_true",
-        help="episodes without per-episode randomization (written to matrix-HAND-SIM-norand.json); by default the "
-        "object start pose, mass, friction and observation noise are randomized (env.randomization, seeded)",
-    )
+    add_run_options(p)
     add_fanout_options(p)
     p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_eval_experts)
@@ -58,6 +53,48 @@ def add_episode_options(p: argparse.ArgumentParser) -> None:
         help="which records give grasps: validated (default), refined, or any record with a grasp",
     )
     p.add_argument("--split", action="append", metavar="SPLIT", help="only this split (repeatable; default all)")
+
+
+def add_run_options(p: argparse.ArgumentParser) -> None:
+    """The options of an evaluation run's settings (``ges eval-experts``, ``ges evaluate``): episodes per cell,
+    ``-o`` overrides of :class:`~ges_core.env.evaluate.BaselineConfig`, randomization off."""
+    p.add_argument("--episodes", type=positive_int, default=4, metavar="E", help="episodes per object and expert (4)")
+    p.add_argument(
+        "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
+        help="override a run setting (BaselineConfig), e.g. env.episode_length=150 or seed=1",
+    )  # fmt: skip
+    p.add_argument(
+        "--no-randomization",
+        action="store_true",
+        help="episodes without per-episode randomization (its files are named ...-norand.json); by default the "
+        "object start pose, mass, friction and observation noise are randomized (env.randomization, seeded)",
+    )
+
+
+def run_from_args(args: argparse.Namespace, registry, where: str) -> tuple[list[ExpertChoice], BaselineConfig]:
+    """(the ``--expert`` choices, the run's BaselineConfig) of an evaluation command's options
+    (:func:`add_episode_options`, :func:`add_run_options`); unknown hand, simulator or expert names fail here,
+    listing the known ones."""
+    from ges_core.config import apply_overrides, parse_model
+    from ges_core.env.evaluate import BaselineConfig
+    from ges_core.experts.choice import parse_expert
+    from ges_core.experts.evaluate import RANDOMIZED
+
+    hand = args.hand or registry.default("hand")
+    sim = args.sim or registry.default("sim")
+    experts = [parse_expert(text) for text in args.expert]
+    registry.spec("hand", hand), registry.spec("sim", sim)
+    for choice in experts:
+        registry.spec("expert", choice.name)
+    data = {"hand": hand, "sim": sim, "envs": args.episodes, "selection": args.select}
+    data |= {"splits": tuple(args.split)} if args.split else {}
+    data["env"] = {"randomization": {"enabled": False} if args.no_randomization else RANDOMIZED}
+    return experts, parse_model(BaselineConfig, apply_overrides(data, args.overrides), where=where)
+
+
+def randomization_text(args: argparse.Namespace) -> str:
+    """How the run's episodes are randomized, for the header line a command prints."""
+    return "randomization off" if args.no_randomization else "randomized start pose, mass, friction, obs noise"
 
 
 def add_fanout_options(parser: argparse.ArgumentParser) -> None:
@@ -85,33 +122,20 @@ def fanout_from_args(args: argparse.Namespace):
 def run_eval_experts(args: argparse.Namespace) -> int:
     """Evaluate, print both tables and the summary."""
     from ges_core.cli import registry_from_args
-    from ges_core.config import apply_overrides, parse_model
-    from ges_core.env.evaluate import BaselineConfig
-    from ges_core.experts.choice import parse_expert
-    from ges_core.experts.evaluate import RANDOMIZED, evaluate_experts
+    from ges_core.experts.evaluate import evaluate_experts
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
     registry = registry_from_args(args)
-    hand = args.hand or registry.default("hand")
-    sim = args.sim or registry.default("sim")
-    experts = [parse_expert(text) for text in args.expert]
-    registry.spec("hand", hand), registry.spec("sim", sim)  # unknown names fail here, with the known ones
-    for choice in experts:
-        registry.spec("expert", choice.name)
-    data = {"hand": hand, "sim": sim, "envs": args.episodes, "selection": args.select}
-    data |= {"splits": tuple(args.split)} if args.split else {}
-    data["env"] = {"randomization": {"enabled": False} if args.no_randomization else RANDOMIZED}
-    config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where="ges eval-experts")
+    experts, config = run_from_args(args, registry, "ges eval-experts")
     out = args.out or args.dataset.parent / "experts"
     fanout = fanout_from_args(args)
     report = evaluate_experts(
         args.dataset, config, experts, out, clusters=args.clusters, registry=registry,
         progress=not args.no_progress, fanout=fanout,
     )  # fmt: skip
-    rand = "randomization off" if args.no_randomization else "randomized start pose, mass, friction, obs noise"
-    print(f"{len(report.matrix.experts)} expert(s) | hand {hand} | sim {sim} | {args.episodes} episode(s) per cell "
-          f"| {rand}\n")  # fmt: skip
+    print(f"{len(report.matrix.experts)} expert(s) | hand {config.hand} | sim {config.sim} | {args.episodes} "
+          f"episode(s) per cell | {randomization_text(args)}\n")  # fmt: skip
     print(report.table("paper") + "\n\n" + report.table("peers"))
     for line in report.errors[:10]:
         print(f"error: {line}")
