@@ -30,9 +30,9 @@ from pathlib import Path
 
 from ges_core.config import parse_model
 from ges_core.dataset.layout import config_differences
-from ges_core.env.evaluate import BaselineConfig, grasp_key
+from ges_core.env.evaluate import BaselineConfig, config_records, grasp_key
 from ges_core.env.evaluate.fanout import Cell, Fanout, evaluate_cells
-from ges_core.env.grasp_source import open_grasp_dataset, select_records
+from ges_core.env.grasp_source import open_grasp_dataset
 from ges_core.errors import AssetError, ConfigError
 from ges_core.experts.choice import ExpertChoice
 from ges_core.experts.matrix import SuccessMatrix, matrix_from_json, matrix_path, read_matrix_json, write_matrix
@@ -44,6 +44,7 @@ __all__ = [
     "RANDOMIZED",
     "EvalReport",
     "cell_config",
+    "check_stored_run",
     "code_stamp",
     "column_identity",
     "evaluate_experts",
@@ -130,8 +131,7 @@ def evaluate_experts(
         registry = load_registry()
     choices = _columns(experts)
     columns = {c.label: column_identity(registry, c) for c in choices}
-    records = [r for r in select_records(data, config.hand, selection=config.selection).records
-               if r.split in config.splits]  # fmt: skip
+    records = config_records(data, config)
     path = (
         Path(matrix_file)
         if matrix_file is not None
@@ -182,7 +182,7 @@ class _MatrixFile:
         data = {"run": header, "experts": {}, "baseline": None, "clusters": None, "objects": {}, "cells": {}}
         if path.is_file():
             data |= read_matrix_json(path)
-            _check_stored(path, data, header, columns)
+            check_stored_run(path, "success matrix", data, header, columns)
         data["experts"] |= columns
         data["baseline"] = BASELINE.label
         return cls(path, data, dataset)
@@ -222,17 +222,18 @@ class _MatrixFile:
         return matrix_from_json(part)
 
 
-def _check_stored(path: Path, data: dict, header: dict, columns: dict[str, dict]) -> None:
-    """ConfigError unless the stored run settings, and every stored column this run names, are this run's."""
-    diffs = config_differences(data["run"], header)
+def check_stored_run(path: Path, what: str, stored: dict, header: dict, columns: dict[str, dict]) -> None:
+    """ConfigError unless the run settings stored in the file at ``path`` (``stored["run"]``), and every stored
+    column this run names (``stored["experts"]``), are this run's. what: the kind of file, for the message."""
+    diffs = config_differences(stored.get("run", {}), header)
     if diffs:
         raise ConfigError(
-            f"success matrix {path} was written with other settings ({'; '.join(diffs)}); choose another --out, "
+            f"{what} {path} was written with other settings ({'; '.join(diffs)}); choose another --out, "
             "rerun with those settings, or delete the file to start over",
             problems=diffs,
         )
     for label, column in columns.items():
-        old = data["experts"].get(label)
+        old = stored.get("experts", {}).get(label)
         if old is not None and old != json.loads(json.dumps(column)):
             diffs = config_differences(old, column)
             raise ConfigError(

@@ -17,9 +17,10 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
-from ges_core.dataset.layout import config_differences, utc_now
+from ges_core.dataset.layout import utc_now
 from ges_core.env.evaluate import grasp_key
-from ges_core.errors import AssetError, ConfigError
+from ges_core.errors import AssetError
+from ges_core.experts.evaluate import check_stored_run
 from ges_core.experts.matrix import PROTOCOLS
 from ges_core.paths import atomic_write_text
 
@@ -63,7 +64,7 @@ class ResultsFile:
                 "objects": {}, "cells": {}}  # fmt: skip
         if path.is_file():
             stored = read_results_json(path)
-            _check(path, stored, header, experts)
+            check_stored_run(path, "GES results", stored, header, experts)
             data |= {k: stored[k] for k in ("experts", "gates", "objects", "cells") if k in stored}
         data["experts"] |= experts
         data["dataset"], data["matrix"] = str(dataset), str(matrix)
@@ -94,22 +95,3 @@ class ResultsFile:
     def write(self) -> None:
         head = {"format": RESULTS_FORMAT, "version": RESULTS_VERSION, "updated": utc_now(), "protocols": PROTOCOLS}
         atomic_write_text(self.path, json.dumps({**head, **self.data}, indent=1) + "\n", fix="choose another --out")
-
-
-def _check(path: Path, stored: dict, header: dict, experts: dict[str, dict]) -> None:
-    diffs = config_differences(stored.get("run", {}), header)
-    if diffs:
-        raise ConfigError(
-            f"GES results {path} were written with other settings ({'; '.join(diffs)}); choose another --out, "
-            "rerun with those settings, or delete the file to start over",
-            problems=diffs,
-        )
-    for label, column in experts.items():
-        old = stored.get("experts", {}).get(label)
-        if old is not None and old != json.loads(json.dumps(column)):
-            diffs = config_differences(old, column)
-            raise ConfigError(
-                f"expert '{label}' of {path} ran as {old['name']} with other settings ({'; '.join(diffs)}); "
-                "give this one another label or use another --out",
-                problems=diffs,
-            )

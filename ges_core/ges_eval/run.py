@@ -26,9 +26,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ges_core.env.evaluate import BaselineConfig
+from ges_core.env.evaluate import BaselineConfig, config_records
 from ges_core.env.evaluate.fanout import Cell, Fanout, evaluate_cells
-from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
+from ges_core.env.grasp_source import library_for, open_grasp_dataset
 from ges_core.errors import ConfigError
 from ges_core.experts.choice import ExpertChoice
 from ges_core.experts.evaluate import (
@@ -136,10 +136,11 @@ def evaluate_ges(
     results.write()
     report = GesReport(results.path, mfile, Table2(), mreport.matrix, picks)
     report.matrix_evaluated, report.matrix_reused = mreport.evaluated, mreport.reused
-    report.matrix_other_code = _other_code(read_matrix_json(mfile).get("cells", {}), records, columns)
+    matrix_cells = read_matrix_json(mfile).get("cells", {})  # the file as evaluate_experts left it, read once
+    report.matrix_other_code = _other_code(matrix_cells, records, columns)
     todo = _todo(records, picks, results, report, reuse_matrix)
     if reuse_matrix:
-        todo = _take_from_matrix(todo, mfile, results, report)
+        todo = _take_from_matrix(todo, matrix_cells, results, report)
     _run(data, registry, config, {c.label: c for c in experts}, todo, results, report, progress, fanout or Fanout())
     report.ges_rows = [_ges_row(mreport.matrix, g.label, picks, results) for g in loaded]
     report.table = table2(mreport.matrix, labels, report.ges_rows)
@@ -158,8 +159,7 @@ def _default_matrix(root: Path, config: BaselineConfig) -> Path:
 
 
 def _records(data, config: BaselineConfig, dataset) -> list:
-    records = [r for r in select_records(data, config.hand, selection=config.selection).records
-               if r.split in config.splits]  # fmt: skip
+    records = config_records(data, config)
     if not records:
         raise ConfigError(
             f"dataset {dataset} has no '{config.selection}' records of hand '{config.hand}' in splits "
@@ -200,10 +200,9 @@ def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesRep
     return todo
 
 
-def _take_from_matrix(todo: list[tuple], mfile: Path, results: ResultsFile, report: GesReport) -> list[tuple]:
-    """Store the matrix's cell for each (record, expert) it holds that this code ran (settings proven identical by
-    the matrix run's checks, code by :func:`code_stamp`); return the rest, to be run."""
-    cells = read_matrix_json(mfile).get("cells", {})
+def _take_from_matrix(todo: list[tuple], cells: dict, results: ResultsFile, report: GesReport) -> list[tuple]:
+    """Store the matrix's cell (``cells``: the matrix file's) for each (record, expert) it holds that this code ran
+    (settings proven identical by the matrix run's checks, code by :func:`code_stamp`); return the rest, to run."""
     rest = []
     for r, label in todo:
         cell = cells.get(r.object_id, {}).get(label)

@@ -40,6 +40,7 @@ __all__ = [
     "BaselineReport",
     "EpisodeOutcome",
     "build_expert_for",
+    "config_records",
     "dataset_scene",
     "evaluate_baseline",
     "evaluate_object",
@@ -178,6 +179,13 @@ def _rounded(value: float) -> float | None:
     return None if value != value else float(f"{value:.6g}")
 
 
+def config_records(data, config: BaselineConfig, selection: GraspSelection | None = None) -> list[GraspRecord]:
+    """The records a run evaluates: those of ``config.hand`` passing ``config.selection`` (``selection``, when
+    already made) in ``config.splits``, in dataset order."""
+    selection = selection or select_records(data, config.hand, selection=config.selection)
+    return [r for r in selection.records if r.split in config.splits]
+
+
 # -- the run -------------------------------------------------------------------------------------
 @dataclass
 class BaselineReport:
@@ -246,7 +254,7 @@ def evaluate_baseline(
         registry = load_registry()
     path, header = results_path(out, config), results_header(config, expert_defaults(registry, config))
     selection = select_records(data, config.hand, selection=config.selection)
-    records = [r for r in selection.records if r.split in config.splits]
+    records = config_records(data, config, selection)
     store = read_results(path, header)  # every stored object (those outside this selection stay in the file)
     report = BaselineReport(path, config, selection, [])
     todo = [r for r in records if store.get(r.object_id, {}).get("grasp_key") != grasp_key(r)]
