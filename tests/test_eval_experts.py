@@ -201,7 +201,7 @@ def test_an_unevaluated_cell_is_nan_and_the_oracle_skips_it(tmp_path):
 
 def test_a_column_names_the_content_of_the_files_its_settings_name(tmp_path):
     """A retrained checkpoint at the same path is another column identity (stored results are not reused for it)."""
-    from ges_core.experts.evaluate import _column
+    from ges_core.experts.evaluate import column_identity
 
     checkpoint = tmp_path / "model.pt"
     checkpoint.write_bytes(b"weights 1")
@@ -210,8 +210,8 @@ def test_a_column_names_the_content_of_the_files_its_settings_name(tmp_path):
         def settings(self, kind, name):
             return {"checkpoint": str(checkpoint), "deterministic": True}
 
-    first = _column(Settings(), parse_expert("ppo"))
+    first = column_identity(Settings(), parse_expert("ppo"))
     assert first["settings"]["checkpoint"] == str(checkpoint) and set(first["files"]) == {"checkpoint"}
     checkpoint.write_bytes(b"weights 2")
-    assert _column(Settings(), parse_expert("ppo"))["files"] != first["files"]
-    assert "files" not in _column(load_registry(), parse_expert("scripted"))
+    assert column_identity(Settings(), parse_expert("ppo"))["files"] != first["files"]
+    assert "files" not in column_identity(load_registry(), parse_expert("scripted"))

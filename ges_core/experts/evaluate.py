@@ -166,9 +166,6 @@ def column_identity(registry, choice: ExpertChoice) -> dict:
     return {"name": choice.name, "settings": settings} | ({"files": files} if files else {})
 
 
-_column = column_identity  # the name tests/test_eval_experts.py imports
-
-
 class _MatrixFile:
     """The matrix file being filled: its JSON (:mod:`~ges_core.experts.matrix`) and where it is written."""
 
