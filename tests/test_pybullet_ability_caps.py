@@ -1,8 +1,8 @@
 """Validation with the hand's actuator limits (ValidateConfig.drive_limits, the Ability's settings.validate).
 
-A real Ability grasp of the demo set that SAPIEN holds: PyBullet drops it with the uncapped PD drives (the thumb
-is driven millimetres into the sphere) and holds it with the drives capped at the URDF's effort limits, as
-SAPIEN does (docs/hands/ability.md)."""
+A real Ability grasp of the demo set that SAPIEN holds. Without friction anchors, PyBullet drops it with the
+uncapped PD drives (the thumb is driven millimetres into the sphere; docs/hands/ability.md); with them (the
+backend's default, tests/test_pybullet_friction_anchors.py) it holds it capped or not."""
 
 from __future__ import annotations
 
@@ -37,8 +37,9 @@ def setup():
     return registry, hand, cfg, obj, grasp, pre
 
 
-def _validate(setup, sim_name: str, config: ValidateConfig, spy: list | None = None):
+def _validate(setup, sim_name: str, config: ValidateConfig, spy: list | None = None, *, overrides: tuple = ()):
     registry, hand, cfg, obj, grasp, pre = setup
+    registry = load_registry(overrides=overrides) if overrides else registry
     with registry.build_sim(sim_name, cfg.scene) as sim:
         if spy is not None:
             real = sim.set_drive_limits
@@ -55,10 +56,20 @@ def test_the_ability_validates_with_its_effort_limits(setup):
     assert np.array_equal(spy[0], hand.description.effort_limits_array) and spy[-1] is None
 
 
-def test_uncapped_pybullet_drops_what_capped_pybullet_and_sapien_hold(setup):
-    """Same grasp: uncapped PyBullet drops the sphere; SAPIEN holds it capped (as it did uncapped)."""
+@pytest.mark.parametrize("iterations", [80, 100, 120])
+def test_uncapped_pybullet_without_friction_anchors_drops_what_the_defaults_hold(setup, iterations):
+    """Same grasp at PyBullet's default 100 solver iterations and 20 % either side: uncapped and without friction
+    anchors PyBullet drops the sphere; with the anchors it holds it capped and uncapped; SAPIEN holds it both ways."""
     _, _, cfg, *_ = setup
     uncapped = cfg.validate_.model_copy(update={"drive_limits": False})
-    assert _validate(setup, "pybullet", uncapped).reason == "dropped"
+    solver = f"settings.sim.pybullet.solver_iterations={iterations}"
+    bare = (solver, "settings.sim.pybullet.friction_anchors=false")
+    assert _validate(setup, "pybullet", uncapped, overrides=bare).reason == "dropped"
+    assert _validate(setup, "pybullet", uncapped, overrides=(solver,)).success
+    assert _validate(setup, "pybullet", cfg.validate_, overrides=(solver,)).success
+
+
+def test_sapien_holds_the_sphere_capped_and_uncapped(setup):
+    _, _, cfg, *_ = setup
     assert _validate(setup, "sapien", cfg.validate_).success
-    assert _validate(setup, "sapien", uncapped).success
+    assert _validate(setup, "sapien", cfg.validate_.model_copy(update={"drive_limits": False})).success

@@ -25,7 +25,10 @@ def ges_register_sims(register: Callable[[SimSpec], None]) -> None:
             # default of 20 (SceneConfig.solver_iterations), Stage 1 validation lifted 3/9 objects with
             # Allegro, at 100 it lifted 8/9 (SAPIEN: 7/9 at 20). Costs about 1.4x per step. See
             # docs/simulators.md. registry.yaml's settings.sim.pybullet overrides it.
-            settings={"solver_iterations": 100},
+            # friction_anchors: the object's contacts keep their first point (PhysX-like static friction); a
+            # squeezed object otherwise creeps out of the fingers (stored demo-set grasps re-validated: Ability
+            # 11 -> 16 of 19, Allegro 17 -> 18, Shadow 14 -> 14; docs/simulators.md "Friction anchors").
+            settings={"solver_iterations": 100, "friction_anchors": True},
             renderer="ges_plugins.sims.pybullet.render:PybulletRenderer",
             description="PyBullet 3.2.7 on the CPU: one DIRECT client per scene, SAPIEN-like implicit PD drives",
         )

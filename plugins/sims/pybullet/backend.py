@@ -44,7 +44,13 @@ from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import ContactPair, SceneConfig, SimBackend
 
-from .checks import BLOWUP_HINT, MAX_JOINT_SPEED, drive_problems, object_problem, solver_iterations_setting
+from .checks import (
+    BLOWUP_HINT,
+    MAX_JOINT_SPEED,
+    drive_problems,
+    object_problem,
+    solver_iterations_setting,
+)
 from .contacts import contact_pairs, link_forces
 from .drive import product_friction
 from .engine import p
@@ -69,19 +75,26 @@ class PybulletBackend(SimBackend):
     normalise_quaternions = True
     blowup_hint = BLOWUP_HINT
 
-    def __init__(self, config: SceneConfig, *, solver_iterations: int | None = None) -> None:
+    def __init__(
+        self, config: SceneConfig, *, solver_iterations: int | None = None, friction_anchors: bool = True
+    ) -> None:
         """solver_iterations: PyBullet's ``numSolverIterations`` (registry setting), overriding
         ``config.solver_iterations`` for this backend only; None keeps the config's value.
 
         PyBullet's PGS needs about 100 where SAPIEN's TGS is fine at 20 (module docs), so
         ``registry.yaml`` can raise it here without changing SAPIEN's.
+
+        friction_anchors: Bullet's friction anchor on the object (registry setting, on by default;
+        :func:`.scene.new_scene`): without it a squeezed object creeps out of the fingers.
         """
         super().__init__(config)
         self.solver_iterations = (
             config.solver_iterations if solver_iterations is None else solver_iterations_setting(solver_iterations)
         )
         """Solver iterations in use: the setting if given, else ``config.solver_iterations``."""
-        self._scenes: list[Scene] = [new_scene(config, self.solver_iterations) for _ in range(config.num_envs)]
+        self.friction_anchors = friction_anchors
+        """Friction anchor on the object (the setting)."""
+        self._scenes: list[Scene] = [self._new_scene() for _ in range(config.num_envs)]
         self._layout: HandLayout | None = None
         self._targets = np.zeros((config.num_envs, 0))
         """(E, D) drive targets, ``HandLayout.drive_ids`` order."""
@@ -206,6 +219,9 @@ class PybulletBackend(SimBackend):
                 blown[e] = problem
         return blown
 
+    def _new_scene(self) -> Scene:
+        return new_scene(self.config, self.solver_iterations, friction_anchors=self.friction_anchors)
+
     def _rebuild(self, ids: list[int]) -> None:
         """Give every env of ``ids`` a new client holding the same hand and object (the core resets it next).
 
@@ -214,7 +230,7 @@ class PybulletBackend(SimBackend):
         """
         for e in ids:
             old = self._scenes[e]
-            scene = self._scenes[e] = new_scene(self.config, self.solver_iterations)
+            scene = self._scenes[e] = self._new_scene()
             old.client.disconnect()
             if self._hand is not None:
                 load_hand_body(scene, self._hand, self.config, self._layout.floating)

@@ -68,6 +68,8 @@ class Scene:
     """The object's asset (kept to rebuild the scene of an env that blew up)."""
     obj_fixed: bool = False
     """The object is static (``load_object(fixed=True)``)."""
+    friction_anchors: bool = True
+    """Bullet's friction anchor on the object (:func:`new_scene`)."""
 
 
 @dataclass(frozen=True)
@@ -98,10 +100,15 @@ class HandLayout:
         return len(WRIST_JOINTS) if self.floating else 0
 
 
-def new_scene(config: SceneConfig, solver_iterations: int | None = None) -> Scene:
+def new_scene(config: SceneConfig, solver_iterations: int | None = None, *, friction_anchors: bool = True) -> Scene:
     """A DIRECT client with the config's physics settings and a static table whose top is z = 0.
 
-    solver_iterations: overrides ``config.solver_iterations`` (None keeps it).
+    solver_iterations: overrides ``config.solver_iterations`` (None keeps it). friction_anchors: the object
+    loaded into this scene gets Bullet's friction anchor (``changeDynamics(frictionAnchor=1)``), which covers
+    every contact it makes (Bullet anchors a contact when either body asks; the flag on the hand's links made no
+    measured difference): a contact in static friction keeps its first contact point, as PhysX's patch friction
+    does, instead of the friction rows being rebuilt at each step's new point, which let a squeezed object creep
+    out of the fingers (docs/simulators.md, "Friction anchors").
     """
     client = connect_direct()
     client.setPhysicsEngineParameter(
@@ -118,7 +125,7 @@ def new_scene(config: SceneConfig, solver_iterations: int | None = None) -> Scen
         baseMass=0.0, baseCollisionShapeIndex=slab, basePosition=(0, 0, -TABLE_HALF_EXTENTS[2])
     )
     client.changeDynamics(table, -1, lateralFriction=config.table_friction)
-    return Scene(client=client, cid=client._client, table=table)
+    return Scene(client=client, cid=client._client, table=table, friction_anchors=friction_anchors)
 
 
 def load_hand_body(scene: Scene, hand: HandModel, config: SceneConfig, floating: bool) -> None:
@@ -264,6 +271,7 @@ def create_object(scene: Scene, obj: ObjectAsset, *, fixed: bool = False) -> Mas
         angularDamping=_OBJECT_ANGULAR_DAMPING,
         maxJointVelocity=_OBJECT_MAX_VELOCITY,
         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,  # the object's weight is an external force
+        frictionAnchor=int(scene.friction_anchors),
         physicsClientId=scene.cid,
     )
     if fixed:
