@@ -16,7 +16,7 @@ import scipy.stats
 import torch
 import torch.nn.functional as F
 
-from ges_core.errors import ArrayError, ConfigError
+from ges_core.errors import ArrayError, ConfigError, StorageError
 from ges_core.gating import (
     AugmentConfig,
     GateData,
@@ -447,3 +447,85 @@ def test_curvenet_inference_walk_matches_the_training_walk(fitted, data):
     with torch.enable_grad():
         straight_through = model(x)  # one-hot products whose forward value is the same choice
     assert torch.allclose(fast, straight_through.detach(), atol=1e-5)
+
+
+# -- resuming a killed training run ------------------------------------------------------------------
+class _Killed(Exception):
+    """Stands in for a SIGKILL after an epoch (the state on disk is what a killed run leaves)."""
+
+
+def _kill_after(epoch: int):
+    def on_epoch(e, _result):
+        if e == epoch:
+            raise _Killed
+
+    return on_epoch
+
+
+@pytest.mark.parametrize("name", ["curvenet", "pointnet2"])
+def test_a_killed_training_run_resumes_to_the_same_weights_and_curves(registry, data, tmp_path, name):
+    """Killed after epoch 3 with the state last written at epoch 2 (every 2 epochs), then resumed: the same
+    final weights (keep=last: epoch 5's), best-epoch bookkeeping and history as 5 epochs straight, which needs
+    the Adam moments, the augmentation stream and torch's global stream (dropout) restored."""
+    config = TrainConfig(epochs=5, batch_size=8, val_fraction=0.25, keep="last")
+    straight = build(registry, name)
+    reference = straight.fit(data, config, state_file=tmp_path / "a.pt", state_every=2)
+    state = tmp_path / "b.pt"
+    with pytest.raises(_Killed):
+        build(registry, name).fit(data, config, state_file=state, state_every=2, on_epoch=_kill_after(3))
+    assert torch.load(state, weights_only=True)["epoch"] == 2
+    resumed_gate = build(registry, name)
+    resumed = resumed_gate.fit(data, config, state_file=state, state_every=2, resume=True)
+    a, b = straight.model.state_dict(), resumed_gate.model.state_dict()
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert resumed.kept_epoch == reference.kept_epoch == 5 and resumed.history == reference.history
+    # the epochs after the kill changed the weights: the equality above covers them
+    short = build(registry, name)
+    short.fit(data, config.model_copy(update={"epochs": 3}))
+    assert not all(torch.equal(a[k], short.model.state_dict()[k]) for k in a)
+
+
+def test_resuming_from_a_state_of_other_settings_names_what_differs(registry, data, tmp_path):
+    state = tmp_path / "s.pt"
+    build(registry, "pointnet2").fit(data, FAST, state_file=state, state_every=1)
+    other = TrainConfig(epochs=2, batch_size=8, val_fraction=0.25, lr=5e-3)
+    with pytest.raises(ConfigError, match="other config"):
+        build(registry, "pointnet2").fit(data, other, state_file=state, resume=True)
+    (tmp_path / "junk.pt").write_bytes(b"not a state")
+    with pytest.raises(StorageError, match="not a readable gate training state"):
+        build(registry, "pointnet2").fit(data, FAST, state_file=tmp_path / "junk.pt", resume=True)
+
+
+def test_ges_train_gate_resume_after_a_kill_ends_as_an_unbroken_run(tmp_path, capsys, monkeypatch):
+    """The CLI: a run killed after its epoch-2 checkpoint, resumed with --resume, writes the same history,
+    summary accuracies and gate weights as a run that never stopped; --resume without a state starts over."""
+    from ges_core.cli import main
+    from ges_core.gating import train as train_module
+
+    matrix, _ = _matrix_file(tmp_path)
+    (tmp_path / "gate.yaml").write_text(CLI_CONFIG)
+    args = ["train-gate", str(matrix), "--config", str(tmp_path / "gate.yaml"), "--out"]
+    assert main([*args, str(tmp_path / "straight")]) == 0
+    real_log = train_module._log
+
+    def dying_log(writer, row):
+        real_log(writer, row)
+        if row["epoch"] == 3:
+            raise KeyboardInterrupt  # after epoch 3's curves, before its state: the state on disk is epoch 2's
+
+    monkeypatch.setattr(train_module, "_log", dying_log)
+    assert main([*args, str(tmp_path / "killed")]) == 130  # Ctrl-C's exit status
+    monkeypatch.setattr(train_module, "_log", real_log)
+    assert torch.load(tmp_path / "killed" / "train_state.pt", weights_only=True)["epoch"] == 2
+    assert main([*args, str(tmp_path / "killed"), "--resume"]) == 0
+    for name in ("history.json",):
+        assert (tmp_path / "killed" / name).read_text() == (tmp_path / "straight" / name).read_text()
+    done = [json.loads((tmp_path / d / "summary.json").read_text()) for d in ("straight", "killed")]
+    assert done[0]["accuracy"] == done[1]["accuracy"] and done[0]["kept_epoch"] == done[1]["kept_epoch"]
+    a, b = (torch.load(tmp_path / d / "gate.pt", weights_only=True)["state"] for d in ("straight", "killed"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    capsys.readouterr()
+    assert main([*args, str(tmp_path / "new"), "--resume"]) == 0  # nothing to resume: trains from epoch 1
+    assert json.loads((tmp_path / "new" / "history.json").read_text()) == json.loads(
+        (tmp_path / "straight" / "history.json").read_text()
+    )

@@ -15,8 +15,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         help="train a gate (curvenet, pointnet2, centroid) on an objects x experts success matrix",
         description="Trains an expert-selection gate: each object's point cloud (farthest-point samples, object "
         "frame) -> a distribution over the matrix's experts, fitted to the normalized success rates with the "
-        "paper's KL loss. Writes OUT/gate.pt (atomic checkpoints), OUT/tb (TensorBoard), OUT/history.json and "
-        "OUT/summary.json, and prints the gate accuracy per split. See docs/gating.md.",
+        "paper's KL loss. Writes OUT/gate.pt (atomic checkpoints), OUT/train_state.pt (what --resume continues "
+        "from), OUT/tb (TensorBoard), OUT/history.json and OUT/summary.json, and prints the gate accuracy per "
+        "split. See docs/gating.md.",
     )
     p.add_argument("matrix", type=Path, metavar="MATRIX", help="success matrix JSON written by ges eval-experts")
     p.add_argument("--dataset", type=Path, metavar="DIR", help="Stage 1 dataset whose library holds the objects "
@@ -28,6 +29,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--epochs", type=positive_int, metavar="N", help="training epochs (default: the config's)")
     p.add_argument("--seed", type=non_negative_int, metavar="N", help="seed of weights, split, batches, augmentation")
     p.add_argument("--no-augment", action="store_true", help="train on the clouds as sampled (no rotation/scaling)")
+    p.add_argument("--resume", action="store_true", help="continue a killed run from OUT/train_state.pt (written with "
+                   "each checkpoint); it ends as if it had never stopped")  # fmt: skip
     p.add_argument(
         "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
         help="override a TrainGateConfig value, e.g. train.lr=5e-4 or settings.k=20 (the gate plugin's settings)",
@@ -43,6 +46,6 @@ def run_gate_cmd(args: argparse.Namespace) -> int:
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
     config = config_from_args(args)
-    summary = train_gate_run(config, registry_from_args(args))
+    summary = train_gate_run(config, registry_from_args(args), resume=args.resume)
     print(summary.table())
     return 0

@@ -1,5 +1,8 @@
 """``ges train-gate``'s pipeline: matrix -> rates and clouds -> fitted gate -> checkpoint, curves, summary.
 
+A killed run continues with ``resume`` (``ges train-gate --resume``) from OUT/train_state.pt, written with each
+checkpoint: it ends with the weights and curves of a run that never stopped.
+
 Objects: the matrix's ``split`` rows (train by default) are the gate's data, of which ``val_fraction``
 is held out for validation; the matrix's other splits are scored too (unseen objects, unseen
 categories), never trained on. Clouds are sampled once per (object, size, seed) and cached in
@@ -105,8 +108,9 @@ def _pct(v: float) -> str:
     return "-" if v != v else f"{100 * v:.1f} %"
 
 
-def train_gate_run(config: TrainGateConfig, registry=None) -> GateRunSummary:
-    """Train the gate ``config`` describes; write OUT/gate.pt, tb/, history.json, summary.json."""
+def train_gate_run(config: TrainGateConfig, registry=None, *, resume: bool = False) -> GateRunSummary:
+    """Train the gate ``config`` describes; write OUT/gate.pt, train_state.pt, tb/, history.json, summary.json.
+    ``resume``: continue from OUT/train_state.pt (a state of other data or settings is a ConfigError)."""
     start = time.perf_counter()
     if registry is None:
         from ges_core.registry import load_registry
@@ -124,7 +128,15 @@ def train_gate_run(config: TrainGateConfig, registry=None) -> GateRunSummary:
         if epoch % config.checkpoint_every == 0:
             gate.save(checkpoint)
 
-    result = gate.fit(data, config.train, log_dir=out / "tb", on_epoch=on_epoch)
+    result = gate.fit(
+        data,
+        config.train,
+        log_dir=out / "tb",
+        on_epoch=on_epoch,
+        state_file=out / "train_state.pt",
+        state_every=config.checkpoint_every,
+        resume=resume,
+    )
     gate.save(checkpoint)
     atomic_write_text(out / "history.json", json.dumps(result.history, indent=1) + "\n")
     accuracy, counts = _accuracies(result, gate, matrix, library, n, config, out)

@@ -79,16 +79,29 @@ class TorchGate(Gate):
         *,
         log_dir: str | Path | None = None,
         on_epoch: Callable[[int, TrainResult], None] | None = None,
+        state_file: str | Path | None = None,
+        state_every: int = 5,
+        resume: bool = False,
     ) -> TrainResult:
         """Train a fresh network on ``data`` (clouds in metres, any size: brought to ``n_points``); the
-        experts become ``data.rates.experts``. Seeded by ``config.seed``."""
+        experts become ``data.rates.experts``. Seeded by ``config.seed``. ``state_file``, ``state_every``,
+        ``resume``: the resumable training state (:func:`ges_core.gating.train.train_model`)."""
         config = config or TrainConfig()
         ids = data.rates.object_ids
         clouds = gate_input(data.clouds, self.settings.n_points, ids) / self.settings.input_scale
         torch.manual_seed(config.seed)
         self.experts = data.rates.experts
         self.model = self.build_model(len(self.experts))
-        result = train_model(self.model, GateData(data.rates, clouds), config, log_dir=log_dir, on_epoch=on_epoch)
+        result = train_model(
+            self.model,
+            GateData(data.rates, clouds),
+            config,
+            log_dir=log_dir,
+            on_epoch=on_epoch,
+            state_file=state_file,
+            state_every=state_every,
+            resume=resume,
+        )
         self.train_info = {
             "config": config.model_dump(mode="json"),
             "summary": result.summary(),

@@ -6,6 +6,13 @@ the mean of these batch losses); then the loss and the gate accuracy of the trai
 objects, unaugmented, in eval mode (``loss/train_eval``, ``accuracy/train``, ``loss/val``, ``accuracy/val``).
 Repeatable on CPU:
 the same data, settings and seed give identical weights (torch's CPU kernels used here are deterministic).
+
+Resumable: with a ``state_file``, the whole training state (weights, optimizer, the batch and augmentation
+random stream, torch's global stream that dropout draws from, the best weights so far, the curves) is written
+there atomically every ``state_every`` epochs
+and after the last; ``resume=True`` continues from it, so a run killed and resumed ends with the same weights
+and curves as one that never stopped. A state written for other data or settings is refused, naming what
+differs.
 """
 
 from __future__ import annotations
@@ -23,10 +30,11 @@ import torch
 from pydantic import Field
 
 from ges_core.config import ConfigModel
-from ges_core.errors import ConfigError
+from ges_core.errors import ConfigError, StorageError
 from ges_core.gating.clouds import AugmentConfig, augment
 from ges_core.gating.data import SuccessRates, split_indices, targets
 from ges_core.gating.loss import gate_accuracy, kl_loss
+from ges_core.paths import atomic_write_bytes
 
 __all__ = ["GateData", "TrainConfig", "TrainResult", "train_model"]
 
@@ -98,12 +106,17 @@ def train_model(
     *,
     log_dir: str | Path | None = None,
     on_epoch: Callable[[int, TrainResult], None] | None = None,
+    state_file: str | Path | None = None,
+    state_every: int = 5,
+    resume: bool = False,
 ) -> TrainResult:
     """Train ``model`` (clouds (B, N, 3) in the gate's input units -> logits (B, k)) in place.
 
     ``data.clouds`` must already be in the model's input units. ``log_dir``: TensorBoard event files
-    there. ``on_epoch(epoch, result)`` after each epoch (checkpoints). Returns the split and the curves;
-    the model ends with the weights ``config.keep`` names.
+    there. ``on_epoch(epoch, result)`` after each epoch (checkpoints). ``state_file``: the training state
+    written there every ``state_every`` epochs and after the last (module docs); ``resume``: continue from
+    it (a missing file starts from scratch, saying so). Returns the split and the curves; the model ends
+    with the weights ``config.keep`` names.
     """
     kept, p = targets(data.rates, config.all_failed)
     train_rows, val_rows = (kept[i] for i in split_indices(len(kept), config.val_fraction, config.seed))
@@ -122,10 +135,21 @@ def train_model(
     )
     gen = torch.Generator().manual_seed(config.seed)
     optim = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
-    writer = _writer(log_dir)
-    best, best_loss = None, math.inf
+    best, best_loss, done = None, math.inf, 0
+    identity = _identity(config, data, train_rows, val_rows)
+    if resume and state_file is not None:
+        state = _read_state(Path(state_file), identity)
+        if state is not None:
+            model.load_state_dict(state["model"])
+            optim.load_state_dict(state["optim"])
+            gen.set_state(state["generator"])
+            torch.set_rng_state(state["torch_rng"])  # dropout draws from torch's global stream
+            best, best_loss, done = state["best"], state["best_loss"], state["epoch"]
+            result.history, result.kept_epoch = list(state["history"]), state["kept_epoch"]
+            log.info("resuming gate training after epoch %d of %d (%s)", done, config.epochs, state_file)
+    writer = _writer(log_dir, purge_step=done + 1 if done else None)
     try:
-        for epoch in range(1, config.epochs + 1):
+        for epoch in range(done + 1, config.epochs + 1):
             lr = _cosine_lr(config, epoch)
             for group in optim.param_groups:
                 group["lr"] = lr
@@ -142,6 +166,8 @@ def train_model(
             watched = row["loss/val"] if len(val_rows) else row["loss/train"]
             if config.keep == "last" or watched < best_loss:
                 best, best_loss, result.kept_epoch = copy.deepcopy(model.state_dict()), watched, epoch
+            if state_file is not None and (epoch % state_every == 0 or epoch == config.epochs):
+                _write_state(Path(state_file), identity, epoch, model, optim, gen, best, best_loss, result)
             if on_epoch is not None:
                 on_epoch(epoch, result)
     finally:
@@ -197,12 +223,75 @@ def _scores(model, data: GateData, target, rows: np.ndarray, split: str) -> dict
     }
 
 
-def _writer(log_dir: str | Path | None):
+STATE_FORMAT = "ges-gate-train-state"
+
+
+def _identity(config: TrainConfig, data: GateData, train_rows: np.ndarray, val_rows: np.ndarray) -> dict:
+    """What a resumed run must share with the one that wrote the state: settings (the epoch count aside: a
+    finished run may be extended), objects and their rates, experts, the split, the input clouds."""
+    return {
+        "config": config.model_dump(mode="json", exclude={"epochs"}),
+        "object_ids": list(data.rates.object_ids),
+        "experts": list(data.rates.experts),
+        "rates": np.asarray(data.rates.rates, dtype=np.float64).round(12).tolist(),
+        "train_rows": [int(i) for i in train_rows],
+        "val_rows": [int(i) for i in val_rows],
+        "clouds": [list(data.clouds.shape), float(data.clouds.double().sum()), float(data.clouds.double().abs().sum())],
+    }
+
+
+def _write_state(path: Path, identity: dict, epoch: int, model, optim, gen, best, best_loss, result) -> None:
+    import io
+
+    buffer = io.BytesIO()
+    torch.save(
+        {
+            "format": STATE_FORMAT,
+            "identity": identity,
+            "epoch": epoch,
+            "model": model.state_dict(),
+            "optim": optim.state_dict(),
+            "generator": gen.get_state(),
+            "torch_rng": torch.get_rng_state(),
+            "best": best,
+            "best_loss": best_loss,
+            "kept_epoch": result.kept_epoch,
+            "history": result.history,
+        },
+        buffer,
+    )
+    atomic_write_bytes(path, buffer.getvalue())
+
+
+def _read_state(path: Path, identity: dict) -> dict | None:
+    """The state at ``path`` if it was written for ``identity``; None (logged) when there is none; a ConfigError
+    naming what differs, or a StorageError for a file that is not a training state."""
+    if not path.is_file():
+        log.warning("no training state at %s: training from the first epoch", path)
+        return None
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # noqa: BLE001 - torch raises several types for a corrupt file
+        raise StorageError(f"{path} is not a readable gate training state ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(state, dict) or state.get("format") != STATE_FORMAT:
+        raise StorageError(f"{path} is not a gate training state (no format '{STATE_FORMAT}')")
+    differ = [k for k in identity if state["identity"].get(k) != identity[k]]
+    if differ:
+        raise ConfigError(
+            f"{path} was written by a gate training run with other {', '.join(differ)}; resume with the same "
+            "matrix, settings and seed, or train without --resume (or into another --out) to start over"
+        )
+    return state
+
+
+def _writer(log_dir: str | Path | None, purge_step: int | None = None):
+    """TensorBoard writer in ``log_dir`` (None: no logging); ``purge_step``: a resumed run's first epoch, so the
+    events a killed run wrote after its last saved state are dropped instead of doubled."""
     if log_dir is None:
         return None
     from torch.utils.tensorboard import SummaryWriter  # imported here: tensorboard is only needed to log
 
-    return SummaryWriter(log_dir=str(log_dir))
+    return SummaryWriter(log_dir=str(log_dir), purge_step=purge_step)
 
 
 def _log(writer, row: dict[str, float]) -> None:
