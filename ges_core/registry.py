@@ -124,6 +124,16 @@ class Registry:
         """Factory keyword arguments of one plugin: its spec's tuned defaults, then registry.yaml ``settings``."""
         return {**self.spec(kind, name).settings, **self.config.settings.get(kind, {}).get(name, {})}
 
+    def checked_settings(self, kind: str, name: str) -> dict[str, Any]:
+        """:meth:`settings` checked against the factory's signature, as building the plugin checks them (an
+        unknown key or a value of the wrong type is the same error), without building it. A plugin whose
+        requirements are missing cannot be loaded: its settings come back unchecked."""
+        spec = self.spec(kind, name)
+        settings = self.settings(kind, spec.name)
+        if spec.missing():
+            return settings
+        return _check_settings(spec, spec.load(), None, settings)
+
     def _kind(self, kind: str) -> dict[str, PluginSpec]:
         if kind not in self._specs:
             raise UnknownNameError("plugin kind", kind, self._specs)
@@ -210,14 +220,15 @@ def _callers_per_plugin(pm: pluggy.PluginManager, hook_name: str) -> list[tuple[
     return [(p, pm.subset_hook_caller(hook_name, [o for o in plugins if o is not p])) for p in plugins]
 
 
-def _check_settings(spec: PluginSpec, factory: Any, args: tuple, kwargs: dict[str, Any]) -> dict[str, Any]:
+def _check_settings(spec: PluginSpec, factory: Any, args: tuple | None, kwargs: dict[str, Any]) -> dict[str, Any]:
     """``kwargs`` checked against the factory's signature and converted to its annotations (as a config model's
-    fields are: a YAML list becomes a tuple); a setting that does not fit is one error naming its registry entry."""
+    fields are: a YAML list becomes a tuple); a setting that does not fit is one error naming its registry entry.
+    ``args``: the positional arguments of the call, or None to check the keywords alone (nothing is called)."""
     signature = _signature(factory)
     if signature is None:  # no signature to check (some builtins); the call will tell
         return kwargs
     try:
-        bound = signature.bind(*args, **kwargs)
+        bound = signature.bind_partial(**kwargs) if args is None else signature.bind(*args, **kwargs)
     except TypeError as exc:
         raise PluginError(
             f"{spec.kind} '{spec.name}' rejected its settings {sorted(kwargs)}: {exc}. "

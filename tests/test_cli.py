@@ -46,6 +46,20 @@ def test_info_shows_requirements_and_settings(capsys):
     assert code == 0 and "requires: sapien (installed)" in out and "settings: contact_offset=0.004" in out
 
 
+@pytest.mark.parametrize(
+    "setting, says",
+    [
+        ("solver_iterations=abc", "setting solver_iterations='abc' is not int | None"),
+        ("friction_anchors=3", "setting friction_anchors=3 is not bool"),
+        ("bogus=1", "unexpected keyword argument 'bogus'"),
+    ],
+)
+def test_info_refuses_a_bad_set_value_as_building_would(capsys, setting, says):
+    """`ges info` checks the settings against the factory (it used to print a bad --set value as if fine)."""
+    code, out, err = run(capsys, "--set", f"settings.sim.pybullet.{setting}", "info", "sim", "pybullet")
+    assert code == 1 and says in err and "settings.sim.pybullet" in err and "settings:" not in out
+
+
 def test_unknown_hand_is_one_line_with_known_names(capsys):
     code, out, err = run(capsys, "info", "hand", "shadwo")
     assert code == 1 and out == ""

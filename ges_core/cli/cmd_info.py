@@ -27,7 +27,7 @@ def run(args: argparse.Namespace) -> int:
         missing = spec.missing()
         state = f"missing {', '.join(missing)}: {spec.install}" if missing else "installed"
         print(f"  requires: {', '.join(spec.requires)} ({state})")
-    settings = registry.settings(args.kind, spec.name)
+    settings = registry.checked_settings(args.kind, spec.name)  # a bad --set value is an error here too
     print(f"  settings: {', '.join(f'{k}={v!r}' for k, v in settings.items()) or '(none)'}")
     if args.kind == "hand":
         hand = registry.build_hand(args.name)
