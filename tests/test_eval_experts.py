@@ -114,6 +114,22 @@ def test_the_oracle_is_the_best_expert_per_object(full):
     assert "| scripted (baseline) |" in text and "| low |" in text and "| oracle (best expert per object) |" in text
 
 
+def test_a_resumed_run_counts_the_cells_other_code_ran(full, dataset, tmp_path):
+    """Reused cells whose code stamp is not this code's are counted and named in the summary (not rerun)."""
+    report, _, _ = full
+    raw = json.loads(report.path.read_text())
+    oid = next(iter(raw["cells"]))
+    label = next(iter(raw["cells"][oid]))
+    raw["cells"][oid][label]["code"] = "0123456789ab"
+    copy = tmp_path / report.path.name
+    copy.write_text(json.dumps(raw))
+    experts = [parse_expert(e) for e in EXPERTS]
+    again = evaluate_experts(dataset, run_config(), experts, tmp_path, registry=InterruptingRegistry())
+    assert again.evaluated == 0 and again.reused_other_code == 1
+    assert "(1 run by other code than this" in again.summary()
+    assert "run by other code" not in report.summary()
+
+
 def test_a_killed_run_resumes_with_the_missing_cells(full, dataset, tmp_path):
     report, _, _ = full
     experts = [parse_expert(e) for e in EXPERTS]

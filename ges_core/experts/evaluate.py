@@ -81,6 +81,9 @@ class EvalReport:
     """Cells evaluated by this run."""
     reused: int = 0
     """Cells found in the file (resume)."""
+    reused_other_code: int = 0
+    """Of the reused cells, those another code version ran (another :func:`code_stamp`, or none): same settings,
+    but not necessarily the same episodes."""
     errors: list[str] = field(default_factory=list)
     """``object / expert: message`` per cell of this run whose object could not be set up or run."""
     seconds: float = 0.0
@@ -92,9 +95,16 @@ class EvalReport:
     def summary(self) -> str:
         """One line: cells evaluated and reused, errors, time, where the matrix is."""
         m = self.matrix
+        other = (
+            f" ({self.reused_other_code} run by other code than this, {code_stamp()}: delete them from the matrix "
+            "or use another --out to run them again)"
+            if self.reused_other_code
+            else ""
+        )
         return (
             f"{len(m.object_ids)} object(s) x {len(m.experts)} expert(s): {self.evaluated} cell(s) evaluated, "
-            f"{self.reused} reused; {len(self.errors)} cell(s) with errors; {self.seconds:.1f} s; matrix: {self.path}"
+            f"{self.reused} reused{other}; {len(self.errors)} cell(s) with errors; {self.seconds:.1f} s; "
+            f"matrix: {self.path}"
         )
 
 
@@ -141,6 +151,11 @@ def evaluate_experts(
     matrix.set_objects(records, clusters)
     todo = [(r, c) for r in records for c in choices if not matrix.has(r.object_id, c.label)]
     report = EvalReport(path, matrix.view(records, choices), reused=len(records) * len(choices) - len(todo))
+    report.reused_other_code = sum(
+        matrix.has(r.object_id, c.label) and matrix.data["cells"][r.object_id][c.label].get("code") != code_stamp()
+        for r in records
+        for c in choices
+    )
     matrix.write()
     if todo:
         _run_cells(data, registry, config, todo, matrix, report, progress, fanout or Fanout())
