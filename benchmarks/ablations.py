@@ -13,6 +13,7 @@ Each training run is ``ges train-expert`` in a subprocess (skipped when its run 
 the asked iterations: rerunning the script resumes), each evaluation ``ges eval-experts`` (resumable itself).
 
     python benchmarks/ablations.py --study reward [--iterations 150] [--action-mode residual] [--episodes 4]
+        [--scr-scale 4 10]   # more TSR+SCR arms, both penalty weights times each factor (tsr_scr_x4, ...)
     python benchmarks/ablations.py --study prior [--iterations 150] [--action-mode absolute]
 
 Results: ``benchmarks/results/ablation_<study>.json`` (+ ``ablation_prior.png``); runs under
@@ -31,6 +32,8 @@ import time
 from pathlib import Path
 
 import numpy as np
+
+from ges_core.env.reward import REWARD_PRESETS
 
 from _results import code_state, write_results
 
@@ -100,8 +103,22 @@ def reward_table(matrix_file: Path, arms: list[str]) -> list[dict]:
     return rows
 
 
+def scr_arms(scales: list[float]) -> dict[str, list[str]]:
+    """TSR+SCR arms with both penalty weights (ges_core/env/reward.py's ``tsr_scr`` preset) times each factor."""
+    base = REWARD_PRESETS["tsr_scr"]
+    return {
+        f"tsr_scr_x{m:g}": [
+            "reward_preset=custom",
+            f"env.reward.w_smooth={base.w_smooth * m:g}",
+            f"env.reward.w_consistency={base.w_consistency * m:g}",
+        ]
+        for m in scales
+    }
+
+
 def run_reward(args: argparse.Namespace) -> dict:
-    runs = {arm: train("reward", arm, o, args) for arm, o in REWARD_ARMS.items()}
+    arms = {**REWARD_ARMS, **scr_arms(args.scr_scale)}
+    runs = {arm: train("reward", arm, o, args) for arm, o in arms.items()}
     out = ROOT / "runs" / "ablations" / "reward" / "eval"
     cli = ["eval-experts", str(args.dataset), "--hand", "allegro", "--sim", "sapien", "--episodes", str(args.episodes),
            "--out", str(out), "--no-progress"]  # fmt: skip
@@ -191,6 +208,13 @@ def main() -> None:
         default=None,
         choices=("absolute", "residual"),
         help="default: residual for reward, absolute for prior (NoGoal has no residual base)",
+    )
+    parser.add_argument(
+        "--scr-scale",
+        type=float,
+        nargs="*",
+        default=[],
+        help="reward study: also train TSR+SCR with both penalty weights times each factor",
     )
     parser.add_argument("-o", action="append", default=[], dest="override", help="more TrainConfig overrides")
     args = parser.parse_args()  # fmt: skip
