@@ -9,10 +9,9 @@ the same data, settings and seed give identical weights (torch's CPU kernels use
 
 Resumable: with a ``state_file``, the whole training state (weights, optimizer, the batch and augmentation
 random stream, torch's global stream that dropout draws from, the best weights so far, the curves) is written
-there atomically every ``state_every`` epochs
-and after the last; ``resume=True`` continues from it, so a run killed and resumed ends with the same weights
-and curves as one that never stopped. A state written for other data or settings is refused, naming what
-differs.
+there atomically every ``state_every`` epochs and after the last; ``resume=True`` continues from it, so a run
+killed and resumed ends with the same weights and curves as one that never stopped. A state written for other
+data or settings is refused, naming what differs.
 """
 
 from __future__ import annotations

@@ -44,13 +44,7 @@ from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import ContactPair, SceneConfig, SimBackend
 
-from .checks import (
-    BLOWUP_HINT,
-    MAX_JOINT_SPEED,
-    drive_problems,
-    object_problem,
-    solver_iterations_setting,
-)
+from .checks import BLOWUP_HINT, MAX_JOINT_SPEED, drive_problems, object_problem, solver_iterations_setting
 from .contacts import contact_pairs, link_forces
 from .drive import product_friction
 from .engine import p
