@@ -1,4 +1,5 @@
-"""Lint checks of what a URDF from elsewhere brings: tip frames without geometry, mimic tags, mesh formats."""
+"""Lint checks of what a URDF from elsewhere brings: tip frames without geometry, mimic tags, mesh formats, link
+inertias no body of the link's mass and size can have."""
 
 from __future__ import annotations
 
@@ -19,7 +20,7 @@ from ges_core.lint.problems import LintProblem
 from ges_core.lint.urdf_tree import UrdfTree
 from ges_core.urdf import origin_matrix, parse_urdf
 
-__all__ = ["check_mesh_formats", "check_mimic", "check_tip_collision"]
+__all__ = ["check_inertia_bound", "check_mesh_formats", "check_mimic", "check_tip_collision"]
 
 COUPLING_TOL = 1e-6
 """Ratio/offset difference (rad) below which a declared coupling equals the URDF's mimic tag."""
@@ -170,3 +171,29 @@ def _mesh_problem(ref: str, path: Path, users: list[str]) -> LintProblem | None:
         f"run `ges hand prepare {ref}` (converts it to OBJ in the cache; both simulators load that), "
         "or export it as .obj/.stl",
     )
+
+
+# -- (d) inertias above what the link's mass and size allow ---------------------------------------
+def check_inertia_bound(hand: HandModel) -> list[LintProblem]:
+    """One note naming every link whose largest principal moment exceeds ``m R^2`` (``R``: the farthest point of
+    its geometry from its centre of mass), the most any body of that mass and size can have
+    (:func:`ges_core.hand_prep.inertia.implausible_inertias`). A note, not a problem: the engines load the tensors
+    as given, and replacing them by the geometry's made PyBullet hold fewer grasps on the one hand measured
+    (mani-skill's Ability: docs/hands/ability.md)."""
+    from ges_core.hand_prep.inertia import implausible_inertias
+
+    found = implausible_inertias(hand.urdf_text(), hand.urdf_path().parent)
+    if not found:
+        return []
+    ratios = [f.largest / f.bound for f in found]
+    links = ", ".join(f"'{f.link}' ({r:.0f}x)" for f, r in zip(found, ratios, strict=True))
+    what = (
+        f"{len(found)} link(s) have a largest moment of inertia above m R^2, the most a body of the link's mass and "
+        f"size can have: {links}"
+    )
+    fix = (
+        "check the <inertia> values' units (tensors computed with the mass in grams are 1000x too large); the "
+        "engines use them as given, and swapping in the geometry's tensors made PyBullet hold fewer grasps on the "
+        "Ability hand (docs/hands/ability.md), so measure before changing them"
+    )
+    return [LintProblem("inertia", what, fix, note=True)]

@@ -12,7 +12,8 @@ class LintProblem:
     """One finding: which check found it, what it is, how to fix it.
 
     ``note=True`` marks something the framework handles itself (a ``<mimic>`` tag that became a
-    coupling, a mesh already converted): printed, but ``ges hand lint`` still exits 0 for it.
+    coupling, a mesh already converted) or that the hand works with as given (an implausible inertia):
+    printed, but ``ges hand lint`` still exits 0 for it.
     """
 
     check: str

@@ -71,6 +71,7 @@ def lint_hand(
             problems += _guarded(name, lambda c=check: c(hand, tree, ref))
     if "inertia" not in skip:
         problems += checks_static.check_inertia(d, tree)
+        problems += _guarded("inertia", lambda: checks_assets.check_inertia_bound(hand))
     problems += _kinematic_checks(hand, problems, skip, ref)
     for sim_name in sims if make_sim is not None else ():
         problems += _sim_checks(hand, sim_name, make_sim, skip, probe)

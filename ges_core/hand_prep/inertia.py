@@ -10,8 +10,9 @@ the bound (the tensors look computed with the mass in grams): ``thumb_L2`` has 5
 Ability's tensors by :func:`implausible_inertias`' geometry tensors cured the grasps PyBullet dropped because a
 finger sank into the object (sphere/000, sphere/001, wedge) but broke five others (box/001, capsule, cube,
 cylinder, random_urdfs/002): with ~1e-6 kg m^2 links PyBullet's solver delivers 0.2-1.3 N m of a drive whose
-force limit is 195-377 N m, and the object slides out. Demo set: PyBullet 9/20 -> 7/20. The module stays as
-the check a linter can run (``implausible_inertias``) and as the measured record of what replacing does.
+force limit is 195-377 N m, and the object slides out. Demo set: PyBullet 9/20 -> 7/20. ``ges hand lint``
+reports what :func:`implausible_inertias` finds as a note (:func:`ges_core.lint.checks_assets.check_inertia_bound`);
+:func:`plausible_inertias` stays as the measured record of what replacing does.
 
 Links within the bound, links at most :data:`PLACEHOLDER_MOMENT` (deliberate placeholders) and links whose
 geometry cannot be read are not reported: no link of the built-in Allegro and Shadow hands is.

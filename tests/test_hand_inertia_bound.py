@@ -1,4 +1,5 @@
-"""The impossible-inertia check (plugins/sims/pybullet/inertia.py; not applied when loading, see its docs).
+"""The impossible-inertia check (ges_core/hand_prep/inertia.py; `ges hand lint` reports it as a note; not applied
+when loading, see its docs).
 
 Independent references: a box's inertia in closed form, the physical bound m R^2, the built-in hands' URDFs
 left byte for byte as they are."""
@@ -9,8 +10,8 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ges_core.hand_prep.inertia import PLACEHOLDER_MOMENT, implausible_inertias, plausible_inertias
 from ges_core.registry import load_registry
-from ges_plugins.sims.pybullet.inertia import PLACEHOLDER_MOMENT, implausible_inertias, plausible_inertias
 
 SIZE = np.array([0.04, 0.02, 0.01])
 """m, the test link's box."""
@@ -86,3 +87,17 @@ def test_ability_phalanges_are_far_over_the_bound(name):
         assert np.linalg.eigvalsh(fix.tensor).max() <= fix.bound  # the replacement is itself possible
         if fix.link in phalanges:
             assert fix.largest > 30 * fix.bound
+
+
+def test_lint_reports_the_ability_inertias_as_one_note_and_nothing_for_the_builtins():
+    """`ges hand lint` (lint_hand) names each implausible link with its factor in one note, which does not fail
+    the lint; the built-in hands get none."""
+    pytest.importorskip("ges_ability_hand")
+    from ges_core.lint import lint_hand
+    from ges_core.lint.checks_assets import check_inertia_bound
+
+    registry = load_registry()
+    found = lint_hand(registry.build_hand("ability"), skip=("hull-overlap",))
+    (note,) = [p for p in found if p.check == "inertia" and p.note]
+    assert "'thumb_L2' (182x)" in note.what and "'pinky_L1' (61x)" in note.what and "11 link(s)" in note.what
+    assert all(check_inertia_bound(registry.build_hand(name)) == [] for name in ("allegro", "shadow"))
