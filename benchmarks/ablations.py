@@ -17,8 +17,10 @@ the asked iterations: rerunning the script resumes), each evaluation ``ges eval-
     python benchmarks/ablations.py --study prior [--iterations 150] [--action-mode absolute]
 
 Results: ``benchmarks/results/ablation_<study>.json`` (+ ``ablation_prior.png``); runs under
-``runs/ablations/<study>/``. The scripted expert needs the goal in the observation, so the residual action mode
-cannot run the NoGoal arms of the prior study: that study uses the absolute (paper's) action.
+``runs/ablations/<study>/``. ``--seed N`` (N > 0) trains and evaluates in folders of their own (``<arm>-seedN``,
+``eval-seedN``) and writes ``ablation_<study>_seedN.json``: another seed never reuses seed 0's runs. The
+scripted expert needs the goal in the observation, so the residual action mode cannot run the NoGoal arms of the
+prior study: that study uses the absolute (paper's) action.
 """
 
 from __future__ import annotations
@@ -56,9 +58,14 @@ def ges(*args: str) -> None:
     subprocess.run(cmd, cwd=ROOT, check=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
 
 
+def _suffix(args: argparse.Namespace) -> str:
+    """'' for seed 0 (the runs and results as first written), else '-seed<N>': another seed never reuses them."""
+    return f"-seed{args.seed}" if args.seed else ""
+
+
 def train(study: str, arm: str, overrides: list[str], args: argparse.Namespace) -> Path:
-    """Train one arm (or reuse a finished run of the same budget); its run folder."""
-    out = ROOT / "runs" / "ablations" / study / arm
+    """Train one arm (or reuse a finished run of the same budget and seed); its run folder."""
+    out = ROOT / "runs" / "ablations" / study / f"{arm}{_suffix(args)}"
     summary = out / "summary.json"
     if summary.is_file() and json.loads(summary.read_text()).get("iterations", 0) >= args.iterations:
         print(f"{arm}: reusing {out.relative_to(ROOT)}", flush=True)
@@ -119,7 +126,7 @@ def scr_arms(scales: list[float]) -> dict[str, list[str]]:
 def run_reward(args: argparse.Namespace) -> dict:
     arms = {**REWARD_ARMS, **scr_arms(args.scr_scale)}
     runs = {arm: train("reward", arm, o, args) for arm, o in arms.items()}
-    out = ROOT / "runs" / "ablations" / "reward" / "eval"
+    out = ROOT / "runs" / "ablations" / "reward" / f"eval{_suffix(args)}"
     cli = ["eval-experts", str(args.dataset), "--hand", "allegro", "--sim", "sapien", "--episodes", str(args.episodes),
            "--out", str(out), "--no-progress"]  # fmt: skip
     for arm, run in runs.items():
@@ -139,7 +146,8 @@ def run_reward(args: argparse.Namespace) -> dict:
 def run_prior(args: argparse.Namespace) -> dict:
     runs = {arm: train("prior", arm, o, args) for arm, o in PRIOR_ARMS.items()}
     curves = {arm: _curve(history(run)) for arm, run in runs.items()}
-    _plot(curves, RESULTS / "ablation_prior.png", args)
+    picture = RESULTS / f"ablation_prior{_suffix(args).replace('-', '_')}.png"
+    _plot(curves, picture, args)
     print(f"\n{'arm':<14} {'env steps':>10} {'episodes':>9} {'success (last 20 %)':>20} {'best bin':>9}")
     for arm, c in curves.items():
         tail = c[-max(1, len(c) // 5) :]
@@ -148,7 +156,7 @@ def run_prior(args: argparse.Namespace) -> dict:
         best = max((b["success_paper"] for b in c if b["success_paper"] is not None), default=float("nan"))
         print(f"{arm:<14} {c[-1]['env_steps'] if c else 0:>10} {sum(b['episodes'] for b in c):>9} {rate:>20.3f} "
               f"{best:>9.3f}")  # fmt: skip
-    return {"curves": curves, "picture": str(RESULTS / "ablation_prior.png")}
+    return {"curves": curves, "picture": str(picture)}
 
 
 def _curve(rows: list[dict], size: int = 10) -> list[dict]:
@@ -225,8 +233,9 @@ def main() -> None:
     result = {"benchmark": f"ablation_{args.study}", "settings": settings, **body,
               "wall_seconds": round(time.perf_counter() - start, 1), "load_after": os.getloadavg()[0],
               "code": code_state()}  # fmt: skip
-    write_results(RESULTS / f"ablation_{args.study}.json", result)
-    print(f"\nwrote {RESULTS / f'ablation_{args.study}.json'} ({result['wall_seconds']} s)")
+    path = RESULTS / f"ablation_{args.study}{_suffix(args).replace('-', '_')}.json"
+    write_results(path, result)
+    print(f"\nwrote {path} ({result['wall_seconds']} s)")
 
 
 if __name__ == "__main__":
