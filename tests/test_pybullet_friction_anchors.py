@@ -42,7 +42,10 @@ def setup():
 def _shifted(setup, shift: np.ndarray):
     """``setup`` with the grasp and the pre-grasp wrist moved by ``shift`` (object frame, m)."""
     hand, cfg, obj, grasp, pre = setup
-    move = lambda g: Grasp(g.hand, g.wrist_pose + np.r_[shift, 0, 0, 0, 0], g.q)  # noqa: E731
+
+    def move(g: Grasp) -> Grasp:
+        return Grasp(g.hand, g.wrist_pose + np.r_[shift, 0, 0, 0, 0], g.q)
+
     return hand, cfg, obj, move(grasp), move(pre)
 
 
