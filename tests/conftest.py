@@ -10,6 +10,31 @@ REPO = Path(__file__).resolve().parent.parent
 """Repository root."""
 EXAMPLE_HAND_PKG = REPO / "tests" / "data" / "ges_example_hand"
 """Source of the third-party example hand plugin package."""
+ABILITY_PKG = REPO / "examples" / "ges-ability-hand" / "ges_ability_hand"
+"""Source of the Ability hand package (docs/tutorials/new-hand.md)."""
+
+
+def ability_hand():
+    """The Ability hand as ``examples/ges-ability-hand`` builds it, from that source whether or not the package is
+    installed (a fresh clone's suite does not install it); skips where mani-skill (its URDF) is missing."""
+    import importlib.util
+
+    pytest.importorskip("mani_skill")
+    spec = importlib.util.spec_from_file_location("_ges_ability_hand_source", ABILITY_PKG / "__init__.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.build_hand()
+
+
+@pytest.fixture(scope="module")
+def unprepared_hands(tmp_path_factory: pytest.TempPathFactory):
+    """A cache folder of the module's own, empty: hands load their URDF's own collision shapes, so a
+    ``ges hand prepare`` that another test ran in this process (decompositions are found through the cache) does
+    not change the hand a physics test checks."""
+    patch = pytest.MonkeyPatch()
+    patch.setenv("GES_CACHE_DIR", str(tmp_path_factory.mktemp("unprepared_cache")))
+    yield
+    patch.undo()
 
 
 @pytest.fixture(scope="session", autouse=True)

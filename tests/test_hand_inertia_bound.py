@@ -13,6 +13,8 @@ from scipy.spatial.transform import Rotation
 from ges_core.hand_prep.inertia import PLACEHOLDER_MOMENT, implausible_inertias, plausible_inertias
 from ges_core.registry import load_registry
 
+from conftest import ability_hand
+
 SIZE = np.array([0.04, 0.02, 0.01])
 """m, the test link's box."""
 MASS = 0.005
@@ -73,13 +75,11 @@ def test_builtin_hands_have_no_impossible_inertia(name):
     assert plausible_inertias(text, hand.urdf_path().parent) is text
 
 
-@pytest.mark.parametrize("name", ["ability"])
-def test_ability_phalanges_are_far_over_the_bound(name):
+def test_ability_phalanges_are_far_over_the_bound():
     """mani-skill's Ability URDF: every phalanx (and the palm) exceeds m R^2, the phalanges by more than 30x."""
-    pytest.importorskip("ges_ability_hand")
     from ges_core.hand_prep.engine_urdf import engine_urdf
 
-    hand = load_registry().build_hand(name)
+    hand = ability_hand()
     fixes = implausible_inertias(engine_urdf(hand.urdf_text(), hand.urdf_path().parent), hand.urdf_path().parent)
     phalanges = {f"{finger}_L{k}" for finger in ("thumb", "index", "middle", "ring", "pinky") for k in (1, 2)}
     assert phalanges <= {f.link for f in fixes}
@@ -92,12 +92,11 @@ def test_ability_phalanges_are_far_over_the_bound(name):
 def test_lint_reports_the_ability_inertias_as_one_note_and_nothing_for_the_builtins():
     """`ges hand lint` (lint_hand) names each implausible link with its factor in one note, which does not fail
     the lint; the built-in hands get none."""
-    pytest.importorskip("ges_ability_hand")
     from ges_core.lint import lint_hand
     from ges_core.lint.checks_assets import check_inertia_bound
 
     registry = load_registry()
-    found = lint_hand(registry.build_hand("ability"), skip=("hull-overlap",))
+    found = lint_hand(ability_hand(), skip=("hull-overlap",))
     (note,) = [p for p in found if p.check == "inertia" and p.note]
     assert "'thumb_L2' (182x)" in note.what and "'pinky_L1' (61x)" in note.what and "11 link(s)" in note.what
     assert all(check_inertia_bound(registry.build_hand(name)) == [] for name in ("allegro", "shadow"))

@@ -14,7 +14,9 @@ from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.physics.validate import ValidateConfig, validate_grasp
 from ges_core.synthesis.types import Grasp
 
-pytestmark = pytest.mark.sim
+from conftest import ability_hand
+
+pytestmark = [pytest.mark.sim, pytest.mark.usefixtures("unprepared_hands")]
 
 # procedural/sphere/000, ges synth --hands ability (seed 0, 2026-12-02): base poses in the object frame
 # (m, wxyz), joints in the hand's order (couplings applied by the validator).
@@ -26,10 +28,9 @@ PRE_Q = [-2.06923028, 0.0, 0.10860586, 0.8384587, 0.07188120, 0.79958517, 0.0, 0
 
 
 @pytest.fixture(scope="module")
-def setup():
-    pytest.importorskip("ges_ability_hand")
+def setup(unprepared_hands):
     registry = load_registry()
-    hand = registry.build_hand("ability")
+    hand = ability_hand()
     cfg = SynthesisConfig().for_hand("ability", hand.description.settings)
     obj = cfg.library.build().get("procedural/sphere/000")
     grasp = Grasp("ability", np.array(GRASP_POSE), np.array(GRASP_Q))

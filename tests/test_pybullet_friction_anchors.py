@@ -5,7 +5,9 @@ object squeezed between fingertips creeps out of the grasp during the lift and h
 (SAPIEN) keeps the anchor. A real Ability grasp of the demo set (procedural/can/000, ``ges synth --hands
 ability``, seed 0, 2026-12-02) that SAPIEN holds: PyBullet drops it without anchors and holds it with them, with
 the wrist placed as stored and 0.5 mm off along each axis (so the verdict is not one float path's: measured with
-shifts of 0.5 and 1 mm either way along each axis, 13 of 13 held with anchors, 0 of 13 without)."""
+shifts of 0.5 and 1 mm either way along each axis, 13 of 13 held with anchors, 0 of 13 without). The hand is the
+URDF's own collision shapes (``unprepared_hands``): with the palm and phalanges decomposed (``ges hand prepare``)
+PyBullet's verdicts are the same, but SAPIEN no longer holds this grasp."""
 
 from __future__ import annotations
 
@@ -18,7 +20,9 @@ from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.physics.validate import validate_grasp
 from ges_core.synthesis.types import Grasp
 
-pytestmark = pytest.mark.sim
+from conftest import ability_hand
+
+pytestmark = [pytest.mark.sim, pytest.mark.usefixtures("unprepared_hands")]
 
 # base poses in the object frame (m, wxyz), joints in the hand's order (couplings applied by the validator)
 GRASP_POSE = [-0.074452646, 0.118906833, 0.053505000, 0.711492888, 0.679417364, 0.163055522, 0.074718229]
@@ -29,9 +33,8 @@ PRE_Q = [-0.63227502, 0.12009092, 0.0, 0.72349796, 0.0, 0.72349796, 0.0, 0.72349
 
 
 @pytest.fixture(scope="module")
-def setup():
-    pytest.importorskip("ges_ability_hand")
-    hand = load_registry().build_hand("ability")
+def setup(unprepared_hands):
+    hand = ability_hand()
     cfg = SynthesisConfig().for_hand("ability", hand.description.settings)
     obj = cfg.library.build().get("procedural/can/000")
     grasp = Grasp("ability", np.array(GRASP_POSE), np.array(GRASP_Q))
