@@ -187,3 +187,28 @@ def test_library_needs_a_pipeline_run_config(dataset):
     bare = dataclasses.replace(dataset, manifest={**dataset.manifest, "run_config": {"hands": ["allegro"]}})
     with pytest.raises(ConfigError, match="run_config has no 'library' section"):
         library_for(bare)
+
+
+def test_the_hand_of_a_stage_2_command_comes_from_the_dataset_when_not_given(tmp_path, monkeypatch):
+    """No --hand: the dataset's only hand, else the registry's default if the dataset holds it, else an error naming
+    the dataset's hands; a given hand is used as given."""
+    import shutil
+
+    from ges_core.env import grasp_source
+    from ges_core.errors import ConfigError
+    from ges_core.registry import load_registry
+
+    registry = load_registry()
+    two = "tests/data/dataset_v2"  # allegro and shadow records
+    default = registry.default("hand")
+    assert default in ("allegro", "shadow") and grasp_source.dataset_hand(two, registry) == default
+    other = "allegro" if default == "shadow" else "shadow"
+    assert grasp_source.dataset_hand(two, registry, other) == other
+    only_other = tmp_path / "one_hand"
+    shutil.copytree(two, only_other)
+    for path in (only_other / "records" / default).glob("*"):
+        path.unlink()
+    assert grasp_source.dataset_hand(only_other, registry) == other
+    monkeypatch.setattr(registry, "default", lambda kind: "ability")
+    with pytest.raises(ConfigError, match=r"hands \['allegro', 'shadow'\] and not of the default hand 'ability'"):
+        grasp_source.dataset_hand(two, registry)

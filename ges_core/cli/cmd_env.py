@@ -45,13 +45,14 @@ def run_baseline_cmd(args: argparse.Namespace) -> int:
     from ges_core.cli import registry_from_args
     from ges_core.config import apply_overrides, parse_model
     from ges_core.env.evaluate import BaselineConfig, evaluate_baseline
+    from ges_core.env.grasp_source import dataset_hand
     from ges_core.experts.choice import parse_expert
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
 
     registry = registry_from_args(args)
-    hand = args.hand or registry.default("hand")
+    hand = dataset_hand(args.dataset, registry, args.hand)
     sim = args.sim or registry.default("sim")
     expert = parse_expert(args.expert)
     registry.spec("hand", hand), registry.spec("sim", sim), registry.spec("expert", expert.name)  # known names

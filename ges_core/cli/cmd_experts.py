@@ -44,7 +44,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def add_episode_options(p: argparse.ArgumentParser) -> None:
     """The options saying which episodes an evaluation runs (``ges env baseline``, ``ges eval-experts``): hand,
     simulator, which records give grasps, which splits."""
-    p.add_argument("--hand", metavar="NAME", help="hand (default: registry.yaml defaults.hand)")
+    p.add_argument(
+        "--hand", metavar="NAME", help="hand (default: the dataset's only hand, else registry.yaml defaults.hand)"
+    )
     p.add_argument("--sim", metavar="NAME", help="simulator of the episodes (default: registry.yaml defaults.sim)")
     p.add_argument(
         "--select",
@@ -77,10 +79,11 @@ def run_from_args(args: argparse.Namespace, registry, where: str) -> tuple[list[
     listing the known ones."""
     from ges_core.config import apply_overrides, parse_model
     from ges_core.env.evaluate import BaselineConfig
+    from ges_core.env.grasp_source import dataset_hand
     from ges_core.experts.choice import parse_expert
     from ges_core.experts.evaluate import RANDOMIZED
 
-    hand = args.hand or registry.default("hand")
+    hand = dataset_hand(args.dataset, registry, args.hand)
     sim = args.sim or registry.default("sim")
     experts = [parse_expert(text) for text in args.expert]
     registry.spec("hand", hand), registry.spec("sim", sim)

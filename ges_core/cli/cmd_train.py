@@ -23,7 +23,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--config", type=Path, metavar="YAML", help="a TrainConfig YAML over the preset")
     p.add_argument("--clusters", type=Path, metavar="JSON", help="cluster file (default: the one beside DATASET)")
     p.add_argument("--cluster", type=non_negative_int, metavar="K", help="the cluster this expert is for (default 0)")
-    p.add_argument("--hand", metavar="NAME", help="hand (default: the preset's, else registry.yaml defaults.hand)")
+    p.add_argument(
+        "--hand",
+        metavar="NAME",
+        help="hand (default: the preset's, else the dataset's only hand, else registry.yaml defaults.hand)",
+    )
     p.add_argument("--sim", metavar="NAME", help="simulator (default: the preset's, else registry.yaml defaults.sim)")
     p.add_argument("--envs", type=positive_int, metavar="N", help="parallel envs (default: the preset's)")
     p.add_argument(

@@ -69,6 +69,25 @@ def open_grasp_dataset(path: str | Path) -> Dataset:
     return open_dataset(root)
 
 
+def dataset_hand(path: str | Path, registry, given: str | None = None) -> str:
+    """The hand a Stage 2 command runs when ``--hand`` is not ``given``: the dataset's only hand, else the
+    registry's default hand if the dataset holds it; a ConfigError naming the dataset's hands otherwise. A given
+    hand is returned as is (a dataset without its records says so where the records are chosen)."""
+    if given:
+        return given
+    root = Path(path)
+    hands = sorted({e["hand"] for e in open_grasp_dataset(root).entries})
+    if len(hands) == 1:
+        return hands[0]
+    default = registry.default("hand")
+    if default in hands or not hands:
+        return default
+    raise ConfigError(
+        f"dataset {root} holds records of the hands {hands} and not of the default hand '{default}'; "
+        "choose one with --hand"
+    )
+
+
 def rejection(record: GraspRecord, selection: str) -> str:
     """Why ``record`` does not give a grasp under ``selection`` ('' when it does)."""
     _check_selection(selection)

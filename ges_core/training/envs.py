@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ges_core.env.grasp_env import EnvConfig, GraspEnv
 from ges_core.env.grasp_pool import GraspPool
-from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
+from ges_core.env.grasp_source import dataset_hand, library_for, open_grasp_dataset, select_records
 from ges_core.env.reward import reward_preset
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.env.workers import SubprocVecEnv
@@ -63,7 +63,7 @@ def training_pool(dataset_path: str | Path, hand, cfg: TrainConfig) -> tuple[Gra
 def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=None) -> TrainingSetup:
     """Pool, curriculum (``clusters``: a :class:`~ges_core.clustering.Clusters`; None only with the curriculum off
     and no ``objects``) and the vectorized env of a run."""
-    hand_name, sim_name = cfg.hand or registry.default("hand"), cfg.sim or registry.default("sim")
+    hand_name, sim_name = dataset_hand(dataset_path, registry, cfg.hand), cfg.sim or registry.default("sim")
     hand = registry.build_hand(hand_name)
     pool, rejected = training_pool(dataset_path, hand, cfg)
     curriculum = _curriculum(cfg, clusters, pool)
