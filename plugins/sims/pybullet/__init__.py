@@ -27,7 +27,7 @@ def ges_register_sims(register: Callable[[SimSpec], None]) -> None:
             # docs/simulators.md. registry.yaml's settings.sim.pybullet overrides it.
             # friction_anchors: the object's contacts keep their first point (PhysX-like static friction); a
             # squeezed object otherwise creeps out of the fingers (stored demo-set grasps re-validated: Ability
-            # 11 -> 16 of 19, Allegro 17 -> 18, Shadow 14 -> 14; docs/simulators.md "Friction anchors").
+            # 11 -> 16 of 19, Allegro 17 -> 17, Shadow 14 -> 14; docs/simulators.md "Friction anchors").
             settings={"solver_iterations": 100, "friction_anchors": True},
             renderer="ges_plugins.sims.pybullet.render:PybulletRenderer",
             description="PyBullet 3.2.7 on the CPU: one DIRECT client per scene, SAPIEN-like implicit PD drives",
