@@ -1,4 +1,4 @@
-"""Find link inertias that no body of the link's mass and size can have, and the geometry's tensor instead.
+"""Find link inertias that no body of the link's mass and size can have (``ges hand lint`` reports them).
 
 A body of mass ``m`` whose every point lies within ``R`` of its centre of mass has every moment of inertia
 about that centre at most ``m R^2`` (``I_k = sum m_i d_ik^2 <= sum m_i |d_i|^2 <= m R^2``). mani-skill's
@@ -6,13 +6,12 @@ Ability hand URDF (``ability_hand_right.urdf``, PSYONIC's values) breaks this on
 the bound (the tensors look computed with the mass in grams): ``thumb_L2`` has 5.5 g and a largest moment of
 1.8e-3 kg m^2, a radius of gyration of 0.57 m on a 7 cm link, whose bound is 9.9e-6 kg m^2.
 
-**Not applied when PyBullet loads a hand** (measured, 2026-12-02, ``docs/hands/assets.md``): replacing the
-Ability's tensors by :func:`implausible_inertias`' geometry tensors cured the grasps PyBullet dropped because a
-finger sank into the object (sphere/000, sphere/001, wedge) but broke five others (box/001, capsule, cube,
-cylinder, random_urdfs/002): with ~1e-6 kg m^2 links PyBullet's solver delivers 0.2-1.3 N m of a drive whose
-force limit is 195-377 N m, and the object slides out. Demo set: PyBullet 9/20 -> 7/20. ``ges hand lint``
-reports what :func:`implausible_inertias` finds as a note (:func:`ges_core.lint.checks_assets.check_inertia_bound`);
-:func:`plausible_inertias` stays as the measured record of what replacing does.
+Found, not replaced: replacing the Ability's tensors by their geometry's (a uniform convex hull of the link's
+collision shapes) cured the grasps PyBullet dropped because a finger sank into the object (sphere/000,
+sphere/001, wedge) but broke five others (box/001, capsule, cube, cylinder, random_urdfs/002): with ~1e-6 kg m^2
+links PyBullet's solver delivers 0.2-1.3 N m of a drive whose force limit is 195-377 N m, and the object slides
+out. Demo set: PyBullet 9/20 -> 7/20 (measured 2026-12-02, ``docs/hands/ability.md``). ``ges hand lint`` reports
+what :func:`implausible_inertias` finds as a note (:func:`ges_core.lint.checks_assets.check_inertia_bound`).
 
 Links within the bound, links at most :data:`PLACEHOLDER_MOMENT` (deliberate placeholders) and links whose
 geometry cannot be read are not reported: no link of the built-in Allegro and Shadow hands is.
@@ -26,12 +25,11 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 from ges_core.errors import AssetError
 from ges_core.urdf import parse_urdf
 
-__all__ = ["InertiaFix", "geometry_points", "implausible_inertias", "plausible_inertias"]
+__all__ = ["ImplausibleInertia", "geometry_points", "implausible_inertias"]
 
 BOUND_SLACK = 1e-6
 """Relative room above ``m R^2`` before a tensor counts as impossible: only rounding, the bound is exact."""
@@ -43,42 +41,20 @@ such regularised placeholders on purpose: the Shadow's ``thbase`` (10 g) and ``t
 
 
 @dataclass(frozen=True)
-class InertiaFix:
+class ImplausibleInertia:
     """One link whose file inertia exceeds what its mass and size allow."""
 
     link: str
     mass: float
-    """kg (the file's, kept)."""
+    """kg (the file's)."""
     largest: float
     """The file's largest principal moment, kg m^2."""
     bound: float
     """``m R^2``, kg m^2."""
-    tensor: np.ndarray
-    """(3, 3) replacement, kg m^2, in the frame of the link's ``<inertial><origin>``."""
 
 
-def plausible_inertias(text: str, base_dir: Path) -> str:
-    """``text`` with every impossible link inertia replaced by its geometry's (module docs: not used when loading
-    a hand into PyBullet); the same string if none is."""
-    fixes = implausible_inertias(text, base_dir)
-    if not fixes:
-        return text
-    root = parse_urdf(text)
-    by_link = {f.link: f for f in fixes}
-    for link in root.findall("link"):
-        fix = by_link.get(link.get("name"))
-        if fix is None:
-            continue
-        node = link.find("inertial").find("inertia")
-        t = fix.tensor
-        values = {"ixx": t[0, 0], "iyy": t[1, 1], "izz": t[2, 2], "ixy": t[0, 1], "ixz": t[0, 2], "iyz": t[1, 2]}
-        for key, value in values.items():
-            node.set(key, repr(float(value)))
-    return ET.tostring(root, encoding="unicode")
-
-
-def implausible_inertias(text: str, base_dir: Path) -> list[InertiaFix]:
-    """Every link of the URDF ``text`` whose inertia exceeds ``m R^2``, with the tensor that replaces it.
+def implausible_inertias(text: str, base_dir: Path) -> list[ImplausibleInertia]:
+    """Every link of the URDF ``text`` whose largest principal moment exceeds ``m R^2``.
 
     base_dir: the folder relative mesh names start from (absolute names ignore it).
     """
@@ -90,18 +66,17 @@ def implausible_inertias(text: str, base_dir: Path) -> list[InertiaFix]:
         mass = float(inertial.find("mass").get("value", "0")) if inertial.find("mass") is not None else 0.0
         if mass <= 0:
             continue
-        com, rotation = _origin(inertial.find("origin"))
-        tensor = _tensor(inertial.find("inertia"))
+        origin = inertial.find("origin")
+        com = np.array(origin.get("xyz", "0 0 0").split(), dtype=float) if origin is not None else np.zeros(3)
+        largest = float(np.linalg.eigvalsh(_tensor(inertial.find("inertia"))).max())  # any frame: eigenvalues
+        if largest <= PLACEHOLDER_MOMENT:
+            continue
         points = geometry_points(link, base_dir, ("collision", "visual"))
         if points is None:
             continue
         bound = mass * float(np.max(np.sum((points - com) ** 2, axis=1)))
-        largest = float(np.linalg.eigvalsh(tensor).max())
-        if largest <= max(bound * (1 + BOUND_SLACK), PLACEHOLDER_MOMENT):
-            continue
-        hull_points = geometry_points(link, base_dir, ("collision",))
-        replacement = _hull_tensor(hull_points, mass, com)
-        out.append(InertiaFix(link.get("name"), mass, largest, bound, rotation.T @ replacement @ rotation))
+        if largest > bound * (1 + BOUND_SLACK):
+            out.append(ImplausibleInertia(link.get("name"), mass, largest, bound))
     return out
 
 
@@ -130,23 +105,6 @@ def geometry_points(link: ET.Element, base_dir: Path, kinds: tuple[str, ...]) ->
     if len(shapes) != len(elements):
         return None
     return np.concatenate([np.asarray(s.mesh.vertices, dtype=np.float64) for s in shapes])
-
-
-def _hull_tensor(points: np.ndarray, mass: float, com: np.ndarray) -> np.ndarray:
-    """(3, 3) inertia about ``com`` (link frame) of the convex hull of ``points`` filled uniformly with ``mass``."""
-    import trimesh
-
-    hull = trimesh.convex.convex_hull(points)
-    centred = hull.moment_inertia * (mass / hull.volume)  # trimesh: density 1, about the hull's centroid
-    d = com - hull.center_mass
-    return centred + mass * (float(d @ d) * np.eye(3) - np.outer(d, d))
-
-
-def _origin(node: ET.Element | None) -> tuple[np.ndarray, np.ndarray]:
-    """Position (3,) and rotation (3, 3) of an ``<origin>`` (URDF rpy: fixed axes x, y, z)."""
-    xyz = np.array(node.get("xyz", "0 0 0").split(), dtype=float) if node is not None else np.zeros(3)
-    rpy = np.array(node.get("rpy", "0 0 0").split(), dtype=float) if node is not None else np.zeros(3)
-    return xyz, Rotation.from_euler("xyz", rpy).as_matrix()
 
 
 def _tensor(node: ET.Element) -> np.ndarray:
