@@ -44,6 +44,7 @@ __all__ = [
     "RANDOMIZED",
     "EvalReport",
     "cell_config",
+    "cells_by_other_code",
     "check_stored_run",
     "code_stamp",
     "column_identity",
@@ -151,11 +152,7 @@ def evaluate_experts(
     matrix.set_objects(records, clusters)
     todo = [(r, c) for r in records for c in choices if not matrix.has(r.object_id, c.label)]
     report = EvalReport(path, matrix.view(records, choices), reused=len(records) * len(choices) - len(todo))
-    report.reused_other_code = sum(
-        matrix.has(r.object_id, c.label) and matrix.data["cells"][r.object_id][c.label].get("code") != code_stamp()
-        for r in records
-        for c in choices
-    )
+    report.reused_other_code = cells_by_other_code(matrix.data["cells"], records, [c.label for c in choices])
     matrix.write()
     if todo:
         _run_cells(data, registry, config, todo, matrix, report, progress, fanout or Fanout())
@@ -286,6 +283,16 @@ def matrix_cell(row: dict) -> dict:
     cell = {"episodes": row["envs"], "paper": row["paper_success"], "peers": row["peers_success"]}
     cell |= {k: row[k] for k in ("end_reasons", "max_rise", "steps", "metrics", "seconds") if k in row}
     return cell | ({"error": row["error"]} if "error" in row else {}) | {"code": code_stamp()}
+
+
+def cells_by_other_code(cells: dict, records, labels) -> int:
+    """How many of the ``cells`` (a matrix file's: object id -> label -> cell) of ``records`` x ``labels`` another
+    code version ran (another :func:`code_stamp`, or none)."""
+    stamp = code_stamp()
+    return sum(
+        1 for r in records for label in labels
+        if (c := cells.get(r.object_id, {}).get(label)) is not None and c.get("code") != stamp
+    )  # fmt: skip
 
 
 @functools.lru_cache(maxsize=1)

@@ -33,6 +33,7 @@ from ges_core.errors import ConfigError
 from ges_core.experts.choice import ExpertChoice
 from ges_core.experts.evaluate import (
     cell_config,
+    cells_by_other_code,
     code_stamp,
     column_identity,
     evaluate_experts,
@@ -137,7 +138,7 @@ def evaluate_ges(
     report = GesReport(results.path, mfile, Table2(), mreport.matrix, picks)
     report.matrix_evaluated, report.matrix_reused = mreport.evaluated, mreport.reused
     matrix_cells = read_matrix_json(mfile).get("cells", {})  # the file as evaluate_experts left it, read once
-    report.matrix_other_code = _other_code(matrix_cells, records, columns)
+    report.matrix_other_code = cells_by_other_code(matrix_cells, records, columns)
     todo = _todo(records, picks, results, report, reuse_matrix)
     if reuse_matrix:
         todo = _take_from_matrix(todo, matrix_cells, results, report)
@@ -212,15 +213,6 @@ def _take_from_matrix(todo: list[tuple], cells: dict, results: ResultsFile, repo
         results.put(r.object_id, label, {**cell, "source": "matrix"})
         report.from_matrix += 1
     return rest
-
-
-def _other_code(cells: dict, records, columns: dict) -> int:
-    """How many matrix cells of ``records`` x ``columns`` another code version ran (or carry no stamp)."""
-    stamp = code_stamp()
-    return sum(
-        1 for r in records for label in columns
-        if (c := cells.get(r.object_id, {}).get(label)) is not None and c.get("code") != stamp
-    )  # fmt: skip
 
 
 def _run(data, registry, config, choices: dict[str, ExpertChoice], todo, results, report, progress, fanout) -> None:
