@@ -36,6 +36,9 @@ from pathlib import Path
 import numpy as np
 
 from ges_core.env.reward import REWARD_PRESETS
+from ges_core.experts.matrix import load_matrix
+from ges_core.experts.table import split_rates
+from ges_core.objects.splits import SPLITS
 
 from _results import code_state, write_results
 
@@ -86,26 +89,24 @@ def history(run: Path) -> list[dict]:
 
 
 def reward_table(matrix_file: Path, arms: list[str]) -> list[dict]:
-    """Per column of the matrix: success rates and the mean Table 3 metrics over every episode of every split."""
-    data = json.loads(matrix_file.read_text())
+    """Per column of the matrix: success rates (ges_core.experts.table.split_rates: every episode pooled) and the
+    mean and median Table 3 metrics over every episode of every split."""
+    data, m = json.loads(matrix_file.read_text()), load_matrix(matrix_file)  # the metrics are in the raw cells
+    overall = {p: split_rates(m, p) for p in ("paper", "peers")}
+    by_split = {s: split_rates(m, "paper", s) for s in sorted(SPLITS)}
     rows = []
-    for label in [*arms, data["baseline"]]:
-        cells = [c[label] for c in data["cells"].values() if label in c]
-        episodes = sum(c["episodes"] for c in cells)
-        row = {"expert": label, "objects": len(cells), "episodes": episodes}
-        row["success_paper"] = round(sum(c["paper"] for c in cells) / max(episodes, 1), 3)
-        row["success_peers"] = round(sum(c["peers"] for c in cells) / max(episodes, 1), 3)
-        per_split: dict[str, list[int]] = {}
-        for oid, obj in data["objects"].items():
-            cell = data["cells"].get(oid, {}).get(label)
-            if cell:
-                s = per_split.setdefault(obj["split"], [0, 0])
-                s[0], s[1] = s[0] + cell["paper"], s[1] + cell["episodes"]
-        row["success_paper_by_split"] = {k: round(v[0] / v[1], 3) for k, v in sorted(per_split.items()) if v[1]}
-        for name in METRICS:
-            values = [v for c in cells for v in c.get("metrics", {}).get(name, []) if v is not None]
-            row[name] = round(float(np.mean(values)), 2) if values else None
-            row[f"{name}_median"] = round(float(np.median(values)), 2) if values else None
+    for label in [*arms, m.baseline]:
+        j = m.experts.index(label)
+        row = {"expert": label, "objects": int((m.episodes[:, j] > 0).sum()), "episodes": int(m.episodes[:, j].sum())}
+        row |= {f"success_{p}": round(overall[p][label] or 0.0, 3) for p in overall}
+        row["success_paper_by_split"] = {s: round(r[label], 3) for s, r in by_split.items() if r[label] is not None}
+        values = {name: [] for name in METRICS}
+        for cell in (c[label] for c in data["cells"].values() if label in c):
+            for name in METRICS:
+                values[name] += [v for v in cell.get("metrics", {}).get(name, []) if v is not None]
+        for name, v in values.items():
+            row[name] = round(float(np.mean(v)), 2) if v else None
+            row[f"{name}_median"] = round(float(np.median(v)), 2) if v else None
         rows.append(row)
     return rows
 
