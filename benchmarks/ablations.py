@@ -34,6 +34,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from tiny_expert import bins
 
 from ges_core.env.reward import REWARD_PRESETS
 from ges_core.experts.matrix import load_matrix
@@ -140,13 +141,13 @@ def run_reward(args: argparse.Namespace) -> dict:
         print(f"{r['expert']:<10} {r['episodes']:>8} {r['success_paper']:>6.3f} {r['success_peers']:>6.3f} "
               f"{_num(r['arm_oscillation']):>9} {_num(r['hand_oscillation']):>9} {_num(r['fdc']):>8}   "
               f"{r['success_paper_by_split']}")  # fmt: skip
-    curves = {arm: _curve(history(run)) for arm, run in runs.items()}
+    curves = {arm: bins(history(run), 10) for arm, run in runs.items()}
     return {"rows": rows, "curves": curves, "matrix": str(out / "matrix-allegro-sapien.json")}
 
 
 def run_prior(args: argparse.Namespace) -> dict:
     runs = {arm: train("prior", arm, o, args) for arm, o in PRIOR_ARMS.items()}
-    curves = {arm: _curve(history(run)) for arm, run in runs.items()}
+    curves = {arm: bins(history(run), 10) for arm, run in runs.items()}
     picture = RESULTS / f"ablation_prior{_suffix(args).replace('-', '_')}.png"
     _plot(curves, picture, args)
     print(f"\n{'arm':<14} {'env steps':>10} {'episodes':>9} {'success (last 20 %)':>20} {'best bin':>9}")
@@ -158,21 +159,6 @@ def run_prior(args: argparse.Namespace) -> dict:
         print(f"{arm:<14} {c[-1]['env_steps'] if c else 0:>10} {sum(b['episodes'] for b in c):>9} {rate:>20.3f} "
               f"{best:>9.3f}")  # fmt: skip
     return {"curves": curves, "picture": str(picture)}
-
-
-def _curve(rows: list[dict], size: int = 10) -> list[dict]:
-    """Success (paper protocol) per bin of ``size`` iterations, against env steps at the bin's end."""
-    out = []
-    for start in range(0, len(rows), size):
-        chunk = rows[start : start + size]
-        episodes = sum(r["episodes"] for r in chunk)
-        wins = sum(round((r["success_paper"] or 0) * r["episodes"]) for r in chunk)
-        rewards = [r["mean_reward"] for r in chunk if r.get("mean_reward") is not None]
-        out.append({"env_steps": chunk[-1]["env_steps"], "seconds": chunk[-1]["seconds"], "stage": chunk[-1]["stage"],
-                    "episodes": episodes, "successes": wins,
-                    "success_paper": round(wins / episodes, 3) if episodes else None,
-                    "mean_reward": round(float(np.mean(rewards)), 2) if rewards else None})  # fmt: skip
-    return out
 
 
 def _plot(curves: dict, path: Path, args: argparse.Namespace) -> None:

@@ -74,18 +74,21 @@ def read_matrix(path: Path) -> dict:
 
 
 def bins(rows: list[dict], size: int) -> list[dict]:
-    """Per ``size`` iterations: episodes, success (paper, peers) over those episodes, stage at the end, env steps."""
+    """Per ``size`` iterations of a run's history.jsonl: episodes, successes (paper protocol), success (paper,
+    peers) over those episodes, mean episode reward, stage at the end, env steps (also benchmarks/ablations.py)."""
     out = []
     for start in range(0, len(rows), size):
         chunk = rows[start : start + size]
         episodes = sum(r["episodes"] for r in chunk)
         paper = sum(round((r["success_paper"] or 0) * r["episodes"]) for r in chunk)
         peers = sum(round((r["success_peers"] or 0) * r["episodes"]) for r in chunk)
+        rewards = [r["mean_reward"] for r in chunk if r.get("mean_reward") is not None]
         out.append({
             "iterations": f"{chunk[0]['iteration']}-{chunk[-1]['iteration']}", "env_steps": chunk[-1]["env_steps"],
-            "seconds": chunk[-1]["seconds"], "stage": chunk[-1]["stage"], "episodes": episodes,
+            "seconds": chunk[-1]["seconds"], "stage": chunk[-1]["stage"], "episodes": episodes, "successes": paper,
             "success_paper": round(paper / episodes, 3) if episodes else None,
             "success_peers": round(peers / episodes, 3) if episodes else None,
+            "mean_reward": round(float(sum(rewards) / len(rewards)), 2) if rewards else None,
         })  # fmt: skip
     return out
 
