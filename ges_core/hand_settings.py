@@ -1,4 +1,5 @@
-"""Per-hand Stage 1 settings: a hand's YAML ``settings:`` section and a run's ``hand_settings``.
+"""Per-hand settings: a hand's YAML ``settings:`` section (Stage 1, ``ges sim check``, Stage 2 training) and a
+run's ``hand_settings``.
 
 A hand carries the Stage 1 settings that depend on the hand (how hard its fingertips must squeeze, which
 object widths its thumb and fingers span, how many fingertips must touch, ...) as *partial* sections of the
@@ -18,6 +19,15 @@ Precedence, lowest first (each layer replaces only the keys it names; nested sec
 :meth:`ges_core.synthesis.SynthesisConfig.for_hand` applies the three; the Stage 1 worker builds every step's
 config of a hand from its result, and the Stage 2 scripted expert reads the hand's squeeze the same way
 (:func:`hand_validate_config`). A hand that sets nothing runs with the run config unchanged.
+
+Two sections are not Stage 1's and never reach its config: ``sim_check`` (how ``ges sim check`` closes the hand,
+:func:`hand_sim_check_config`) and ``train`` (Stage 2 training values that depend on the hand, :data:`TRAIN_FIELDS`,
+:func:`hand_train_config`), e.g. the residual expert's action scale of a hand with stiff drives::
+
+    settings:
+      train: {residual_scale: 0.02}
+
+Both fill only what the run did not set itself (a preset, ``--config`` or ``-o`` value wins).
 
 Each section is checked against the real config model (unknown keys, wrong types and out-of-range values
 rejected, with the dotted path). The models are imported only when a hand has settings: they pull in torch.
@@ -42,8 +52,11 @@ __all__ = [
     "SECTIONS",
     "SIM_CHECK",
     "SIM_CHECK_FIELDS",
+    "TRAIN",
+    "TRAIN_FIELDS",
     "check_settings",
     "hand_sim_check_config",
+    "hand_train_config",
     "hand_validate_config",
     "merge_settings",
     "stage1_settings",
@@ -57,6 +70,13 @@ SIM_CHECK = "sim_check"
 """The one section that is not Stage 1's: how ``ges sim check`` closes this hand (:data:`SIM_CHECK_FIELDS`)."""
 SIM_CHECK_FIELDS = ("closure", "settle_steps", "close_steps", "lift_steps", "lift_height")
 """:class:`~ges_core.sim_check.SimCheckConfig` fields a hand may set (how far and how its fingers close)."""
+TRAIN = "train"
+"""The Stage 2 section: :class:`~ges_core.training.TrainConfig` values of this hand (:data:`TRAIN_FIELDS`)."""
+TRAIN_FIELDS = ("residual_scale",)
+""":class:`~ges_core.training.TrainConfig` fields a hand may set: ``residual_scale``, the residual expert's action
+scale (rad per unit of policy output; a stiff PD hand needs a small one: docs/training.md, 'What is trained')."""
+NOT_STAGE1 = (SIM_CHECK, TRAIN)
+"""Sections of a hand's settings that do not layer over the Stage 1 run config."""
 
 
 def _models() -> dict[str, type]:
@@ -86,7 +106,7 @@ def check_settings(data: object, where: str) -> dict[str, Any]:
     """
     if data is None:
         return {}
-    allowed = SECTIONS + SCALARS + (SIM_CHECK,)
+    allowed = SECTIONS + SCALARS + NOT_STAGE1
     if not isinstance(data, Mapping):
         raise ConfigError(f"{where}: must be a mapping of sections ({', '.join(allowed)}), got {data!r}")
     problems = [f"{where}.{key}: unknown section (known: {', '.join(allowed)})" for key in data if key not in allowed]
@@ -96,6 +116,8 @@ def check_settings(data: object, where: str) -> dict[str, Any]:
             problems += _section_problems(models[key], value, f"{where}.{key}")
     if SIM_CHECK in data:
         problems += _sim_check_problems(data[SIM_CHECK], f"{where}.{SIM_CHECK}")
+    if TRAIN in data:
+        problems += _train_problems(data[TRAIN], f"{where}.{TRAIN}")
     if "thumb_keep" in data:
         keep = data["thumb_keep"]
         if isinstance(keep, bool) or not isinstance(keep, int) or keep < 0:
@@ -127,9 +149,20 @@ def _sim_check_problems(value: object, where: str) -> list[str]:
     return problems or _section_problems(SimCheckConfig, value, where)
 
 
+def _train_problems(value: object, where: str) -> list[str]:
+    """Problems of a hand's ``train`` section: only :data:`TRAIN_FIELDS`, each valid for TrainConfig."""
+    from ges_core.training.config import TrainConfig
+
+    if not isinstance(value, Mapping):
+        return [f"{where}: must be a mapping of {', '.join(TRAIN_FIELDS)}, got {value!r}"]
+    known = ", ".join(TRAIN_FIELDS)
+    problems = [f"{where}.{k}: not a per-hand field (known: {known})" for k in value if k not in TRAIN_FIELDS]
+    return problems or _section_problems(TrainConfig, value, where)
+
+
 def stage1_settings(settings: Mapping | None) -> dict:
-    """A hand's settings without the ``sim_check`` section: what layers over the Stage 1 run config."""
-    return {k: v for k, v in (settings or {}).items() if k != SIM_CHECK}
+    """A hand's settings without the ``sim_check`` and ``train`` sections: what layers over the Stage 1 run config."""
+    return {k: v for k, v in (settings or {}).items() if k not in NOT_STAGE1}
 
 
 def hand_sim_check_config(description: HandDescription, config):
@@ -143,6 +176,20 @@ def hand_sim_check_config(description: HandDescription, config):
 
     data = merge_settings(config.model_dump(mode="json"), update)
     return parse_model(type(config), data, where=f"hand '{description.name}' settings.sim_check")
+
+
+def hand_train_config(description: HandDescription, config):
+    """``config`` (a :class:`~ges_core.training.TrainConfig`) with the hand's ``settings.train`` taking every
+    field the run did not set (a preset, ``--config`` or ``-o`` value wins; a resumed run's stored config sets
+    every field, so it keeps its own). Returns ``config`` itself when the hand sets nothing new."""
+    section = description.settings.get(TRAIN) or {}
+    update = {k: v for k, v in section.items() if k not in config.model_fields_set}
+    if not update:
+        return config
+    from ges_core.config import parse_model
+
+    data = merge_settings(config.model_dump(mode="json", exclude_unset=True), update)
+    return parse_model(type(config), data, where=f"hand '{description.name}' settings.train")
 
 
 def merge_settings(base: Mapping, *layers: Mapping | None) -> dict:

@@ -9,7 +9,7 @@ import pytest
 from ges_core.config import parse_model
 from ges_core.dataset import open_dataset
 from ges_core.errors import AssetError, ConfigError, UnknownNameError
-from ges_core.hand_settings import hand_sim_check_config, hand_validate_config, merge_settings
+from ges_core.hand_settings import hand_sim_check_config, hand_train_config, hand_validate_config, merge_settings
 from ges_core.hand_yaml import description_from_yaml
 from ges_core.synthesis import SynthesisConfig, ValidateConfig, run_synthesis
 from ges_core.synthesis.run import worker
@@ -56,6 +56,9 @@ def test_yaml_settings_are_read_and_kept_partial():
         ("settings: {validate: 3}", "settings.validate"),
         ("settings: {sim_check: {closure: 1.5}}", "settings.sim_check.closure"),
         ("settings: {sim_check: {hand: shadow}}", "settings.sim_check.hand"),
+        ("settings: {train: {residual_scale: 0}}", "settings.train.residual_scale"),
+        ("settings: {train: {num_envs: 4}}", "settings.train.num_envs"),
+        ("settings: {train: 0.02}", "settings.train"),
     ],
 )
 def test_bad_yaml_settings_name_the_file_and_the_dotted_path(settings, path):
@@ -193,3 +196,25 @@ def test_a_hands_sim_check_closure_is_used_unless_the_command_gives_one():
     assert hand_sim_check_config(_allegro(), SimCheckConfig()) == SimCheckConfig()
     stage1 = SynthesisConfig().for_hand("allegro_test", d.settings)
     assert stage1.validate_.min_tips == 3
+
+
+def test_a_hands_train_settings_fill_only_what_the_run_leaves_unset():
+    """``settings.train`` gives Stage 2 a hand's residual scale; a preset, --config or -o value wins, a resumed run's
+    stored config keeps its own, Stage 1 ignores the section and the dataset hash does not see it."""
+    from ges_core.dataset.hands import describe_hand
+    from ges_core.training.config import TrainConfig, load_train_config
+
+    d = _allegro("\nsettings: {train: {residual_scale: 0.02}, validate: {min_tips: 3}}\n")
+    mine = hand_train_config(d, load_train_config("tiny", overrides=["action_mode=residual"]))
+    assert mine.residual_scale == 0.02 and mine.action_mode == "residual" and mine.preset == "tiny"
+    assert mine.num_envs == load_train_config("tiny").num_envs  # the rest of the preset as it was
+    given = hand_train_config(d, load_train_config("tiny", overrides=["residual_scale=0.1"]))
+    assert given.residual_scale == 0.1
+    stored = TrainConfig.model_validate(TrainConfig().model_dump(mode="json"))  # how a resumed run rebuilds it
+    assert hand_train_config(d, stored).residual_scale == TrainConfig().residual_scale
+    plain = load_train_config("tiny")
+    assert hand_train_config(_allegro(), plain) is plain
+    assert SynthesisConfig().for_hand("allegro_test", d.settings).validate_.min_tips == 3
+    without = _allegro("\nsettings: {validate: {min_tips: 3}}\n")
+    assert describe_hand(d) == describe_hand(without)  # no record changes with it: datasets keep the hand
+    assert describe_hand(d) != describe_hand(_allegro("\nsettings: {validate: {min_tips: 4}}\n"))

@@ -163,6 +163,20 @@ def test_residual_mode_starts_at_the_scripted_expert(tmp_path, clusters) -> None
     env.close()
 
 
+def test_a_hands_residual_scale_reaches_the_run_unless_the_run_sets_one(tmp_path, clusters) -> None:
+    """The hand YAML's ``settings.train.residual_scale`` is what the run trains and stores (summary, the checkpoint
+    the PPO expert reads its scale from); the run's own -o value wins over it."""
+    hand_scale = ("settings.hand.allegro.settings={train: {residual_scale: 0.03}}",)
+    common = ["iterations=1", "action_mode=residual"]
+    for extra, scale in (([], 0.03), (["residual_scale=0.07"], 0.07)):
+        cfg = load_train_config("tiny", overrides=[*FAST, *common, *extra])
+        reg = load_registry(overrides=hand_scale)
+        run = train_expert(DATASET, cfg, tmp_path / str(scale), registry=reg, clusters=clusters, progress=False)
+        assert run.residual_scale == scale and f"residual x {scale:g}" in run.table()
+        ckpt = read_checkpoint(run.checkpoint)
+        assert ckpt["ges"]["residual_scale"] == scale and ckpt["ges"]["train_config"]["residual_scale"] == scale
+
+
 def test_a_kill_while_writing_leaves_the_previous_checkpoint(tmp_path, monkeypatch) -> None:
     folder = tmp_path / "checkpoints"
     good = {"ges": {"format": "ges.ppo_expert", "version": 1}, "iter": 1}

@@ -6,7 +6,8 @@ description is flat so that a change is named in one line (``pd_stiffness[FFJ1]:
 * every :class:`~ges_core.hand.HandDescription` field, per-joint values keyed by joint name
   (``joint_limits[J]``, ``open_pose[J]``, ``pd_stiffness[J]``, ``pd_damping[J]``, ``effort_limit[J]``), fingers by
   finger name (``fingers[ff].tip_offset``), couplings by follower, ``slot_fill[slot]``, the YAML's settings by
-  dotted path (``settings.validate.min_squeeze``);
+  dotted path (``settings.validate.min_squeeze``) but its ``train`` section (Stage 2 training values: they change
+  no record, so setting one does not make a dataset refuse the hand);
 * ``urdf``: the SHA-256 of the URDF the simulators load (converted meshes, prepared collision parts), with each
   mesh file name replaced by its content's hash (so the folder the files sit in, e.g. a cache directory, does not
   count), and ``mesh[LINK/collision/0]`` (and ``visual``) the hash of each mesh file's bytes; a missing mesh file
@@ -26,6 +27,7 @@ from pathlib import Path
 from ges_core.dataset.layout import utc_now
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription, HandModel
+from ges_core.hand_settings import TRAIN
 from ges_core.paths import file_sha256
 from ges_core.urdf import parse_urdf
 
@@ -71,7 +73,7 @@ def describe_hand(d: HandDescription) -> dict[str, object]:
         out |= {f"fingers[{f.name}].{k}": v for k, v in (spec | {"keypoint_links": list(f.keypoint_links)}).items()}
     out |= {f"slot_fill[{slot}]": finger for slot, finger in sorted(d.slot_fill.items())}
     out |= {f"couplings[{c.follower}]": [c.leader, c.ratio, c.offset] for c in d.couplings}
-    out |= _flat(d.settings, "settings")
+    out |= _flat({k: v for k, v in d.settings.items() if k != TRAIN}, "settings")
     return json.loads(json.dumps(out))  # tuples -> lists, as read back from the manifest
 
 

@@ -13,6 +13,7 @@ from ges_core.env.reward import reward_preset
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.env.workers import SubprocVecEnv
 from ges_core.errors import AssetError, ConfigError
+from ges_core.hand_settings import hand_train_config
 from ges_core.sim import SceneConfig
 from ges_core.training.config import TrainConfig
 from ges_core.training.curriculum import Curriculum
@@ -33,6 +34,9 @@ class TrainingSetup:
     residual``)."""
     rejected: dict[str, str]
     """Training objects left out by the grasp selection: object id -> why."""
+    config: TrainConfig
+    """The run's config as the env was built from it: the given one with the hand's ``settings.train`` filling
+    what it did not set (:func:`ges_core.hand_settings.hand_train_config`)."""
 
     @property
     def env(self):
@@ -62,9 +66,11 @@ def training_pool(dataset_path: str | Path, hand, cfg: TrainConfig) -> tuple[Gra
 
 def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=None) -> TrainingSetup:
     """Pool, curriculum (``clusters``: a :class:`~ges_core.clustering.Clusters`; None only with the curriculum off
-    and no ``objects``) and the vectorized env of a run."""
+    and no ``objects``) and the vectorized env of a run; the hand's ``settings.train`` fills what ``cfg`` leaves
+    unset (``TrainingSetup.config``)."""
     hand_name, sim_name = dataset_hand(dataset_path, registry, cfg.hand), cfg.sim or registry.default("sim")
     hand = registry.build_hand(hand_name)
+    cfg = hand_train_config(hand.description, cfg)
     pool, rejected = training_pool(dataset_path, hand, cfg)
     curriculum = _curriculum(cfg, clusters, pool)
     pool.set_weights(curriculum.weights())
@@ -75,7 +81,7 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
 
         context = ExpertContext.of_env(venv.env, sim=sim_name, registry=registry)
         venv = ResidualVecEnv(venv, registry.build_expert(cfg.base_expert, context), cfg.residual_scale)
-    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, rejected)
+    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, rejected, cfg)
 
 
 def _vec_env(cfg: TrainConfig, registry, hand, sim_name: str, pool: GraspPool) -> GraspVecEnv | SubprocVecEnv:

@@ -57,12 +57,15 @@ class TrainSummary:
     resumed_from: str | None = None
     warm_start: dict | None = None
     """The behaviour-cloning warm start's record (``warm_start.json``); None when it did not run in this call."""
+    residual_scale: float | None = None
+    """Residual mode: the scale the policy's output was trained at (the run's, else the hand's); None otherwise."""
 
     def table(self) -> str:
         """A few lines for the terminal."""
         rate = "-" if self.seconds <= 0 else f"{self.env_steps / self.seconds:,.0f}"
         lines = [
-            f"expert run {self.run_dir} ({self.hand}, {self.sim}, action {self.action_mode})",
+            f"expert run {self.run_dir} ({self.hand}, {self.sim}, action {self.action_mode}"
+            + (f" x {self.residual_scale:g})" if self.residual_scale is not None else ")"),
             f"  iterations {self.iterations}, env steps {self.env_steps:,}, {self.seconds:.0f} s ({rate} steps/s), "
             f"stopped: {self.stopped}",
             f"  curriculum stage {self.stage}; promotions: {len(self.promotions)}",
@@ -176,6 +179,7 @@ def train_expert(
         )
     torch.manual_seed(cfg.seed)
     setup = build_setup(dataset, cfg, registry, clusters)
+    cfg = setup.config  # with the hand's settings.train (what the run left unset)
     try:
         train_cfg = rsl_config(cfg, cfg.action_mode == "residual")
         runner = GraspRunner(setup.venv, train_cfg, out, curriculum=setup.curriculum, meta={}, settings=cfg,
@@ -233,6 +237,7 @@ def _summary(out: Path, setup, cfg: TrainConfig, runner: GraspRunner, stopped: s
         last_success_paper=last.rate("paper"), nan_actions=t["nan_actions"], bad_updates=t["bad_updates"],
         checkpoint=str(ckpt) if ckpt.exists() else "", resumed_from=str(previous[0]) if previous else None,
         warm_start=getattr(runner, "warm_start_record", None),
+        residual_scale=cfg.residual_scale if cfg.action_mode == "residual" else None,
     )  # fmt: skip
 
 
