@@ -321,3 +321,48 @@ def test_a_non_finite_command_is_recorded_as_unstable_and_the_run_goes_on(tmp_pa
     assert record.steps[name].reason == "unstable" and not record.steps[name].ok
     error = record.errors["refinement" if name == "refinement" else "validation_sapien"]
     assert "q holds NaN or inf" in error
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("pybullet_holds_from", [1, None])
+def test_retry_goes_on_until_a_placement_is_robust_in_every_engine(tmp_path, monkeypatch, pybullet_holds_from):
+    """A placement robust in SAPIEN (the primary engine) but not in PyBullet sends the attempt loop on; the record
+    keeps the first placement robust in both. When none is, it keeps the first robust in the primary engine.
+    (Test doubles of the two validators: every nominal trial holds; PyBullet's perturbation trial fails until
+    attempt ``pybullet_holds_from``, or always.)"""
+    from ges_core.synthesis.physics.robust import RobustResult, TrialResult
+    from ges_core.synthesis.run import worker
+    from ges_core.synthesis.types import ValidationResult
+
+    tried = {"sapien": 0, "pybullet": 0}
+
+    def validate(sim, *args, **kwargs):
+        return ValidationResult(True, "success", {}, 0.01)
+
+    def robust(sim, *args, **kwargs):
+        tried[sim.name] += 1
+        attempt = tried[sim.name] - 1
+        holds = sim.name == "sapien" or (pybullet_holds_from is not None and attempt >= pybullet_holds_from)
+        return RobustResult((TrialResult("pose_1", holds, "success" if holds else "dropped", 0.01),), True)
+
+    monkeypatch.setattr(worker, "validate_grasp", validate)
+    monkeypatch.setattr(worker, "robust_validate", robust)
+    config = SynthesisConfig.model_validate(
+        {
+            "library": {"sources": ["procedural"], "procedural_count": 1},
+            "validate_sims": ["sapien", "pybullet"],
+            "attempts": 3,
+        }  # fmt: skip
+    )
+    run_synthesis(["procedural/cube/000"], ["allegro"], config, tmp_path / "ds")
+    (record,) = open_dataset(tmp_path / "ds")
+    judged = [i for i, a in enumerate(record.attempts) if a.validation == "ok"]  # placements that refined
+    assert tried["sapien"] == tried["pybullet"] == len(judged) >= 2
+    assert all(record.attempts[i].robust == "ok" for i in judged)  # each robust in SAPIEN
+    if pybullet_holds_from is None:  # never robust in both: every placement tried, the first (primary-robust) kept
+        assert len(record.attempts) == 3 and record.attempt == judged[0]
+        assert not record.validations["pybullet"].robust
+    else:  # the second judged placement holds in PyBullet too: the loop stops there and keeps it
+        assert len(judged) == 2 and record.attempt == judged[1] == len(record.attempts) - 1
+        assert record.validations["pybullet"].robust
+    assert record.robust and record.validations["sapien"].robust  # the primary engine's verdict, as before

@@ -76,7 +76,8 @@ class RobustConfig(ConfigModel):
     retry: bool = Field(
         True,
         description="the attempt loop goes on to the next wrist placement when the nominal trial passes but a "
-        "perturbation fails, and keeps the most robust attempt",
+        "perturbation fails, or the grasp is not robust in another validating simulator; it keeps the first "
+        "attempt robust everywhere, else the first robust in the primary simulator, else the most robust",
     )
 
     @field_validator("mass_scales")

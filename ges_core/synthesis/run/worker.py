@@ -236,6 +236,14 @@ class _Attempt:
         return self.passed and (self.robust.ok or self.robust.reason == NOT_RUN)
 
     @property
+    def robust_everywhere(self) -> bool:
+        """:attr:`robust_ok`, and robust in every other validating simulator too (nominal and every trial held
+        there; trivially so when robust validation is off)."""
+        if not self.robust_ok or self.robust.reason == NOT_RUN:
+            return self.robust_ok
+        return all(v.robust for v in self.validations.values())
+
+    @property
     def robustness(self) -> float | None:
         """The primary simulator's robustness score, or None when its trials did not run."""
         return self.primary.robustness if self.primary is not None else None
@@ -254,17 +262,18 @@ def _attempts(
     state: _State, sims: _Sims, hand: str, work: ObjectWork, grasps: list[Grasp], steps: dict[str, StepOutcome]
 ) -> PairResult:
     """Take ``grasps`` (best wrist placement first) through refinement and validation until one passes both, and
-    its perturbation trials too when ``robust.retry``.
+    its perturbation trials too, in every validating simulator, when ``robust.retry``.
 
-    The result is the first robust attempt's; else the passing attempt with the highest robustness score (the
-    first of equals); none passing, the first that refined, else the first. It lists every attempt's verdicts
+    The result is the first attempt robust in every validating simulator; else the first robust in the primary
+    one; else the passing attempt with the highest robustness score (the first of equals); none passing, the
+    first that refined, else the first. It lists every attempt's verdicts
     and the chosen one's index when it passed; its refinement, validation and robust times are the sums over the
     attempts."""
     retry = state.config(hand).robust.retry
     tries = []
     for grasp in grasps:
         tries.append(_attempt(state, sims, hand, work, grasp))
-        if tries[-1].robust_ok or (tries[-1].passed and not retry):
+        if tries[-1].robust_everywhere or (tries[-1].passed and not retry):
             break
     index = _chosen(tries)
     chosen = tries[index]
@@ -288,9 +297,10 @@ def _attempts(
 
 def _chosen(tries: list[_Attempt]) -> int:
     """Index of the attempt a record keeps (see :func:`_attempts`)."""
-    robust = [i for i, t in enumerate(tries) if t.robust_ok]
-    if robust:
-        return robust[0]
+    for holds in (_Attempt.robust_everywhere, _Attempt.robust_ok):
+        robust = [i for i, t in enumerate(tries) if holds.fget(t)]
+        if robust:
+            return robust[0]
     passed = [i for i, t in enumerate(tries) if t.passed]
     if passed:
         return max(passed, key=lambda i: (tries[i].robustness or 0.0, -i))
