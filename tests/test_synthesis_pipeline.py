@@ -324,45 +324,51 @@ def test_a_non_finite_command_is_recorded_as_unstable_and_the_run_goes_on(tmp_pa
 
 
 @pytest.mark.sim
+@pytest.mark.parametrize("robust", [True, False])
 @pytest.mark.parametrize("pybullet_holds_from", [1, None])
-def test_retry_goes_on_until_a_placement_is_robust_in_every_engine(tmp_path, monkeypatch, pybullet_holds_from):
-    """A placement robust in SAPIEN (the primary engine) but not in PyBullet sends the attempt loop on; the record
-    keeps the first placement robust in both. When none is, it keeps the first robust in the primary engine.
-    (Test doubles of the two validators: every nominal trial holds; PyBullet's perturbation trial fails until
-    attempt ``pybullet_holds_from``, or always.)"""
+def test_retry_goes_on_until_a_placement_holds_in_every_engine(tmp_path, monkeypatch, pybullet_holds_from, robust):
+    """A placement that holds in SAPIEN (the primary engine) but not in PyBullet sends the attempt loop on: with
+    robust validation on, every perturbation trial must hold in both; with it off, the nominal trial. The record
+    keeps the first placement that holds in both; when none does, the first that holds in the primary engine.
+    (Test doubles of the two validators: SAPIEN's trials always hold; PyBullet's (its perturbation trial, or with
+    robust validation off its nominal trial) fail until attempt ``pybullet_holds_from``, or always.)"""
     from ges_core.synthesis.physics.robust import RobustResult, TrialResult
     from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
 
-    tried = {"sapien": 0, "pybullet": 0}
+    judged = {"sapien": 0, "pybullet": 0}
+
+    def pybullet_holds(attempt: int) -> bool:
+        return pybullet_holds_from is not None and attempt >= pybullet_holds_from
 
     def validate(sim, *args, **kwargs):
-        return ValidationResult(True, "success", {}, 0.01)
+        judged[sim.name] += 1
+        holds = robust or sim.name == "sapien" or pybullet_holds(judged[sim.name] - 1)
+        return ValidationResult(holds, "success" if holds else "dropped", {}, 0.01)
 
-    def robust(sim, *args, **kwargs):
-        tried[sim.name] += 1
-        attempt = tried[sim.name] - 1
-        holds = sim.name == "sapien" or (pybullet_holds_from is not None and attempt >= pybullet_holds_from)
+    def robust_trials(sim, *args, **kwargs):
+        holds = sim.name == "sapien" or pybullet_holds(judged[sim.name] - 1)
         return RobustResult((TrialResult("pose_1", holds, "success" if holds else "dropped", 0.01),), True)
 
     monkeypatch.setattr(worker, "validate_grasp", validate)
-    monkeypatch.setattr(worker, "robust_validate", robust)
+    monkeypatch.setattr(worker, "robust_validate", robust_trials)
     config = SynthesisConfig.model_validate(
         {
             "library": {"sources": ["procedural"], "procedural_count": 1},
             "validate_sims": ["sapien", "pybullet"],
             "attempts": 3,
-        }  # fmt: skip
+            "robust": {"enabled": robust},
+        }
     )
     run_synthesis(["procedural/cube/000"], ["allegro"], config, tmp_path / "ds")
     (record,) = open_dataset(tmp_path / "ds")
-    judged = [i for i, a in enumerate(record.attempts) if a.validation == "ok"]  # placements that refined
-    assert tried["sapien"] == tried["pybullet"] == len(judged) >= 2
-    assert all(record.attempts[i].robust == "ok" for i in judged)  # each robust in SAPIEN
-    if pybullet_holds_from is None:  # never robust in both: every placement tried, the first (primary-robust) kept
-        assert len(record.attempts) == 3 and record.attempt == judged[0]
-        assert not record.validations["pybullet"].robust
+    tried = [i for i, a in enumerate(record.attempts) if a.validation == "ok"]  # placements that refined
+    assert judged["sapien"] == judged["pybullet"] == len(tried) >= 2
+    assert all(record.attempts[i].robust == ("ok" if robust else "not_run") for i in tried)
+    both = record.validations["pybullet"].robust if robust else record.validations["pybullet"].success
+    if pybullet_holds_from is None:  # never holds in both: every placement tried, the first (primary) pass kept
+        assert len(record.attempts) == 3 and record.attempt == tried[0] and not both
     else:  # the second judged placement holds in PyBullet too: the loop stops there and keeps it
-        assert len(judged) == 2 and record.attempt == judged[1] == len(record.attempts) - 1
-        assert record.validations["pybullet"].robust
-    assert record.robust and record.validations["sapien"].robust  # the primary engine's verdict, as before
+        assert len(tried) == 2 and record.attempt == tried[1] == len(record.attempts) - 1 and both
+    assert record.steps["validation"].ok and record.validations["sapien"].success  # the primary engine's verdict
+    assert record.robust == robust

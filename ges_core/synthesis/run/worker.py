@@ -236,11 +236,13 @@ class _Attempt:
         return self.passed and (self.robust.ok or self.robust.reason == NOT_RUN)
 
     @property
-    def robust_everywhere(self) -> bool:
-        """:attr:`robust_ok`, and robust in every other validating simulator too (nominal and every trial held
-        there; trivially so when robust validation is off)."""
-        if not self.robust_ok or self.robust.reason == NOT_RUN:
-            return self.robust_ok
+    def holds_everywhere(self) -> bool:
+        """:attr:`robust_ok`, and in every other validating simulator too: every trial held there, or with
+        robust validation off the nominal trial did."""
+        if not self.robust_ok:
+            return False
+        if self.robust.reason == NOT_RUN:
+            return all(v.success for v in self.validations.values())
         return all(v.robust for v in self.validations.values())
 
     @property
@@ -261,19 +263,20 @@ class _Attempt:
 def _attempts(
     state: _State, sims: _Sims, hand: str, work: ObjectWork, grasps: list[Grasp], steps: dict[str, StepOutcome]
 ) -> PairResult:
-    """Take ``grasps`` (best wrist placement first) through refinement and validation until one passes both, and
-    its perturbation trials too, in every validating simulator, when ``robust.retry``.
+    """Take ``grasps`` (best wrist placement first) through refinement and validation until one passes both in
+    every validating simulator, and its perturbation trials too when robust validation is on; with
+    ``robust.retry`` off, until one passes the primary simulator's nominal trial.
 
-    The result is the first attempt robust in every validating simulator; else the first robust in the primary
-    one; else the passing attempt with the highest robustness score (the first of equals); none passing, the
-    first that refined, else the first. It lists every attempt's verdicts
-    and the chosen one's index when it passed; its refinement, validation and robust times are the sums over the
-    attempts."""
+    The result is the first attempt that holds in every validating simulator; else the first robust in the
+    primary one (with robust validation off: the first that passed there); else the passing attempt with the
+    highest robustness score (the first of equals); none passing, the first that refined, else the first. It
+    lists every attempt's verdicts and the chosen one's index when it passed; its refinement, validation and robust
+    times are the sums over the attempts."""
     retry = state.config(hand).robust.retry
     tries = []
     for grasp in grasps:
         tries.append(_attempt(state, sims, hand, work, grasp))
-        if tries[-1].robust_everywhere or (tries[-1].passed and not retry):
+        if tries[-1].holds_everywhere or (tries[-1].passed and not retry):
             break
     index = _chosen(tries)
     chosen = tries[index]
@@ -297,7 +300,7 @@ def _attempts(
 
 def _chosen(tries: list[_Attempt]) -> int:
     """Index of the attempt a record keeps (see :func:`_attempts`)."""
-    for holds in (_Attempt.robust_everywhere, _Attempt.robust_ok):
+    for holds in (_Attempt.holds_everywhere, _Attempt.robust_ok):
         robust = [i for i, t in enumerate(tries) if holds.fget(t)]
         if robust:
             return robust[0]
