@@ -13,11 +13,11 @@ from ges_core.env.grasp_env import EnvConfig, GraspEnv, GraspTargets
 from ges_core.env.success import EndReason
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import ArrayError, SimulationError
+from ges_core.hand_settings import hand_validate_config
 from ges_core.objects.simple import box_asset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.synthesis.physics.squeeze import squeeze_targets
-from ges_core.synthesis.physics.validate import ValidateConfig
 from ges_plugins.experts.scripted.expert import ScriptedExpert
 
 pytestmark = pytest.mark.sim
@@ -146,7 +146,7 @@ def test_scripted_expert_with_a_hand_closes_to_the_stage1_squeeze() -> None:
             obs.to(torch.float64), "goal_q"
         )
         for i in range(N):
-            v = ValidateConfig()  # the validator's squeeze
+            v = hand_validate_config(env.hand.description)  # the validator's squeeze for this hand
             want = squeeze_targets(
                 env.hand, goal[i].numpy(), force=v.squeeze_force, min_squeeze=v.min_squeeze, max_squeeze=v.max_squeeze
             )
