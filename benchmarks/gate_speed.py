@@ -14,7 +14,9 @@ same weights, and timed call by call in turn with today's on the same cloud, so 
 machine load: "old" is that code with its own default settings (the gate as it was), "old code, new
 settings" the same function as today's (the table gives the largest difference between their logits on
 the objects: the rewrite computes the same function), so the two speedups separate
-what the code gained from what the lighter defaults gained.
+what the code gained from what the lighter defaults gained. Timed in turn, each call finds the other models'
+weights in the cache where its own were; "timed alone" is today's gate called repeatedly by itself (its weights
+and buffers warm), as a run that only selects experts would call it. Both are printed.
 
 The issue's goal: <= 10 ms for CurveNet at 1024 points. The machine's load average is recorded per row:
 on a shared machine the wall time includes waiting for a core.
@@ -130,6 +132,8 @@ def measure(registry, repeats: int, n_objects: int, baseline: str | None) -> lis
                 fns = {"old": shipped.predict, "old_code": same.predict, "new": gate.predict}
                 times = timed_alternately({k: (lambda f=f, x=one: f(x)) for k, f in fns.items()}, repeats)
                 wall, cpu = times["new"]
+                alone, _ = timed(lambda g=gate, x=one: g.predict(x), repeats)
+                row["ms_per_object_alone"] = 1e3 * alone
                 row.update({"old_ms_per_object": 1e3 * times["old"][0], "old_cpu_ms_per_object": 1e3 * times["old"][1],
                             "old_code_same_settings_ms_per_object": 1e3 * times["old_code"][0],
                             "old_code_same_settings_cpu_ms_per_object": 1e3 * times["old_code"][1],
@@ -142,6 +146,7 @@ def measure(registry, repeats: int, n_objects: int, baseline: str | None) -> lis
                         "ms_per_object_batch32": 1e3 * wall32 / 32, "load_average": os.getloadavg()[0]})  # fmt: skip
             rows.append(row)
             was = f" (old {row['old_ms_per_object']:.1f} ms, x{row['speedup']:.2f})" if "speedup" in row else ""
+            was += f"; alone {row['ms_per_object_alone']:.1f} ms" if "ms_per_object_alone" in row else ""
             print(f"{name:10s} {n:5d} points: {1e3 * wall:7.1f} ms wall, {1e3 * cpu:7.1f} ms CPU{was}", flush=True)
     return rows
 
@@ -156,10 +161,12 @@ def reference_gflops() -> float:
 def table(rows: list[dict]) -> str:
     lines = [
         "| gate | points | old ms / object | new ms / object | speedup | old CPU ms | new CPU ms "
-        "| old code, new settings: ms (speedup) | new ms / object (batch 32) | max logit diff | load avg |",
-        "|---|---|---|---|---|---|---|---|---|---|---|",
+        "| old code, new settings: ms (speedup) | new ms / object (batch 32) | new ms / object, timed alone "
+        "| max logit diff | load avg |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in rows:
+        alone = f"{r['ms_per_object_alone']:.1f}" if "ms_per_object_alone" in r else "-"
         old = (
             (f"{r['old_ms_per_object']:.1f}", f"x{r['speedup']:.2f}", f"{r['old_cpu_ms_per_object']:.1f}",
              f"{r['old_code_same_settings_ms_per_object']:.1f} (x{r['speedup_code_only']:.2f})",
@@ -168,7 +175,7 @@ def table(rows: list[dict]) -> str:
         )  # fmt: skip
         lines.append(
             f"| {r['gate']} | {r['points']} | {old[0]} | {r['ms_per_object']:.1f} | {old[1]} | {old[2]} | "
-            f"{r['cpu_ms_per_object']:.1f} | {old[3]} | {r['ms_per_object_batch32']:.1f} | {old[4]} | "
+            f"{r['cpu_ms_per_object']:.1f} | {old[3]} | {r['ms_per_object_batch32']:.1f} | {alone} | {old[4]} | "
             f"{r['load_average']:.1f} |"
         )
     return "\n".join(lines)
