@@ -85,14 +85,18 @@ class ConvBN(nn.Module):
             return self.conv.weight, None
         if torch.is_grad_enabled():  # gradients may be wanted through the fold: no cache
             return self._fold()
-        weight, bn = self.conv.weight, self._modules["bn"]  # (_modules: skips nn.Module.__getattr__)
+        # the tensors straight from the modules' dicts: nn.Module.__getattr__ costs ~1 us a lookup, and this runs
+        # ~50 times per CurveNet inference (6 lookups each: ~0.3 ms of ~10)
+        weight = self._modules["conv"]._parameters["weight"]
+        bn = self._modules["bn"]
+        params, buffers = bn._parameters, bn._buffers
         key = (
             weight.data_ptr(),
             weight._version,
-            bn.weight._version,
-            bn.bias._version,
-            bn.running_mean._version,
-            bn.running_var._version,
+            params["weight"]._version,
+            params["bias"]._version,
+            buffers["running_mean"]._version,
+            buffers["running_var"]._version,
         )
         if self._folded is None or self._folded[0] != key:
             with torch.inference_mode(False), torch.no_grad():  # ordinary tensors: usable outside inference mode
