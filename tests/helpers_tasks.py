@@ -10,11 +10,20 @@ import os
 import signal
 from pathlib import Path
 
-__all__ = ["die_on_victim", "fail_on_three", "run_all", "square_with_pid"]
+__all__ = ["die_on_victim", "fail_on_three", "run_all", "sleep_with_pid", "square_with_pid"]
 
 
 def square_with_pid(i: int) -> tuple[int, int]:
     return i * i, os.getpid()
+
+
+def sleep_with_pid(i: int, marker_dir: str, seconds: float) -> int:
+    """Write this worker's pid to ``marker_dir/pid-<i>``, then sleep ``seconds`` (a long task to kill under)."""
+    import time
+
+    (Path(marker_dir) / f"pid-{i}").write_text(str(os.getpid()))
+    time.sleep(seconds)
+    return i
 
 
 def fail_on_three(i: int) -> int:

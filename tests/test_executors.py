@@ -93,6 +93,51 @@ def test_a_task_that_always_kills_its_worker_is_reported_lost_and_the_others_fin
     assert all(done[i].ok and done[i].value[0] == i for i in others)
 
 
+POOL_PARENT = """
+import sys
+sys.path.insert(0, {tests!r})
+from helpers_tasks import run_all, sleep_with_pid
+from ges_core.executors import LocalExecutor
+
+if __name__ == "__main__":
+    run_all(LocalExecutor(workers=2), sleep_with_pid, range(2), {marks!r}, 600)
+"""
+
+
+def _gone(pid: int) -> bool:
+    """True once ``pid`` no longer runs (exited, or a zombie nobody reaped)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG and /proc are Linux's")
+def test_pool_workers_die_with_a_killed_parent(tmp_path):
+    """A SIGKILLed parent (a killed ``ges synth --workers 2``) leaves no pool worker running its task."""
+    import subprocess
+
+    marks = tmp_path / "marks"
+    marks.mkdir()
+    script = tmp_path / "parent.py"
+    script.write_text(POOL_PARENT.format(tests=os.path.dirname(__file__), marks=str(marks)))
+    parent = subprocess.Popen([sys.executable, str(script)])
+    try:
+        deadline = time.monotonic() + 120
+        while len(list(marks.glob("pid-*"))) < 2 and time.monotonic() < deadline and parent.poll() is None:
+            time.sleep(0.1)
+        pids = [int(f.read_text()) for f in sorted(marks.glob("pid-*"))]
+        assert len(pids) == 2 and not any(_gone(p) for p in pids), pids  # both tasks run, in two workers
+    finally:
+        parent.kill()
+        parent.wait()
+    deadline = time.monotonic() + 10
+    while not all(_gone(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert all(_gone(p) for p in pids), pids
+
+
 def test_stopping_early_starts_no_queued_task(tmp_path):
     with LocalExecutor(workers=2) as ex:
         for i in range(8):

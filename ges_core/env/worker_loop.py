@@ -12,10 +12,8 @@ parent process dies (``PR_SET_PDEATHSIG``), so no worker outlives a killed train
 from __future__ import annotations
 
 import contextlib
-import ctypes
 import os
 import pickle
-import signal
 import sys
 import traceback
 from collections.abc import Callable
@@ -27,15 +25,13 @@ from ges_core.env.grasp_env import GraspEnv
 from ges_core.env.reward import TERMS
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.errors import GesError
+from ges_core.process_guard import die_with_parent
 
 __all__ = ["KNOWN_EXTRAS", "WorkerVecEnv", "worker_main"]
 
 KNOWN_EXTRAS = ("time_outs", "log", "end_reason", "peer_success", "max_rise", "entry", "episode_metrics")
 """Extras the shared buffers carry (``log`` is rebuilt in the main process from per-env values); any other key
 a GraspVecEnv adds travels pickled through the pipe, one per-env tensor per worker, concatenated in env order."""
-
-_PR_SET_PDEATHSIG = 1
-"""prctl option (linux/prctl.h): the signal this process gets when its parent dies."""
 
 
 class WorkerVecEnv(GraspVecEnv):
@@ -100,7 +96,7 @@ def worker_main(conn, make_env: Callable[[tuple[int, ...]], GraspEnv], env_ids: 
 
     Ends with ``os._exit``: a normal interpreter shutdown after SAPIEN hung in native code (no Python frame) for
     over 5 s in every worker (measured 2026-12-02), and a worker has nothing left to flush but its std streams."""
-    _die_with_parent(parent_pid)
+    die_with_parent(parent_pid)
     torch.set_num_threads(1)
     venv, code = None, 0
     try:
@@ -168,15 +164,3 @@ def _report(conn, exc: BaseException) -> None:
     except Exception:  # unpicklable exception or a closed pipe: the text alone, or nothing
         with contextlib.suppress(Exception):
             conn.send(("error", None, text))
-
-
-def _die_with_parent(parent_pid: int) -> None:
-    """Linux: ask for SIGKILL when the parent dies (prctl PR_SET_PDEATHSIG); exit at once if it already has.
-
-    Elsewhere the pipe's end-of-file (the parent's end closes when it dies) ends the worker at its next command.
-    """
-    if sys.platform.startswith("linux"):
-        with contextlib.suppress(OSError, AttributeError):
-            ctypes.CDLL(None, use_errno=True).prctl(_PR_SET_PDEATHSIG, int(signal.SIGKILL))
-    if os.getppid() != parent_pid:
-        os._exit(0)

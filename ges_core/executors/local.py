@@ -12,18 +12,21 @@ call running then fails with ``BrokenProcessPool``, and the pool does not say wh
 are run again one at a time in a fresh pool, where a death names its call. A call whose worker dies alone is
 rerun at most ``max_retries`` times, then reported lost; the calls that merely shared the broken pool are not
 charged, and the rest of the queue goes on. A call that dies in this process (``workers == 1``) ends the run,
-as before.
+as before. The workers die with the process that started them (:func:`ges_core.process_guard.die_with_parent`):
+a killed ``ges synth --workers 2`` leaves no worker finishing its chunk.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 
 from ges_core.executors.base import Done, Executor, call_with_setup
+from ges_core.process_guard import die_with_parent
 
 __all__ = ["LocalExecutor"]
 
@@ -82,7 +85,9 @@ class LocalExecutor(Executor):
         """Run ``queue`` in one pool, ``limit`` calls at a time, until it is empty or the pool breaks (the calls
         running then go to ``broken``)."""
         ctx = multiprocessing.get_context("spawn")
-        pool = ProcessPoolExecutor(max_workers=min(limit, len(queue)), mp_context=ctx)
+        pool = ProcessPoolExecutor(
+            max_workers=min(limit, len(queue)), mp_context=ctx, initializer=die_with_parent, initargs=(os.getpid(),)
+        )
         running: dict[Future, _Call] = {}
         try:
             while queue or running:
