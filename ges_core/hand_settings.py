@@ -138,26 +138,27 @@ def _section_problems(model: type, value: object, where: str) -> list[str]:
     return []
 
 
+def _limited_problems(model: type, fields: tuple[str, ...], value: object, where: str) -> list[str]:
+    """Problems of a section that may set only ``fields`` of ``model`` (``sim_check``, ``train``)."""
+    known = ", ".join(fields)
+    if not isinstance(value, Mapping):
+        return [f"{where}: must be a mapping of {known}, got {value!r}"]
+    problems = [f"{where}.{k}: not a per-hand field (known: {known})" for k in value if k not in fields]
+    return problems or _section_problems(model, value, where)
+
+
 def _sim_check_problems(value: object, where: str) -> list[str]:
     """Problems of a hand's ``sim_check`` section: only :data:`SIM_CHECK_FIELDS`, each valid for SimCheckConfig."""
     from ges_core.sim_check import SimCheckConfig
 
-    if not isinstance(value, Mapping):
-        return [f"{where}: must be a mapping of {', '.join(SIM_CHECK_FIELDS)}, got {value!r}"]
-    known = ", ".join(SIM_CHECK_FIELDS)
-    problems = [f"{where}.{k}: not a per-hand field (known: {known})" for k in value if k not in SIM_CHECK_FIELDS]
-    return problems or _section_problems(SimCheckConfig, value, where)
+    return _limited_problems(SimCheckConfig, SIM_CHECK_FIELDS, value, where)
 
 
 def _train_problems(value: object, where: str) -> list[str]:
     """Problems of a hand's ``train`` section: only :data:`TRAIN_FIELDS`, each valid for TrainConfig."""
     from ges_core.training.config import TrainConfig
 
-    if not isinstance(value, Mapping):
-        return [f"{where}: must be a mapping of {', '.join(TRAIN_FIELDS)}, got {value!r}"]
-    known = ", ".join(TRAIN_FIELDS)
-    problems = [f"{where}.{k}: not a per-hand field (known: {known})" for k in value if k not in TRAIN_FIELDS]
-    return problems or _section_problems(TrainConfig, value, where)
+    return _limited_problems(TrainConfig, TRAIN_FIELDS, value, where)
 
 
 def stage1_settings(settings: Mapping | None) -> dict:
@@ -168,28 +169,27 @@ def stage1_settings(settings: Mapping | None) -> dict:
 def hand_sim_check_config(description: HandDescription, config):
     """``config`` (a :class:`~ges_core.sim_check.SimCheckConfig`) with the hand's ``settings.sim_check`` taking
     every field the user did not set (``-o closure=...`` or the config file wins over the hand's YAML)."""
-    section = description.settings.get(SIM_CHECK) or {}
-    update = {k: v for k, v in section.items() if k not in config.model_fields_set}
-    if not update:
-        return config
-    from ges_core.config import parse_model
-
-    data = merge_settings(config.model_dump(mode="json"), update)
-    return parse_model(type(config), data, where=f"hand '{description.name}' settings.sim_check")
+    return _fill_unset(description, SIM_CHECK, config)
 
 
 def hand_train_config(description: HandDescription, config):
     """``config`` (a :class:`~ges_core.training.TrainConfig`) with the hand's ``settings.train`` taking every
     field the run did not set (a preset, ``--config`` or ``-o`` value wins; a resumed run's stored config sets
     every field, so it keeps its own). Returns ``config`` itself when the hand sets nothing new."""
-    section = description.settings.get(TRAIN) or {}
+    return _fill_unset(description, TRAIN, config)
+
+
+def _fill_unset(description: HandDescription, section_name: str, config):
+    """``config`` with the hand's ``settings.<section_name>`` in every field not in ``config.model_fields_set``
+    (the same object when there is none)."""
+    section = description.settings.get(section_name) or {}
     update = {k: v for k, v in section.items() if k not in config.model_fields_set}
     if not update:
         return config
     from ges_core.config import parse_model
 
     data = merge_settings(config.model_dump(mode="json", exclude_unset=True), update)
-    return parse_model(type(config), data, where=f"hand '{description.name}' settings.train")
+    return parse_model(type(config), data, where=f"hand '{description.name}' settings.{section_name}")
 
 
 def merge_settings(base: Mapping, *layers: Mapping | None) -> dict:

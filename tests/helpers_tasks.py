@@ -10,7 +10,15 @@ import os
 import signal
 from pathlib import Path
 
-__all__ = ["die_on_victim", "fail_on_three", "run_all", "sleep_with_pid", "square_with_pid"]
+__all__ = [
+    "die_on_victim",
+    "fail_on_three",
+    "gone_within",
+    "process_gone",
+    "run_all",
+    "sleep_with_pid",
+    "square_with_pid",
+]
 
 
 def square_with_pid(i: int) -> tuple[int, int]:
@@ -48,3 +56,22 @@ def run_all(executor, fn, items, *extra) -> dict:
     with executor as ex:
         tickets = {ex.submit(fn, i, *extra): i for i in items}
         return {tickets[d.ticket]: d for d in ex.as_completed()}
+
+
+def process_gone(pid: int) -> bool:
+    """True once ``pid`` no longer runs (exited, or a zombie nobody reaped); reads /proc (Linux)."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return fh.read().split(")")[-1].split()[0] == "Z"
+    except FileNotFoundError:
+        return True
+
+
+def gone_within(pids: list[int], seconds: float) -> bool:
+    """Whether every process of ``pids`` is gone (:func:`process_gone`) within ``seconds``."""
+    import time
+
+    deadline = time.monotonic() + seconds
+    while not all(process_gone(p) for p in pids) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    return all(process_gone(p) for p in pids)

@@ -17,6 +17,7 @@ from functools import partial
 import numpy as np
 import pytest
 import torch
+from helpers_tasks import gone_within, process_gone
 
 from ges_core.env.success import EndReason
 from ges_core.env.workers import SubprocVecEnv, split_envs
@@ -164,15 +165,6 @@ PARENT = textwrap.dedent("""
 """)
 
 
-def _gone(pid: int) -> bool:
-    """True once ``pid`` no longer runs (exited, or a zombie nobody reaped)."""
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().split(")")[-1].split()[0] == "Z"
-    except FileNotFoundError:
-        return True
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 def test_workers_exit_when_the_parent_is_killed(tmp_path) -> None:
     script = tmp_path / "parent.py"
@@ -180,14 +172,11 @@ def test_workers_exit_when_the_parent_is_killed(tmp_path) -> None:
     parent = subprocess.Popen([sys.executable, str(script)], stdout=subprocess.PIPE, text=True)
     try:
         pids = [int(p) for p in parent.stdout.readline().split()]
-        assert len(pids) == 2 and not any(_gone(p) for p in pids)
+        assert len(pids) == 2 and not any(process_gone(p) for p in pids)
     finally:
         parent.kill()
         parent.wait()
-    deadline = time.monotonic() + 10
-    while not all(_gone(p) for p in pids) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert all(_gone(p) for p in pids), pids
+    assert gone_within(pids, 10), pids
 
 
 def test_ppo_with_two_workers_learns_exactly_what_one_process_learns(tmp_path) -> None:

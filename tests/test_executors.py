@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 import pytest
-from helpers_tasks import die_on_victim, fail_on_three, run_all, square_with_pid
+from helpers_tasks import die_on_victim, fail_on_three, gone_within, process_gone, run_all, square_with_pid
 
 import ges_core.cli as cli
 from ges_core.errors import BackendUnavailable, ConfigError, UnknownNameError
@@ -104,15 +104,6 @@ if __name__ == "__main__":
 """
 
 
-def _gone(pid: int) -> bool:
-    """True once ``pid`` no longer runs (exited, or a zombie nobody reaped)."""
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return fh.read().split(")")[-1].split()[0] == "Z"
-    except FileNotFoundError:
-        return True
-
-
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG and /proc are Linux's")
 def test_pool_workers_die_with_a_killed_parent(tmp_path):
     """A SIGKILLed parent (a killed ``ges synth --workers 2``) leaves no pool worker running its task."""
@@ -128,14 +119,11 @@ def test_pool_workers_die_with_a_killed_parent(tmp_path):
         while len(list(marks.glob("pid-*"))) < 2 and time.monotonic() < deadline and parent.poll() is None:
             time.sleep(0.1)
         pids = [int(f.read_text()) for f in sorted(marks.glob("pid-*"))]
-        assert len(pids) == 2 and not any(_gone(p) for p in pids), pids  # both tasks run, in two workers
+        assert len(pids) == 2 and not any(process_gone(p) for p in pids), pids  # both tasks run, in two workers
     finally:
         parent.kill()
         parent.wait()
-    deadline = time.monotonic() + 10
-    while not all(_gone(p) for p in pids) and time.monotonic() < deadline:
-        time.sleep(0.1)
-    assert all(_gone(p) for p in pids), pids
+    assert gone_within(pids, 10), pids
 
 
 def test_stopping_early_starts_no_queued_task(tmp_path):
