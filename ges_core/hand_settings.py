@@ -73,8 +73,9 @@ SIM_CHECK_FIELDS = ("closure", "settle_steps", "close_steps", "lift_steps", "lif
 TRAIN = "train"
 """The Stage 2 section: :class:`~ges_core.training.TrainConfig` values of this hand (:data:`TRAIN_FIELDS`)."""
 TRAIN_FIELDS = ("residual_scale",)
-""":class:`~ges_core.training.TrainConfig` fields a hand may set: ``residual_scale``, the residual expert's action
-scale (rad per unit of policy output; a stiff PD hand needs a small one: docs/training.md, 'What is trained')."""
+""":class:`~ges_core.training.TrainConfig` fields a hand may set: ``residual_scale``, the factor on the residual
+expert's policy output (normalized action units) added to its base expert's action; a hand with stiff drives needs
+a small one (docs/training.md, 'What is trained')."""
 NOT_STAGE1 = (SIM_CHECK, TRAIN)
 """Sections of a hand's settings that do not layer over the Stage 1 run config."""
 

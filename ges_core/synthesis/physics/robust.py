@@ -76,8 +76,9 @@ class RobustConfig(ConfigModel):
     retry: bool = Field(
         True,
         description="the attempt loop goes on to the next wrist placement when the nominal trial passes but a "
-        "perturbation fails, or the grasp is not robust in another validating simulator; it keeps the first "
-        "attempt robust everywhere, else the first robust in the primary simulator, else the most robust",
+        "perturbation fails, or the grasp does not hold in another validating simulator (every trial there; its "
+        "nominal trial with robust validation off); it keeps the first attempt that holds everywhere, else the "
+        "first robust in the primary simulator, else the most robust",
     )
 
     @field_validator("mass_scales")
