@@ -40,8 +40,8 @@ class SynthesisConfig(ConfigModel):
     # tries the wrist search's best placement and, when it fails refinement, validation or (robust.retry) a
     # perturbation trial, the next distinct ones (GraspRetargeter.retarget_ranked), best first; 1 is the paper's
     # single pass. 16, not 3 (December 2026): on the 20 demo objects, robust in SAPIEN Allegro 16 -> 18, Shadow
-    # 11 -> 16 (8 attempts: 17, 15); the new grasps held held-out pose trials as the old ones did; an object
-    # that passes early costs nothing more (docs/synthesis/refine_validate.md, "Attempts").
+    # 11 -> 16 (8 attempts: 17, 15), and the grasps that also hold 9 held-out pose trials rose with them; an
+    # object that passes early costs nothing more (docs/synthesis/refine_validate.md, "Attempts").
     attempts: int = Field(
         16,
         ge=1,
