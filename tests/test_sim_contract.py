@@ -215,6 +215,29 @@ def test_joint_targets_reach_each_named_joint(named, hand, floating):
     assert np.array_equal(sim.idx_sim_to_hand[sim.idx_hand_to_sim], np.arange(d.num_joints))
 
 
+def test_an_object_of_twenty_shapes_stands_on_its_last_one(named):
+    """Every collision shape of an object collides, however many: PyBullet keeps only 16 per collision array, so a
+    backend that passed them in one array lost the rest (a CoACD mug has 17-45 parts). Here shape 20 is the object's
+    only foot; the 19 others are small cubes 5 cm above it. Resting on the foot, the object stays where it was put
+    down, touching the table with its whole weight; without the foot it would fall 5 cm."""
+    name, make_sim, _ = named
+    sim = make_sim()
+    cubes = [PrimitiveShape(kind="box", size=(0.005,) * 3, pose=(0.004 * i - 0.036, 0.0, 0.06, 1.0, 0.0, 0.0, 0.0))
+             for i in range(19)]  # fmt: skip
+    foot = PrimitiveShape(kind="box", size=(0.04, 0.04, 0.005), pose=(0.0, 0.0, 0.005, 1.0, 0.0, 0.0, 0.0))
+    base = box_asset((0.04, 0.04, 0.005), object_id="t/twenty_shapes")
+    obj = ObjectAsset(object_id=base.object_id, category="t", mesh_path=base.mesh_path, collision=(*cubes, foot),
+                      density=500.0)  # fmt: skip
+    sim.load_object(obj)
+    start = sim.object_pose()[0].copy()
+    sim.step(120)
+    end = sim.object_pose()[0]
+    assert np.linalg.norm(end[:3] - start[:3]) < 2e-3, (name, start, end)
+    weight = 500.0 * (0.08 * 0.08 * 0.01 + 19 * 0.01**3) * 9.81
+    touching = [c for c in sim.contact_pairs(0) if {c.body_a, c.body_b} == {"object", "table"}]
+    assert len(touching) == 1 and touching[0].force == pytest.approx(weight, rel=0.05), touching
+
+
 def test_object_replacement_and_env_ids(named):
     """load_object(env_ids=[1]) replaces env 1's object only; each env holds one object, the one last loaded."""
     name, make_sim, _ = named

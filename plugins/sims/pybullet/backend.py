@@ -297,7 +297,8 @@ class PybulletBackend(SimBackend):
             k_hand = k_table = math.sqrt((cfg.hand_friction + cfg.table_friction) / 2)
         else:
             k_hand, k_obj, k_table = product_friction(cfg.hand_friction, obj, cfg.table_friction)
-            p.changeDynamics(scene.obj, -1, lateralFriction=k_obj, physicsClientId=scene.cid)
+            for link in scene.obj_links:
+                p.changeDynamics(scene.obj, link, lateralFriction=k_obj, physicsClientId=scene.cid)
         p.changeDynamics(scene.table, -1, lateralFriction=k_table, physicsClientId=scene.cid)
         if self._layout is not None:
             set_hand_friction(scene, self._layout, k_hand)

@@ -70,6 +70,9 @@ class Scene:
     """The object is static (``load_object(fixed=True)``)."""
     friction_anchors: bool = True
     """Bullet's friction anchor on the object (:func:`new_scene`)."""
+    obj_links: tuple[int, ...] = (-1,)
+    """The object body's links: -1 (the base) and one fixed link per further :data:`MAX_SHAPES_PER_LINK` shapes
+    (:func:`create_object`); per-link settings (friction, anchors) go to each."""
 
 
 @dataclass(frozen=True)
@@ -242,6 +245,16 @@ def set_hand_friction(scene: Scene, layout: HandLayout, friction: float) -> None
         p.changeDynamics(scene.hand, link, lateralFriction=friction, physicsClientId=scene.cid)
 
 
+MAX_SHAPES_PER_LINK = 16
+"""PyBullet's ``createCollisionShapeArray`` keeps the first 16 shapes and drops the rest without a word (measured:
+20 and 45 boxes both give 16 children). An object with more convex parts (CoACD gives a mug 17-45, pybullet's
+bunny 25) gets one fixed link per further 16, so every part collides."""
+_LINK_MASS_SHARE = 1e-6
+"""Mass of each extra shape link, as a share of the object's: the base carries the object's whole mass and inertia
+(computed from every part, :func:`~.shapes.mass_properties`), and a Featherstone fixed joint adds the link's
+negligible mass to it."""
+
+
 def create_object(scene: Scene, obj: ObjectAsset, *, fixed: bool = False) -> MassProperties:
     """Replace the scene's object by a new body of ``obj``'s collision shapes (no visuals), at the origin;
     ``fixed``: a static body (mass 0), which contacts do not move."""
@@ -249,20 +262,40 @@ def create_object(scene: Scene, obj: ObjectAsset, *, fixed: bool = False) -> Mas
         p.removeBody(scene.obj, physicsClientId=scene.cid)
         scene.obj = -1
     props = mass_properties(obj)
+    arrays = shape_arrays(obj)
+    count = len(arrays["shapeTypes"])
+    chunks = [range(i, min(i + MAX_SHAPES_PER_LINK, count)) for i in range(0, count, MAX_SHAPES_PER_LINK)]
     try:
-        shape = p.createCollisionShapeArray(**shape_arrays(obj), physicsClientId=scene.cid)
+        shapes = [
+            p.createCollisionShapeArray(
+                **{k: [v[i] for i in chunk] for k, v in arrays.items()}, physicsClientId=scene.cid
+            )
+            for chunk in chunks
+        ]
     except p.error as exc:
         raise AssetError(
             f"PyBullet could not create the collision shapes of object '{obj.object_id}' ({exc}); "
             "check that its convex part files exist and are Wavefront OBJ or a format trimesh reads"
         ) from exc
+    extra = len(shapes) - 1  # links carrying the shapes past the base's 16, fixed at the base's link frame
     scene.obj = p.createMultiBody(
         baseMass=props.mass,
-        baseCollisionShapeIndex=shape,
+        baseCollisionShapeIndex=shapes[0],
         baseInertialFramePosition=props.inertial_pose[:3].tolist(),
         baseInertialFrameOrientation=wxyz_to_xyzw(props.inertial_pose[3:]).tolist(),
+        linkMasses=[props.mass * _LINK_MASS_SHARE] * extra,
+        linkCollisionShapeIndices=shapes[1:],
+        linkVisualShapeIndices=[-1] * extra,
+        linkPositions=[[0.0, 0.0, 0.0]] * extra,
+        linkOrientations=[[0.0, 0.0, 0.0, 1.0]] * extra,
+        linkInertialFramePositions=[[0.0, 0.0, 0.0]] * extra,
+        linkInertialFrameOrientations=[[0.0, 0.0, 0.0, 1.0]] * extra,
+        linkParentIndices=[0] * extra,
+        linkJointTypes=[p.JOINT_FIXED] * extra,
+        linkJointAxis=[[0.0, 0.0, 1.0]] * extra,
         physicsClientId=scene.cid,
     )
+    scene.obj_links = tuple(range(-1, extra))
     p.changeDynamics(
         scene.obj,
         -1,
@@ -271,9 +304,10 @@ def create_object(scene: Scene, obj: ObjectAsset, *, fixed: bool = False) -> Mas
         angularDamping=_OBJECT_ANGULAR_DAMPING,
         maxJointVelocity=_OBJECT_MAX_VELOCITY,
         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,  # the object's weight is an external force
-        frictionAnchor=int(scene.friction_anchors),
         physicsClientId=scene.cid,
     )
+    for link in scene.obj_links:
+        p.changeDynamics(scene.obj, link, frictionAnchor=int(scene.friction_anchors), physicsClientId=scene.cid)
     if fixed:
         p.changeDynamics(scene.obj, -1, mass=0.0, physicsClientId=scene.cid)
     scene.obj_mass, scene.asset, scene.obj_fixed = (0.0 if fixed else props.mass), obj, fixed
