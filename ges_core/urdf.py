@@ -18,6 +18,8 @@ from ges_core.errors import AssetError
 __all__ = [
     "WRIST_JOINTS",
     "add_floating_base",
+    "inertia_tensor",
+    "reach_bound",
     "absolutize_mesh_paths",
     "strip_render_data",
     "root_link",
@@ -38,6 +40,30 @@ WRIST_JOINTS: tuple[str, ...] = (
 _WRIST_AXES = ((1, 0, 0), (0, 1, 0), (0, 0, 1), (1, 0, 0), (0, 1, 0), (0, 0, 1))
 _WRIST_LIMIT_M = 5.0
 """Wrist translation range, metres either side of the world origin."""
+
+
+def inertia_tensor(node: ET.Element | None) -> np.ndarray:
+    """(3, 3) symmetric tensor of an ``<inertia ixx=.. ixy=.. .. izz=..>`` element (absent attributes 0; a missing
+    element, None, gives zeros), kg m^2, in its ``<inertial>``'s frame."""
+    get = (lambda k: float(node.get(k, "0"))) if node is not None else (lambda k: 0.0)
+    return np.array(
+        [
+            [get("ixx"), get("ixy"), get("ixz")],
+            [get("ixy"), get("iyy"), get("iyz")],
+            [get("ixz"), get("iyz"), get("izz")],
+        ]
+    )
+
+
+def reach_bound(mass: float, offsets: np.ndarray) -> float:
+    """kg m^2: the largest principal moment of inertia a body of ``mass`` can have when its points lie at
+    ``offsets`` (N, 3) from its centre of mass, ``mass R^2`` with ``R`` the farthest (inf for N = 0: no bound).
+
+    ``I_k = sum m_i d_ik^2 <= sum m_i |d_i|^2 <= m R^2``: a file tensor above it belongs to no such body.
+    """
+    if len(offsets) == 0:
+        return float("inf")
+    return mass * float(np.max(np.sum(np.asarray(offsets, dtype=np.float64) ** 2, axis=1)))
 
 
 def parse_urdf(text: str) -> ET.Element:

@@ -27,7 +27,7 @@ from pathlib import Path
 import numpy as np
 
 from ges_core.errors import AssetError
-from ges_core.urdf import parse_urdf
+from ges_core.urdf import inertia_tensor, parse_urdf, reach_bound
 
 __all__ = ["ImplausibleInertia", "geometry_points", "implausible_inertias"]
 
@@ -68,13 +68,14 @@ def implausible_inertias(text: str, base_dir: Path) -> list[ImplausibleInertia]:
             continue
         origin = inertial.find("origin")
         com = np.array(origin.get("xyz", "0 0 0").split(), dtype=float) if origin is not None else np.zeros(3)
-        largest = float(np.linalg.eigvalsh(_tensor(inertial.find("inertia"))).max())  # any frame: eigenvalues
+        tensor = inertia_tensor(inertial.find("inertia"))
+        largest = float(np.linalg.eigvalsh(tensor).max())  # any frame: eigenvalues
         if largest <= PLACEHOLDER_MOMENT:
             continue
         points = geometry_points(link, base_dir, ("collision", "visual"))
         if points is None:
             continue
-        bound = mass * float(np.max(np.sum((points - com) ** 2, axis=1)))
+        bound = reach_bound(mass, points - com)
         if largest > bound * (1 + BOUND_SLACK):
             out.append(ImplausibleInertia(link.get("name"), mass, largest, bound))
     return out
@@ -105,14 +106,3 @@ def geometry_points(link: ET.Element, base_dir: Path, kinds: tuple[str, ...]) ->
     if len(shapes) != len(elements):
         return None
     return np.concatenate([np.asarray(s.mesh.vertices, dtype=np.float64) for s in shapes])
-
-
-def _tensor(node: ET.Element) -> np.ndarray:
-    get = lambda k: float(node.get(k, "0"))  # noqa: E731
-    return np.array(
-        [
-            [get("ixx"), get("ixy"), get("ixz")],
-            [get("ixy"), get("iyy"), get("iyz")],
-            [get("ixz"), get("iyz"), get("izz")],
-        ]
-    )

@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ges_core.urdf import parse_urdf
+from ges_core.urdf import inertia_tensor, parse_urdf
 
 __all__ = ["UrdfTree"]
 
@@ -52,10 +52,7 @@ class UrdfTree:
         self.mass[name] = float(mass.get("value", 0)) if mass is not None else 0.0
         i = inertial.find("inertia")
         if i is not None:
-            g = {k: float(i.get(k, 0)) for k in ("ixx", "iyy", "izz", "ixy", "ixz", "iyz")}
-            self.inertia[name] = np.array(
-                [[g["ixx"], g["ixy"], g["ixz"]], [g["ixy"], g["iyy"], g["iyz"]], [g["ixz"], g["iyz"], g["izz"]]]
-            )
+            self.inertia[name] = inertia_tensor(i)
 
     def _add_joint(self, joint) -> None:
         name, kind = joint.get("name"), joint.get("type")

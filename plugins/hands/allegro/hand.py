@@ -28,7 +28,7 @@ from ges_core.errors import AssetError, BackendUnavailable
 from ges_core.hand import HandDescription, HandModel
 from ges_core.hand_yaml import description_from_yaml
 from ges_core.paths import atomic_write_text, cache_dir
-from ges_core.urdf import absolutize_mesh_paths, parse_urdf, strip_render_data
+from ges_core.urdf import absolutize_mesh_paths, inertia_tensor, parse_urdf, reach_bound, strip_render_data
 
 __all__ = [
     "HUMAN_MIDDLE_FINGER_LENGTH",
@@ -150,10 +150,8 @@ def _read_inertial(inertial: ET.Element, name: str | None) -> tuple[float, np.nd
     mass_el, inertia_el = inertial.find("mass"), inertial.find("inertia")
     if mass_el is None or inertia_el is None:
         raise AssetError(f"Allegro URDF: link '{name}' has an <inertial> without <mass> or <inertia>")
-    a = {k: float(inertia_el.get(k, 0.0)) for k in ("ixx", "ixy", "ixz", "iyy", "iyz", "izz")}
-    tensor = np.array([[a["ixx"], a["ixy"], a["ixz"]], [a["ixy"], a["iyy"], a["iyz"]], [a["ixz"], a["iyz"], a["izz"]]])
     com, _ = _origin(inertial)
-    return float(mass_el.get("value")), com, tensor
+    return float(mass_el.get("value")), com, inertia_tensor(inertia_el)
 
 
 def _realizable(mass: float, tensor: np.ndarray, offsets: np.ndarray) -> bool:
@@ -161,10 +159,7 @@ def _realizable(mass: float, tensor: np.ndarray, offsets: np.ndarray) -> bool:
     moments = np.linalg.eigvalsh(tensor)  # ascending
     if moments[0] <= 0 or moments[0] + moments[1] < moments[2] * (1 - _REL_TOL):
         return False
-    if len(offsets) == 0:
-        return True
-    reach = float(np.max(np.linalg.norm(offsets, axis=1)))
-    return moments[2] <= mass * reach**2 * (1 + _REL_TOL)
+    return moments[2] <= reach_bound(mass, offsets) * (1 + _REL_TOL)
 
 
 def _write_box_inertia(inertial: ET.Element, mass: float, points: np.ndarray, name: str | None) -> None:

@@ -29,7 +29,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ges_core.paths import cached_text_file
-from ges_core.urdf import add_floating_base, parse_urdf, root_link
+from ges_core.urdf import add_floating_base, inertia_tensor, parse_urdf, root_link
 
 __all__ = ["FIXED_WRIST_JOINT", "WORLD_LINK", "add_fixed_base", "pybullet_hand_urdf", "sanitize_inertias"]
 
@@ -98,7 +98,7 @@ def sanitize_inertias(text: str) -> str:
             _write_inertial(link, _TINY_MASS, np.zeros(3), np.eye(3), np.full(3, _TINY_INERTIA))
             continue
         origin_xyz, origin_rot = _origin(inertial)
-        moments, axes = principal_moments(_tensor(inertial))
+        moments, axes = principal_moments(inertia_tensor(inertial.find("inertia")))
         link.remove(inertial)
         _write_inertial(link, _mass(inertial), origin_xyz, origin_rot @ axes, moments)
     return ET.tostring(root, encoding="unicode")
@@ -126,18 +126,6 @@ def principal_moments(tensor: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 def _mass(inertial: ET.Element) -> float:
     mass = inertial.find("mass")
     return float(mass.get("value", "0")) if mass is not None else 0.0
-
-
-def _tensor(inertial: ET.Element) -> np.ndarray:
-    node = inertial.find("inertia")
-    get = (lambda k: float(node.get(k, "0"))) if node is not None else (lambda k: 0.0)
-    return np.array(
-        [
-            [get("ixx"), get("ixy"), get("ixz")],
-            [get("ixy"), get("iyy"), get("iyz")],
-            [get("ixz"), get("iyz"), get("izz")],
-        ]
-    )
 
 
 def _origin(inertial: ET.Element) -> tuple[np.ndarray, np.ndarray]:
