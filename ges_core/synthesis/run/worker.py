@@ -300,10 +300,11 @@ def _attempts(
 
 def _chosen(tries: list[_Attempt]) -> int:
     """Index of the attempt a record keeps (see :func:`_attempts`)."""
-    for holds in (_Attempt.holds_everywhere, _Attempt.robust_ok):
-        robust = [i for i, t in enumerate(tries) if holds.fget(t)]
-        if robust:
-            return robust[0]
+    first = next((i for i, t in enumerate(tries) if t.holds_everywhere), None)
+    if first is None:
+        first = next((i for i, t in enumerate(tries) if t.robust_ok), None)
+    if first is not None:
+        return first
     passed = [i for i, t in enumerate(tries) if t.passed]
     if passed:
         return max(passed, key=lambda i: (tries[i].robustness or 0.0, -i))

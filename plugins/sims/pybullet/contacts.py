@@ -50,19 +50,20 @@ def contact_pairs(cid: int, names: dict[int, str], link_names: dict[int, dict[in
     names: body id -> body name; link_names: body id -> {link index -> link name} (bodies with
     one link may be absent: their link is named after the body).
     """
-    pairs: dict[tuple[str, str, str, str], list[float]] = {}
-    order: dict[tuple[str, str, str, str], tuple[int, int, int, int]] = {}  # the first (body, link) ids: the sort
+    pairs: dict[tuple[int, int, int, int], list[float]] = {}
     for c in p.getContactPoints(physicsClientId=cid):
         if c[8] > TOUCH_SEPARATION and c[9] <= 0.0:
             continue
-        a, b, la, lb = c[1], c[2], c[3], c[4]
-        # keyed by names: the object's extra shape links (scene.create_object) are all the one link "object"
-        key = (names.get(a, str(a)), link_names.get(a, {}).get(la, names.get(a, str(a))),
-               names.get(b, str(b)), link_names.get(b, {}).get(lb, names.get(b, str(b))))  # fmt: skip
+        key = (c[1], c[3], c[2], c[4])
         sep, force = pairs.get(key, (np.inf, 0.0))
         pairs[key] = [min(sep, c[8]), force + c[9]]
-        order[key] = min(order.get(key, (a, la, b, lb)), (a, la, b, lb))
+    named: dict[tuple[str, str, str, str], list[float]] = {}  # the object's shape links are all the link "object"
+    for (a, la, b, lb), (sep, force) in sorted(pairs.items()):
+        key = (names.get(a, str(a)), link_names.get(a, {}).get(la, names.get(a, str(a))),
+               names.get(b, str(b)), link_names.get(b, {}).get(lb, names.get(b, str(b))))  # fmt: skip
+        merged = named.setdefault(key, [np.inf, 0.0])
+        merged[0], merged[1] = min(merged[0], sep), merged[1] + force
     return [
         ContactPair(body_a=ba, link_a=la, body_b=bb, link_b=lb, separation=float(sep), force=float(force))
-        for (ba, la, bb, lb), (sep, force) in sorted(pairs.items(), key=lambda item: order[item[0]])
+        for (ba, la, bb, lb), (sep, force) in named.items()
     ]
