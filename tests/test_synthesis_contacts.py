@@ -149,6 +149,28 @@ def test_a_cone_steeper_than_the_friction_angle_has_no_force_closure(results, cl
     assert generate_contacts(*clouds[oid], cfg).quality > 0.0
 
 
+def test_layout_rank_walks_the_candidates_in_force_closure_until_they_run_out(results, clouds):
+    """layout_rank 1, 2, ... give the next candidates in force closure, each new; past the last the reason is
+    no_more_layouts. The cone, with none in force closure, keeps its rank-0 answer and has no rank 1."""
+    oid = "procedural/box/000"
+    seen = [results[oid].contacts.positions]
+    for rank in range(1, 13):  # at most 2 strategies x 2 squeeze axes x 3 layouts
+        try:
+            found = generate_contacts(*clouds[oid], CFG.model_copy(update={"layout_rank": rank}), object_id=oid)
+        except SynthesisError as error:
+            assert error.reason == "no_more_layouts" and f"layout_rank={rank}" in str(error)
+            break
+        assert found.quality > 0.0
+        assert not any(np.array_equal(found.contacts.positions, earlier) for earlier in seen)
+        seen.append(found.contacts.positions)
+    else:
+        pytest.fail("more candidates than the search can make")
+    assert len(seen) >= 3
+    with pytest.raises(SynthesisError) as info:
+        generate_contacts(*clouds["procedural/cone/000"], CFG.model_copy(update={"layout_rank": 1}))
+    assert info.value.reason == "no_more_layouts"
+
+
 @pytest.mark.parametrize("oid", ids("box/000 mug/000 wedge/000 l_bracket/001"))
 def test_contacts_turn_with_an_asymmetric_object(results, clouds, oid):
     """Full-PCA alignment makes the result equivariant: turn and shift the cloud, the contacts follow."""

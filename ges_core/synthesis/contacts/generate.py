@@ -109,6 +109,12 @@ class ContactConfig(ConfigModel):
         ge=1,
         description="ranked layouts (slices / finger windows) tried per squeeze axis until one is in force closure",
     )
+    layout_rank: int = Field(
+        0,
+        ge=0,
+        description="which of the candidate grasps in force closure to return, in order of preference (0: the "
+        "first; Stage 1's attempt loop asks for the next ones when no wrist placement on the first holds)",
+    )
     right_hand: bool = Field(True, description="chirality of the finger order (both built-in hands are right hands)")
     force_closure: ForceClosureConfig = Field(default_factory=ForceClosureConfig)
 
@@ -132,7 +138,8 @@ def generate_contacts(
     points, normals: (N, 3) surface samples and outward unit normals, resting frame (z up, table at
     z = 0), metres. seed: used only to subsample clouds above ``max_points``. Raises SynthesisError
     (reasons ``bad_input``, ``empty_cloud``, ``nan_in_cloud``, ``degenerate_cloud``, ``too_low``,
-    ``no_graspable_width``, ``no_contact_surface``) when the object cannot be handled.
+    ``no_graspable_width``, ``no_contact_surface``) when the object cannot be handled, and ``no_more_layouts``
+    when ``config.layout_rank`` asks for more candidates in force closure than the object has.
     """
     t0 = time.perf_counter()
     cfg = config or ContactConfig()
@@ -239,21 +246,30 @@ class _Plan:
 
 
 def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, primary: str) -> _Plan:
-    """The grasp to use: the first candidate, in order of preference, whose optimized contacts are in
-    force closure (coarse epsilon > 0); the most preferred one when none is.
+    """The grasp to use: the ``layout_rank``-th candidate (from 0), in order of preference, whose optimized
+    contacts are in force closure (coarse epsilon > 0); at rank 0 the most preferred one when none is.
 
     Preference: the PCA strategy before the other one; within a strategy, the squeeze axis that leaves
     the fingers more room before the other one; within an axis, the layouts in their rank order; for
     each layout, the thumb side that screens better.
     """
-    first, widths, found_layout, openings = None, [], False, []
+    first, widths, found_layout, openings, closed = None, [], False, [], 0
+    rank = ctx.cfg.layout_rank
     for strategy in (primary, "vertical" if primary == "horizontal" else "horizontal"):
         for col, layouts in _ranked_axes(pts, nrm, ctx, strategy, widths):
             found_layout = True
             for plan in _side_plans(pts, nrm, ctx, strategy, col, layouts, openings):
                 first = first or plan
                 if plan.screen > 0.0:
-                    return plan
+                    if closed == rank:
+                        return plan
+                    closed += 1
+    if rank > 0 and first is not None:
+        raise _fail(
+            "no_more_layouts",
+            ctx.object_id,
+            f"layout_rank={rank} asks for candidate {rank + 1} in force closure; the object has {closed}",
+        )
     if first is not None:
         return first
     if openings:
