@@ -7,13 +7,17 @@ it goes on where it stopped (stored (object, hand) pairs are skipped); ``--fresh
 meshes are decomposed on the fly (CoACD, cached by mesh hash; near-convex scans use their hull).
 
     python benchmarks/stage1_dataset.py [--out runs/stage1_dataset] [--workers 2] [--limit N] [--fresh]
+    python benchmarks/stage1_dataset.py --sources procedural     # part of the library (its own results file)
     python benchmarks/stage1_dataset.py --summary-only          # count what is stored, run nothing
 
 Per split and per category (and per hand): records, validated (the paper's single trial), robust (every
 perturbation trial held), median seconds per object (contacts + retargeting + refinement + validation, the
 nominal trial; robust trials apart). Prints markdown and writes ``benchmarks/results/stage1_dataset.json``
-(also after ``--summary-only``, marked incomplete while pairs are missing). The wall time is the sum over the
-runs that wrote the folder (each run appends itself to ``<out>.runs.json`` beside it).
+(also after ``--summary-only``, marked incomplete while pairs are missing); with ``--sources`` naming part of
+the library, ``stage1_dataset_<sources>.json`` instead, and the dataset folder defaults to
+``runs/stage1_dataset_<sources>``: the splits are drawn over the objects listed (the unseen categories are about
+10 % of them), so a part's split labels differ from the whole library's and the two must not share a folder. The
+wall time is the sum over the runs that wrote the folder (each run appends itself to ``<out>.runs.json`` beside it).
 
 Paper: 773 objects in 82 categories (563 train, 132 unseen-object, 78 unseen-category).
 """
@@ -39,6 +43,7 @@ from _results import code_state, write_results
 
 RESULTS = Path(__file__).parent / "results" / "stage1_dataset.json"
 HANDS = ("allegro", "shadow")
+SOURCES = ("procedural", "pybullet", "real")
 RUNS_SUFFIX = ".runs.json"
 """``<out>.runs.json`` beside the dataset folder: each run's wall time, so a resumed dataset's total adds up."""
 PAPER = {"objects": 773, "categories": 82, "train": 563, "unseen_object": 132, "unseen_category": 78}
@@ -46,14 +51,19 @@ PAPER = {"objects": 773, "categories": 82, "train": 563, "unseen_object": 132, "
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("runs/stage1_dataset"), help="dataset folder (resumed)")
+    parser.add_argument("--out", type=Path, default=None, help="dataset folder, resumed (default runs/stage1_dataset…)")
     parser.add_argument("--workers", type=int, default=2, help="worker processes")
     parser.add_argument("--limit", type=int, default=None, help="only the first N objects (a smoke run)")
     parser.add_argument("--fresh", action="store_true", help="delete --out first")
     parser.add_argument("--summary-only", action="store_true", help="count the stored records, run nothing")
+    parser.add_argument("--sources", nargs="+", choices=SOURCES, default=list(SOURCES), help="library sources")
     args = parser.parse_args()
     set_torch_threads(1)
-    config = SynthesisConfig(library=LibraryConfig(sources=("procedural", "pybullet", "real"), decompose=True))
+    sources = tuple(s for s in SOURCES if s in args.sources)
+    part = "" if sources == SOURCES else "_" + "-".join(sources)
+    results = RESULTS.with_name(f"stage1_dataset{part}.json")
+    args.out = args.out or Path(f"runs/stage1_dataset{part}")
+    config = SynthesisConfig(library=LibraryConfig(sources=sources, decompose=True))
     objects = config.library.build().list()
     objects = objects if args.limit is None else objects[: args.limit]
     if args.fresh and args.out.exists():
@@ -78,7 +88,7 @@ def main() -> None:
     print(f"\n{len(records)} of {len(wanted)} (object, hand) records stored{'' if done else ' (incomplete)'}")
     workers = ", ".join(str(r["workers"]) for r in runs)
     print(f"wall time: {wall / 60:.1f} min in {len(runs)} run(s) ({workers} workers)")
-    write_results(RESULTS, _data(objects, records, wanted, tables, runs, args))
+    write_results(results, _data(objects, records, wanted, tables, runs, args) | {"sources": list(sources)})
 
 
 def _runs_file(out: Path) -> Path:
