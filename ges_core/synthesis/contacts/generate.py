@@ -113,7 +113,7 @@ class ContactConfig(ConfigModel):
         0,
         ge=0,
         description="which of the candidate grasps in force closure to return, in order of preference (0: the "
-        "first; Stage 1's attempt loop asks for the next ones when no wrist placement on the first holds)",
+        "first; 1, 2, ...: the next ones, to try another contact layout on an object whose first does not hold)",
     )
     right_hand: bool = Field(True, description="chirality of the finger order (both built-in hands are right hands)")
     force_closure: ForceClosureConfig = Field(default_factory=ForceClosureConfig)
