@@ -151,7 +151,7 @@ def test_a_cone_steeper_than_the_friction_angle_has_no_force_closure(results, cl
 
 def test_layout_rank_walks_the_candidates_in_force_closure_until_they_run_out(results, clouds):
     """layout_rank 1, 2, ... give the next candidates in force closure, each new; past the last the reason is
-    no_more_layouts. The cone, with none in force closure, keeps its rank-0 answer and has no rank 1."""
+    no_more_layouts. The cone, with none in force closure (the test above), has no rank 1."""
     oid = "procedural/box/000"
     seen = [results[oid].contacts.positions]
     for rank in range(1, 13):  # at most 2 strategies x 2 squeeze axes x 3 layouts
