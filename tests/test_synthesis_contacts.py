@@ -7,8 +7,10 @@ import pytest
 import trimesh
 from pydantic import ValidationError
 
+from ges_core.dataset.layout import config_differences
 from ges_core.errors import SynthesisError
 from ges_core.objects.library import LibraryConfig, ObjectLibrary
+from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.contacts.force_closure import ForceClosureConfig, ferrari_canny
 from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
 
@@ -169,6 +171,16 @@ def test_layout_rank_walks_the_candidates_in_force_closure_until_they_run_out(re
     with pytest.raises(SynthesisError) as info:
         generate_contacts(*clouds["procedural/cone/000"], CFG.model_copy(update={"layout_rank": 1}))
     assert info.value.reason == "no_more_layouts"
+
+
+def test_layout_rank_is_stored_only_when_set_so_older_datasets_resume():
+    """A run at rank 0 stores the run_config it stored before the field existed (its hash is in every record)."""
+    run = SynthesisConfig()
+    assert "layout_rank" not in run.dump()["contacts"]
+    assert SynthesisConfig.model_validate(run.dump()).contacts.layout_rank == 0
+    ranked = SynthesisConfig.model_validate({"contacts": {"layout_rank": 2}})
+    assert ranked.dump()["contacts"]["layout_rank"] == 2
+    assert config_differences(run.dump(), ranked.dump()) == ["contacts.layout_rank: '<absent>' -> 2"]
 
 
 @pytest.mark.parametrize("oid", ids("box/000 mug/000 wedge/000 l_bracket/001"))

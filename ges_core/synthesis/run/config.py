@@ -124,10 +124,14 @@ class SynthesisConfig(ConfigModel):
         return self.refine_sim if self.refine_sim in self.validate_sims else self.validate_sims[0]
 
     def dump(self) -> dict:
-        """JSON-ready settings (the ``validate`` key spelled as in YAML); ``hand_settings`` only when not empty."""
+        """JSON-ready settings (the ``validate`` key spelled as in YAML); ``hand_settings`` only when not empty,
+        ``contacts.layout_rank`` only when not 0: a run that sets neither stores the run_config (and its hash in
+        every record) that it stored before they existed, so such a dataset resumes."""
         data = self.model_dump(mode="json", by_alias=True)
         if not data["hand_settings"]:
             del data["hand_settings"]
+        if not data["contacts"]["layout_rank"]:
+            del data["contacts"]["layout_rank"]
         return data
 
     def for_hand(self, hand: str, settings: dict[str, Any] | None = None) -> SynthesisConfig:
