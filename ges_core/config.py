@@ -15,7 +15,17 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from ges_core.errors import ConfigError
 
-__all__ = ["ConfigModel", "Defaults", "RegistryConfig", "apply_overrides", "load_config", "parse_model", "read_yaml"]
+__all__ = [
+    "STORED_WHEN_SET",
+    "ConfigModel",
+    "Defaults",
+    "RegistryConfig",
+    "apply_overrides",
+    "load_config",
+    "parse_model",
+    "read_yaml",
+    "stored_dump",
+]
 
 M = TypeVar("M", bound=BaseModel)
 
@@ -24,6 +34,33 @@ class ConfigModel(BaseModel):
     """Base of our settings models: unknown keys rejected, immutable, no NaN or infinite numbers."""
 
     model_config = ConfigDict(extra="forbid", frozen=True, allow_inf_nan=False)
+
+
+STORED_WHEN_SET = {"stored_when_set": True}
+"""``json_schema_extra`` of a field added after configs were already stored (a dataset's ``run_config`` and its hash
+in every record): :func:`stored_dump` leaves it out while it holds its default, so a run that does not set it
+stores what it stored before the field existed, and such a stored config still matches."""
+
+
+def stored_dump(model: ConfigModel) -> dict:
+    """JSON-ready ``model`` (keys by alias) for storing, without the :data:`STORED_WHEN_SET` fields, nested ones
+    included, that hold their defaults."""
+    data = model.model_dump(mode="json", by_alias=True)
+    _drop_unset_late_fields(model, data)
+    return data
+
+
+def _drop_unset_late_fields(model: BaseModel, data: dict) -> None:
+    for name, info in type(model).model_fields.items():
+        key, value = info.alias or name, getattr(model, name)
+        if key not in data:
+            continue
+        if isinstance(value, BaseModel):
+            _drop_unset_late_fields(value, data[key])
+        elif (info.json_schema_extra or {}).get("stored_when_set") and value == info.get_default(
+            call_default_factory=True
+        ):
+            del data[key]
 
 
 class Defaults(ConfigModel):

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import pytest
+from pydantic import Field
 
-from ges_core.config import RegistryConfig, apply_overrides, load_config
+from ges_core.config import STORED_WHEN_SET, ConfigModel, RegistryConfig, apply_overrides, load_config, stored_dump
 from ges_core.errors import ConfigError
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import SimCheckConfig
@@ -114,3 +115,23 @@ def test_the_shipped_demo_config_equals_the_built_in_defaults():
 
     shipped = Path(__file__).resolve().parents[1] / "configs" / "demo.yaml"
     assert load_config(DemoConfig, shipped) == DemoConfig()
+
+
+class _Inner(ConfigModel):
+    kept: int = 1
+    late: int = Field(0, json_schema_extra=STORED_WHEN_SET)
+
+
+class _Outer(ConfigModel):
+    inner: _Inner = Field(default_factory=_Inner)
+    extras: dict[str, int] = Field(default_factory=dict, json_schema_extra=STORED_WHEN_SET)
+    named: float = Field(2.0, alias="renamed")
+
+
+def test_stored_dump_leaves_out_late_fields_at_their_defaults_at_any_depth():
+    """A field added after configs were stored is absent while at its default (the stored JSON and its hash as
+    before), present once set; every other field, defaults included, is stored as model_dump gives it."""
+    assert stored_dump(_Outer()) == {"inner": {"kept": 1}, "renamed": 2.0}
+    changed = _Outer.model_validate({"inner": {"late": 3}, "extras": {"a": 1}})
+    assert stored_dump(changed) == {"inner": {"kept": 1, "late": 3}, "extras": {"a": 1}, "renamed": 2.0}
+    assert _Outer.model_validate(stored_dump(_Outer())) == _Outer()  # what is left out reads back as the default

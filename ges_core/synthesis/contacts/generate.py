@@ -27,7 +27,7 @@ import numpy as np
 from pydantic import Field, model_validator
 from scipy.spatial import cKDTree
 
-from ges_core.config import ConfigModel
+from ges_core.config import STORED_WHEN_SET, ConfigModel
 from ges_core.contact import ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.synthesis.contacts import slicing as sl
@@ -114,6 +114,7 @@ class ContactConfig(ConfigModel):
         ge=0,
         description="which of the candidate grasps in force closure to return, in order of preference (0: the "
         "first; 1, 2, ...: the next ones, to try another contact layout on an object whose first does not hold)",
+        json_schema_extra=STORED_WHEN_SET,  # added after datasets were written: stored only when set
     )
     right_hand: bool = Field(True, description="chirality of the finger order (both built-in hands are right hands)")
     force_closure: ForceClosureConfig = Field(default_factory=ForceClosureConfig)

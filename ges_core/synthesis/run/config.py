@@ -7,7 +7,7 @@ from typing import Any
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from ges_core.config import ConfigModel, parse_model
+from ges_core.config import STORED_WHEN_SET, ConfigModel, parse_model, stored_dump
 from ges_core.errors import ConfigError
 from ges_core.hand_settings import check_settings, merge_settings, stage1_settings
 from ges_core.objects.library import LibraryConfig
@@ -76,12 +76,13 @@ class SynthesisConfig(ConfigModel):
         description="perturbation trials of every grasp whose nominal validation passed, in every validating simulator",
     )
     # hand_settings: the top layer of the per-hand precedence (run config < the hand's YAML settings < this);
-    # ges_core.hand_settings documents it. Left out of dump() when empty, so that runs which set none keep their
-    # run_config (and its hash in every record) as before.
+    # ges_core.hand_settings documents it. Stored only when set (STORED_WHEN_SET), so that runs which set none keep
+    # their run_config (and its hash in every record) as before.
     hand_settings: dict[str, dict[str, Any]] = Field(
         default_factory=dict,
         description="per hand name, partial sections (contacts, retarget, refine, pregrasp, validate, robust; "
         "thumb_keep) put over the run's and the hand's YAML settings for that hand",
+        json_schema_extra=STORED_WHEN_SET,
     )
 
     @field_validator("hand_settings")
@@ -124,15 +125,9 @@ class SynthesisConfig(ConfigModel):
         return self.refine_sim if self.refine_sim in self.validate_sims else self.validate_sims[0]
 
     def dump(self) -> dict:
-        """JSON-ready settings (the ``validate`` key spelled as in YAML); ``hand_settings`` only when not empty,
-        ``contacts.layout_rank`` only when not 0: a run that sets neither stores the run_config (and its hash in
-        every record) that it stored before they existed, so such a dataset resumes."""
-        data = self.model_dump(mode="json", by_alias=True)
-        if not data["hand_settings"]:
-            del data["hand_settings"]
-        if not data["contacts"]["layout_rank"]:
-            del data["contacts"]["layout_rank"]
-        return data
+        """JSON-ready settings as stored in a dataset (the ``validate`` key spelled as in YAML; fields added later,
+        ``hand_settings`` and ``contacts.layout_rank``, only when set: :func:`ges_core.config.stored_dump`)."""
+        return stored_dump(self)
 
     def for_hand(self, hand: str, settings: dict[str, Any] | None = None) -> SynthesisConfig:
         """The settings of ``hand``'s steps: this config < the hand's YAML ``settings`` < ``hand_settings[hand]``.
