@@ -92,3 +92,28 @@ def test_cli_prints_the_set_and_a_train_command_that_parses(tmp_path, capsys):
     overrides = [argv[i + 1] for i, a in enumerate(argv) if a == "-o"]
     cfg = load_train_config("tiny", overrides=overrides)  # the printed overrides are what train-expert reads
     assert cfg.objects == ["o0"] and list(cfg.curriculum.stages) == [1, 2]
+
+
+def test_cli_line_carries_the_experts_training_settings(tmp_path, capsys):
+    """With the experts' run folders beside their checkpoints, the printed line trains the hard-case expert with
+    their settings (here residual actions on refined grasps), not the tiny preset's."""
+    import yaml
+
+    run = tmp_path / "experts" / "e1run"
+    (run / "checkpoints").mkdir(parents=True)
+    trained = load_train_config("tiny", overrides=["action_mode=residual", "selection=refined", "cluster=1"])
+    (run / "config.yaml").write_text(yaml.safe_dump(trained.model_dump(mode="json"), sort_keys=False))
+    path = _matrix_file(tmp_path / "m.json", [[4, 0, 1], [4, 4, 0]])
+    data = json.loads(path.read_text())
+    data["experts"]["e1"]["settings"] = {"checkpoint": str(run / "checkpoints" / "last.pt")}
+    write_matrix(path, data)
+    assert main(["hard-cases", str(path)]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    argv = shlex.split(next(line for line in lines if line.strip().startswith("ges train-expert")))
+    assert argv[argv.index("--config") + 1] == str(run / "config.yaml")
+    overrides = [argv[i + 1] for i, a in enumerate(argv) if a == "-o"]
+    cfg = load_train_config("tiny", path=argv[argv.index("--config") + 1], overrides=overrides)
+    assert (cfg.action_mode, cfg.selection) == ("residual", "refined")
+    assert cfg.objects == ["o0"] and list(cfg.curriculum.stages) == [1, 2]
+    default = load_train_config("tiny", overrides=overrides)  # what the line gave before: the preset's settings
+    assert (default.action_mode, default.selection) == ("absolute", "validated")

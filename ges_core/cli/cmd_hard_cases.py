@@ -54,7 +54,26 @@ def run_hard_cases(args: argparse.Namespace) -> int:
         print(f"wrote {args.out}")
     if hard.object_ids:
         dataset = args.dataset or data.get("dataset") or "DATASET"
-        print(f"\ntrain the hard-case expert:\n  {hard.train_command(dataset)}")
+        config = expert_run_config(data, hard.experts)
+        if config is None:
+            print("\nno run folder of these experts was found beside their checkpoints: the line below trains with "
+                  "the tiny preset's settings (add the experts' --config or -o settings)")  # fmt: skip
+        else:
+            print(f"\n--config: the training settings of expert run '{config.parent.name}' ({config}); the objects "
+                  "and the curriculum stages replace its own")  # fmt: skip
+        print(f"\ntrain the hard-case expert:\n  {hard.train_command(dataset, config=config)}")
     else:
         print("no hard case: no hard-case expert is needed at this threshold")
     return 0
+
+
+def expert_run_config(data: dict, labels) -> Path | None:
+    """The resolved ``config.yaml`` of the first of ``labels`` whose ``checkpoint`` setting lies in a
+    ``ges train-expert`` run folder (``RUN/checkpoints/FILE``, ``RUN/config.yaml``), or None."""
+    for label in labels:
+        checkpoint = (data.get("experts", {}).get(label, {}).get("settings") or {}).get("checkpoint")
+        if checkpoint:
+            config = Path(checkpoint).parent.parent / "config.yaml"
+            if config.is_file():
+                return config
+    return None

@@ -49,11 +49,16 @@ class HardCases:
     split: str
     """The rows considered (the paper: train)."""
 
-    def train_command(self, dataset: str, name: str = "expert_hard") -> str:
-        """The ``ges train-expert`` line that trains the hard-case expert on this set (curriculum stages 1-2)."""
+    def train_command(self, dataset: str, name: str = "expert_hard", config: str | None = None) -> str:
+        """The ``ges train-expert`` line that trains the hard-case expert on this set (curriculum stages 1-2).
+
+        ``config``: a cluster expert's resolved ``config.yaml`` (its run folder's), given as ``--config`` so the
+        hard-case expert trains with the same hand, simulator, action mode, grasp selection, reward and budget;
+        without it the line trains with the tiny preset's settings."""
         ids = "[" + ", ".join(self.object_ids) + "]"
+        base = f"--config {shlex.quote(str(config))} " if config else ""
         return (
-            f"ges train-expert {shlex.quote(str(dataset))} --name {name} "
+            f"ges train-expert {shlex.quote(str(dataset))} --name {name} {base}"
             f"-o {shlex.quote(f'objects={ids}')} -o {shlex.quote('curriculum.stages=[1, 2]')}"
         )
 
