@@ -85,9 +85,13 @@ class GraspRunner(OnPolicyRunner):
         demonstrator: the Expert the behaviour-cloning warm start imitates (None: no warm start)."""
         self.run_dir, self.curriculum, self.meta, self.settings = Path(run_dir), curriculum, meta, settings
         self.demonstrator = demonstrator
-        self.critic_iterations = settings.warm_start.critic_iterations if demonstrator is not None else 0
-        """The first iterations (absolute numbers) update only the critic (warm start, step 4)."""
+        self.critic_iterations = (settings.warm_start.critic_iterations if demonstrator is not None
+                                  else settings.ppo.critic_warmup_iterations)  # fmt: skip
+        """The first iterations (absolute numbers) update only the critic (warm start, step 4; or
+        ``ppo.critic_warmup_iterations`` without one)."""
         self._critic_optimizer: torch.optim.Optimizer | None = None
+        """The critic's own Adam (critic-only iterations and ``ppo.critic_fit_epochs``); not in checkpoints: a
+        resumed run starts it anew."""
         self._anchor_optimizer: torch.optim.Optimizer | None = None
         self.demonstrations = None
         """The warm start's Demonstrations (kept for the anchor steps; not in checkpoints: a resumed run has none)."""
@@ -145,7 +149,10 @@ class GraspRunner(OnPolicyRunner):
             collect = time.perf_counter() - t0
             self.alg.compute_returns(obs)
         t1 = time.perf_counter()
+        fit = self._critic_fit() if it >= self.critic_iterations and self.settings.ppo.critic_fit_epochs else None
         loss = self._critic_update() if it < self.critic_iterations else self._guarded_update()
+        if fit is not None:
+            loss["critic_fit"] = fit
         if it >= self.critic_iterations and self.demonstrations is not None and self.settings.warm_start.anchor_steps:
             loss["anchor"] = self._anchor()
         learn = time.perf_counter() - t1
@@ -189,14 +196,30 @@ class GraspRunner(OnPolicyRunner):
         """Warm-start iterations: fit the critic to this rollout's returns, the actor untouched."""
         from ges_core.training.warm_start import critic_regression
 
-        alg, w = self.alg, self.settings.warm_start
-        if self._critic_optimizer is None:
-            self._critic_optimizer = torch.optim.Adam(alg.critic.parameters(), lr=w.critic_learning_rate)
-        value = critic_regression(alg.critic, alg.storage, self._critic_optimizer, alg.num_learning_epochs,
+        alg = self.alg
+        value = critic_regression(alg.critic, alg.storage, self._critic_adam(), alg.num_learning_epochs,
                                   alg.num_mini_batches, alg.max_grad_norm)  # fmt: skip
         alg.critic.update_normalization(alg.storage.observations.flatten(0, 1))
         alg.storage.clear()
         return {"value": value}
+
+    def _critic_fit(self) -> float:
+        """``ppo.critic_fit_epochs`` passes of value regression on this rollout's returns with the critic's own
+        optimizer, before the PPO update (which then uses the rollout as collected: its advantages were computed
+        with the values of the collection); the mean value loss."""
+        from ges_core.training.warm_start import critic_regression
+
+        alg = self.alg
+        return critic_regression(alg.critic, alg.storage, self._critic_adam(), self.settings.ppo.critic_fit_epochs,
+                                 alg.num_mini_batches, alg.max_grad_norm)  # fmt: skip
+
+    def _critic_adam(self) -> torch.optim.Optimizer:
+        """The critic's own Adam, made on first use: the warm start's rate when it runs, else ppo's."""
+        if self._critic_optimizer is None:
+            rate = (self.settings.warm_start.critic_learning_rate if self.demonstrator is not None
+                    else self.settings.ppo.critic_learning_rate)  # fmt: skip
+            self._critic_optimizer = torch.optim.Adam(self.alg.critic.parameters(), lr=rate)
+        return self._critic_optimizer
 
     def _anchor(self) -> float:
         """The anchor steps after a PPO update (``warm_start.anchor_steps``); their mean imitation loss."""
