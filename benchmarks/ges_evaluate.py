@@ -12,7 +12,8 @@ expert, and within 2 points of the oracle; the gate's accuracy (pick among the b
 Gates: every ``--gate PATH`` given, plus one per ``--train-gate NAME`` trained here on the matrix (``ges
 train-gate``'s pipeline, into OUT/gate-NAME; an existing OUT/gate-NAME/gate.pt is reused). The GES episodes run
 (``--reuse-matrix`` takes the identical matrix cells instead, and the JSON says so). Writes
-``benchmarks/results/ges_evaluate.json``, and the Table 2 files and the expert-fusion PNG in OUT.
+``benchmarks/results/ges_evaluate.json`` (``--results`` another), and the Table 2 files and the expert-fusion PNG
+in OUT.
 """
 
 from __future__ import annotations
@@ -91,6 +92,7 @@ def main() -> None:
     p.add_argument("--out", type=Path, help="results folder (default: DATASET/../ges)")
     p.add_argument("--reuse-matrix", action="store_true")
     p.add_argument("--workers", type=int, default=1)
+    p.add_argument("--results", type=Path, default=RESULTS, help="results JSON to write")
     args = p.parse_args()
     set_torch_threads()
     out = args.out or args.dataset.parent / "ges"
@@ -116,7 +118,7 @@ def main() -> None:
             print(f"{gate} {split}: GES {100 * c['ges']:.1f} % | best expert {100 * c['best_expert']:.1f} % | "
                   f"oracle {100 * c['oracle']:.1f} % | above best expert: {c['above_best_expert']} | "
                   f"within 2 points of the oracle: {c['within_2_points_of_oracle']}")  # fmt: skip
-    write_results(RESULTS, {
+    write_results(args.results, {
         "what": "ges evaluate: Table 2 (every expert alone, scripted baseline, oracle, GES per gate)",
         "dataset": str(args.dataset), "matrix": str(args.matrix), "experts": [e.label for e in experts],
         "gates": {label: p.experts for label, p in report.picks.items()}, "config": config.model_dump(mode="json"),

@@ -9,10 +9,11 @@ iterations with the curriculum stage, writes ``benchmarks/results/tiny_expert.js
     ges train-expert runs/tiny/dataset --cluster 1 -o action_mode=residual --out runs/tiny/experts/expert1_residual
     ges train-expert runs/tiny/dataset --cluster 1 -o warm_start.enabled=true -o warm_start.anchor_steps=10 \
         --out runs/tiny/experts/expert1_abs_bc_anchor
-    python benchmarks/tiny_expert.py [RUN_DIR ...] [--bin 25] [--matrix MATRIX.json ...]
+    python benchmarks/tiny_expert.py [RUN_DIR ...] [--bin 25] [--matrix MATRIX.json ...] [--results PATH --title T]
 
 ``--matrix``: success matrices of ``ges eval-experts`` (randomization on, and the ``-norand`` file for off): their
-per-split table (paper and peers protocols) goes into the results beside the curves.
+per-split table (paper and peers protocols) goes into the results beside the curves. ``--results``: another results
+file (its PNG beside it, same stem), for runs other than runs/tiny's; ``--title`` the figure's title.
 """
 
 from __future__ import annotations
@@ -25,7 +26,6 @@ from _results import code_state, write_results
 
 ROOT = Path(__file__).resolve().parent.parent
 RESULTS = Path(__file__).resolve().parent / "results" / "tiny_expert.json"
-PICTURE = RESULTS.with_suffix(".png")
 
 
 LABELS = {
@@ -93,7 +93,7 @@ def bins(rows: list[dict], size: int) -> list[dict]:
     return out
 
 
-def plot(runs: list[dict], path: Path) -> None:
+def plot(runs: list[dict], path: Path, title: str) -> None:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -108,7 +108,7 @@ def plot(runs: list[dict], path: Path) -> None:
     ax.set_ylabel("success (paper protocol, per episode)")
     ax.set_ylim(-0.02, 1.02)
     ax.legend(fontsize=7)
-    ax.set_title("tiny experts (Allegro, SAPIEN, cluster 1)")
+    ax.set_title(title)
     fig.tight_layout()
     fig.savefig(path, dpi=100)
 
@@ -118,7 +118,10 @@ def main() -> None:
     parser.add_argument("runs", nargs="*", type=Path)
     parser.add_argument("--bin", type=int, default=25, help="iterations per row of the table")
     parser.add_argument("--matrix", type=Path, nargs="*", default=[], help="ges eval-experts matrices to tabulate")
+    parser.add_argument("--results", type=Path, default=RESULTS, help="results JSON (the PNG beside it)")
+    parser.add_argument("--title", default="tiny experts (Allegro, SAPIEN, cluster 1)", help="the figure's title")
     args = parser.parse_args()
+    picture = args.results.with_suffix(".png")
     folders = args.runs or sorted(p for p in (ROOT / "runs" / "tiny" / "experts").iterdir() if p.is_dir())
     runs = []
     for folder in folders:
@@ -133,7 +136,7 @@ def main() -> None:
         for b in run["bins"]:
             print(f"| {b['iterations']} | {b['env_steps']:,} | {b['seconds']:.0f} | {b['stage']} | {b['episodes']} | "
                   f"{b['success_paper']} | {b['success_peers']} |")  # fmt: skip
-    plot(runs, PICTURE)
+    plot(runs, picture, args.title)
     for run in runs:
         del run["rows"]  # the curve is in bins; history.jsonl stays in the run folder
     evals = []
@@ -143,8 +146,8 @@ def main() -> None:
         print(ev["table_paper"])
         print(ev["table_peers"])
         evals.append(ev)
-    write_results(RESULTS, {"benchmark": "tiny_expert", "runs": runs, "evaluations": evals, "picture": PICTURE.name,
-                            "code": code_state()})  # fmt: skip
+    write_results(args.results, {"benchmark": "tiny_expert", "runs": runs, "evaluations": evals,
+                                 "picture": picture.name, "code": code_state()})  # fmt: skip
 
 
 if __name__ == "__main__":
