@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import shlex
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 
@@ -49,7 +50,7 @@ class HardCases:
     split: str
     """The rows considered (the paper: train)."""
 
-    def train_command(self, dataset: str, name: str = "expert_hard", config: str | None = None) -> str:
+    def train_command(self, dataset: str, name: str = "expert_hard", config: str | Path | None = None) -> str:
         """The ``ges train-expert`` line that trains the hard-case expert on this set (curriculum stages 1-2).
 
         ``config``: a cluster expert's resolved ``config.yaml`` (its run folder's), given as ``--config`` so the
