@@ -10,6 +10,7 @@ on a quiet 2-core machine (81 s measured at a load average of 1.5).
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -81,7 +82,7 @@ def test_the_page_commands_in_order(folder: Path) -> None:
     assert int(m.episodes.min()) == int(m.episodes.max()) == 1  # --episodes 1
     _check_tables(out.stdout, m)
     shown = console_output(PAGE, typed[4])
-    assert _table(out.stdout, "paper") == _table(shown, "paper"), out.stdout  # the rates the page shows
+    _same_but_one_episode(_table(out.stdout, "paper"), _table(shown, "paper"), out.stdout)  # the page's rates
     rates = m.rates("paper")
     assert (rates[:, m.experts.index("expert0")] == 0).all()  # the page: the absolute expert lifts nothing
 
@@ -100,11 +101,13 @@ def test_the_page_commands_in_order(folder: Path) -> None:
     gate_rows = {row[0]: row[1:] for row in _rows(out.stdout)}
     n_train = sum(s == "train" for s in m.splits)
     assert int(gate_rows["train"][0]) + int(gate_rows["val"][0]) == n_train  # one held out for validation
+    learned = [j for j, e in enumerate(m.experts) if e != m.baseline]
+    scored = rates[:, learned].max(axis=1) > 0  # objects every learned expert failed are left out of the accuracy
     for split in SPLITS[1:]:
-        assert int(gate_rows[split][0]) == sum(s == split for s in m.splits)
+        assert int(gate_rows[split][0]) == sum(s == split and ok for s, ok in zip(m.splits, scored, strict=True))
     for split, (n, acc) in gate_rows.items():
         assert summary["counts"][split] == int(n)
-        assert acc == f"{100 * summary['accuracy'][split]:.1f} %"
+        assert acc == (f"{100 * summary['accuracy'][split]:.1f} %" if int(n) else "-")  # no object scored: "-"
     # the page: expert1 is best on every object, so the gate's 100 % is trivial
     assert (rates[:, m.experts.index("expert1")] >= rates[:, m.experts.index("expert0")]).all()
 
@@ -126,6 +129,22 @@ def _table(text: str, protocol: str) -> dict[str, list[str]]:
     """The ``ges eval-experts`` table of ``protocol`` (``paper``/``peers``): expert label -> cells per split."""
     part = text.split(f"success ({protocol}:", 1)[1].split("\n\n", 2)[1]
     return {row[0]: row[1:] for row in _rows(part)}
+
+
+def _same_but_one_episode(printed: dict[str, list[str]], shown: dict[str, list[str]], stdout: str) -> None:
+    """The printed table is the page's: the same rows, the same episodes (objects for the oracle) per split, and
+    each row's successes over the three splits within one episode of the page's. One episode per cell, and the
+    unseen sphere's single residual episode is decided by the host's floating point (held on the host the page was
+    written on, dropped on another: docs/tutorials/experts.md); a row that moves by more is a real change."""
+    assert list(printed) == list(shown), stdout
+    for label, cells in printed.items():
+        got = [re.search(r"\((\d+)(?:/(\d+)| obj)\)", c).groups() for c in cells[: len(SPLITS)]]
+        want = [re.search(r"\((\d+)(?:/(\d+)| obj)\)", c).groups() for c in shown[label][: len(SPLITS)]]
+        if label.startswith("oracle"):
+            assert [g[0] for g in got] == [w[0] for w in want], (label, cells, stdout)  # objects per split
+            continue
+        assert [g[1] for g in got] == [w[1] for w in want], (label, cells, stdout)  # episodes per split
+        assert sum(abs(int(g[0]) - int(w[0])) for g, w in zip(got, want, strict=True)) <= 1, (label, cells, stdout)
 
 
 def _check_tables(stdout: str, m: SuccessMatrix) -> None:
