@@ -12,6 +12,8 @@ only sends it. See ``docs/viewer.md``.
 
 from __future__ import annotations
 
+import signal
+import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
@@ -91,6 +93,10 @@ def _checked_initial(data: ViewerData, object_id: str, hand: str | None) -> tupl
 def serve(path: str | Path, *, host: str = "127.0.0.1", port: int = 8080, **kwargs) -> None:
     """:func:`start`, print the URL, and serve until Ctrl-C (then stop the server and return)."""
     t0 = time.perf_counter()
+    if threading.current_thread() is threading.main_thread():
+        # Ctrl-C must stop it even when the parent left SIGINT ignored (a child inherits SIG_IGN across exec, as
+        # under pytest-xdist's workers, where the server never stopped)
+        signal.signal(signal.SIGINT, signal.default_int_handler)
     viewer = start(path, host=host, port=port, **kwargs)
     try:  # the URL is printed inside: a Ctrl-C right after it (the page already served) still stops cleanly
         print(
