@@ -247,7 +247,7 @@ def test_command_prints_the_url_and_stops_on_ctrl_c():
         with urllib.request.urlopen(f"http://127.0.0.1:{port}", timeout=30) as page:
             assert page.status == 200
         proc.send_signal(signal.SIGINT)
-        assert proc.wait(timeout=90) == 0  # 30 s ran out once on a host ~2x slower, under the suite's load (2026-12-02)
+        assert proc.wait(timeout=30) == 0  # under pytest-xdist SIGINT arrives ignored: serve() restores it
         assert "ges view: stopped" in proc.stdout.read()
     finally:
         watchdog.cancel()
