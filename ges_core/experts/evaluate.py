@@ -24,6 +24,7 @@ from __future__ import annotations
 import functools
 import hashlib
 import json
+import subprocess
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -295,28 +296,39 @@ def cells_by_other_code(cells: dict, records, labels) -> int:
     )  # fmt: skip
 
 
+CODE_PATHS = ("ges_core", "plugins", "registry.yaml")
+"""What runs an episode, for :func:`code_stamp` (paths relative to the checkout's root)."""
+
+
 @functools.lru_cache(maxsize=1)
 def code_stamp() -> str:
-    """Which code ran a cell: in a git checkout, the commit (12 hex digits) plus, when tracked files under ges_core/
-    or plugins/ differ from it, ``+`` and 8 hex digits of the SHA-256 of that diff; installed, ``version X``.
+    """Which code ran a cell: in a git checkout, the last commit that changed :data:`CODE_PATHS` (12 hex digits)
+    plus, when those tracked files differ from HEAD, ``+`` and 8 hex digits of the SHA-256 of that diff; installed,
+    ``version X``. A commit of docs, tests or benchmarks alone keeps the stamp (and the matrix reusable).
 
     Equal settings do not make equal episodes across code versions (a change of how the randomization seeds turn
     into draws changed every episode of a stored matrix, measured in docs/evaluate.md); two cells with one stamp
     were run by the same tracked code. Computed once per process."""
-    import subprocess
-
     import ges_core
 
     root = Path(ges_core.__file__).resolve().parents[1]
     if (root / ".git").exists():
         try:
-            git = {"cwd": root, "capture_output": True, "timeout": 30, "check": True}
-            commit = subprocess.run(["git", "rev-parse", "HEAD"], text=True, **git).stdout.strip()[:12]
-            diff = subprocess.run(["git", "diff", "HEAD", "--", "ges_core", "plugins"], **git).stdout
-            return f"{commit}+{hashlib.sha256(diff).hexdigest()[:8]}" if diff else commit
+            return git_code_stamp(root)
         except (OSError, subprocess.SubprocessError):
             pass
     return f"version {ges_core.__version__}"
+
+
+def git_code_stamp(root: Path) -> str:
+    """:func:`code_stamp` of the git checkout at ``root`` (not cached); SubprocessError when git fails."""
+    git = {"cwd": root, "capture_output": True, "timeout": 30, "check": True}
+    log = ["git", "log", "-1", "--format=%H", "HEAD", "--", *CODE_PATHS]
+    commit = subprocess.run(log, text=True, **git).stdout.strip()[:12]
+    if not commit:  # no commit touched them (yet)
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], text=True, **git).stdout.strip()[:12]
+    diff = subprocess.run(["git", "diff", "HEAD", "--", *CODE_PATHS], **git).stdout
+    return f"{commit}+{hashlib.sha256(diff).hexdigest()[:8]}" if diff else commit
 
 
 def read_clusters(path: str | Path) -> dict[str, int]:
