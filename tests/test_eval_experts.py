@@ -192,6 +192,11 @@ def test_cli_prints_both_tables_from_the_stored_matrix(full, dataset, capsys):
     k, n = int(m.successes["paper"][:, 0].sum()), int(m.episodes[:, 0].sum())
     baseline = next(line for line in text.splitlines() if line.startswith("| scripted (baseline) |"))
     assert baseline.endswith(f"| {100 * k / n:.1f} % ({k}/{n}) |")  # the 'all' column of the paper table
+    against = text.split("against the baseline:", 1)[1]
+    low = next(line for line in against.splitlines() if line.startswith("| low |"))
+    j = m.column("low")
+    points = 100 * (m.successes["paper"][:, j].sum() / m.episodes[:, j].sum() - k / n)
+    assert low.split("|")[-2].strip().startswith(f"{points:+.1f} [")
     assert main([*args, "--expert", "x=nosuch"]) == 1
     assert "unknown expert 'nosuch'" in capsys.readouterr().err
 

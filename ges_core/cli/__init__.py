@@ -30,6 +30,7 @@ _COMMAND_MODULES = (
     "ges_core.cli.cmd_env",
     "ges_core.cli.cmd_experts",
     "ges_core.cli.cmd_train",
+    "ges_core.cli.cmd_compare",
     "ges_core.cli.cmd_hard_cases",
     "ges_core.cli.cmd_view",
     "ges_core.cli.cmd_cluster",

@@ -140,6 +140,14 @@ def run_eval_experts(args: argparse.Namespace) -> int:
     print(f"{len(report.matrix.experts)} expert(s) | hand {config.hand} | sim {config.sim} | {args.episodes} "
           f"episode(s) per cell | {randomization_text(args)}\n")  # fmt: skip
     print(report.table("paper") + "\n\n" + report.table("peers"))
+    if report.matrix.baseline in report.matrix.experts and len(report.matrix.experts) > 1:
+        from ges_core.experts.compare import compare_to_baseline, comparison_table
+
+        print("\n" + comparison_table(compare_to_baseline(report.matrix)))
+        print(
+            "(an expert is above the baseline on a split when the whole interval is; more episodes: rerun with "
+            "-o seed=1 -o env.randomization.seed=1 into another --out and pool with ges compare-experts)"
+        )
     for line in report.errors[:10]:
         print(f"error: {line}")
     print(f"\n{report.summary()}")
