@@ -33,9 +33,12 @@ MIN_OBJECTS = 10
 __all__ = [
     "MIN_OBJECTS",
     "BaselineDifference",
+    "HeldOutOracle",
     "common_columns",
     "compare_to_baseline",
     "comparison_table",
+    "held_out_oracle",
+    "held_out_oracle_table",
     "pool_matrices",
 ]
 
