@@ -159,6 +159,15 @@ def test_cli_pools_seeds_and_writes_the_comparison(tmp_path, capsys):
     assert train["verdict"] == "above" and train["objects"] == 30
     held = {r["split"]: r for r in json.loads(out.read_text())["held_out_oracle"]}
     assert held["all"]["held_out"] == held["all"]["same"] == held["all"]["best_single"]  # e1 best everywhere
+    three = np.concatenate([wins, base], axis=1)  # e2 = the baseline again
+    c, d = _matrix_file(tmp_path / "c.json", three), _matrix_file(tmp_path / "d.json", three)
+    assert main(["compare-experts", str(c), str(d), "--experts", "e2", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "| e2 |" in text and "| e1 |" not in text  # only the chosen column beside the baseline
+    held = {r["split"]: r for r in json.loads(out.read_text())["held_out_oracle"]}
+    assert held["all"]["best_label"] == "e2"  # the oracle picks among exactly the chosen columns
+    assert main(["compare-experts", str(c), "--experts", "nosuch"]) == 1
+    assert "no expert column 'nosuch'" in capsys.readouterr().err
     assert main(["compare-experts", str(a), str(_matrix_file(tmp_path / "x.json", wins[:5]))]) == 1
     assert "other objects" in capsys.readouterr().err
 

@@ -25,6 +25,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "matrices", type=Path, nargs="+", metavar="MATRIX",
         help="success matrix JSON (ges eval-experts); several: pooled over the columns they all have",
     )  # fmt: skip
+    p.add_argument(
+        "--experts", metavar="A,B,...",
+        help="only these expert columns (the baseline is kept for the comparison; the held-out oracle picks among "
+        "exactly these, e.g. a gate's experts)",
+    )  # fmt: skip
     p.add_argument("--protocol", default="paper", choices=("paper", "peers"), help="success protocol (paper)")
     p.add_argument("--resamples", type=positive_int, default=4000, help="bootstrap resamples (4000)")
     p.add_argument("--seed", type=int, default=0, help="seed of the resampling (0)")
@@ -34,18 +39,26 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run_compare_experts(args: argparse.Namespace) -> int:
     """Pool, print both tables, optionally write the JSON."""
+    from ges_core.errors import ConfigError
     from ges_core.experts.compare import (
         compare_to_baseline,
         comparison_table,
         held_out_oracle,
         held_out_oracle_table,
         pool_matrices,
+        select_columns,
     )
     from ges_core.experts.matrix import load_matrix
     from ges_core.experts.table import expert_table
     from ges_core.paths import atomic_write_text
 
     matrices = [load_matrix(path) for path in args.matrices]
+    chosen = [e.strip() for e in args.experts.split(",") if e.strip()] if args.experts else None
+    if chosen:
+        try:
+            matrices = [select_columns(m, list(dict.fromkeys([m.baseline, *chosen]))) for m in matrices]
+        except KeyError as exc:
+            raise ConfigError(str(exc).strip("'\"")) from None
     matrix = pool_matrices(matrices)
     for path, m in zip(args.matrices, matrices, strict=True):
         if left := [e for e in m.experts if e not in matrix.experts]:
@@ -58,7 +71,8 @@ def run_compare_experts(args: argparse.Namespace) -> int:
     print(expert_table(matrix, args.protocol) + "\n\n" + comparison_table(diffs))
     held = None
     if len(matrices) > 1:
-        held = held_out_oracle(matrices[0], pool_matrices(matrices[1:]), args.protocol)
+        picks = [select_columns(m, chosen) for m in matrices] if chosen else matrices
+        held = held_out_oracle(picks[0], pool_matrices(picks[1:]), args.protocol)
         print("\n" + held_out_oracle_table(held))
     if args.out:
         record = {

@@ -40,6 +40,7 @@ __all__ = [
     "held_out_oracle",
     "held_out_oracle_table",
     "pool_matrices",
+    "select_columns",
 ]
 
 
@@ -111,6 +112,20 @@ def pool_matrices(matrices: list[SuccessMatrix]) -> SuccessMatrix:
         expert_settings=tuple(first.expert_settings[j] for j in cols[0]),
         episodes=sum(m.episodes[:, c] for m, c in zip(matrices, cols, strict=True)),
         successes={p: sum(m.successes[p][:, c] for m, c in zip(matrices, cols, strict=True)) for p in PROTOCOLS},
+    )
+
+
+def select_columns(matrix: SuccessMatrix, labels: list[str] | tuple[str, ...]) -> SuccessMatrix:
+    """``matrix`` with only the columns ``labels`` (in that order); KeyError naming the columns for an unknown one.
+    The baseline label stays set (``compare_to_baseline`` needs its column among ``labels``)."""
+    cols = [matrix.column(label) for label in labels]
+    return replace(
+        matrix,
+        experts=tuple(labels),
+        expert_names=tuple(matrix.expert_names[j] for j in cols),
+        expert_settings=tuple(matrix.expert_settings[j] for j in cols),
+        episodes=matrix.episodes[:, cols],
+        successes={p: v[:, cols] for p, v in matrix.successes.items()},
     )
 
 
