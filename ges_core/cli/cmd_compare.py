@@ -6,7 +6,7 @@ import argparse
 import json
 from pathlib import Path
 
-from ges_core.cli.args import positive_int
+from ges_core.cli.args import non_negative_int, positive_int
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
@@ -32,7 +32,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument("--protocol", default="paper", choices=("paper", "peers"), help="success protocol (paper)")
     p.add_argument("--resamples", type=positive_int, default=4000, help="bootstrap resamples (4000)")
-    p.add_argument("--seed", type=int, default=0, help="seed of the resampling (0)")
+    p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the resampling (0)")
     p.add_argument("--out", type=Path, metavar="JSON", help="also write the comparison here")
     p.set_defaults(func=run_compare_experts)
 
