@@ -117,3 +117,16 @@ def test_cli_line_carries_the_experts_training_settings(tmp_path, capsys):
     assert cfg.objects == ["o0"] and list(cfg.curriculum.stages) == [1, 2]
     default = load_train_config("tiny", overrides=overrides)  # what the line gave before: the preset's settings
     assert (default.action_mode, default.selection) == ("absolute", "validated")
+
+
+def test_cli_counts_only_the_chosen_columns(tmp_path, capsys):
+    # o0: e1 fails, e2 holds; o1: both fail. Counting e1 alone makes o0 hard too.
+    path = _matrix_file(tmp_path / "m.json", [[4, 0, 4], [4, 0, 1]])
+    assert main(["hard-cases", str(path), "--out", str(tmp_path / "all.json")]) == 0
+    assert json.loads((tmp_path / "all.json").read_text())["objects"] == ["o1"]
+    assert main(["hard-cases", str(path), "--experts", "e1", "--out", str(tmp_path / "e1.json")]) == 0
+    chosen = json.loads((tmp_path / "e1.json").read_text())
+    assert chosen["objects"] == ["o0", "o1"] and chosen["experts"] == ["e1"]
+    capsys.readouterr()
+    assert main(["hard-cases", str(path), "--experts", "e9"]) == 1
+    assert "no expert column 'e9'" in capsys.readouterr().err

@@ -26,6 +26,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--protocol", default="paper", choices=("paper", "peers"), help="success protocol (paper)")
     p.add_argument("--split", default="train", help="rows to consider (train, as the paper)")
     p.add_argument("--with-baseline", action="store_true", help="count the scripted baseline's column too")
+    p.add_argument("--experts", metavar="A,B,...", help="count only these expert columns (default: every column "
+                   "but the baseline), e.g. the cluster experts of one run in a matrix holding several")  # fmt: skip
     p.add_argument("--dataset", type=Path, metavar="DIR", help="dataset for the printed command (default: the "
                    "matrix run's dataset)")  # fmt: skip
     p.add_argument("--out", type=Path, metavar="JSON", help="write the set and its evidence here")
@@ -39,8 +41,20 @@ def run_hard_cases(args: argparse.Namespace) -> int:
     from ges_core.paths import atomic_write_text
 
     data = read_matrix_json(args.matrix)
+    matrix = matrix_from_json(data)
+    if args.experts:
+        from ges_core.errors import ConfigError
+        from ges_core.experts.compare import select_columns
+
+        chosen = [e.strip() for e in args.experts.split(",") if e.strip()]
+        if args.with_baseline and matrix.baseline in matrix.experts:
+            chosen = list(dict.fromkeys([matrix.baseline, *chosen]))
+        try:
+            matrix = select_columns(matrix, chosen)
+        except KeyError as exc:
+            raise ConfigError(str(exc).strip("'\"")) from None
     hard = find_hard_cases(
-        matrix_from_json(data), args.threshold, protocol=args.protocol, split=args.split,
+        matrix, args.threshold, protocol=args.protocol, split=args.split,
         with_baseline=args.with_baseline,
     )  # fmt: skip
     print(hard.table())
