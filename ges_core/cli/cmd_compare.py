@@ -39,8 +39,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run_compare_experts(args: argparse.Namespace) -> int:
     """Pool, print both tables, optionally write the JSON."""
-    from ges_core.errors import ConfigError
     from ges_core.experts.compare import (
+        column_list,
         compare_to_baseline,
         comparison_table,
         held_out_oracle,
@@ -53,12 +53,9 @@ def run_compare_experts(args: argparse.Namespace) -> int:
     from ges_core.paths import atomic_write_text
 
     matrices = [load_matrix(path) for path in args.matrices]
-    chosen = [e.strip() for e in args.experts.split(",") if e.strip()] if args.experts else None
+    chosen = column_list(args.experts) if args.experts else None
     if chosen:
-        try:
-            matrices = [select_columns(m, list(dict.fromkeys([m.baseline, *chosen]))) for m in matrices]
-        except KeyError as exc:
-            raise ConfigError(str(exc).strip("'\"")) from None
+        matrices = [select_columns(m, [*([m.baseline] if m.baseline else []), *chosen]) for m in matrices]
     matrix = pool_matrices(matrices)
     for path, m in zip(args.matrices, matrices, strict=True):
         if left := [e for e in m.experts if e not in matrix.experts]:

@@ -43,16 +43,12 @@ def run_hard_cases(args: argparse.Namespace) -> int:
     data = read_matrix_json(args.matrix)
     matrix = matrix_from_json(data)
     if args.experts:
-        from ges_core.errors import ConfigError
-        from ges_core.experts.compare import select_columns
+        from ges_core.experts.compare import column_list, select_columns
 
-        chosen = [e.strip() for e in args.experts.split(",") if e.strip()]
+        chosen = column_list(args.experts)
         if args.with_baseline and matrix.baseline in matrix.experts:
-            chosen = list(dict.fromkeys([matrix.baseline, *chosen]))
-        try:
-            matrix = select_columns(matrix, chosen)
-        except KeyError as exc:
-            raise ConfigError(str(exc).strip("'\"")) from None
+            chosen = [matrix.baseline, *chosen]
+        matrix = select_columns(matrix, chosen)
     hard = find_hard_cases(
         matrix, args.threshold, protocol=args.protocol, split=args.split,
         with_baseline=args.with_baseline,

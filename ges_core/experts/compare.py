@@ -34,6 +34,7 @@ __all__ = [
     "MIN_OBJECTS",
     "BaselineDifference",
     "HeldOutOracle",
+    "column_list",
     "common_columns",
     "compare_to_baseline",
     "comparison_table",
@@ -115,13 +116,23 @@ def pool_matrices(matrices: list[SuccessMatrix]) -> SuccessMatrix:
     )
 
 
+def column_list(text: str) -> list[str]:
+    """``"a, b,c"`` -> ``["a", "b", "c"]`` (a ``--experts`` option's value)."""
+    return [label.strip() for label in text.split(",") if label.strip()]
+
+
 def select_columns(matrix: SuccessMatrix, labels: list[str] | tuple[str, ...]) -> SuccessMatrix:
-    """``matrix`` with only the columns ``labels`` (in that order); KeyError naming the columns for an unknown one.
-    The baseline label stays set (``compare_to_baseline`` needs its column among ``labels``)."""
+    """``matrix`` with only the columns ``labels`` (in that order, duplicates dropped); ConfigError naming the
+    matrix's columns for an unknown one. The baseline label stays set (``compare_to_baseline`` needs its column
+    among ``labels``)."""
+    labels = tuple(dict.fromkeys(labels))
+    if unknown := [label for label in labels if label not in matrix.experts]:
+        raise ConfigError(f"no expert column {', '.join(map(repr, unknown))} in the matrix; columns: "
+                          f"{', '.join(matrix.experts)}")  # fmt: skip
     cols = [matrix.column(label) for label in labels]
     return replace(
         matrix,
-        experts=tuple(labels),
+        experts=labels,
         expert_names=tuple(matrix.expert_names[j] for j in cols),
         expert_settings=tuple(matrix.expert_settings[j] for j in cols),
         episodes=matrix.episodes[:, cols],
