@@ -100,19 +100,15 @@ def pool_matrices(matrices: list[SuccessMatrix]) -> SuccessMatrix:
     labels = common_columns(matrices)
     if not labels:
         raise ConfigError(f"the matrices share no expert column: {[list(m.experts) for m in matrices]}")
-    for k, m in enumerate(matrices[1:], start=2):
-        for label in labels:
-            a, b = first.expert_settings[first.column(label)], m.expert_settings[m.column(label)]
+    subsets = [select_columns(m, labels) for m in matrices]
+    for k, m in enumerate(subsets[1:], start=2):
+        for label, a, b in zip(labels, subsets[0].expert_settings, m.expert_settings, strict=True):
             if a != b:
                 raise ConfigError(f"expert column '{label}' ran other settings in matrix {k} ({b}) than in 1 ({a})")
-    cols = [[m.column(label) for label in labels] for m in matrices]
     return replace(
-        first,
-        experts=labels,
-        expert_names=tuple(first.expert_names[j] for j in cols[0]),
-        expert_settings=tuple(first.expert_settings[j] for j in cols[0]),
-        episodes=sum(m.episodes[:, c] for m, c in zip(matrices, cols, strict=True)),
-        successes={p: sum(m.successes[p][:, c] for m, c in zip(matrices, cols, strict=True)) for p in PROTOCOLS},
+        subsets[0],
+        episodes=sum(m.episodes for m in subsets),
+        successes={p: sum(m.successes[p] for m in subsets) for p in PROTOCOLS},
     )
 
 
@@ -246,8 +242,7 @@ def held_out_oracle(
     labels = common_columns([pick, score])
     if not labels:
         raise ConfigError(f"held_out_oracle: no common column ({list(pick.experts)} / {list(score.experts)})")
-    rp = pick.rates(protocol)[:, [pick.column(e) for e in labels]]
-    rs = score.rates(protocol)[:, [score.column(e) for e in labels]]
+    rp, rs = (select_columns(m, labels).rates(protocol) for m in (pick, score))
     ok = ~np.isnan(rp).any(axis=1) & ~np.isnan(rs).any(axis=1)
     choice = np.where(ok, np.nan_to_num(rp, nan=-1.0).argmax(axis=1), 0)
     out = []
