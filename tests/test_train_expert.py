@@ -198,6 +198,9 @@ def test_a_kill_while_writing_leaves_the_previous_checkpoint(tmp_path, monkeypat
 def test_presets_load_and_cli_errors(tmp_path, capsys) -> None:
     for name in PRESETS:
         assert load_train_config(name).preset == name
+    # the shipped residual recipe (configs/residual_expert.yaml) still names only TrainConfig keys
+    recipe = load_train_config("tiny", os.path.join(os.path.dirname(__file__), "..", "configs", "residual_expert.yaml"))
+    assert (recipe.action_mode, recipe.ppo.schedule) == ("residual", "fixed") and recipe.ppo.critic_fit_epochs > 0
     with pytest.raises(ConfigError, match="unknown training preset 'huge'"):
         load_train_config("huge")
     code = main(["train-expert", DATASET, "--out", str(tmp_path / "x"), "--no-progress", "--clusters",
