@@ -378,6 +378,39 @@ def test_ges_train_gate_errors_are_one_line(tmp_path, capsys):
     assert "expert column(s) ['huge'] not in the matrix" in capsys.readouterr().err
 
 
+def test_train_gate_pools_matrices_of_other_seeds(tmp_path, capsys):
+    """Several matrix files: the targets are the summed successes over the summed episodes (a numpy computation on
+    the files), ``--experts`` keeps those columns, and a file of other objects is refused naming them."""
+    from ges_core.cli import main
+    from ges_core.experts.matrix import read_matrix_json, write_matrix
+    from ges_core.gating.sources import load_rates
+
+    first, _ = _matrix_file(tmp_path)
+    data = read_matrix_json(first)
+    rng = np.random.default_rng(3)
+    for cells in data["cells"].values():
+        for cell in cells.values():
+            cell["paper"] = cell["peers"] = int(rng.integers(0, 5))
+    second = tmp_path / "seed1" / first.name
+    write_matrix(second, data)
+    pooled = load_rates(first, columns=["large", "small"], pool=[second])
+    files = [read_matrix_json(p) for p in (first, second)]
+    for i, oid in enumerate(pooled.rates.object_ids):
+        for j, e in enumerate(("large", "small")):
+            wins = sum(f["cells"][oid][e]["paper"] for f in files)
+            assert pooled.rates.rates[i, j] == wins / 8
+    alone = load_rates(second, columns=["large", "small"])
+    assert not np.array_equal(alone.rates.rates, pooled.rates.rates)
+
+    del data["objects"][next(iter(data["objects"]))]
+    other = tmp_path / "other" / first.name
+    write_matrix(other, data)
+    assert main(["train-gate", str(first), str(other), "--experts", "small,large", "--out", str(tmp_path / "o")]) == 1
+    assert "holds other objects than matrix 1" in capsys.readouterr().err
+    assert main(["train-gate", str(first), str(second), "--experts", "small,huge", "--out", str(tmp_path / "o")]) == 1
+    assert "no expert column 'huge'" in capsys.readouterr().err
+
+
 # -- the centroid gate with a real clustering ----------------------------------------------------------
 @pytest.fixture(scope="module")
 def clusters_file(data, tmp_path_factory):

@@ -19,7 +19,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "from), OUT/tb (TensorBoard), OUT/history.json and OUT/summary.json, and prints the gate accuracy per "
         "split. See docs/gating.md.",
     )
-    p.add_argument("matrix", type=Path, metavar="MATRIX", help="success matrix JSON written by ges eval-experts")
+    p.add_argument("matrix", type=Path, nargs="+", metavar="MATRIX",
+                   help="success matrix JSON written by ges eval-experts; several (the same objects and experts "
+                   "under other seeds): their episodes are pooled into the targets")  # fmt: skip
+    p.add_argument("--experts", metavar="A,B,...", help="the expert columns to choose among (default: every column "
+                   "but the scripted baseline's)")  # fmt: skip
     p.add_argument("--dataset", type=Path, metavar="DIR", help="Stage 1 dataset whose library holds the objects "
                    "(default: the matrix's run.dataset)")  # fmt: skip
     p.add_argument("--gate", metavar="NAME", help="gate plugin (default: the config's, curvenet)")

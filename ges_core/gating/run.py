@@ -24,6 +24,7 @@ from pydantic import Field
 
 from ges_core.config import ConfigModel, apply_overrides, parse_model, read_yaml
 from ges_core.errors import ConfigError
+from ges_core.experts.compare import column_list
 from ges_core.gating.clouds import library_clouds
 from ges_core.gating.loss import gate_accuracy
 from ges_core.gating.sources import MatrixRates, load_rates
@@ -41,6 +42,11 @@ class TrainGateConfig(ConfigModel):
     """Everything ``ges train-gate`` does, as one YAML (``--config``) with ``-o key=value`` overrides."""
 
     matrix: Path = Field(..., description="success matrix JSON (ges eval-experts)")
+    pool: list[Path] = Field(
+        default_factory=list,
+        description="more matrices of the same objects and experts under other evaluation seeds, whose episodes "
+        "are added to the matrix's before the targets are taken (smoother targets)",
+    )
     dataset: Path | None = Field(
         None, description="Stage 1 dataset whose library holds the objects (None: the matrix's)"
     )
@@ -60,7 +66,11 @@ class TrainGateConfig(ConfigModel):
 def config_from_args(args: argparse.Namespace) -> TrainGateConfig:
     """The config of ``ges train-gate``'s arguments: YAML, then the named options, then ``-o`` overrides."""
     data = read_yaml(args.config) if args.config else {}
-    data["matrix"] = str(args.matrix)
+    data["matrix"] = str(args.matrix[0])
+    if len(args.matrix) > 1:
+        data["pool"] = [str(p) for p in args.matrix[1:]]
+    if args.experts is not None:
+        data["experts"] = column_list(args.experts)
     named = {"dataset": args.dataset, "out": args.out, "gate": args.gate}
     data.update({k: str(v) for k, v in named.items() if v is not None})
     if args.points is not None:
@@ -116,7 +126,7 @@ def train_gate_run(config: TrainGateConfig, registry=None, *, resume: bool = Fal
         from ges_core.registry import load_registry
 
         registry = load_registry()
-    matrix = load_rates(config.matrix, config.protocol, columns=config.experts)
+    matrix = load_rates(config.matrix, config.protocol, columns=config.experts, pool=config.pool)
     out = config.out or Path(config.matrix).parent / f"gate-{config.gate}"
     gate = _build_gate(registry, config)
     n = gate.settings.n_points

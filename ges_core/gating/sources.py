@@ -7,6 +7,7 @@ adapter from the file format.
 from __future__ import annotations
 
 import logging
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -63,10 +64,28 @@ def rates_from_matrix(
     return rates, tuple(matrix.splits[i] for i in rows), left
 
 
-def load_rates(path: str | Path, protocol: str = "paper", *, columns: list[str] | None = None) -> MatrixRates:
-    """:class:`MatrixRates` of the matrix file at ``path``."""
+def load_rates(
+    path: str | Path, protocol: str = "paper", *, columns: list[str] | None = None, pool: Sequence[str | Path] = ()
+) -> MatrixRates:
+    """:class:`MatrixRates` of the matrix file at ``path``.
+
+    pool: more matrix files of the same objects and expert columns (other evaluation seeds, ``ges eval-experts -o
+    seed=1 -o env.randomization.seed=1``): their episodes and successes are added to the first's before the rates
+    are taken, so each target rests on more episodes (``ges_core.experts.compare.pool_matrices``, which refuses
+    other objects or a column run with other settings). Without ``columns`` the pooled columns are those every
+    file has; a column missing from one of them is a ConfigError when ``columns`` names it.
+    """
+    from ges_core.experts.compare import pool_matrices, select_columns
     from ges_core.experts.matrix import matrix_from_json, read_matrix_json
 
     data = read_matrix_json(path)
-    rates, splits, left = rates_from_matrix(matrix_from_json(data), protocol, columns=columns)
+    matrix = matrix_from_json(data)
+    if pool:
+        matrices = [matrix, *(matrix_from_json(read_matrix_json(p)) for p in pool)]
+        if columns is not None:
+            matrices = [select_columns(m, columns) for m in matrices]
+        matrix = pool_matrices(matrices)
+        log.info("pooled %d matrices: %d episodes per cell on average", len(matrices),
+                 float(np.mean(matrix.episodes)))  # fmt: skip
+    rates, splits, left = rates_from_matrix(matrix, protocol, columns=columns)
     return MatrixRates(rates, splits, str(data.get("dataset") or ""), left)
