@@ -8,6 +8,7 @@ expert, and within 2 points of the oracle; the gate's accuracy (pick among the b
     python benchmarks/ges_evaluate.py --matrix runs/tiny/ges/matrix-allegro-sapien.json --gate ...   # a fresh matrix
     python benchmarks/ges_evaluate.py --train-gate centroid --train-gate curvenet --gate-epochs 30
     python benchmarks/ges_evaluate.py DATASET --matrix M --expert e1=ppo:checkpoint=... --expert e2=... --gate G.pt
+    python benchmarks/ges_evaluate.py ... --seed 2 --matrix M_SEED2   # gates of seeds 0-1 on fresh episodes
 
 Gates: every ``--gate PATH`` given, plus one per ``--train-gate NAME`` trained here on the matrix (``ges
 train-gate``'s pipeline, into OUT/gate-NAME; an existing OUT/gate-NAME/gate.pt is reused). The GES episodes run
@@ -93,13 +94,16 @@ def main() -> None:
     p.add_argument("--reuse-matrix", action="store_true")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--results", type=Path, default=RESULTS, help="results JSON to write")
+    p.add_argument("--seed", type=int, default=0, help="episode seed (run and randomization): another than the gates' "
+                   "matrix's scores them on fresh episodes")  # fmt: skip
     args = p.parse_args()
     set_torch_threads()
     out = args.out or args.dataset.parent / "ges"
     gates = [parse_gate(g) for g in args.gate]
     gates += [parse_gate(str(train_gate(n, args.matrix, out, args.gate_epochs))) for n in args.train_gate]
-    data = {"hand": args.hand, "sim": args.sim, "envs": args.episodes, "selection": args.select,
-            "env": {"randomization": RANDOMIZED}} | ({"splits": tuple(args.split)} if args.split else {})  # fmt: skip
+    data = {"hand": args.hand, "sim": args.sim, "envs": args.episodes, "selection": args.select, "seed": args.seed,
+            "env": {"randomization": {**RANDOMIZED, "seed": args.seed}}}  # fmt: skip
+    data |= {"splits": tuple(args.split)} if args.split else {}
     config = BaselineConfig.model_validate(data)
     experts = [parse_expert(e) for e in (args.expert or TINY_EXPERTS)]
     start = time.perf_counter()
@@ -121,6 +125,7 @@ def main() -> None:
     write_results(args.results, {
         "what": "ges evaluate: Table 2 (every expert alone, scripted baseline, oracle, GES per gate)",
         "dataset": str(args.dataset), "matrix": str(args.matrix), "experts": [e.label for e in experts],
+        "seed": args.seed,
         "gates": {label: p.experts for label, p in report.picks.items()}, "config": config.model_dump(mode="json"),
         "objects": len(report.matrix.object_ids), "ges_cells_run": report.ran, "ges_cells_resumed": report.resumed,
         "ges_cells_from_matrix": report.from_matrix, "matrix_cells_evaluated": report.matrix_evaluated,

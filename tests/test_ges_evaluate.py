@@ -246,6 +246,7 @@ def test_cli(run, dataset, gate, tmp_path, capsys):
     out = capsys.readouterr().out
     assert "| GES (centroid) |" in out and "| oracle (best of scripted, low per object) |" in out
     assert "2 taken from the matrix (identical settings and code)" in out
+    assert "GES against the best single expert of each split" in out and "too few objects" in out  # 2 objects
     assert (tmp_path / "fusion-allegro-sapien.png").stat().st_size > 10_000
     assert main([*base, *experts, "--gate", str(tmp_path / "none.pt")]) == 1
     assert "none.pt: no such file" in capsys.readouterr().err

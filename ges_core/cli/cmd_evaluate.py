@@ -62,6 +62,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from ges_core.cli import registry_from_args
     from ges_core.errors import ConfigError
     from ges_core.ges_eval import evaluate_ges, parse_gate
+    from ges_core.ges_eval.against_best import ges_against_best_table
     from ges_core.ges_eval.outputs import write_outputs
     from ges_core.threads import set_torch_threads
 
@@ -80,6 +81,9 @@ def run_evaluate(args: argparse.Namespace) -> int:
           f"{randomization_text(args)}\n")  # fmt: skip
     print(report.table.markdown("paper") + "\n\n" + report.table.markdown("peers") + "\n")
     print(report.table.accuracy_markdown("paper") + "\n")
+    if report.against_best:
+        print(ges_against_best_table(report.against_best) + "\n(GES is above the best single expert of a split when "
+              "the whole interval is; docs/evaluate.md)\n")  # fmt: skip
     for line in report.errors[:10]:
         print(f"error: {line}")
     print(report.summary())

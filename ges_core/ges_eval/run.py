@@ -42,6 +42,7 @@ from ges_core.experts.evaluate import (
     run_header,
 )
 from ges_core.experts.matrix import PROTOCOLS, SuccessMatrix, matrix_path, read_matrix_json
+from ges_core.ges_eval.against_best import ges_against_best
 from ges_core.ges_eval.gates import GateChoice, LoadedGate, Picks, clouds_for, load_gates, pick_experts
 from ges_core.ges_eval.results import ResultsFile, results_path
 from ges_core.ges_eval.table import GesRow, Table2, table2
@@ -77,6 +78,9 @@ class GesReport:
     """Resumed GES cells that other code ran."""
     errors: list[str] = field(default_factory=list)
     seconds: float = 0.0
+    against_best: list = field(default_factory=list)
+    """Per split and gate (paper protocol): ``(best single expert, BaselineDifference of GES against it)``
+    (:func:`ges_core.ges_eval.against_best.ges_against_best`)."""
 
     def summary(self) -> str:
         """Lines: objects, gates, cells run / resumed / reused, errors, time and where the files are."""
@@ -145,6 +149,7 @@ def evaluate_ges(
     _run(data, registry, config, {c.label: c for c in experts}, todo, results, report, progress, fanout or Fanout())
     report.ges_rows = [_ges_row(mreport.matrix, g.label, picks, results) for g in loaded]
     report.table = table2(mreport.matrix, labels, report.ges_rows)
+    report.against_best = ges_against_best(mreport.matrix, report.ges_rows, labels)
     report.seconds = time.perf_counter() - start
     return report
 
