@@ -8,7 +8,7 @@ expert, and within 2 points of the oracle; the gate's accuracy (pick among the b
     python benchmarks/ges_evaluate.py --matrix runs/tiny/ges/matrix-allegro-sapien.json --gate ...   # a fresh matrix
     python benchmarks/ges_evaluate.py --train-gate centroid --train-gate curvenet --gate-epochs 30
     python benchmarks/ges_evaluate.py DATASET --matrix M --expert e1=ppo:checkpoint=... --expert e2=... --gate G.pt
-    python benchmarks/ges_evaluate.py ... --seed 2 --matrix M_SEED2   # gates of seeds 0-1 on fresh episodes
+    python benchmarks/ges_evaluate.py ... --seed 2 --matrix M_SEED2 --oracle-from M_SEED0 M_SEED1   # fresh episodes
 
 Gates: every ``--gate PATH`` given, plus one per ``--train-gate NAME`` trained here on the matrix (``ges
 train-gate``'s pipeline, into OUT/gate-NAME; an existing OUT/gate-NAME/gate.pt is reused). The GES episodes run
@@ -26,8 +26,10 @@ from pathlib import Path
 from ges_core.env.evaluate import BaselineConfig
 from ges_core.env.evaluate.fanout import Fanout
 from ges_core.experts import parse_expert
+from ges_core.experts.compare import held_out_oracle, held_out_oracle_table, pool_matrices, select_columns
 from ges_core.experts.evaluate import RANDOMIZED
 from ges_core.ges_eval import evaluate_ges, parse_gate
+from ges_core.ges_eval.against_best import ges_against_best_table
 from ges_core.ges_eval.outputs import write_outputs
 from ges_core.objects.splits import SPLITS
 from ges_core.threads import set_torch_threads
@@ -94,6 +96,9 @@ def main() -> None:
     p.add_argument("--reuse-matrix", action="store_true")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--results", type=Path, default=RESULTS, help="results JSON to write")
+    p.add_argument("--oracle-from", type=Path, nargs="+", default=[], metavar="MATRIX",
+                   help="matrices the gates were trained on (pooled): the oracle picked on them, scored on this "
+                   "run's episodes (the yardstick of 'within 2 points of the oracle' on fresh episodes)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="episode seed (run and randomization): another than the gates' "
                    "matrix's scores them on fresh episodes")  # fmt: skip
     args = p.parse_args()
@@ -115,6 +120,11 @@ def main() -> None:
         print("\n" + report.table.markdown(protocol))
     print("\n" + report.table.accuracy_markdown() + "\n\n" + report.summary())
     checks = goals(report.table)
+    if report.against_best:
+        print("\n" + ges_against_best_table(report.against_best))
+    held_out = held_out_oracle_rows(args.oracle_from, args.matrix, [e.label for e in experts])
+    if held_out:
+        print("\n" + held_out_oracle_table(held_out))
     pairs = paired(report, args.matrix)
     print(f"GES cells equal to the picked expert's matrix cell (same code): {pairs['identical']}/{pairs['compared']}")
     for gate, per in checks.items():
@@ -131,9 +141,25 @@ def main() -> None:
         "ges_cells_from_matrix": report.from_matrix, "matrix_cells_evaluated": report.matrix_evaluated,
         "seconds": round(wall, 1), "seconds_per_cell_run": round(_cell_seconds(report), 2),
         "paired_with_matrix": paired(report, args.matrix), "matrix_cells_other_code": report.matrix_other_code,
-        "table": report.table.to_json(), "goals": checks, "picks": {k: p.chosen for k, p in report.picks.items()},
+        "table": report.table.to_json(), "goals": checks,
+        "against_best": [{"best_expert": b, **d.__dict__, "verdict": d.verdict} for b, d in report.against_best],
+        "oracle_from": [str(m) for m in args.oracle_from], "held_out_oracle": [r.__dict__ for r in held_out],
+        "picks": {k: p.chosen for k, p in report.picks.items()},
         "files": {k: str(v) for k, v in paths.items()}, "code": code_state(),
     })  # fmt: skip
+
+
+def held_out_oracle_rows(pick_files: list[Path], score_file: Path, experts: list[str]) -> list:
+    """The oracle over ``experts`` picked on ``pick_files`` (pooled) and scored on ``score_file``; [] without
+    pick files."""
+    if not pick_files:
+        return []
+    from ges_core.experts.matrix import matrix_from_json, read_matrix_json
+
+    def read(path):
+        return select_columns(matrix_from_json(read_matrix_json(path)), experts)
+
+    return held_out_oracle(pool_matrices([read(p) for p in pick_files]), read(score_file))
 
 
 def paired(report, matrix: Path) -> dict:
