@@ -85,7 +85,7 @@ def load_rates(
         if columns is not None:
             matrices = [select_columns(m, columns) for m in matrices]
         matrix = pool_matrices(matrices)
-        log.info("pooled %d matrices: %d episodes per cell on average", len(matrices),
+        log.info("pooled %d matrices: %.1f episodes per cell on average", len(matrices),
                  float(np.mean(matrix.episodes)))  # fmt: skip
     rates, splits, left = rates_from_matrix(matrix, protocol, columns=columns)
     return MatrixRates(rates, splits, str(data.get("dataset") or ""), left)
