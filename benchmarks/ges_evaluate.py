@@ -29,7 +29,7 @@ from ges_core.experts import parse_expert
 from ges_core.experts.compare import held_out_oracle, held_out_oracle_table, pool_matrices, select_columns
 from ges_core.experts.evaluate import RANDOMIZED
 from ges_core.ges_eval import evaluate_ges, parse_gate
-from ges_core.ges_eval.against_best import ges_against_best_table
+from ges_core.ges_eval.against_best import against_best_json, ges_against_best_table
 from ges_core.ges_eval.outputs import write_outputs
 from ges_core.objects.splits import SPLITS
 from ges_core.threads import set_torch_threads
@@ -142,7 +142,7 @@ def main() -> None:
         "seconds": round(wall, 1), "seconds_per_cell_run": round(_cell_seconds(report), 2),
         "paired_with_matrix": paired(report, args.matrix), "matrix_cells_other_code": report.matrix_other_code,
         "table": report.table.to_json(), "goals": checks,
-        "against_best": [{"best_expert": b, **d.__dict__, "verdict": d.verdict} for b, d in report.against_best],
+        "against_best": against_best_json(report.against_best),
         "oracle_from": [str(m) for m in args.oracle_from], "held_out_oracle": [r.__dict__ for r in held_out],
         "picks": {k: p.chosen for k, p in report.picks.items()},
         "files": {k: str(v) for k, v in paths.items()}, "code": code_state(),

@@ -57,4 +57,5 @@ def test_ges_against_the_best_expert_of_each_split() -> None:
     best, d = by[("GES (oracle)", None)]  # per object best: never down, up wherever the other column won
     assert d.worse == 0 and d.better > 10 and d.verdict == "above" and d.low > 0
     text = ges_against_best_table(diffs)
-    assert "| GES (only_b) |" in text and "vs a" in text and "**below**" in text and "**above**" in text
+    assert "| gate |" in text and "| GES (only_b) |" in text and "vs a (" in text
+    assert " below |" in text and "above** |" in text

@@ -188,16 +188,24 @@ def _difference(matrix, protocol, label, j, b, split, rows, resamples, level, se
     )  # fmt: skip
 
 
-def comparison_table(diffs: list[BaselineDifference], level: float = 0.95) -> str:
+def comparison_table(
+    diffs: list[BaselineDifference],
+    level: float = 0.95,
+    *,
+    title: str = "against the baseline",
+    row_header: str = "expert",
+    versus: dict[tuple[str, str | None], str] | None = None,
+) -> str:
     """Markdown: one row per expert, one column per split: ``+1.2 [-0.4, +2.9] (5 up, 3 down)`` and the verdict
-    marked (``above`` in bold)."""
+    marked (``above`` in bold). ``versus``: per (expert, split) the label of the column it was compared with, shown
+    as ``vs LABEL`` (when the reference differs per split, as GES's best single expert does)."""
     splits = list(dict.fromkeys(d.split for d in diffs))
     experts = list(dict.fromkeys(d.expert for d in diffs))
     by = {(d.expert, d.split): d for d in diffs}
     lines = [
-        f"against the baseline: points, {100 * level:.0f} % paired bootstrap interval over objects, objects up/down",
+        f"{title}: points, {100 * level:.0f} % paired bootstrap interval over objects, objects up/down",
         "",
-        "| expert | " + " | ".join(s or "all" for s in splits) + " |",
+        f"| {row_header} | " + " | ".join(s or "all" for s in splits) + " |",
         "|---" * (len(splits) + 1) + "|",
     ]
     for e in experts:
@@ -207,7 +215,8 @@ def comparison_table(diffs: list[BaselineDifference], level: float = 0.95) -> st
             if d.objects == 0:
                 cells.append("-")
                 continue
-            text = f"{d.points:+.1f} [{d.low:+.1f}, {d.high:+.1f}] ({d.better} up, {d.worse} down)"
+            ref = f" vs {versus[(e, s)]}" if versus else ""
+            text = f"{d.points:+.1f} [{d.low:+.1f}, {d.high:+.1f}]{ref} ({d.better} up, {d.worse} down)"
             cells.append(f"**{text} above**" if d.verdict == "above" else f"{text} {d.verdict}")
         lines.append(f"| {e} | " + " | ".join(cells) + " |")
     return "\n".join(lines)

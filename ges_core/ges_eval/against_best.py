@@ -16,11 +16,11 @@ from dataclasses import replace
 
 import numpy as np
 
-from ges_core.experts.compare import BaselineDifference, compare_to_baseline, select_columns
+from ges_core.experts.compare import BaselineDifference, compare_to_baseline, comparison_table, select_columns
 from ges_core.experts.matrix import PROTOCOLS, SuccessMatrix
 from ges_core.ges_eval.table import COLUMNS, GesRow
 
-__all__ = ["ges_against_best", "ges_against_best_table"]
+__all__ = ["against_best_json", "ges_against_best", "ges_against_best_table"]
 
 
 def ges_against_best(
@@ -62,27 +62,14 @@ def ges_against_best(
 
 
 def ges_against_best_table(diffs: list[tuple[str, BaselineDifference]], level: float = 0.95) -> str:
-    """Markdown: one row per gate, one column per split: ``+1.2 [-0.4, +2.9] vs res1 (5 up, 3 down)``, the verdict
-    in bold when ``above`` or ``below``."""
-    splits = list(dict.fromkeys(d.split for _, d in diffs))
-    gates = list(dict.fromkeys(d.expert for _, d in diffs))
-    by = {(d.expert, d.split): (best, d) for best, d in diffs}
-    lines = [
-        f"GES against the best single expert of each split: points, {100 * level:.0f} % paired bootstrap interval "
-        "over objects, objects up/down",
-        "",
-        "| gate | " + " | ".join(s or "all" for s in splits) + " |",
-        "|---" * (len(splits) + 1) + "|",
-    ]
-    for g in gates:
-        cells = []
-        for s in splits:
-            best, d = by[(g, s)]
-            if d.objects == 0:
-                cells.append("-")
-                continue
-            verdict = f"**{d.verdict}**" if d.verdict in ("above", "below") else d.verdict
-            cells.append(f"{d.points:+.1f} [{d.low:+.1f}, {d.high:+.1f}] vs {best} ({d.better} up, {d.worse} down) "
-                         f"{verdict}")  # fmt: skip
-        lines.append(f"| {g} | " + " | ".join(cells) + " |")
-    return "\n".join(lines)
+    """Markdown: one row per gate, one column per split: ``+1.2 [-0.4, +2.9] vs res1 (5 up, 3 down)`` and the
+    verdict (:func:`ges_core.experts.compare.comparison_table`'s format)."""
+    return comparison_table(
+        [d for _, d in diffs], level, title="GES against the best single expert of each split", row_header="gate",
+        versus={(d.expert, d.split): best for best, d in diffs},
+    )  # fmt: skip
+
+
+def against_best_json(diffs: list[tuple[str, BaselineDifference]]) -> list[dict]:
+    """The comparisons as JSON rows: the best expert's label, every field of the difference and its verdict."""
+    return [{"best_expert": best, **d.__dict__, "verdict": d.verdict} for best, d in diffs]

@@ -6,7 +6,7 @@ import json
 from pathlib import Path
 
 from ges_core.dataset.layout import utc_now
-from ges_core.ges_eval.against_best import ges_against_best_table
+from ges_core.ges_eval.against_best import against_best_json, ges_against_best_table
 from ges_core.ges_eval.figure import fusion_figure
 from ges_core.paths import atomic_write_text
 
@@ -24,8 +24,7 @@ def write_outputs(report, run: dict) -> dict[str, Path]:
     payload = {"format": "ges.table2", "version": 1, "updated": utc_now(), "results": str(report.path),
                "matrix": str(report.matrix_path), "run": run, **table.to_json(),
                "picks": {label: p.chosen for label, p in report.picks.items()},
-               "against_best": [{"best_expert": best, **d.__dict__, "verdict": d.verdict}
-                                for best, d in report.against_best]}  # fmt: skip
+               "against_best": against_best_json(report.against_best)}  # fmt: skip
     atomic_write_text(paths["json"], json.dumps(payload, indent=1) + "\n", fix="choose another --out")
     parts = [*(table.markdown(p) for p in table.rows), table.accuracy_markdown("paper")]
     if report.against_best:
