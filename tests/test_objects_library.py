@@ -13,7 +13,8 @@ from ges_core.cli import main
 from ges_core.errors import AssetError, ConfigError
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
 from ges_core.objects.library import LibraryConfig, ObjectLibrary, UnknownObjectError
-from ges_core.objects.procedural import CATEGORIES
+from ges_core.objects.procedural import CATEGORIES, HELD_OUT_CATEGORIES
+from ges_core.objects.splits import assign_splits
 
 
 @pytest.fixture(autouse=True)
@@ -34,6 +35,17 @@ def test_list_has_every_source_category_and_split(library):
     train = library.list(split="train")
     assert train and all(r.split == "train" for r in train)
     assert [r.object_id for r in library.list(source="procedural")][:2] == ["procedural/box/000", "procedural/box/001"]
+
+
+def test_added_categories_are_held_out_by_default():
+    held = {"stamp", "cross", "barrel", "channel"}
+    assert held <= set(CATEGORIES) and set(HELD_OUT_CATEGORIES) == held
+    default = ObjectLibrary(LibraryConfig(sources=("procedural",)))
+    assert {r.split for r in default.list() if r.category in held} == {"unseen_category"}
+    others = [(r.object_id, r.category) for r in default.list() if r.category not in held]
+    assert {oid: default.splits[oid] for oid, _ in others} == assign_splits(others, seed=0)  # as before they came
+    drawn = ObjectLibrary(LibraryConfig(sources=("procedural",), held_out_categories=()))
+    assert drawn.splits != default.splits
 
 
 def test_primitive_asset(library):

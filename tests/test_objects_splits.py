@@ -61,3 +61,19 @@ def test_small_and_degenerate_inputs():
     huge_and_tiny = [(f"big/{i}", "big") for i in range(50)] + [("small/0", "small")]
     split = assign_splits(huge_and_tiny, seed=0)
     assert split["small/0"] == "unseen_category" and "unseen_category" not in {split[f"big/{i}"] for i in range(50)}
+
+
+def test_held_out_categories_are_unseen_and_move_no_other_object():
+    items = paper_like_items()
+    pinned = [(f"new/{c}/{i:03d}", c) for c in ("newa", "newb") for i in range(12)]
+    before = assign_splits(items, seed=3)
+    after = assign_splits(items + pinned, seed=3, held_out=("newa", "newb", "absent"))
+    assert {oid: after[oid] for oid, _ in items} == before  # every earlier object keeps its split
+    assert {after[oid] for oid, _ in pinned} == {"unseen_category"}
+    drawn = assign_splits(items + pinned, seed=3)  # not pinned: the draw over all categories moves objects
+    assert {oid: drawn[oid] for oid, _ in items} != before
+    # a pinned category that the draw would have taken stays unseen, and the draw runs over the rest
+    cat = next(c for oid, c in items if before[oid] == "unseen_category")
+    rest = [(oid, c) for oid, c in items if c != cat]
+    pinned_one = assign_splits(items, seed=3, held_out=(cat,))
+    assert {oid: pinned_one[oid] for oid, _ in rest} == assign_splits(rest, seed=3)

@@ -22,6 +22,7 @@ from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.bounds import DEFAULT_MAX_FACES
 from ges_core.objects.decompose import FAST, CoacdSettings
 from ges_core.objects.pointcloud import sample_surface
+from ges_core.objects.procedural import HELD_OUT_CATEGORIES
 from ges_core.objects.processing import ProcessedObject, collision_shapes, collision_volume, min_width, process_entry
 from ges_core.objects.properties import ObjectProperties, merge_properties
 from ges_core.objects.real import list_real
@@ -55,6 +56,11 @@ class LibraryConfig(ConfigModel):
         "memory one object costs: a 1.3M-face scan otherwise hangs every command)",
     )
     split_seed: int = Field(0, description="seed of the train / unseen splits")
+    held_out_categories: tuple[str, ...] = Field(
+        HELD_OUT_CATEGORIES,
+        description="categories always in the unseen-category split; the seeded draw runs over the others (default: "
+        "the four procedural categories added for that split, so no earlier object's split moved; [] draws over all)",
+    )
     coacd: CoacdSettings = Field(default_factory=lambda: FAST, description="decomposition settings (cache key)")
     decompose: bool = Field(
         False, description="compute a missing convex decomposition on demand (slow, ~5-20 s per mesh, then cached)"
@@ -138,7 +144,8 @@ class ObjectLibrary:
     @cached_property
     def splits(self) -> dict[str, str]:
         """object id → ``train`` / ``unseen_object`` / ``unseen_category`` (see :mod:`.splits`)."""
-        return assign_splits(((e.object_id, e.category) for e in self._entries.values()), seed=self.config.split_seed)
+        items = ((e.object_id, e.category) for e in self._entries.values())
+        return assign_splits(items, seed=self.config.split_seed, held_out=self.config.held_out_categories)
 
     def entries(self, *, source: str | None = None, split: str | None = None) -> list[ObjectEntry]:
         """Entries in listing order, optionally of one source and one split."""

@@ -15,6 +15,11 @@ Collision, by kind:
 The categories after ``torus`` were added for the whole-library dataset (more categories for the
 unseen-category split; thin handles and compound shapes the first fourteen lack); they are appended so
 that the earlier categories' objects and listing order are unchanged.
+
+The last four (:data:`HELD_OUT_CATEGORIES`: stamp, cross, barrel, channel) were added to give the
+unseen-category split enough objects to tell two policies apart (two categories, 20 objects, were too few);
+the library holds them out by default (``LibraryConfig.held_out_categories``), so adding them moved no
+other object's split.
 """
 
 from __future__ import annotations
@@ -29,7 +34,7 @@ import trimesh
 
 from ges_core.objects.asset import PrimitiveShape
 
-__all__ = ["CATEGORIES", "Shape", "build_shape", "shape_seed"]
+__all__ = ["CATEGORIES", "HELD_OUT_CATEGORIES", "Shape", "build_shape", "shape_seed"]
 
 SECTIONS = 48
 """Facets around a round shape: the polygon's volume is 99.7 % of the true solid's, close enough that
@@ -438,6 +443,80 @@ def frustum(rng: np.random.Generator) -> Shape:
     return Shape(mesh=mesh, kind="convex", params=p)
 
 
+def stamp(rng: np.random.Generator) -> Shape:
+    """A wide short disc with an upright round handle on it (a rubber stamp, a lid with a knob): two exact
+    cylinders; the handle, 2.4-4 cm thick, is what a hand closes on."""
+    p = {
+        "base_radius": _u(rng, 0.035, 0.05),
+        "base_height": _u(rng, 0.01, 0.02),
+        "handle_radius": _u(rng, 0.012, 0.02),
+        "handle_height": _u(rng, 0.04, 0.07),
+    }
+    rb, hb, rh, hh = p["base_radius"], p["base_height"], p["handle_radius"], p["handle_height"]
+    mesh = _revolve([(0, 0), (rb, 0), (rb, hb), (rh, hb), (rh, hb + hh), (0, hb + hh)])
+    base = PrimitiveShape(kind="cylinder", size=(rb, hb / 2), pose=_pose((0, 0, hb / 2), X_TO_Z))
+    handle = PrimitiveShape(kind="cylinder", size=(rh, hh / 2), pose=_pose((0, 0, hb + hh / 2), X_TO_Z))
+    return Shape(mesh=mesh, kind="primitive", primitives=(base, handle), params=p)
+
+
+def cross(rng: np.random.Generator) -> Shape:
+    """Plus-shaped slab lying flat: two crossed bars 2.5-3.5 cm wide, 8-12 cm long (three exact boxes)."""
+    p = {"span": _u(rng, 0.08, 0.12), "arm_width": _u(rng, 0.025, 0.035), "thickness": _u(rng, 0.02, 0.03)}
+    a, w, t = p["span"] / 2, p["arm_width"] / 2, p["thickness"]
+    outline = np.array(
+        [[-a, -w], [-w, -w], [-w, -a], [w, -a], [w, -w], [a, -w], [a, w], [w, w], [w, a], [-w, a], [-w, w], [-a, w]]
+    )  # x-z outline, counter-clockwise, star-shaped from the centre
+    mesh = _lying(_extrude_around(outline, (0.0, 0.0), t))
+    _, along_x = _box_at((2 * a, 2 * w, t), (0.0, 0.0, t / 2))  # the arms along y abut it: no volume twice
+    _, front = _box_at((2 * w, a - w, t), (0.0, -(a + w) / 2, t / 2))
+    _, back = _box_at((2 * w, a - w, t), (0.0, (a + w) / 2, t / 2))
+    return Shape(mesh=mesh, kind="primitive", primitives=(along_x, front, back), params=p)
+
+
+def barrel(rng: np.random.Generator) -> Shape:
+    """Standing barrel: a cylinder whose radius bulges 0.4-1 cm at mid-height (a sine profile), convex."""
+    p = {"end_radius": _u(rng, 0.025, 0.035), "bulge": _u(rng, 0.004, 0.01), "height": _u(rng, 0.07, 0.12)}
+    z = np.linspace(0.0, p["height"], 9)
+    r = p["end_radius"] + p["bulge"] * np.sin(np.pi * z / p["height"])
+    mesh = _revolve([(0.0, 0.0), *zip(r.tolist(), z.tolist(), strict=True), (0.0, p["height"])])
+    return Shape(mesh=mesh, kind="convex", params=p)
+
+
+def channel(rng: np.random.Generator) -> Shape:
+    """U channel lying open side up (a trough, a cable duct): a base and two walls 6-10 mm thick, 5-8 cm
+    across, 8-14 cm long (three exact boxes)."""
+    p = {
+        "width": _u(rng, 0.05, 0.08),
+        "height": _u(rng, 0.03, 0.05),
+        "length": _u(rng, 0.08, 0.14),
+        "thickness": _u(rng, 0.006, 0.01),
+    }
+    w, h, length, t = p["width"] / 2, p["height"], p["length"], p["thickness"]
+    outline = np.array([[-w, 0], [w, 0], [w, h], [w - t, h], [w - t, t], [-w + t, t], [-w + t, h], [-w, h]])
+    caps = np.array([[0, 1, 4], [0, 4, 5], [1, 2, 3], [1, 3, 4], [5, 6, 7], [5, 7, 0]])  # base, right, left wall
+    mesh = _extrude_triangulated(outline, caps, length)
+    _, base = _box_at((2 * w, length, t), (0.0, 0.0, t / 2))
+    _, right = _box_at((t, length, h - t), (w - t / 2, 0.0, t + (h - t) / 2))
+    _, left = _box_at((t, length, h - t), (-w + t / 2, 0.0, t + (h - t) / 2))
+    return Shape(mesh=mesh, kind="primitive", primitives=(base, right, left), params=p)
+
+
+def _extrude_triangulated(outline: np.ndarray, caps: np.ndarray, width: float) -> trimesh.Trimesh:
+    """Prism of an (n, 2) counter-clockwise x-z outline whose face is given as (m, 3) triangles of its
+    vertices (any simple polygon), extruded along y over ``[-width/2, width/2]``; watertight, one body."""
+    n = len(outline)
+    front = np.column_stack([outline[:, 0], np.full(n, -width / 2), outline[:, 1]])
+    back = front + [0.0, width, 0.0]
+    sides = [[i, (i + 1) % n, n + (i + 1) % n] for i in range(n)] + [[i, n + (i + 1) % n, n + i] for i in range(n)]
+    faces = np.vstack([caps, caps[:, ::-1] + n, np.array(sides)])
+    mesh = trimesh.Trimesh(np.vstack([front, back]), faces, process=True)
+    trimesh.repair.fix_normals(mesh)
+    return mesh
+
+
+HELD_OUT_CATEGORIES = ("stamp", "cross", "barrel", "channel")
+"""Categories the library holds out as unseen categories by default (``LibraryConfig.held_out_categories``)."""
+
 CATEGORIES: dict[str, Callable[[np.random.Generator], Shape]] = {
     "box": box,
     "cube": cube,
@@ -463,5 +542,9 @@ CATEGORIES: dict[str, Callable[[np.random.Generator], Shape]] = {
     "pyramid": pyramid,
     "tri_prism": tri_prism,
     "frustum": frustum,
+    "stamp": stamp,
+    "cross": cross,
+    "barrel": barrel,
+    "channel": channel,
 }
 """Category name → builder, in listing order."""

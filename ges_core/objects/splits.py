@@ -10,6 +10,10 @@ of unseen categories. Here, for any list of (id, category):
 2. Unseen objects: in every remaining category of ``k`` objects, ``round(132 / 695 * k)`` (about 19 %)
    are drawn (seeded, independently per category) and the rest are train.
 
+Categories named in ``held_out`` are always unseen categories and take no part in steps 1-2: the draw
+and the object share are computed over the other categories alone, so pinning a category (or adding a
+pinned one) leaves every other object's split as it was.
+
 Deterministic: same ids, categories and seed → same split, whatever the input order.
 """
 
@@ -31,16 +35,20 @@ UNSEEN_CATEGORY_SHARE = PAPER_COUNTS["unseen_category"] / sum(PAPER_COUNTS.value
 UNSEEN_OBJECT_SHARE = PAPER_COUNTS["unseen_object"] / (PAPER_COUNTS["train"] + PAPER_COUNTS["unseen_object"])  # 0.190
 
 
-def assign_splits(items: Iterable[tuple[str, str]], *, seed: int = 0) -> dict[str, str]:
+def assign_splits(
+    items: Iterable[tuple[str, str]], *, seed: int = 0, held_out: Iterable[str] = ()
+) -> dict[str, str]:
     """Map each object id to ``train``, ``unseen_object`` or ``unseen_category``.
 
     items: (object_id, category) pairs; ids must be unique.
+    held_out: categories that are unseen categories whatever the draw (absent ones are ignored).
     """
     groups: dict[str, list[str]] = defaultdict(list)
     for object_id, category in items:
         groups[category].append(object_id)
     groups = {cat: sorted(ids) for cat, ids in sorted(groups.items())}
-    unseen = _unseen_categories(groups, seed)
+    pinned = set(held_out) & set(groups)
+    unseen = pinned | _unseen_categories({c: ids for c, ids in groups.items() if c not in pinned}, seed)
     split = {}
     for cat, ids in groups.items():
         if cat in unseen:
