@@ -56,6 +56,9 @@ def main() -> None:
     parser.add_argument("--limit", type=int, default=None, help="only the first N objects (a smoke run)")
     parser.add_argument("--fresh", action="store_true", help="delete --out first")
     parser.add_argument("--summary-only", action="store_true", help="count the stored records, run nothing")
+    parser.add_argument(
+        "--allow-config-change", action="store_true", help="resume --out although it was written with other settings"
+    )
     parser.add_argument("--sources", nargs="+", choices=SOURCES, default=list(SOURCES), help="library sources")
     args = parser.parse_args()
     set_torch_threads(1)
@@ -74,7 +77,10 @@ def main() -> None:
         start, written = time.perf_counter(), []
         try:  # a stopped run (Ctrl-C) keeps its records and logs its time too; a SIGKILL loses only the time
             ids = [o.object_id for o in objects]
-            run_synthesis(ids, HANDS, config, args.out, workers=args.workers, progress=True, on_record=written.append)
+            run_synthesis(
+                ids, HANDS, config, args.out, workers=args.workers, progress=True, on_record=written.append,
+                allow_config_change=args.allow_config_change,
+            )  # fmt: skip
         finally:
             _log_run(args.out, time.perf_counter() - start, args.workers, len(written))
     runs = _runs(args.out)

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -52,6 +54,27 @@ def test_demo_with_another_config_is_refused_unless_fresh(tmp_path, capsys):
     assert f"moved the earlier {out} to {out}.old-1" in text and "1 grasps synthesized, 0 already in" in text
     assert sorted(p.name for p in (tmp_path / "demo.old-1" / "dataset").rglob("*")) == first  # nothing lost
     assert [r.object_id for r in open_dataset(out / "dataset")] == ["procedural/can/000"]
+
+
+@pytest.mark.sim
+def test_synth_continues_a_dataset_of_other_settings_only_when_asked(tmp_path, capsys):
+    out = tmp_path / "ds"
+    argv = ["synth", "--hands", "allegro", "--out", str(out), "--no-progress", "-o", "validate.hold_steps=60"]
+    assert cli.main([*argv, "--objects", "procedural/can/000"]) == 0
+    capsys.readouterr()
+    more = [*argv, "--objects", "procedural/box/000", "-o", "attempts=1"]
+    assert cli.main(more) == 1
+    err = capsys.readouterr().err
+    assert f"attempts: {SynthesisConfig().attempts} -> 1" in err and "ges synth --allow-config-change" in err
+    assert [r.object_id for r in open_dataset(out)] == ["procedural/can/000"]  # the refused run wrote nothing
+    assert cli.main([*more, "--allow-config-change"]) == 0
+    records = {r.object_id: r for r in open_dataset(out)}
+    assert sorted(records) == ["procedural/box/000", "procedural/can/000"]
+    assert records["procedural/box/000"].run_config_hash != records["procedural/can/000"].run_config_hash
+    manifest = json.loads((out / "manifest.json").read_text())
+    assert manifest["run_config"]["attempts"] == 1
+    assert manifest["config_history"][0]["run_config"]["attempts"] == SynthesisConfig().attempts
+    assert validate_dataset(out) == []  # both configs are named: every record's hash is known
 
 
 @pytest.mark.sim

@@ -37,6 +37,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     sp.add_argument("--sim", metavar="NAME", help="simulator of refinement and validation (sets both)")
     sp.add_argument("--pictures", type=Path, metavar="DIR", help="also draw a PNG per grasp and DIR/contact_sheet.png")
     sp.add_argument("--out", type=Path, required=True, metavar="DIR", help="dataset folder (created or resumed)")
+    sp.add_argument(
+        "--allow-config-change",
+        action="store_true",
+        help="resume a dataset written with other settings (stored records keep theirs; the old config is kept in "
+        "the manifest's config_history)",
+    )
     sp.set_defaults(func=run_synth_cmd)
 
     rp = sub.add_parser("retarget", help="retarget a dataset's stored contacts to another hand and validate")
@@ -110,7 +116,7 @@ def run_synth_cmd(args: argparse.Namespace) -> int:
     _prepare(config, ids, args.workers or 1, args)
     run_synthesis(
         ids, args.hands, config, args.out, workers=args.workers or 1, progress=not args.no_progress,
-        registry=_registry(args), pictures=args.pictures, **where,
+        registry=_registry(args), pictures=args.pictures, allow_config_change=args.allow_config_change, **where,
     )  # fmt: skip
     records = _print_table(args.out, {(o, h) for o in ids for h in args.hands})
     if args.pictures is not None:

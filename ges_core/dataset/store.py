@@ -237,8 +237,8 @@ class DatasetWriter:
             raise ConfigError(
                 f"dataset {self.root} was written with another run config ({'; '.join(diffs)}). "
                 "Rerun with the stored values, or write to a new folder (ges: --out DIR; ges demo --fresh moves "
-                "this one aside); in Python, DatasetWriter(..., allow_config_change=True) continues it and keeps "
-                "the old config in the manifest's config_history",
+                "this one aside); `ges synth --allow-config-change` (in Python, DatasetWriter(..., "
+                "allow_config_change=True)) continues it and keeps the old config in the manifest's config_history",
                 problems=diffs,
             )
         history = [*manifest.get("config_history", []), {"until": utc_now(), "run_config": old}]

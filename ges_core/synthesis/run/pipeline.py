@@ -75,6 +75,7 @@ def run_synthesis(
     on_record: Callable | None = None,
     executor: str = "local",
     address: str | None = None,
+    allow_config_change: bool = False,
 ) -> RunReport:
     """Synthesize and validate grasps of ``object_ids`` x ``hands``; write them to the dataset ``out``.
 
@@ -86,6 +87,8 @@ def run_synthesis(
     pictures: folder for one PNG per record (None: none).
     source: (dataset folder, hand): that hand's stored contacts replace contact generation (cross-hand
     retargeting); every object needs a record of that hand there. on_record: called with each record as it is written.
+    allow_config_change: continue a dataset written with another run config (its records keep the hash of the
+    config they were made with; the old config goes to the manifest's ``config_history``); else ConfigError.
     """
     _check_run(object_ids, hands, workers)
     make_executor(executor, address=address, workers=workers)  # a bad name, or Ray missing: before the folder exists
@@ -95,7 +98,7 @@ def run_synthesis(
     registry = registry or RegistrySpec()
     check_plugin_names(hands, config, registry)  # before the dataset folder exists
     entries = hand_entries(hands, registry)  # a resumed dataset refuses hands that changed (docs/dataset.md)
-    with DatasetWriter(out, config.dump(), hands=entries) as writer:
+    with DatasetWriter(out, config.dump(), hands=entries, allow_config_change=allow_config_change) as writer:
         report = RunReport(Path(out), recovered=list(writer.recovered))
         tasks, report.skipped = plan_tasks(list(object_ids), list(hands), config.chunk_size, writer.has)
         context = RunContext(config, registry, str(pictures) if pictures else None, _source(source))
