@@ -124,7 +124,8 @@ def main() -> None:
         print("\n" + ges_against_best_table(report.against_best))
     held_out = held_out_oracle_rows(args.oracle_from, args.matrix, [e.label for e in experts])
     if held_out:
-        print("\n" + held_out_oracle_table(held_out))
+        picked = f"the gates' matrices ({' + '.join(Path(m).parent.name for m in args.oracle_from)})"
+        print("\n" + held_out_oracle_table(held_out, picked=picked, scored="this run"))
     pairs = paired(report, args.matrix)
     print(f"GES cells equal to the picked expert's matrix cell (same code): {pairs['identical']}/{pairs['compared']}")
     for gate, per in checks.items():

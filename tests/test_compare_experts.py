@@ -151,7 +151,7 @@ def test_cli_pools_seeds_and_writes_the_comparison(tmp_path, capsys):
     out = tmp_path / "cmp.json"
     assert main(["compare-experts", str(a), str(b), "--out", str(out)]) == 0
     text = capsys.readouterr().out
-    assert "2 matrix file(s) pooled: 480 episodes" in text and "picked on 1, scored on the others" in text
+    assert "2 matrix file(s) pooled: 480 episodes" in text and "picked on the first matrix, scored on the others" in text
     assert "| e1 |" in text and "above" in text
     rows = json.loads(out.read_text())["rows"]
     assert {r["split"] for r in rows} == {"train", "unseen_object", "unseen_category", "all"}
@@ -189,7 +189,11 @@ def test_the_held_out_oracle_scores_run_1s_picks_on_run_2(tmp_path):
     assert h.same > max(a.mean(axis=0)) / 4  # the same-episode oracle is above both equal columns
     (same_run,) = held_out_oracle(ma, ma, splits=(None,))
     assert same_run.held_out == same_run.same == same_run.other  # scored on its own episodes: the oracle row
-    assert "| all | 50 |" in held_out_oracle_table([h])
+    text = held_out_oracle_table([h])
+    row = f"| all | 50 | {100 * h.same:.1f} % | {100 * h.held_out:.1f} % | {100 * h.other:.1f} % |"
+    assert row in text and "picked on the first matrix, scored on the others" in text
+    named = held_out_oracle_table([h], picked="seeds 0+1", scored="seed 2")
+    assert "| oracle of seeds 0+1 | picked on seeds 0+1, scored on seed 2 | oracle of seed 2 |" in named
 
 
 def test_the_held_out_oracle_keeps_a_real_difference(tmp_path):

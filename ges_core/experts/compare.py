@@ -270,14 +270,16 @@ def held_out_oracle(
     return out
 
 
-def held_out_oracle_table(rows: list[HeldOutOracle]) -> str:
-    """Markdown: per split, the oracle on its own episodes, picked on run 1 and scored on the others, the others'
-    own oracle and best single column."""
+def held_out_oracle_table(
+    rows: list[HeldOutOracle], *, picked: str = "the first matrix", scored: str = "the others"
+) -> str:
+    """Markdown: per split, the oracle on the picking run's own episodes, its picks scored on the other run, the
+    other run's own oracle and best single column. ``picked`` / ``scored`` name the two runs in the headers."""
     lines = [
-        "the oracle on fresh episodes: best column per object picked on the first matrix, scored on the others",
+        f"the oracle on fresh episodes: best column per object picked on {picked}, scored on {scored}",
         "",
-        "| split | objects | oracle (picked and scored on 1) | picked on 1, scored on the others | oracle of the "
-        "others | best single column on the others |",
+        f"| split | objects | oracle of {picked} | picked on {picked}, scored on {scored} | oracle of {scored} "
+        f"| best single column on {scored} |",
         "|---|---|---|---|---|---|",
     ]
     for r in rows:

@@ -35,9 +35,7 @@ UNSEEN_CATEGORY_SHARE = PAPER_COUNTS["unseen_category"] / sum(PAPER_COUNTS.value
 UNSEEN_OBJECT_SHARE = PAPER_COUNTS["unseen_object"] / (PAPER_COUNTS["train"] + PAPER_COUNTS["unseen_object"])  # 0.190
 
 
-def assign_splits(
-    items: Iterable[tuple[str, str]], *, seed: int = 0, held_out: Iterable[str] = ()
-) -> dict[str, str]:
+def assign_splits(items: Iterable[tuple[str, str]], *, seed: int = 0, held_out: Iterable[str] = ()) -> dict[str, str]:
     """Map each object id to ``train``, ``unseen_object`` or ``unseen_category``.
 
     items: (object_id, category) pairs; ids must be unique.
