@@ -161,6 +161,23 @@ def test_cli_list(capsys, tmp_path):
     assert re.search(r"procedural/cube/000 .* cm  min width +\d+\.\d cm", capsys.readouterr().out)
 
 
+def test_cli_held_out_names_the_unseen_categories(capsys):
+    def splits(*extra) -> dict[str, str]:
+        assert main(["objects", "list", "--source", "procedural", "--count", "2", *extra]) == 0
+        rows = [line.split() for line in capsys.readouterr().out.splitlines()[:-1]]
+        return {row[0]: row[-1] for row in rows}
+
+    def library(**held) -> dict[str, str]:
+        return ObjectLibrary(LibraryConfig(sources=("procedural",), procedural_count=2, **held)).splits
+
+    default, mugs, drawn = splits(), splits("--held-out", "mug"), splits("--held-out")
+    assert default == library()  # the printed split is the library's
+    assert {s for oid, s in default.items() if oid.startswith("procedural/stamp/")} == {"unseen_category"}
+    assert {s for oid, s in mugs.items() if oid.startswith("procedural/mug/")} == {"unseen_category"}
+    assert mugs == library(held_out_categories=("mug",)) != default  # the option replaces the default list
+    assert drawn == library(held_out_categories=())
+
+
 def test_cli_list_error_is_one_line(capsys, tmp_path):
     assert main(["objects", "list", "--source", "user", "--user-dir", str(tmp_path / "none")]) == 1
     err = capsys.readouterr().err.strip()

@@ -86,6 +86,13 @@ def _library_options(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=non_negative_int, default=0, help="procedural seed")
     p.add_argument("--split-seed", type=non_negative_int, default=0, help="seed of the splits")
     p.add_argument(
+        "--held-out",
+        nargs="*",
+        metavar="CATEGORY",
+        help="categories always in the unseen-category split (default: stamp cross barrel channel; none: the "
+        "seeded draw over every category)",
+    )
+    p.add_argument(
         "--normalize", type=positive_float, metavar="M", help="scale each object's largest extent to M metres"
     )
     p.add_argument(
@@ -108,6 +115,7 @@ def library_from_args(args: argparse.Namespace, **extra):
         "user_scale": args.user_scale,
         "normalize_size": args.normalize,
         "split_seed": args.split_seed,
+        **({"held_out_categories": tuple(args.held_out)} if args.held_out is not None else {}),
         **({"max_faces": args.max_faces} if args.max_faces is not None else {}),
         **extra,
     }

@@ -159,12 +159,18 @@ def l_bracket(rng: np.random.Generator) -> Shape:
 def _extrude_star_polygon(outline: np.ndarray, width: float) -> trimesh.Trimesh:
     """Prism of an (n, 2) counter-clockwise x-z outline, star-shaped from vertex 0, extruded along y
     over ``[-width/2, width/2]``; watertight, one body."""
+    fan = np.array([[0, i, i + 1] for i in range(1, len(outline) - 1)])
+    return _extrude_triangulated(outline, fan, width)
+
+
+def _extrude_triangulated(outline: np.ndarray, caps: np.ndarray, width: float) -> trimesh.Trimesh:
+    """Prism of an (n, 2) counter-clockwise x-z outline whose face is given as (m, 3) triangles of its
+    vertices (any simple polygon), extruded along y over ``[-width/2, width/2]``; watertight, one body."""
     n = len(outline)
     front = np.column_stack([outline[:, 0], np.full(n, -width / 2), outline[:, 1]])
     back = front + [0.0, width, 0.0]
-    fan = np.array([[0, i, i + 1] for i in range(1, n - 1)])
     sides = [[i, (i + 1) % n, n + (i + 1) % n] for i in range(n)] + [[i, n + (i + 1) % n, n + i] for i in range(n)]
-    faces = np.vstack([fan, fan[:, ::-1] + n, np.array(sides)])
+    faces = np.vstack([caps, caps[:, ::-1] + n, np.array(sides)])
     mesh = trimesh.Trimesh(np.vstack([front, back]), faces, process=True)
     trimesh.repair.fix_normals(mesh)
     return mesh
@@ -499,19 +505,6 @@ def channel(rng: np.random.Generator) -> Shape:
     _, right = _box_at((t, length, h - t), (w - t / 2, 0.0, t + (h - t) / 2))
     _, left = _box_at((t, length, h - t), (-w + t / 2, 0.0, t + (h - t) / 2))
     return Shape(mesh=mesh, kind="primitive", primitives=(base, right, left), params=p)
-
-
-def _extrude_triangulated(outline: np.ndarray, caps: np.ndarray, width: float) -> trimesh.Trimesh:
-    """Prism of an (n, 2) counter-clockwise x-z outline whose face is given as (m, 3) triangles of its
-    vertices (any simple polygon), extruded along y over ``[-width/2, width/2]``; watertight, one body."""
-    n = len(outline)
-    front = np.column_stack([outline[:, 0], np.full(n, -width / 2), outline[:, 1]])
-    back = front + [0.0, width, 0.0]
-    sides = [[i, (i + 1) % n, n + (i + 1) % n] for i in range(n)] + [[i, n + (i + 1) % n, n + i] for i in range(n)]
-    faces = np.vstack([caps, caps[:, ::-1] + n, np.array(sides)])
-    mesh = trimesh.Trimesh(np.vstack([front, back]), faces, process=True)
-    trimesh.repair.fix_normals(mesh)
-    return mesh
 
 
 HELD_OUT_CATEGORIES = ("stamp", "cross", "barrel", "channel")
