@@ -219,3 +219,81 @@ def test_simulators_agree_on_clear_cases(validated):
     rate = agreement(a, b)
     print(f"\ncross-simulator agreement {SIMS[0]} vs {SIMS[1]} on {len(names)} grasps: {rate:.2f}")
     assert rate >= 0.75
+
+
+# -- the hold ends once the verdict is settled -------------------------------------------------
+class _ScriptedHold:
+    """A test double for the hold: the object's height and the fingertip touch per step, from lists."""
+
+    def __init__(self, heights, touches) -> None:
+        self.heights, self.touches, self.steps = list(heights), list(touches), 0
+        self.touched, self.forces = False, np.zeros(2)
+
+    def step(self) -> None:  # the probe's step
+        self.touched = self.touched or self.touches[self.steps]
+        self.steps += 1
+
+    def rule(self) -> bool:
+        return True
+
+    def object_pose(self) -> np.ndarray:  # the backend's, read after each step
+        return np.array([[0.0, 0.0, self.heights[self.steps - 1], 1.0, 0.0, 0.0, 0.0]])
+
+
+@pytest.mark.parametrize(
+    ("lifted", "touched_before", "heights", "touches", "reason", "steps"),
+    [
+        (False, True, [0.0] * 10, [False] * 10, "not_lifted", 0),  # nothing the hold sees can change it
+        (False, False, [0.0] * 10, [False] * 3 + [True] * 7, "not_lifted", 4),  # until the first touch
+        (False, False, [0.0] * 10, [False] * 10, "no_contact", 10),
+        (True, True, [0.2] * 4 + [0.0] * 6, [True] * 10, "dropped", 5),  # the first low step decides
+        (True, True, [0.2] * 10, [True] * 10, "success", 10),  # success needs every step
+    ],
+)
+def test_the_hold_stops_once_the_verdict_is_settled(lifted, touched_before, heights, touches, reason, steps):
+    from ges_core.synthesis.physics.validate import _hold
+
+    config = ValidateConfig(hold_steps=10)
+    verdicts = {}
+    for full in (False, True):
+        double = _ScriptedHold(heights, touches)
+        double.touched = touched_before
+        record = _hold(double, double, 0.0, lifted, config, full_hold=full)
+        verdicts[full] = (classify(record, config), double.steps)
+    assert verdicts[False] == (reason, steps)
+    assert verdicts[True] == (reason, 10)  # the full hold: every step, the same verdict
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_an_early_verdict_is_the_full_holds_verdict_in_the_engines(allegro, sim_name):
+    """The controls that fail (not lifted, dropped) take fewer physics steps and give the full hold's verdict
+    and flags; a grasp that holds runs every step either way."""
+    with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+        counted = {"steps": 0}
+        step = sim.step
+
+        def counting_step(*args, **kwargs):
+            counted["steps"] += 1
+            return step(*args, **kwargs)
+
+        sim.step = counting_step
+        cases = _cases(allegro)
+        good = refine_grasp(sim, allegro, box_object(), cases["good"][0]).grasp
+        shorter = 0
+        for name, grasp in [("good", good), *((n, g) for n, (g, refine) in cases.items() if not refine)]:
+            pre = pregrasp(allegro, grasp, DOWN)
+            runs = []
+            for full in (False, True):
+                before = counted["steps"]
+                result = validate_grasp(sim, allegro, box_object(), grasp, pre, full_hold=full)
+                runs.append((result.reason, result.flags, counted["steps"] - before))
+            (early, early_flags, n_early), (full, full_flags, n_full) = runs
+            print(f"\n{sim_name} {name}: {early} in {n_early} steps, full hold {full} in {n_full}")
+            assert (early, early_flags) == (full, full_flags), (name, runs)
+            if early in ("not_lifted", "dropped"):
+                assert n_early < n_full, (name, runs)
+                shorter += 1
+            else:
+                assert n_early == n_full, (name, runs)
+        assert shorter >= 1  # at least one control was settled before the end of the hold

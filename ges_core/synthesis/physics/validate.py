@@ -10,7 +10,10 @@ also requires a *fingertip* grasp through the hold. Phases, all through
 2. close: finger targets ramp from the pre-grasp joints to the grasp joints pushed further so each
    fingertip presses toward the opposing fingers (:mod:`ges_core.synthesis.physics.squeeze`) over ``close_steps``;
 3. lift: the wrist target rises ``lift_height`` (world +z) over ``lift_steps``;
-4. hold: ``hold_steps`` at the lifted pose.
+4. hold: ``hold_steps`` at the lifted pose, ended early once the verdict cannot change any more (an object not
+   lifted that a fingertip touched is ``not_lifted``, an object low at one hold step after the lift is
+   ``dropped``, whatever the remaining steps do); ``full_hold=True`` runs every step (the same verdict, checked
+   by the tests, ``benchmarks/validation_early.py`` measures the time saved).
 
 Verdict (:func:`classify`), from what was measured:
 
@@ -115,6 +118,7 @@ def validate_grasp(
     *,
     object_shift: np.ndarray | None = None,
     drive_limits: np.ndarray | None = None,
+    full_hold: bool = False,
 ) -> ValidationResult:
     """Approach, close, lift and hold ``obj`` with ``hand`` in ``sim``; success or failure with a reason.
 
@@ -125,7 +129,8 @@ def validate_grasp(
     ``object_shift[:3]`` m (world frame) from its resting pose and turned by the quaternion ``object_shift[3:]``
     about its own origin, while the hand still aims at the resting pose. drive_limits: (K,) N·m or None; the
     hand's drives are capped there (:meth:`ges_core.sim.SimBackend.set_drive_limits`) for this trial only; None
-    with ``config.drive_limits`` caps them at the hand's effort limits.
+    with ``config.drive_limits`` caps them at the hand's effort limits. full_hold: run every hold step even after
+    the verdict is settled (module docs; a blow-up in the skipped steps would have said ``unstable`` instead).
     """
     config = config or ValidateConfig()
     start = time.perf_counter()
@@ -138,7 +143,7 @@ def validate_grasp(
     shift = None if object_shift is None else checked_poses(object_shift, None, "validate_grasp object_shift")
     capped: list[bool] = []
     try:
-        record = _run(sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped)
+        record = _run(sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped, full_hold)
     except (SimulationError, ArrayError):  # a blow-up, or a NaN command computed from a blown-up state
         return ValidationResult(False, "unstable", flags, time.perf_counter() - start)
     finally:
@@ -181,6 +186,7 @@ def _run(
     shift: np.ndarray | None = None,
     limits: np.ndarray | None = None,
     capped: list[bool] | None = None,
+    full_hold: bool = False,
 ) -> HoldRecord:
     """The four phases; fills ``flags`` as it goes and returns the measurements (``capped`` gets an entry once
     the drive limits are set)."""
@@ -209,7 +215,7 @@ def _run(
     flags["fingertips_touching"] = probe.rule()
     _lift(sim, goal, probe, config)
     flags["lifted"] = bool(sim.object_pose()[0, 2] - z0 >= config.lift_height - config.lift_tolerance)
-    return _hold(sim, probe, z0, flags["lifted"], config)
+    return _hold(sim, probe, z0, flags["lifted"], config, full_hold)
 
 
 def shifted(pose: np.ndarray, shift: np.ndarray) -> np.ndarray:
@@ -221,14 +227,26 @@ def shifted(pose: np.ndarray, shift: np.ndarray) -> np.ndarray:
     return out
 
 
-def _hold(sim: SimBackend, probe: _Probe, z0: float, lifted: bool, config: ValidateConfig) -> HoldRecord:
-    """``hold_steps`` at the top, recording per step the object's height check and the fingertip rule."""
+def _hold(
+    sim: SimBackend, probe: _Probe, z0: float, lifted: bool, config: ValidateConfig, full_hold: bool = False
+) -> HoldRecord:
+    """``hold_steps`` at the top, recording per step the object's height check and the fingertip rule; unless
+    ``full_hold``, it stops as soon as :func:`classify` can give nothing but one verdict (the steps not run stay
+    False, which that verdict does not read)."""
     hold_high, hold_tips = np.zeros(config.hold_steps, bool), np.zeros(config.hold_steps, bool)
     for i in range(config.hold_steps):
+        if not full_hold and _settled(probe.touched, lifted, hold_high[:i]):
+            break
         probe.step()
         hold_high[i] = sim.object_pose()[0, 2] - z0 >= config.lift_height - config.lift_tolerance
         hold_tips[i] = probe.rule()
     return HoldRecord(probe.touched, lifted, hold_high, hold_tips)
+
+
+def _settled(touched: bool, lifted: bool, hold_high: np.ndarray) -> bool:
+    """Whether the verdict is fixed by what the hold measured so far: not lifted and touched is ``not_lifted``
+    (touched never turns back), lifted and once low is ``dropped`` (every step must be high)."""
+    return (not lifted and touched) or (lifted and not bool(np.all(hold_high)))
 
 
 def _lift(sim: SimBackend, goal: np.ndarray, probe: _Probe, config: ValidateConfig) -> None:

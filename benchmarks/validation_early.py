@@ -1,0 +1,124 @@
+"""Stage 1 with and without the early end of the hold: the same verdicts, fewer physics steps.
+
+Validation (the nominal trial and every robust trial) ends its 200-step hold as soon as the verdict cannot change
+(``ges_core.synthesis.physics.validate``: not lifted but touched, or low once after the lift). This runs the
+Stage 1 pipeline (``run_synthesis``, one process, one torch thread, SAPIEN, robust validation on: the defaults)
+twice over the same objects, once with every hold step (``full``) and once as shipped (``early``), and compares
+record by record: every verdict (refinement, validation, robust, the failed step and its reason, each
+placement's verdicts) and the seconds of validation and of the robust trials. Seconds are CPU seconds of this
+process (``time.process_time``; one process, one torch thread), so a busy machine does not bend the comparison.
+
+    python benchmarks/validation_early.py [--procedural N] [--real N] [--hands allegro shadow]
+
+Procedural objects (object 000 of the first N categories) and real scans (the first N of the ``real`` set)
+are reported apart. Prints a markdown table and writes ``benchmarks/results/validation_early.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import tempfile
+import time
+from pathlib import Path
+
+from ges_core.dataset import open_dataset, software_versions
+from ges_core.objects.library import LibraryConfig
+from ges_core.objects.procedural import CATEGORIES
+from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis.physics import validate
+from ges_core.threads import set_torch_threads
+
+from _results import code_state, write_results
+
+RESULTS = Path(__file__).parent / "results" / "validation_early.json"
+VARIANTS = ("full", "early")
+
+
+def run(ids: list[str], hands: list[str], config: SynthesisConfig, folder: Path, variant: str) -> tuple[dict, float]:
+    """{(object, hand): record} of one pipeline run and its CPU seconds; ``full`` runs every hold step."""
+    settled, wall_clock = validate._settled, time.perf_counter
+    if variant == "full":
+        validate._settled = lambda *_: False  # never settled: the hold runs all its steps
+    time.perf_counter = time.process_time  # the records' step seconds become CPU seconds of this process
+    cpu = time.process_time()
+    try:
+        run_synthesis(ids, hands, config, folder, workers=1)
+    finally:
+        validate._settled, time.perf_counter = settled, wall_clock
+    return {r.key: r for r in open_dataset(folder)}, time.process_time() - cpu
+
+
+def verdicts(record) -> tuple:
+    """Everything a record decides (not its timings)."""
+    steps = tuple((name, s.ok, s.reason) for name, s in sorted(record.steps.items()))
+    return steps, record.failed_step, record.success, record.robust, record.robustness, tuple(record.attempts)
+
+
+def seconds(record) -> float:
+    """Validation (every placement's nominal trial) plus the robust trials, CPU seconds."""
+    return (record.steps["validation"].seconds or 0.0) + (record.steps["robust"].seconds or 0.0)
+
+
+def compare(runs: dict[str, dict]) -> dict:
+    keys = sorted(runs["full"])
+    same = [k for k in keys if verdicts(runs["full"][k]) == verdicts(runs["early"][k])]
+    full = [seconds(runs["full"][k]) for k in keys]
+    early = [seconds(runs["early"][k]) for k in keys]
+    ratios = [e / f for e, f in zip(early, full, strict=True) if f > 0]
+    return {
+        "records": len(keys),
+        "identical_verdicts": len(same),
+        "differing": [list(k) for k in keys if k not in same],
+        "median_seconds_full": statistics.median(full),
+        "median_seconds_early": statistics.median(early),
+        "sum_seconds_full": sum(full),
+        "sum_seconds_early": sum(early),
+        "median_ratio_early_to_full": statistics.median(ratios) if ratios else None,
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--procedural", type=int, default=12, help="object 000 of the first N categories")
+    parser.add_argument("--real", type=int, default=10, help="the first N real scans (extra [real])")
+    parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
+    args = parser.parse_args()
+    set_torch_threads(1)
+    library = LibraryConfig(sources=("procedural", "real")).build()
+    sets = {
+        "procedural": [f"procedural/{c}/000" for c in list(CATEGORIES)[: args.procedural]],
+        "real": [e.object_id for e in library.entries(source="real")][: args.real],
+    }
+    config = SynthesisConfig(library=LibraryConfig(sources=("procedural", "real"), decompose=True))
+    rows, cpu = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        run([sets["procedural"][0]], args.hands[:1], config, Path(tmp) / "warm", "early")  # imports, caches
+        for name, ids in sets.items():
+            runs = {}
+            for variant in VARIANTS:
+                runs[variant], cpu[f"{name}/{variant}"] = run(
+                    ids, args.hands, config, Path(tmp) / name / variant, variant
+                )
+                print(f"{name} {variant}: {len(runs[variant])} records, {cpu[f'{name}/{variant}']:.1f} CPU s")
+            rows[name] = compare(runs)
+    print(
+        "\n| objects | records | identical verdicts | validation + robust s, median full / early | sum full / early "
+        "| median ratio early/full | whole run CPU s full / early |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for name, r in rows.items():
+        print(
+            f"| {name} | {r['records']} | {r['identical_verdicts']} | {r['median_seconds_full']:.2f} / "
+            f"{r['median_seconds_early']:.2f} | {r['sum_seconds_full']:.1f} / {r['sum_seconds_early']:.1f} | "
+            f"{r['median_ratio_early_to_full']:.2f} | {cpu[f'{name}/full']:.1f} / {cpu[f'{name}/early']:.1f} |"
+        )
+    write_results(RESULTS, {
+        "benchmark": "validation_early", "objects": sets, "hands": args.hands, "rows": rows, "cpu_seconds": cpu,
+        "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
+        "code": code_state(),
+    })  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
