@@ -45,7 +45,7 @@ ALL = ids(
     "bottle/000 bottle/001 bowl/000 bowl/001 mug/000 mug/001 torus/000 torus/001 "
     "hammer/000 hammer/001 dumbbell/000 dumbbell/001 rod/000 rod/001 spray_can/000 spray_can/001 puck/000 puck/001 "
     "remote/000 remote/001 hex_prism/000 hex_prism/001 pyramid/000 pyramid/001 tri_prism/000 tri_prism/001 "
-    "frustum/000 frustum/001"
+    "frustum/000 frustum/001 stamp/000 stamp/001 cross/000 cross/001 barrel/000 barrel/001 channel/000 channel/001"
 )
 
 
