@@ -167,8 +167,9 @@ def test_cli_held_out_names_the_unseen_categories(capsys):
         rows = [line.split() for line in capsys.readouterr().out.splitlines()[:-1]]
         return {row[0]: row[-1] for row in rows}
 
-    def library(**held) -> dict[str, str]:
-        return ObjectLibrary(LibraryConfig(sources=("procedural",), procedural_count=2, **held)).splits
+    def library(**settings) -> dict[str, str]:
+        settings = {"sources": ("procedural",), **settings}
+        return ObjectLibrary(LibraryConfig(procedural_count=2, **settings)).splits
 
     default, mugs, drawn = splits(), splits("--held-out", "mug"), splits("--held-out")
     assert default == library()  # the printed split is the library's
@@ -176,6 +177,10 @@ def test_cli_held_out_names_the_unseen_categories(capsys):
     assert {s for oid, s in mugs.items() if oid.startswith("procedural/mug/")} == {"unseen_category"}
     assert mugs == library(held_out_categories=("mug",)) != default  # the option replaces the default list
     assert drawn == library(held_out_categories=())
+    assert main(["objects", "list", "--source", "procedural", "--count", "2", "--held-out", "mugg"]) == 1
+    err = capsys.readouterr().err
+    assert "held_out_categories: mugg (did you mean mug?) is no category of the library" in err
+    assert library(sources=("pybullet",)) != {}  # the default names need not exist in a library
 
 
 def test_cli_list_error_is_one_line(capsys, tmp_path):

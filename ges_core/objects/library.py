@@ -91,6 +91,19 @@ class LibraryConfig(ConfigModel):
         return ObjectLibrary(self)
 
 
+def _check_held_out(config: LibraryConfig, categories: set[str]) -> None:
+    """ConfigError for a held-out name that is no category of the library (a typo would silently hold out
+    nothing); the default names are exempt, as a library without the procedural source lacks them."""
+    unknown = sorted(set(config.held_out_categories) - categories - set(HELD_OUT_CATEGORIES))
+    if unknown:
+        hints = [f"{u} (did you mean {', '.join(c)}?)" if (c := difflib.get_close_matches(u, categories, 2)) else u
+                 for u in unknown]  # fmt: skip
+        raise ConfigError(
+            f"held_out_categories: {'; '.join(hints)} is no category of the library (sources "
+            f"{', '.join(config.sources)}: {len(categories)} categories, `ges objects list` shows them)"
+        )
+
+
 @dataclass(frozen=True)
 class ObjectInfo:
     """One row of :meth:`ObjectLibrary.list`."""
@@ -139,6 +152,7 @@ class ObjectLibrary:
         unknown = sorted(set(cfg.object_properties) - set(entries))
         if unknown:
             raise ConfigError(f"object_properties: {', '.join(unknown)} not in the library (sources {cfg.sources})")
+        _check_held_out(cfg, {e.category for e in entries.values()})
         return entries
 
     @cached_property
