@@ -399,11 +399,16 @@ def spray_can(rng: np.random.Generator) -> Shape:
         "cap_ratio": _u(rng, 0.6, 0.8),
         "cap_height": _u(rng, 0.02, 0.03),
     }
-    r, h, rc, hc = p["radius"], p["height"], p["radius"] * p["cap_ratio"], p["cap_height"]
-    mesh = _revolve([(0, 0), (r, 0), (r, h), (rc, h), (rc, h + hc), (0, h + hc)])
-    body = PrimitiveShape(kind="cylinder", size=(r, h / 2), pose=_pose((0, 0, h / 2), X_TO_Z))
-    cap = PrimitiveShape(kind="cylinder", size=(rc, hc / 2), pose=_pose((0, 0, h + hc / 2), X_TO_Z))
-    return Shape(mesh=mesh, kind="primitive", primitives=(body, cap), params=p)
+    return _stacked_cylinders(p["radius"], p["height"], p["radius"] * p["cap_ratio"], p["cap_height"], p)
+
+
+def _stacked_cylinders(r: float, h: float, r_top: float, h_top: float, params: dict[str, float]) -> Shape:
+    """A standing cylinder (radius ``r``, height ``h``, m) with another (``r_top``, ``h_top``) on top of it: the
+    revolved mesh and the two exact cylinders."""
+    mesh = _revolve([(0, 0), (r, 0), (r, h), (r_top, h), (r_top, h + h_top), (0, h + h_top)])
+    low = PrimitiveShape(kind="cylinder", size=(r, h / 2), pose=_pose((0, 0, h / 2), X_TO_Z))
+    top = PrimitiveShape(kind="cylinder", size=(r_top, h_top / 2), pose=_pose((0, 0, h + h_top / 2), X_TO_Z))
+    return Shape(mesh=mesh, kind="primitive", primitives=(low, top), params=params)
 
 
 def puck(rng: np.random.Generator) -> Shape:
@@ -458,11 +463,7 @@ def stamp(rng: np.random.Generator) -> Shape:
         "handle_radius": _u(rng, 0.012, 0.02),
         "handle_height": _u(rng, 0.04, 0.07),
     }
-    rb, hb, rh, hh = p["base_radius"], p["base_height"], p["handle_radius"], p["handle_height"]
-    mesh = _revolve([(0, 0), (rb, 0), (rb, hb), (rh, hb), (rh, hb + hh), (0, hb + hh)])
-    base = PrimitiveShape(kind="cylinder", size=(rb, hb / 2), pose=_pose((0, 0, hb / 2), X_TO_Z))
-    handle = PrimitiveShape(kind="cylinder", size=(rh, hh / 2), pose=_pose((0, 0, hb + hh / 2), X_TO_Z))
-    return Shape(mesh=mesh, kind="primitive", primitives=(base, handle), params=p)
+    return _stacked_cylinders(p["base_radius"], p["base_height"], p["handle_radius"], p["handle_height"], p)
 
 
 def cross(rng: np.random.Generator) -> Shape:
