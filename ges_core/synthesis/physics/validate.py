@@ -235,7 +235,7 @@ def _hold(
     False, which that verdict does not read)."""
     hold_high, hold_tips = np.zeros(config.hold_steps, bool), np.zeros(config.hold_steps, bool)
     for i in range(config.hold_steps):
-        if not full_hold and _settled(probe.touched, lifted, hold_high[:i]):
+        if not full_hold and _settled(probe.touched, lifted, i == 0 or bool(hold_high[i - 1])):
             break
         probe.step()
         hold_high[i] = sim.object_pose()[0, 2] - z0 >= config.lift_height - config.lift_tolerance
@@ -243,10 +243,11 @@ def _hold(
     return HoldRecord(probe.touched, lifted, hold_high, hold_tips)
 
 
-def _settled(touched: bool, lifted: bool, hold_high: np.ndarray) -> bool:
-    """Whether the verdict is fixed by what the hold measured so far: not lifted and touched is ``not_lifted``
-    (touched never turns back), lifted and once low is ``dropped`` (every step must be high)."""
-    return (not lifted and touched) or (lifted and not bool(np.all(hold_high)))
+def _settled(touched: bool, lifted: bool, high: bool) -> bool:
+    """Whether the verdict is fixed by what the hold measured so far (``high``: the object was high at the last
+    step, or no step ran yet; the hold stops at the first low one, so that is every step so far): not lifted and
+    touched is ``not_lifted`` (touched never turns back), lifted and once low is ``dropped``."""
+    return (not lifted and touched) or (lifted and not high)
 
 
 def _lift(sim: SimBackend, goal: np.ndarray, probe: _Probe, config: ValidateConfig) -> None:
