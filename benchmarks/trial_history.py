@@ -16,20 +16,15 @@ markdown table and writes ``benchmarks/results/trial_history.json``.
 
 from __future__ import annotations
 
-import argparse
 import tempfile
 from pathlib import Path
 
-from validation_early import history, run, verdicts
+from validation_early import history, object_sets_and_config, options, run, verdicts, warm_up
 
 from ges_core.dataset import software_versions
-from ges_core.objects.library import LibraryConfig
-from ges_core.objects.procedural import CATEGORIES
 from ges_core.registry import load_registry
-from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.physics import robust, validate
 from ges_core.synthesis.run import worker
-from ges_core.threads import set_torch_threads
 
 from _results import code_state, write_results
 
@@ -62,22 +57,12 @@ def run_variant(ids, hands, config, folder: Path, variant: str, registry) -> tup
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--procedural", type=int, default=12, help="object 000 of the first N categories")
-    parser.add_argument("--real", type=int, default=10, help="the first N real scans (extra [real])")
-    parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
-    args = parser.parse_args()
-    set_torch_threads(1)
+    args = options(__doc__.splitlines()[0])
+    sets, config = object_sets_and_config(args)
     registry = load_registry()
-    library = LibraryConfig(sources=("procedural", "real")).build()
-    sets = {
-        "procedural": [f"procedural/{c}/000" for c in list(CATEGORIES)[: args.procedural]],
-        "real": [e.object_id for e in library.entries(source="real")][: args.real],
-    }
-    config = SynthesisConfig(library=LibraryConfig(sources=("procedural", "real"), decompose=True))
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
-        run([sets["procedural"][0]], args.hands[:1], config, Path(tmp) / "warm", "early")  # imports, caches
+        warm_up(sets, args.hands, config, Path(tmp))
         for name, ids in sets.items():
             runs, cpu = {}, {}
             for variant in ("reused", "fresh"):

@@ -23,13 +23,13 @@ from __future__ import annotations
 import argparse
 import statistics
 import tempfile
-import time
 from pathlib import Path
 
-from ges_core.dataset import open_dataset, software_versions
+from stage1_speed import object_sets, run_pipeline
+
+from ges_core.dataset import software_versions
 from ges_core.objects.library import LibraryConfig
-from ges_core.objects.procedural import CATEGORIES
-from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.physics import validate
 from ges_core.threads import set_torch_threads
 
@@ -40,17 +40,38 @@ VARIANTS = ("full", "full_again", "early")
 
 
 def run(ids: list[str], hands: list[str], config: SynthesisConfig, folder: Path, variant: str) -> tuple[dict, float]:
-    """{(object, hand): record} of one pipeline run and its CPU seconds; ``full`` runs every hold step."""
-    settled, wall_clock = validate._settled, time.perf_counter
+    """{(object, hand): record} of one pipeline run and its CPU seconds (``stage1_speed.run_pipeline``, CPU clock:
+    the records' step seconds are CPU seconds of this process); ``full`` runs every hold step."""
+    settled = validate._settled
     if variant.startswith("full"):
         validate._settled = lambda *_: False  # never settled: the hold runs all its steps
-    time.perf_counter = time.process_time  # the records' step seconds become CPU seconds of this process
-    cpu = time.process_time()
     try:
-        run_synthesis(ids, hands, config, folder, workers=1)
+        records, seconds = run_pipeline(ids, hands, config, folder, "cpu")
     finally:
-        validate._settled, time.perf_counter = settled, wall_clock
-    return {r.key: r for r in open_dataset(folder)}, time.process_time() - cpu
+        validate._settled = settled
+    return {r.key: r for r in records}, seconds["cpu"]
+
+
+def options(description: str) -> argparse.Namespace:
+    """The object-set and hand options of this benchmark and ``trial_history.py``; one torch thread set."""
+    parser = argparse.ArgumentParser(description=description)
+    parser.add_argument("--procedural", type=int, default=12, help="object 000 of the first N categories")
+    parser.add_argument("--real", type=int, default=10, help="the first N real scans (extra [real])")
+    parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
+    args = parser.parse_args()
+    set_torch_threads(1)
+    return args
+
+
+def object_sets_and_config(args: argparse.Namespace) -> tuple[dict[str, list[str]], SynthesisConfig]:
+    """``stage1_speed.object_sets`` of the options, and Stage 1's default config over that library."""
+    library = LibraryConfig(sources=("procedural", "real"), decompose=True)
+    return object_sets(library.build(), args.procedural, args.real), SynthesisConfig(library=library)
+
+
+def warm_up(sets: dict[str, list[str]], hands: list[str], config: SynthesisConfig, tmp: Path) -> None:
+    """One object with one hand, so imports and caches are not in the first timed run."""
+    run([sets["procedural"][0]], hands[:1], config, tmp / "warm", "early")
 
 
 def verdicts(record) -> tuple:
@@ -110,21 +131,11 @@ def _short(record) -> dict:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--procedural", type=int, default=12, help="object 000 of the first N categories")
-    parser.add_argument("--real", type=int, default=10, help="the first N real scans (extra [real])")
-    parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
-    args = parser.parse_args()
-    set_torch_threads(1)
-    library = LibraryConfig(sources=("procedural", "real")).build()
-    sets = {
-        "procedural": [f"procedural/{c}/000" for c in list(CATEGORIES)[: args.procedural]],
-        "real": [e.object_id for e in library.entries(source="real")][: args.real],
-    }
-    config = SynthesisConfig(library=LibraryConfig(sources=("procedural", "real"), decompose=True))
+    args = options(__doc__.splitlines()[0])
+    sets, config = object_sets_and_config(args)
     rows, cpu = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
-        run([sets["procedural"][0]], args.hands[:1], config, Path(tmp) / "warm", "early")  # imports, caches
+        warm_up(sets, args.hands, config, Path(tmp))
         for name, ids in sets.items():
             runs = {}
             for variant in VARIANTS:
