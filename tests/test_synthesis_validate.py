@@ -227,7 +227,7 @@ class _ScriptedHold:
 
     def __init__(self, heights, touches) -> None:
         self.heights, self.touches, self.steps = list(heights), list(touches), 0
-        self.touched, self.forces = False, np.zeros(2)
+        self.touched = False
 
     def step(self) -> None:  # the probe's step
         self.touched = self.touched or self.touches[self.steps]
