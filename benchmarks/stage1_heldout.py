@@ -22,6 +22,7 @@ from ges_core.dataset import open_dataset
 from ges_core.registry import load_registry
 from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.physics.robust import robust_validate
+from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.types import Grasp
 from ges_core.threads import set_torch_threads
 
@@ -54,11 +55,11 @@ def heldout(dataset: Path, sims: list[str], seeds: list[int]) -> list[dict]:
                 grasp = Grasp(hand_name, record.grasp.wrist_pose, record.grasp.q)
                 pre = Grasp(hand_name, record.pregrasp.wrist_pose, record.pregrasp.q)
                 failed = []
-                with registry.build_sim(sim_name, cfg.scene) as sim:
-                    for seed, config in zip(seeds, trials, strict=True):
-                        result = robust_validate(sim, hand, obj, grasp, pre, cfg.validate_, config, seed=record.seed)
-                        row["trials"] += len(result.trials)
-                        failed += [f"seed {seed} {t.name}: {t.reason}" for t in result.trials if not t.success]
+                scenes = TrialScenes(registry.build_sim, sim_name, cfg.scene, hand)
+                for seed, config in zip(seeds, trials, strict=True):
+                    result = robust_validate(scenes, hand, obj, grasp, pre, cfg.validate_, config, seed=record.seed)
+                    row["trials"] += len(result.trials)
+                    failed += [f"seed {seed} {t.name}: {t.reason}" for t in result.trials if not t.success]
                 row["trials_failed"] += len(failed)
                 row["held_all"] += not failed
                 if failed:

@@ -18,7 +18,8 @@ from ges_core.errors import ConfigError
 from ges_core.objects.asset import ObjectAsset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
-from ges_core.synthesis.physics.robust import RobustConfig, object_friction_for, perturbations
+from ges_core.synthesis.physics.robust import RobustConfig, object_friction_for, perturbations, robust_validate
+from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.physics.validate import ValidateConfig, shifted, validate_grasp
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.pipeline import run_synthesis
@@ -124,9 +125,9 @@ def test_switched_off_needs_no_trial():
     assert not parse_model(SynthesisConfig, {"robust": off}, where="test").robust.enabled
 
 
-@pytest.mark.sim
-def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(tmp_path):
-    """Allegro on the box, SAPIEN and PyBullet: nominal and drive-limits trials hold, 30 times the mass does not."""
+@pytest.fixture(scope="module")
+def weak_box_run(tmp_path_factory):
+    """The Allegro box record of one pipeline run with a deliberately weak perturbation, validated in both engines."""
     config = parse_model(
         SynthesisConfig,
         {
@@ -136,8 +137,16 @@ def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(tmp_path):
         },
         where="test",
     )
-    run_synthesis(["procedural/box/000"], ["allegro"], config, tmp_path / "ds", progress=False)
-    (record,) = list(open_dataset(tmp_path / "ds"))
+    folder = tmp_path_factory.mktemp("weak") / "ds"
+    run_synthesis(["procedural/box/000"], ["allegro"], config, folder, progress=False)
+    (record,) = list(open_dataset(folder))
+    return record, config
+
+
+@pytest.mark.sim
+def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(weak_box_run):
+    """Allegro on the box, SAPIEN and PyBullet: nominal and drive-limits trials hold, 30 times the mass does not."""
+    record, _ = weak_box_run
     assert record.steps["validation"].ok and not record.robust
     assert record.steps["robust"].reason == "mass_x30" and record.robustness <= 2 / 3
     for sim in ("sapien", "pybullet"):
@@ -150,3 +159,61 @@ def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(tmp_path):
         assert verdict.robust_seconds > 0
     assert record.attempts[0].robust == "mass_x30" and record.attempts[0].robustness == record.robustness
     assert record.total_seconds == pytest.approx(sum(record.steps[s].seconds for s in record.steps if s != "robust"))
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", ["sapien", "pybullet"])
+def test_a_stored_verdict_replays_exactly_outside_the_pipeline(weak_box_run, sim_name):
+    """Every trial runs in a backend of its own, so the record's verdicts are the grasp's own: replaying the stored
+    grasp alone (the nominal trial in a new backend, then robust_validate) gives every stored reason and flag."""
+    record, config = weak_box_run
+    registry = load_registry()
+    hand = registry.build_hand("allegro")
+    cfg = config.for_hand("allegro", hand.description.settings)
+    obj = cfg.library.build().get(record.object_id)
+    grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
+    pre = Grasp("allegro", record.pregrasp.wrist_pose, record.pregrasp.q)
+    scenes = TrialScenes(registry.build_sim, sim_name, cfg.scene, hand)
+    stored = record.validations[sim_name]
+    with scenes.open() as sim:
+        nominal = validate_grasp(sim, hand, obj, grasp, pre, cfg.validate_)
+    assert (nominal.reason, nominal.flags) == (stored.reason, dict(stored.flags))
+    replay = robust_validate(scenes, hand, obj, grasp, pre, cfg.validate_, cfg.robust, seed=record.seed)
+    assert [(t.name, t.reason) for t in replay.trials] == [(t.name, t.reason) for t in stored.trials]
+    assert scenes.opened == 1 + len(replay.trials) and scenes.seconds > 0
+
+
+class _Backend:
+    """Test double of a backend: records what TrialScenes does with it."""
+
+    def __init__(self, log: list) -> None:
+        self.log, self.name = log, "double"
+
+    def load_hand(self, hand, floating):
+        self.log.append(("hand", id(self), hand, floating))
+
+    def close(self):
+        self.log.append(("close", id(self)))
+
+
+def test_trial_scenes_build_a_new_backend_per_trial_and_close_it_even_after_an_error():
+    log, hand = [], load_registry().build_hand("allegro")
+    built = []
+    scenes = TrialScenes(lambda name, cfg: built.append((name, cfg)) or _Backend(log), "sapien", SceneConfig(), hand)
+    with scenes.open() as first:
+        pass
+    with pytest.raises(RuntimeError), scenes.open() as second:
+        raise RuntimeError("a trial that fails")
+    assert first is not second and built == [("sapien", SceneConfig())] * 2
+    assert log == [("hand", id(first), hand, True), ("close", id(first)), ("hand", id(second), hand, True),
+                   ("close", id(second))]  # fmt: skip
+    assert scenes.opened == 2
+
+
+def test_robust_validate_refuses_scenes_of_another_hand():
+    registry = load_registry()
+    scenes = TrialScenes(registry.build_sim, "sapien", SceneConfig(), registry.build_hand("shadow"))
+    allegro = registry.build_hand("allegro")
+    grasp = Grasp("allegro", np.array([0, 0, 0.4, 1.0, 0, 0, 0]), np.zeros(16))
+    with pytest.raises(ConfigError, match="'shadow'.*'allegro'"):
+        robust_validate(scenes, allegro, _asset(), grasp, grasp, ValidateConfig(), RobustConfig(), seed=0)

@@ -19,10 +19,11 @@ trial                     what changes (everything else nominal)
                           the hand still aims at the resting pose
 ========================  ==================================================================================
 
-A perturbation is applied in the simulator (the object reloaded as a changed :class:`ObjectAsset`, moved with
-``set_object_pose``, the drive caps set) and undone after the trial: the caps are lifted, and the next staging
-reloads the nominal object. The verdict of each trial is :func:`ges_core.synthesis.physics.validate.validate_grasp`'s
-reason; the robustness score is the fraction of trials held. Deterministic for a given seed.
+A perturbation is applied in the simulator (the object loaded as a changed :class:`ObjectAsset`, moved with
+``set_object_pose``, the drive caps set). Every trial runs in a backend of its own
+(:class:`ges_core.synthesis.physics.scene.TrialScenes`), so no trial's verdict depends on the trials before it.
+The verdict of each trial is :func:`ges_core.synthesis.physics.validate.validate_grasp`'s reason; the robustness
+score is the fraction of trials held. Deterministic for a given seed.
 """
 
 from __future__ import annotations
@@ -38,7 +39,7 @@ from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
-from ges_core.sim import SimBackend
+from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.physics.validate import ValidateConfig, validate_grasp
 from ges_core.synthesis.types import Grasp
 
@@ -200,7 +201,7 @@ def perturbations(config: RobustConfig, hand_friction: float, obj: ObjectAsset, 
 
 
 def robust_validate(
-    sim: SimBackend,
+    scenes: TrialScenes,
     hand: HandModel,
     obj: ObjectAsset,
     grasp: Grasp,
@@ -210,21 +211,24 @@ def robust_validate(
     *,
     seed: int,
 ) -> RobustResult:
-    """Run :func:`validate_grasp` under every perturbation of ``config`` in ``sim``; one verdict per trial.
+    """Run :func:`validate_grasp` under every perturbation of ``config``, each in a fresh backend of ``scenes``.
 
-    Run it only for a grasp whose nominal trial passed (the pipeline does). The object is reloaded per trial
+    Run it only for a grasp whose nominal trial passed (the pipeline does). The object is loaded per trial
     with the changed density or friction; every trial runs with the hand's effort limits when
-    ``config.drive_limits`` and the hand declares them. sim: ``num_envs == 1``, as for validate_grasp.
+    ``config.drive_limits`` and the hand declares them. ``scenes.hand`` must be ``hand``.
     """
+    if scenes.hand is not hand:
+        raise ConfigError(f"robust_validate: the scenes load hand '{scenes.hand.name}', the grasp is for '{hand.name}'")
     limits = hand.description.effort_limits_array if config.drive_limits else None
     trials = []
-    for p in perturbations(config, sim.config.hand_friction, obj, seed):
+    for p in perturbations(config, scenes.config.hand_friction, obj, seed):
         asset = _perturbed(obj, p)
-        start = time.perf_counter()
-        result = validate_grasp(
-            sim, hand, asset, grasp, pregrasp_grasp, validate_config, object_shift=p.shift, drive_limits=limits
-        )
-        trials.append(TrialResult(p.name, result.success, result.reason, time.perf_counter() - start))
+        with scenes.open() as sim:  # its build and hand load count in scenes.seconds, not the trial's
+            start = time.perf_counter()
+            result = validate_grasp(
+                sim, hand, asset, grasp, pregrasp_grasp, validate_config, object_shift=p.shift, drive_limits=limits
+            )
+            trials.append(TrialResult(p.name, result.success, result.reason, time.perf_counter() - start))
     return RobustResult(tuple(trials), limits is not None)
 
 

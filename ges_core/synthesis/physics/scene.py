@@ -4,11 +4,20 @@ Both steps run one grasp in env 0 of a :class:`ges_core.sim.SimBackend` with ``n
 object rests on the table (``load_object(obj)`` with no pose), so its resting frame is the world
 frame up to the backend's rest margin; grasps are given in the object frame and mapped to the world
 through the object's pose read right after loading.
+
+Every physics trial of Stage 1 (a refinement, a nominal validation, each perturbation trial) runs in a backend
+of its own (:class:`TrialScenes`): a backend reused across trials carries the earlier trials' solver state
+(``benchmarks/trial_history.py``: 3 of 24 procedural and 3 of 20 real placement histories changed when a
+trial ran in a fresh backend instead of after others), so a grasp's verdict would depend on which trials came
+before it, and a replay of a stored record would not reproduce it.
 """
 
 from __future__ import annotations
 
+import time
 import weakref
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -17,7 +26,7 @@ from ges_core.arrays import checked_array, checked_poses
 from ges_core.errors import ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
-from ges_core.sim import SimBackend
+from ges_core.sim import SceneConfig, SimBackend
 from ges_core.synthesis.types import Grasp
 
 __all__ = [
@@ -25,6 +34,7 @@ __all__ = [
     "TOUCH_SEPARATION",
     "HandContacts",
     "RestDrift",
+    "TrialScenes",
     "check_grasp",
     "closing_direction",
     "finger_joint_indices",
@@ -42,6 +52,36 @@ REST_AWAY = 1.0
 
 _LOADED: weakref.WeakKeyDictionary[SimBackend, str] = weakref.WeakKeyDictionary()
 """Which hand these helpers loaded into which backend (a backend takes one hand for its lifetime)."""
+
+
+class TrialScenes:
+    """A new single-env backend of simulator ``name`` for every physics trial, ``hand`` loaded (module docs).
+
+    build_sim: ``(name, scene_config) -> SimBackend``, e.g. :meth:`ges_core.registry.Registry.build_sim`.
+    ``seconds`` sums the builds and hand loads so far (the record's ``setup_seconds``).
+    """
+
+    def __init__(
+        self, build_sim: Callable[[str, SceneConfig], SimBackend], name: str, config: SceneConfig, hand: HandModel
+    ) -> None:
+        self.build_sim, self.name, self.config, self.hand = build_sim, name, config, hand
+        self.seconds = 0.0
+        self.opened = 0
+        """Backends built so far."""
+
+    @contextmanager
+    def open(self) -> Iterator[SimBackend]:
+        """A fresh backend holding the hand (no object yet), closed on exit."""
+        start = time.perf_counter()
+        sim = self.build_sim(self.name, self.config)
+        try:
+            sim.load_hand(self.hand, floating=True)
+            _LOADED[sim] = self.hand.name
+            self.seconds += time.perf_counter() - start
+            self.opened += 1
+            yield sim
+        finally:
+            sim.close()
 
 
 def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset, *, fixed: bool = False) -> np.ndarray:

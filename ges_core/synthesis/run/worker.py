@@ -1,15 +1,17 @@
 """One pipeline task (a chunk of objects) in one process: the Stage 1 steps, in order, per object and hand.
 
 Used by :func:`ges_core.synthesis.run.pipeline.run_synthesis`, in the parent (``workers=1``) or in spawned
-worker processes. Hands, retargeters and the object library are built once per process; simulators
-once per (object, hand): one per simulator, shared by that object's refinement and validation.
+worker processes. Hands, retargeters and the object library are built once per process; a simulator
+backend once per physics trial (:class:`ges_core.synthesis.physics.scene.TrialScenes`): each refinement, each
+nominal validation and each perturbation trial gets a new one with the hand loaded.
 
-Why not once per task: a SAPIEN scene reused across objects gives an object a result that depends on
-the objects before it (measured: ``procedural/can/001`` after ``pybullet/random_urdfs/002`` ended
+Why not once per task, or once per object: a SAPIEN scene reused across objects gives an object a result that
+depends on the objects before it (measured: ``procedural/can/001`` after ``pybullet/random_urdfs/002`` ended
 15-24 mm of wrist position away from the same grasp refined first, though every input was equal, even
 with PhysX's enhanced determinism on and one step with the hand far from everything before each new
-object). A record then depended on which objects shared its chunk: a resumed run, another object list
-or another chunk size changed it. A fresh Allegro scene costs about 30-60 ms (the record's ``setup_seconds``).
+object), so a record depended on which objects shared its chunk; and one reused across one object's trials
+made a placement's verdict depend on the trials before it (``benchmarks/trial_history.py``). A fresh scene with
+the hand costs about 20-40 ms (summed per simulator in the record's ``setup_seconds``).
 """
 
 from __future__ import annotations
@@ -34,7 +36,7 @@ from ges_core.synthesis.contacts.generate import ContactConfig, generate_contact
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import check_rest, refine_grasp, refine_verdict
 from ges_core.synthesis.physics.robust import robust_validate
-from ges_core.synthesis.physics.scene import stage_scene
+from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.physics.validate import validate_grasp
 from ges_core.synthesis.retarget.retargeter import GraspRetargeter
 from ges_core.synthesis.retarget.search import ObjectCloud
@@ -62,9 +64,9 @@ def run_task(task: Task, context: RunContext) -> list[GraspRecord]:
             todo = [works[(oid, key)] for oid, hands in task.pairs if hand in hands]
             for work, result in zip(todo, _retarget(state, hand, todo), strict=True):
                 records[(work.object_id, hand)] = _finish(state, sims, hand, work, result)
-                sims.close()  # fresh simulators per object: a reused one carries the last object's history
+                sims.reset()  # setup times and rest checks are per object
     finally:
-        sims.close()
+        sims.reset()
     return [_with_picture(state, records[(oid, h)]) for oid, hands in task.pairs for h in hands]
 
 
@@ -294,7 +296,7 @@ def _attempts(
         attempts=tuple(t.verdict for t in tries),
         validations=chosen.validations,
         errors=chosen.errors,
-        setup_seconds=dict(sims.setup_seconds),  # the simulators are built in the first attempt
+        setup_seconds=sims.setup_seconds(),  # every trial's backend, summed per simulator
     )
 
 
@@ -330,8 +332,8 @@ def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gras
     start = time.perf_counter()
     try:
         asset = state.library.get(work.object_id)
-        sim = sims.get(hand, cfg.refine_sim, asset)
-        refined = refine_grasp(sim, model, asset, grasp, cfg.refine, thumb_keep=cfg.thumb_keep)
+        with sims.scenes(hand, cfg.refine_sim).open() as sim:
+            refined = refine_grasp(sim, model, asset, grasp, cfg.refine, thumb_keep=cfg.thumb_keep)
     except AssetError as error:
         return None, StepOutcome.failed("no_collision_model", time.perf_counter() - start), {"refinement": str(error)}
     except (SynthesisError, SimulationError, ArrayError) as error:  # a non-finite command counts as a blow-up
@@ -359,7 +361,7 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
             verdicts[name] = SimVerdict(success=False, reason=drifted.reason)  # unstable_rest (or unstable)
             continue
         try:
-            verdicts[name] = _sim_verdict(state, sims.get(hand, name, asset), hand, work, asset, grasp, pre)
+            verdicts[name] = _sim_verdict(state, sims.scenes(hand, name), hand, work, asset, grasp, pre)
         except (SimulationError, ArrayError) as error:  # failing to build or load, or a NaN command: a blow-up
             errors[f"validation_{name}"] = str(error)
             verdicts[name] = SimVerdict(success=False, reason="unstable")
@@ -370,15 +372,19 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
     return validation, _robust_step(main, cfg.robust.enabled), verdicts, errors
 
 
-def _sim_verdict(state: _State, sim, hand: str, work: ObjectWork, asset, grasp: Grasp, pre: Grasp) -> SimVerdict:
-    """The nominal trial in ``sim`` and, if it passed and robust validation is on, the perturbation trials."""
+def _sim_verdict(
+    state: _State, scenes: TrialScenes, hand: str, work: ObjectWork, asset, grasp: Grasp, pre: Grasp
+) -> SimVerdict:
+    """The nominal trial and, if it passed and robust validation is on, the perturbation trials; each in a new
+    backend of ``scenes``."""
     cfg, model = state.config(hand), state.hand(hand)
-    result = validate_grasp(sim, model, asset, grasp, pre, cfg.validate_)
+    with scenes.open() as sim:
+        result = validate_grasp(sim, model, asset, grasp, pre, cfg.validate_)
     flags = {k: bool(v) for k, v in result.flags.items()}
     verdict = SimVerdict(success=result.success, reason=result.reason, flags=flags, seconds=result.seconds)
     if not (result.success and cfg.robust.enabled):
         return verdict
-    robust = robust_validate(sim, model, asset, grasp, pre, cfg.validate_, cfg.robust, seed=work.seed)
+    robust = robust_validate(scenes, model, asset, grasp, pre, cfg.validate_, cfg.robust, seed=work.seed)
     trials = tuple(TrialVerdict(name=t.name, success=t.success, reason=t.reason) for t in robust.trials)
     return replace(verdict, trials=trials, robustness=robust.score, robust_seconds=robust.seconds)
 
@@ -396,12 +402,12 @@ def _robust_step(verdict: SimVerdict, enabled: bool) -> StepOutcome:
 
 
 class _Sims:
-    """The simulators of one (object, hand) pair, one per simulator, built on first use with the hand loaded."""
+    """The simulators of one (object, hand) pair: a :class:`TrialScenes` per (hand, simulator), and whether the
+    object stays at rest in each validating simulator."""
 
     def __init__(self, state: _State) -> None:
-        self.state, self.sims = state, {}
-        self.setup_seconds: dict[str, float] = {}
-        """Per simulator built since the last :meth:`close`, its build + hand load, seconds."""
+        self.state = state
+        self.trial_scenes: dict[tuple[str, str], TrialScenes] = {}
         self.rest: dict[tuple[str, str], SynthesisError | None] = {}
         """(hand, simulator) -> why the object does not stay at rest there (None: it does), checked once."""
 
@@ -409,34 +415,37 @@ class _Sims:
         """Why ``asset`` does not stay at its resting pose on its own in simulator ``name`` (None: it does).
 
         Refinement checks this in its own engine (:func:`ges_core.synthesis.physics.refine.check_rest`); every
-        other validating engine is checked here, once per (object, hand), in a simulator of its own, so the one
-        that validates carries no history from it (a check run first in the validating scene moved other
-        verdicts: the wedge became palm_only in PyBullet)."""
+        other validating engine is checked here, once per (object, hand), in a simulator of its own."""
         key = (hand, name)
         if key not in self.rest:
             self.rest[key] = None
-            with self.state.registry.build_sim(name, self.state.context.config.scene) as sim:
+            with self.scenes(hand, name).open() as sim:
                 try:
                     check_rest(sim, self.state.hand(hand), asset, self.state.config(hand).refine)
                 except SynthesisError as error:  # reason unstable_rest, or unstable if it blew up settling
                     self.rest[key] = error
         return self.rest[key]
 
-    def get(self, hand: str, name: str, asset):
+    def scenes(self, hand: str, name: str) -> TrialScenes:
+        """The fresh-backend-per-trial builder of simulator ``name`` with ``hand``."""
         key = (hand, name)
-        if key not in self.sims:
-            start = time.perf_counter()
-            sim = self.state.registry.build_sim(name, self.state.context.config.scene)
-            self.sims[key] = sim
-            stage_scene(sim, self.state.hand(hand), asset)  # load the hand now: one-time cost, not the object's
-            self.setup_seconds[name] = time.perf_counter() - start
-        return self.sims[key]
+        if key not in self.trial_scenes:
+            state = self.state
+            self.trial_scenes[key] = TrialScenes(
+                state.registry.build_sim, name, state.context.config.scene, state.hand(hand)
+            )
+        return self.trial_scenes[key]
 
-    def close(self) -> None:
-        for sim in self.sims.values():
-            sim.close()
-        self.sims.clear()
-        self.setup_seconds = {}
+    def setup_seconds(self) -> dict[str, float]:
+        """Per simulator, the seconds spent building backends and loading the hand since the last :meth:`reset`."""
+        out: dict[str, float] = {}
+        for (_, name), scenes in self.trial_scenes.items():
+            out[name] = out.get(name, 0.0) + scenes.seconds
+        return out
+
+    def reset(self) -> None:
+        """Forget the setup times and rest checks (between objects)."""
+        self.trial_scenes.clear()
         self.rest = {}
 
 
