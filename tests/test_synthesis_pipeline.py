@@ -372,3 +372,42 @@ def test_retry_goes_on_until_a_placement_holds_in_every_engine(tmp_path, monkeyp
         assert len(tried) == 2 and record.attempt == tried[1] == len(record.attempts) - 1 and both
     assert record.steps["validation"].ok and record.validations["sapien"].success  # the primary engine's verdict
     assert record.robust == robust
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("oid", ["procedural/cone/000", "procedural/cube/000"])
+def test_the_search_stops_early_where_no_grasp_can_pass_the_friction_trial(tmp_path, monkeypatch, oid):
+    """The squat cone's sides face up more steeply than atan(0.5) (lift_friction_bound 0.68): no placement can pass
+    friction_0.5, so the search stops at the first placement that holds every other trial and the record says why;
+    on the cube (bound 0) it goes on to the placement that holds them all. (Test doubles of the validators: the
+    nominal trial holds; the judged placements fail mass_x2 and friction_0.5, then friction_0.5 alone, then none.)"""
+    from ges_core.synthesis.physics.robust import RobustResult, TrialResult
+    from ges_core.synthesis.run import worker
+    from ges_core.synthesis.types import ValidationResult
+
+    fails = [{"mass_x2", "friction_0.5"}, {"friction_0.5"}, set()]
+    judged = []
+
+    def validate(sim, *args, **kwargs):
+        return ValidationResult(True, "success", {}, 0.01)
+
+    def robust_trials(*args, **kwargs):
+        failing = fails[min(len(judged), 2)]
+        judged.append(failing)
+        names = ("mass_x2", "friction_0.5", "pose_1")
+        return RobustResult(tuple(TrialResult(n, n not in failing, "dropped" if n in failing else "success", 0.01)
+                                  for n in names), True)  # fmt: skip
+
+    monkeypatch.setattr(worker, "validate_grasp", validate)
+    monkeypatch.setattr(worker, "robust_validate", robust_trials)
+    library = {"sources": ["procedural"], "procedural_count": 1}
+    config = SynthesisConfig.model_validate({"library": library, "validate_sims": ["sapien"], "attempts": 16})
+    run_synthesis([oid], ["allegro"], config, tmp_path / "ds")
+    (record,) = open_dataset(tmp_path / "ds")
+    if oid.startswith("procedural/cone"):
+        assert judged == fails[:2] and not record.robust and record.attempt == len(record.attempts) - 1
+        assert [t.name for t in record.validations["sapien"].trials if not t.success] == ["friction_0.5"]
+        assert "no grasp from above can pass friction_0.5" in record.errors["robust"]
+        assert "stopped at the first placement that held every other trial" in record.errors["robust"]
+    else:
+        assert judged == fails and record.robust and "robust" not in record.errors

@@ -48,6 +48,7 @@ __all__ = [
     "RobustConfig",
     "RobustResult",
     "TrialResult",
+    "friction_trial_name",
     "object_friction_for",
     "perturbations",
     "robust_validate",
@@ -181,13 +182,18 @@ def object_friction_for(floor: float, hand_friction: float, object_friction: flo
     return max(needed, 0.0)
 
 
+def friction_trial_name(floor: float) -> str:
+    """The name of the friction trial at effective coefficient ``floor`` (``friction_0.5``)."""
+    return f"friction_{floor:g}"
+
+
 def perturbations(config: RobustConfig, hand_friction: float, obj: ObjectAsset, seed: int) -> list[Perturbation]:
     """The trials of ``config`` for ``obj`` (module docs), in a fixed order; ``seed``: the object's seed."""
     out = [Perturbation("limits")] if config.limits_trial and config.drive_limits else []
     out += [Perturbation(f"mass_x{s:g}", density_scale=s) for s in config.mass_scales]
     if config.friction_floor is not None:
         mu = object_friction_for(config.friction_floor, hand_friction, obj.friction)
-        out.append(Perturbation(f"friction_{config.friction_floor:g}", friction=mu))
+        out.append(Perturbation(friction_trial_name(config.friction_floor), friction=mu))
     rng = np.random.default_rng([config.seed & 0xFFFFFFFF, seed & 0xFFFFFFFF])
     for i in range(config.pose_trials):
         heading, sign = rng.uniform(0.0, 2.0 * math.pi), rng.choice([-1.0, 1.0])

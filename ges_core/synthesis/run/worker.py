@@ -17,6 +17,7 @@ the hand costs about 20-40 ms (summed per simulator in the record's ``setup_seco
 from __future__ import annotations
 
 import logging
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
@@ -33,9 +34,10 @@ from ges_core.dataset import (
 )
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
 from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
+from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import check_rest, refine_grasp, refine_verdict
-from ges_core.synthesis.physics.robust import robust_validate
+from ges_core.synthesis.physics.robust import friction_trial_name, robust_validate
 from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.physics.validate import validate_grasp
 from ges_core.synthesis.retarget.retargeter import GraspRetargeter
@@ -247,6 +249,16 @@ class _Attempt:
             return all(v.success for v in self.validations.values())
         return all(v.robust for v in self.validations.values())
 
+    def holds_all_but(self, trial: str) -> bool:
+        """Passed, and in every validating simulator every perturbation trial but ``trial`` held (False when the
+        trials did not run)."""
+        if not self.passed or self.robust.reason == NOT_RUN or not self.validations:
+            return False
+        return all(
+            v.success and v.robustness is not None and all(t.success or t.name == trial for t in v.trials)
+            for v in self.validations.values()
+        )
+
     @property
     def robustness(self) -> float | None:
         """The primary simulator's robustness score, or None when its trials did not run."""
@@ -273,15 +285,25 @@ def _attempts(
     primary one (with robust validation off: the first that passed there); else the passing attempt with the
     highest robustness score (the first of equals); none passing, the first that refined, else the first. It
     lists every attempt's verdicts and the chosen one's index when it passed; its refinement, validation and robust
-    times are the sums over the attempts."""
+    times are the sums over the attempts.
+
+    An object that no grasp from above can lift at the friction trial's coefficient
+    (:func:`ges_core.synthesis.contacts.lift_friction.lift_friction_bound`) cannot give a robust placement: the search
+    then stops at the first placement that holds every other trial, and the record's robust error says why."""
     retry = state.config(hand).robust.retry
+    out_of_reach, why = _friction_out_of_reach(state.config(hand), work)
     tries = []
     for grasp in grasps:
         tries.append(_attempt(state, sims, hand, work, grasp))
-        if tries[-1].holds_everywhere or (tries[-1].passed and not retry):
+        last = tries[-1]
+        if last.holds_everywhere or (last.passed and not retry) or (out_of_reach and last.holds_all_but(out_of_reach)):
             break
     index = _chosen(tries)
     chosen = tries[index]
+    errors = chosen.errors
+    if out_of_reach and not chosen.holds_everywhere:
+        stop = "stopped at the first placement" if tries[-1].holds_all_but(out_of_reach) else "found no placement"
+        errors = errors | {"robust": f"{why}; the placement search {stop} that held every other trial"}
     steps = steps | {
         name: replace(getattr(chosen, name), seconds=sum(getattr(t, name).seconds for t in tries))
         for name in ("refinement", "validation", "robust")
@@ -295,8 +317,26 @@ def _attempts(
         attempt=index if chosen.passed else None,
         attempts=tuple(t.verdict for t in tries),
         validations=chosen.validations,
-        errors=chosen.errors,
+        errors=errors,
         setup_seconds=sims.setup_seconds(),  # every trial's backend, summed per simulator
+    )
+
+
+def _friction_out_of_reach(cfg: SynthesisConfig, work: ObjectWork) -> tuple[str | None, str]:
+    """(the friction trial's name, why no placement can pass it) when the object's surface above the contacts'
+    ``min_height`` faces up too steeply for the trial's coefficient; (None, "") otherwise or when unknown."""
+    floor = cfg.robust.friction_floor
+    if not cfg.robust.enabled or floor is None or work.cloud is None:
+        return None, ""
+    min_height = cfg.contacts.min_height
+    bound = lift_friction_bound(work.cloud.points, work.cloud.normals, min_height)
+    if bound <= floor:
+        return None, ""
+    name = friction_trial_name(floor)
+    return name, (
+        f"no grasp from above can pass {name}: every surface point above {min_height:g} m faces up more steeply "
+        f"than atan({floor:g}) = {math.degrees(math.atan(floor)):.1f} deg, so no contact there can push the object "
+        f"up (lifting it needs friction >= {bound:.3f})"
     )
 
 

@@ -1,0 +1,78 @@
+"""lift_friction_bound: checked against the cone's slope and against a linear program over the contact forces."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import trimesh
+from scipy.optimize import linprog
+
+from ges_core.errors import ArrayError
+from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
+
+MIN_HEIGHT = 0.01
+
+
+def _cloud(mesh: trimesh.Trimesh, n: int = 3000) -> tuple[np.ndarray, np.ndarray]:
+    """(n, 3) surface samples of ``mesh`` resting on z = 0, and their face normals."""
+    mesh = mesh.copy()
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    points, faces = trimesh.sample.sample_surface(mesh, n, seed=0)
+    return points, mesh.face_normals[faces]
+
+
+def _upright_cone(radius: float, height: float) -> tuple[np.ndarray, np.ndarray]:
+    return _cloud(trimesh.creation.cone(radius, height, sections=64))
+
+
+def _can_push_up(points: np.ndarray, normals: np.ndarray, mu: float, edges: int = 16) -> bool:
+    """Whether contact forces inside friction pyramids (``edges`` edges, inscribed in the cone of ``mu``) at the
+    samples above MIN_HEIGHT can add up to a unit upward force: force balance only, scipy's LP."""
+    columns = []
+    for p, n in zip(points, normals, strict=True):
+        if p[2] < MIN_HEIGHT:
+            continue
+        t1 = np.cross(n, [1.0, 0.0, 0.0] if abs(n[0]) < 0.9 else [0.0, 1.0, 0.0])
+        t1 /= np.linalg.norm(t1)
+        t2 = np.cross(n, t1)
+        for k in range(edges):
+            a = 2 * math.pi * k / edges
+            columns.append(-n + mu * (math.cos(a) * t1 + math.sin(a) * t2))
+    result = linprog(np.zeros(len(columns)), A_eq=np.array(columns).T, b_eq=[0.0, 0.0, 1.0], bounds=(0, None))
+    return result.status == 0
+
+
+@pytest.mark.parametrize(("radius", "height"), [(0.05, 0.07), (0.04, 0.10)])
+def test_an_upright_cone_needs_the_friction_of_its_slope(radius, height):
+    """The sides of an upright cone face up at atan(r / h) from the horizontal (r: the 64-gon's inradius) and no
+    contact there pushes up below mu = r / h (the bound); the LP over the samples agrees on both sides of it."""
+    points, normals = _upright_cone(radius, height)
+    bound = lift_friction_bound(points, normals, MIN_HEIGHT)
+    assert bound == pytest.approx(radius * math.cos(math.pi / 64) / height, rel=1e-9)
+    assert not _can_push_up(points[::10], normals[::10], 0.95 * bound)
+    assert _can_push_up(points[::10], normals[::10], 1.15 * bound)
+
+
+def test_a_face_that_is_not_tilted_up_needs_no_friction_at_all():
+    assert lift_friction_bound(*_cloud(trimesh.creation.box([0.05, 0.05, 0.08])), MIN_HEIGHT) == 0.0
+    upside_down = trimesh.creation.cone(0.05, 0.07, sections=64)
+    upside_down.apply_transform(trimesh.transformations.rotation_matrix(math.pi, [1.0, 0.0, 0.0]))
+    assert lift_friction_bound(*_cloud(upside_down), MIN_HEIGHT) == 0.0  # its sides face down
+
+
+def test_only_the_surface_above_min_height_counts():
+    """The cone's base faces straight down but lies on the table: it does not lower the bound; a cloud wholly
+    below min_height has nothing to touch (inf)."""
+    points, normals = _upright_cone(0.05, 0.07)
+    assert (normals[points[:, 2] < MIN_HEIGHT, 2] < -0.99).any()  # the base is sampled
+    assert lift_friction_bound(points, normals, 0.0) == 0.0
+    assert lift_friction_bound(points, normals, 1.0) == math.inf
+
+
+def test_bad_clouds_are_refused():
+    with pytest.raises(ArrayError, match="normals"):
+        lift_friction_bound(np.zeros((4, 3)), np.zeros((3, 3)), MIN_HEIGHT)
+    with pytest.raises(ArrayError, match="points"):
+        lift_friction_bound(np.full((4, 3), np.nan), np.ones((4, 3)), MIN_HEIGHT)
