@@ -12,9 +12,11 @@ from ges_core.errors import SynthesisError
 from ges_core.objects.library import LibraryConfig, ObjectLibrary
 from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.contacts.force_closure import ForceClosureConfig, ferrari_canny
-from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
+from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts, squeeze_imbalance
 
 CFG = ContactConfig()
+PINCH = ContactConfig(thumb_balance_shifts=())
+"""The thumb always opposite the index."""
 THUMB, FINGERS = 0, slice(1, 5)
 SIDE = np.array([1.0, -1.0, -1.0, -1.0, -1.0])
 """Thumb on the +squeeze side of the object, fingers on the -squeeze side."""
@@ -109,17 +111,21 @@ def test_thumb_opposes_the_four_fingers(results, oid):
 
 
 @pytest.mark.parametrize("oid", ALL)
-def test_layout_is_a_right_hand_with_a_thumb_index_pinch(results, oid):
+def test_layout_is_a_right_hand_with_a_thumb_index_pinch(results, clouds, oid):
     """Fingers in order along the spread axis at about the finger spacing; the thumb is across from the
-    index (within half a spacing along the row: the pinch); approach, thumb->fingers and index->little
-    form a right-handed triad."""
+    index (within half a spacing along the row: the pinch), or moved toward the row by at most the largest balance
+    shift and then balanced at least as well (within thumb_balance_tol) as the contacts with the pinch kept;
+    approach, thumb->fingers and index->little form a right-handed triad."""
     r = results[oid]
     p, meta = r.contacts.positions, r.contacts.meta
     s = p @ np.asarray(meta["spread_axis"])
     gaps = np.diff(s[FINGERS])
     spacing = meta["finger_spacing"]
     assert (gaps > 0.25 * spacing).all() and (gaps < 2.0 * spacing).all()
-    assert abs(s[THUMB] - s[1]) <= 0.5 * spacing
+    if abs(s[THUMB] - s[1]) > 0.5 * spacing:
+        assert 0.5 * spacing < s[THUMB] - s[1] <= (max(CFG.thumb_balance_shifts) + 0.5) * spacing
+        pinch = generate_contacts(*clouds[oid], PINCH, object_id=oid).contacts.normals
+        assert squeeze_imbalance(r.contacts.normals) <= squeeze_imbalance(pinch) + CFG.thumb_balance_tol
     d = p[FINGERS].mean(axis=0) - p[THUMB]
     d -= (d @ r.approach) * r.approach
     u = p[4] - p[1]
@@ -289,3 +295,43 @@ def test_config_rejects_unknown_and_out_of_range_fields():
             ContactConfig(**bad)
     with pytest.raises(ValidationError, match=r"min_width \(0.2\) must be below max_width"):
         ContactConfig(min_width=0.2)
+
+
+def test_squeeze_imbalance_is_the_net_normal_force_of_a_thumb_as_strong_as_the_four_fingers():
+    """Checked against forces written out by hand: the thumb pushes 4 units, each finger 1, along -normal."""
+    across = np.array([[0, 1.0, 0]] + [[0, -1.0, 0]] * 4)
+    assert squeeze_imbalance(across) == 0.0
+    turned = across.copy()
+    turned[THUMB] = [1.0, 0, 0]  # the thumb pushes along -x, the fingers along +y
+    assert squeeze_imbalance(turned) == pytest.approx(np.linalg.norm([-4.0, 4.0]) / 8)
+
+
+@pytest.mark.parametrize(("mesh", "moves"), [(trimesh.creation.cylinder(0.04, 0.025), True),
+                                               (trimesh.creation.box([0.07, 0.05, 0.03]), False)])  # fmt: skip
+def test_the_thumb_leaves_the_pinch_only_where_the_squeeze_would_not_balance(mesh, moves):
+    """A puck grasped from above: the thumb opposite the index sits off the fingers' resultant on the round rim,
+    so it moves toward the row and the squeeze balances better; a box's flat faces balance at the pinch, which
+    stays (the same contacts as with the balance off)."""
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    points, faces = trimesh.sample.sample_surface(mesh, 1024, seed=0)
+    normals = mesh.face_normals[faces]
+    pinch = generate_contacts(points, normals, PINCH, object_id="t")
+    balanced = generate_contacts(points, normals, CFG, object_id="t")
+    if moves:
+        assert squeeze_imbalance(pinch.contacts.normals) > CFG.thumb_balance_tol
+        assert squeeze_imbalance(balanced.contacts.normals) < 0.5 * squeeze_imbalance(pinch.contacts.normals)
+        s = balanced.contacts.positions @ np.asarray(balanced.contacts.meta["spread_axis"])
+        assert s[THUMB] - s[1] > 0.5 * balanced.contacts.meta["finger_spacing"]
+    else:
+        np.testing.assert_array_equal(balanced.contacts.positions, pinch.contacts.positions)
+
+
+@pytest.mark.parametrize("oid", ids("box/000 bottle/000"))  # grasped from above / from the side
+def test_thumb_shift_moves_the_thumb_toward_the_finger_row_in_both_strategies(clouds, oid):
+    """thumb_shift = 1 puts the thumb about one spacing from the index toward the little finger (before, a side
+    grasp moved it the other way, above the index)."""
+    shifted = ContactConfig(thumb_shift=1.0, thumb_balance_shifts=())
+    r = generate_contacts(*clouds[oid], shifted, object_id=oid)
+    s = r.contacts.positions @ np.asarray(r.contacts.meta["spread_axis"])
+    spacing = r.contacts.meta["finger_spacing"]
+    assert 0.5 * spacing < s[THUMB] - s[1] < 1.5 * spacing, (r.strategy, (s[THUMB] - s[1]) / spacing)

@@ -40,10 +40,10 @@ from ges_core.synthesis.contacts.frame import (
     pca,
     symmetry_score,
 )
-from ges_core.synthesis.contacts.optimize import optimize_contacts
+from ges_core.synthesis.contacts.optimize import SLOT_WEIGHTS, optimize_contacts
 from ges_core.synthesis.types import ContactResult
 
-__all__ = ["ContactConfig", "generate_contacts"]
+__all__ = ["ContactConfig", "generate_contacts", "squeeze_imbalance"]
 
 SCREEN_EDGES = 4
 """Cone edges of the coarse epsilon that ranks candidate contact sets: a 20-wrench hull costs ~2 ms
@@ -70,6 +70,18 @@ class ContactConfig(ConfigModel):
     )
     thumb_shift: float = Field(
         0.0, ge=-1.0, le=3.0, description="thumb offset along the finger row from the index, in spacings (0 = opposite)"
+    )
+    thumb_balance_shifts: tuple[float, ...] = Field(
+        (0.5, 1.0, 1.5),
+        description="further thumb offsets toward the finger row, in spacings, tried when the thumb-index pinch "
+        "leaves the squeeze's normal forces out of balance by more than thumb_balance_tol (round objects grasped "
+        "from above); () keeps the pinch",
+    )
+    thumb_balance_tol: float = Field(
+        0.05,
+        ge=0.0,
+        description="net normal force of the squeeze (thumb = the four fingers together) per unit of the total "
+        "that the pinch may leave; above it the offsets are tried and the smallest within this of the best kept",
     )
     top_margin: float = Field(
         0.1, ge=0.0, lt=0.5, description="fraction of the height kept free at the top (side grasps, rim contacts)"
@@ -356,16 +368,46 @@ def _side_plans(
                 continue
             thumb_ok, finger_ok = (minus, plus) if flip else (plus, minus)
             allowed = np.vstack([thumb_ok, np.broadcast_to(finger_ok, (4, len(pts)))])
-            picks = sl.pick_extremes(_coords(pts, ctx, axes[flip]), allowed, layouts[flip][rank], cfg.extremum_tol)
-            if picks is None:
-                continue
-            opening = _opening(pts, picks, axes[flip])
-            if _fits(opening, cfg):
-                plans.append(_optimized(pts, nrm, ctx, axes[flip], layouts[flip][rank], picks, allowed))
-            else:  # a band widened onto another part (a sparse slice's width read too narrow): too wide a hand
-                openings.append(opening)
+            plan = _balanced(pts, nrm, ctx, axes[flip], layouts[flip][rank], allowed, openings)
+            if plan is not None:
+                plans.append(plan)
         if plans:
             yield max(plans, key=lambda p: p.screen)
+
+
+def _balanced(pts, nrm, ctx: _Context, axes, layout: sl.Layout, allowed: np.ndarray, openings: list[float]):
+    """The optimized plan of ``layout`` with the thumb opposite the index (the pinch) or, where that leaves the
+    squeeze out of balance by more than ``thumb_balance_tol`` (:func:`squeeze_imbalance`), moved toward the
+    finger row by the smallest of ``thumb_balance_shifts`` within the tolerance of the best balance; None when
+    the pinch gives no picks that fit the hand (their opening appended to ``openings``)."""
+    cfg = ctx.cfg
+    tried = []
+    for shift in (0.0, *cfg.thumb_balance_shifts):
+        moved = sl.thumb_moved(layout, shift)
+        picks = sl.pick_extremes(_coords(pts, ctx, axes), allowed, moved, cfg.extremum_tol)
+        if picks is None:
+            if shift == 0.0:
+                return None
+            continue
+        opening = _opening(pts, picks, axes)
+        if not _fits(opening, cfg):  # a band widened onto another part (a sparse slice's width read too narrow)
+            if shift == 0.0:
+                openings.append(opening)
+                return None
+            continue
+        plan = _optimized(pts, nrm, ctx, axes, moved, picks, allowed)
+        tried.append((squeeze_imbalance(nrm[plan.optimized]), plan))
+        if shift == 0.0 and tried[0][0] <= cfg.thumb_balance_tol:
+            return plan  # the pinch balances: keep it
+    best = min(imbalance for imbalance, _ in tried)
+    return next(plan for imbalance, plan in tried if imbalance <= best + cfg.thumb_balance_tol)
+
+
+def squeeze_imbalance(normals: np.ndarray) -> float:
+    """Net force of a squeeze of contacts with outward unit normals ``normals`` (5, 3), thumb first, pressing with
+    the thumb as hard as the four fingers together (``optimize.SLOT_WEIGHTS``), per unit of the total normal force:
+    0 when the normal forces cancel, up to 1. What friction must carry before the object's weight."""
+    return float(np.linalg.norm(SLOT_WEIGHTS @ np.asarray(normals, dtype=np.float64)) / SLOT_WEIGHTS.sum())
 
 
 def _optimized(pts, nrm, ctx: _Context, axes, layout: sl.Layout, picks: np.ndarray, allowed: np.ndarray) -> _Plan:

@@ -7,7 +7,7 @@ approach direction. Heights ``z`` stay in the resting frame (table at z = 0). Me
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -22,6 +22,7 @@ __all__ = [
     "pick_extremes",
     "side_masks",
     "slice_profile",
+    "thumb_moved",
     "vertical_layouts",
 ]
 
@@ -85,6 +86,16 @@ class Layout:
     """Distance between neighbouring fingers along s."""
     width: float
     """Squeeze-axis width of the object where the index finger lies."""
+
+
+def thumb_moved(layout: Layout, shift: float) -> Layout:
+    """``layout`` with the thumb's target moved ``shift`` finger spacings along the finger row (index -> little)."""
+    if shift == 0.0:
+        return layout
+    row = layout.st[4] - layout.st[1]
+    st = layout.st.copy()
+    st[0] += shift * layout.spacing * row / np.linalg.norm(row)
+    return replace(layout, st=st)
 
 
 def grasp_axes(strategy: str, frame: np.ndarray, squeeze_col: int, *, right_hand: bool, flip: bool) -> GraspAxes:
@@ -234,7 +245,7 @@ def _horizontal(profile: SliceProfile, h: np.ndarray, spacing: float, cfg) -> La
     """Layout with the fingers at heights ``h`` (4,), each aimed at the middle of its slice along t."""
     k = profile.index(h)
     t_mid = 0.5 * (profile.lo[k, 2] + profile.hi[k, 2])
-    st = np.column_stack([np.concatenate([[-h[0] - cfg.thumb_shift * spacing], -h]), np.r_[t_mid[0], t_mid]])
+    st = np.column_stack([np.concatenate([[-h[0] + cfg.thumb_shift * spacing], -h]), np.r_[t_mid[0], t_mid]])
     return Layout(st, np.array([0.5 * spacing, np.inf]), spacing, float(profile.width[k[0]]))
 
 
