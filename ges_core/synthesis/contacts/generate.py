@@ -69,7 +69,7 @@ class ContactConfig(ConfigModel):
         0.15, ge=0.0, lt=0.5, description="fraction of the slice length kept free at each end of the finger row"
     )
     thumb_shift: float = Field(
-        0.0, ge=-1.0, le=3.0, description="thumb offset along the finger row from the index, in spacings (0 = opposite)"
+        0.0, ge=-1.0, le=3.0, description="thumb offset from the index toward the finger row, spacings (0 = opposite)"
     )
     thumb_balance_shifts: tuple[float, ...] = Field(
         (0.5, 1.0, 1.5),

@@ -7,8 +7,8 @@ through the object's pose read right after loading.
 
 Every physics trial of Stage 1 (a refinement, a nominal validation, each perturbation trial) runs in a backend
 of its own (:class:`TrialScenes`): a backend reused across trials carries the earlier trials' solver state
-(``benchmarks/trial_history.py``: 3 of 24 procedural and 3 of 20 real placement histories changed when a
-trial ran in a fresh backend instead of after others), so a grasp's verdict would depend on which trials came
+(``benchmarks/trial_history.py``: 4 of 24 procedural and 4 of 20 real placement histories changed between a
+backend reused for an object's trials and one per trial), so a grasp's verdict would depend on which trials came
 before it, and a replay of a stored record would not reproduce it.
 """
 
