@@ -57,7 +57,7 @@ def heldout(dataset: Path, sims: list[str], seeds: list[int]) -> list[dict]:
                 failed = []
                 scenes = TrialScenes(registry.build_sim, sim_name, cfg.scene, hand)
                 for seed, config in zip(seeds, trials, strict=True):
-                    result = robust_validate(scenes, hand, obj, grasp, pre, cfg.validate_, config, seed=record.seed)
+                    result = robust_validate(scenes, obj, grasp, pre, cfg.validate_, config, seed=record.seed)
                     row["trials"] += len(result.trials)
                     failed += [f"seed {seed} {t.name}: {t.reason}" for t in result.trials if not t.success]
                 row["trials_failed"] += len(failed)

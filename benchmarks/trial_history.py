@@ -38,10 +38,7 @@ def reused_backends():
     @contextmanager
     def open_reused(self):
         if id(self) not in kept:
-            sim = self.build_sim(self.name, self.config)
-            sim.load_hand(self.hand, floating=True)
-            scene._LOADED[sim] = self.hand.name
-            kept[id(self)] = (self, sim)  # the TrialScenes kept alive too, so its id is not reused
+            kept[id(self)] = (self, self.build())  # the TrialScenes kept alive too, so its id is not reused
         yield kept[id(self)][1]
 
     scene.TrialScenes.open = open_reused

@@ -37,7 +37,6 @@ from pydantic import Field, field_validator, model_validator
 
 from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError
-from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.physics.validate import ValidateConfig, validate_grasp
@@ -208,7 +207,6 @@ def perturbations(config: RobustConfig, hand_friction: float, obj: ObjectAsset, 
 
 def robust_validate(
     scenes: TrialScenes,
-    hand: HandModel,
     obj: ObjectAsset,
     grasp: Grasp,
     pregrasp_grasp: Grasp,
@@ -221,10 +219,9 @@ def robust_validate(
 
     Run it only for a grasp whose nominal trial passed (the pipeline does). The object is loaded per trial
     with the changed density or friction; every trial runs with the hand's effort limits when
-    ``config.drive_limits`` and the hand declares them. ``scenes.hand`` must be ``hand``.
+    ``config.drive_limits`` and the hand declares them. The hand is ``scenes.hand``.
     """
-    if scenes.hand is not hand:
-        raise ConfigError(f"robust_validate: the scenes load hand '{scenes.hand.name}', the grasp is for '{hand.name}'")
+    hand = scenes.hand
     limits = hand.description.effort_limits_array if config.drive_limits else None
     trials = []
     for p in perturbations(config, scenes.config.hand_friction, obj, seed):

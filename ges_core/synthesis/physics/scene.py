@@ -66,19 +66,24 @@ class TrialScenes:
     ) -> None:
         self.build_sim, self.name, self.config, self.hand = build_sim, name, config, hand
         self.seconds = 0.0
-        self.opened = 0
-        """Backends built so far."""
 
-    @contextmanager
-    def open(self) -> Iterator[SimBackend]:
-        """A fresh backend holding the hand (no object yet), closed on exit."""
+    def build(self) -> SimBackend:
+        """A new backend holding the hand (no object yet); the caller closes it (:meth:`open` does)."""
         start = time.perf_counter()
         sim = self.build_sim(self.name, self.config)
         try:
-            sim.load_hand(self.hand, floating=True)
-            _LOADED[sim] = self.hand.name
-            self.seconds += time.perf_counter() - start
-            self.opened += 1
+            _load_hand(sim, self.hand)
+        except BaseException:
+            sim.close()
+            raise
+        self.seconds += time.perf_counter() - start
+        return sim
+
+    @contextmanager
+    def open(self) -> Iterator[SimBackend]:
+        """:meth:`build`, closed on exit."""
+        sim = self.build()
+        try:
             yield sim
         finally:
             sim.close()
@@ -96,6 +101,13 @@ def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset, *, fixed: bo
             f"{sim.name}: refinement and validation run one grasp in one scene, but the backend has "
             f"num_envs={sim.num_envs}; build it with SceneConfig(num_envs=1)"
         )
+    _load_hand(sim, hand)
+    sim.load_object(obj, fixed=fixed)
+    return sim.object_pose()[0]
+
+
+def _load_hand(sim: SimBackend, hand: HandModel) -> None:
+    """Load ``hand`` floating into ``sim`` unless it is there already; SimulationError if another hand is."""
     loaded = _LOADED.get(sim)
     if loaded is None:
         sim.load_hand(hand, floating=True)
@@ -104,8 +116,6 @@ def stage_scene(sim: SimBackend, hand: HandModel, obj: ObjectAsset, *, fixed: bo
         raise SimulationError(
             f"{sim.name}: this backend already holds hand '{loaded}'; build a new backend for hand '{hand.name}'"
         )
-    sim.load_object(obj, fixed=fixed)
-    return sim.object_pose()[0]
 
 
 @dataclass(frozen=True)

@@ -424,7 +424,7 @@ def _sim_verdict(
     verdict = SimVerdict(success=result.success, reason=result.reason, flags=flags, seconds=result.seconds)
     if not (result.success and cfg.robust.enabled):
         return verdict
-    robust = robust_validate(scenes, model, asset, grasp, pre, cfg.validate_, cfg.robust, seed=work.seed)
+    robust = robust_validate(scenes, asset, grasp, pre, cfg.validate_, cfg.robust, seed=work.seed)
     trials = tuple(TrialVerdict(name=t.name, success=t.success, reason=t.reason) for t in robust.trials)
     return replace(verdict, trials=trials, robustness=robust.score, robust_seconds=robust.seconds)
 
