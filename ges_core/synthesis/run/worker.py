@@ -243,15 +243,13 @@ class _Attempt:
     def holds_everywhere(self) -> bool:
         """:attr:`robust_ok`, and in every other validating simulator too: every trial held there, or with
         robust validation off the nominal trial did."""
-        if not self.robust_ok:
-            return False
         if self.robust.reason == NOT_RUN:
-            return all(v.success for v in self.validations.values())
-        return all(v.robust for v in self.validations.values())
+            return self.passed and all(v.success for v in self.validations.values())
+        return self.holds_all_but(None)
 
-    def holds_all_but(self, trial: str) -> bool:
-        """Passed, and in every validating simulator every perturbation trial but ``trial`` held (False when the
-        trials did not run)."""
+    def holds_all_but(self, trial: str | None) -> bool:
+        """Passed, and in every validating simulator every perturbation trial but ``trial`` held (``None``: every
+        trial, ``SimVerdict.robust`` everywhere); False when the trials did not run."""
         if not self.passed or self.robust.reason == NOT_RUN or not self.validations:
             return False
         return all(
@@ -292,17 +290,18 @@ def _attempts(
     then stops at the first placement that holds every other trial, and the record's robust error says why."""
     retry = state.config(hand).robust.retry
     out_of_reach, why = _friction_out_of_reach(state.config(hand), work)
-    tries = []
+    tries, stopped = [], False
     for grasp in grasps:
         tries.append(_attempt(state, sims, hand, work, grasp))
         last = tries[-1]
-        if last.holds_everywhere or (last.passed and not retry) or (out_of_reach and last.holds_all_but(out_of_reach)):
+        stopped = bool(out_of_reach) and last.holds_all_but(out_of_reach)
+        if last.holds_everywhere or (last.passed and not retry) or stopped:
             break
     index = _chosen(tries)
     chosen = tries[index]
     errors = chosen.errors
     if out_of_reach and not chosen.holds_everywhere:
-        stop = "stopped at the first placement" if tries[-1].holds_all_but(out_of_reach) else "found no placement"
+        stop = "stopped at the first placement" if stopped else "found no placement"
         errors = errors | {"robust": f"{why}; the placement search {stop} that held every other trial"}
     steps = steps | {
         name: replace(getattr(chosen, name), seconds=sum(getattr(t, name).seconds for t in tries))
