@@ -381,26 +381,32 @@ def _balanced(pts, nrm, ctx: _Context, axes, layout: sl.Layout, allowed: np.ndar
     finger row by the smallest of ``thumb_balance_shifts`` within the tolerance of the best balance; None when
     the pinch gives no picks that fit the hand (their opening appended to ``openings``)."""
     cfg = ctx.cfg
-    tried = []
-    for shift in (0.0, *cfg.thumb_balance_shifts):
-        moved = sl.thumb_moved(layout, shift)
-        picks = sl.pick_extremes(_coords(pts, ctx, axes), allowed, moved, cfg.extremum_tol)
-        if picks is None:
-            if shift == 0.0:
-                return None
-            continue
-        opening = _opening(pts, picks, axes)
-        if not _fits(opening, cfg):  # a band widened onto another part (a sparse slice's width read too narrow)
-            if shift == 0.0:
-                openings.append(opening)
-                return None
-            continue
-        plan = _optimized(pts, nrm, ctx, axes, moved, picks, allowed)
-        tried.append((squeeze_imbalance(nrm[plan.optimized]), plan))
-        if shift == 0.0 and tried[0][0] <= cfg.thumb_balance_tol:
-            return plan  # the pinch balances: keep it
+    pinch = _picked(pts, nrm, ctx, axes, layout, allowed, openings)
+    if pinch is None:
+        return None
+    tried = [(squeeze_imbalance(nrm[pinch.optimized]), pinch)]
+    if tried[0][0] <= cfg.thumb_balance_tol:
+        return pinch
+    for shift in cfg.thumb_balance_shifts:  # a moved thumb whose picks do not fit is just not a candidate
+        plan = _picked(pts, nrm, ctx, axes, sl.thumb_moved(layout, shift), allowed, [])
+        if plan is not None:
+            tried.append((squeeze_imbalance(nrm[plan.optimized]), plan))
     best = min(imbalance for imbalance, _ in tried)
     return next(plan for imbalance, plan in tried if imbalance <= best + cfg.thumb_balance_tol)
+
+
+def _picked(pts, nrm, ctx: _Context, axes, layout: sl.Layout, allowed: np.ndarray, openings: list[float]):
+    """The optimized plan from ``layout``'s extremum picks; None when a contact has no eligible point or the
+    picks open the hand beyond [min_width, max_width] (a band widened onto another part: a sparse slice's width
+    read too narrow; the opening is appended to ``openings``)."""
+    picks = sl.pick_extremes(_coords(pts, ctx, axes), allowed, layout, ctx.cfg.extremum_tol)
+    if picks is None:
+        return None
+    opening = _opening(pts, picks, axes)
+    if not _fits(opening, ctx.cfg):
+        openings.append(opening)
+        return None
+    return _optimized(pts, nrm, ctx, axes, layout, picks, allowed)
 
 
 def squeeze_imbalance(normals: np.ndarray) -> float:
