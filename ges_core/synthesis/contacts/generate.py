@@ -376,19 +376,20 @@ def _side_plans(
 
 
 def _balanced(pts, nrm, ctx: _Context, axes, layout: sl.Layout, allowed: np.ndarray, openings: list[float]):
-    """The optimized plan of ``layout`` with the thumb opposite the index (the pinch) or, where that leaves the
-    squeeze out of balance by more than ``thumb_balance_tol`` (:func:`squeeze_imbalance`), moved toward the
-    finger row by the smallest of ``thumb_balance_shifts`` within the tolerance of the best balance; None when
+    """The optimized plan of ``layout`` with the thumb ``thumb_shift`` spacings from the index toward the finger row
+    (0: the pinch) or, where that leaves the squeeze out of balance by more than ``thumb_balance_tol``
+    (:func:`squeeze_imbalance`), moved further by the smallest of ``thumb_balance_shifts`` within the tolerance
+    of the best balance; None when
     the pinch gives no picks that fit the hand (their opening appended to ``openings``)."""
     cfg = ctx.cfg
-    pinch = _picked(pts, nrm, ctx, axes, layout, allowed, openings)
+    pinch = _picked(pts, nrm, ctx, axes, sl.thumb_moved(layout, cfg.thumb_shift), allowed, openings)
     if pinch is None:
         return None
     tried = [(squeeze_imbalance(nrm[pinch.optimized]), pinch)]
     if tried[0][0] <= cfg.thumb_balance_tol:
         return pinch
     for shift in cfg.thumb_balance_shifts:  # a moved thumb whose picks do not fit is just not a candidate
-        plan = _picked(pts, nrm, ctx, axes, sl.thumb_moved(layout, shift), allowed, [])
+        plan = _picked(pts, nrm, ctx, axes, sl.thumb_moved(layout, cfg.thumb_shift + shift), allowed, [])
         if plan is not None:
             tried.append((squeeze_imbalance(nrm[plan.optimized]), plan))
     best = min(imbalance for imbalance, _ in tried)

@@ -154,7 +154,7 @@ def vertical_layouts(
     room = np.clip(extent, cfg.min_spacing, cfg.finger_spacing)
     order = np.lexsort((np.abs(profile.centers[inside] - z_pref), -np.round(room / SPACING_TIE)))
     ranked = [(int(inside[i]), float(room[i])) for i in order]
-    out = [_vertical(profile, k, spacing, cfg) for k, spacing in ranked if ok[k]][: cfg.layouts_per_axis]
+    out = [_vertical(profile, k, spacing) for k, spacing in ranked if ok[k]][: cfg.layouts_per_axis]
     for k, spacing in ranked:  # the whole-slice layouts first: they are what fitted before rows were measured
         if len(out) == cfg.layouts_per_axis or rows is None:
             break
@@ -163,25 +163,26 @@ def vertical_layouts(
     return out
 
 
-def _vertical(profile: SliceProfile, k: int, spacing: float, cfg, shift: float = 0.0, width: float | None = None):
+def _vertical(profile: SliceProfile, k: int, spacing: float, shift: float = 0.0, width: float | None = None):
     """Layout in slice ``k``: fingers centred ``shift`` along s from the middle of the slice's s-extent, thumb
     level with the index; ``width``: the squeeze width under the row (default: the slice's)."""
-    s_all = _row_s(profile, k, spacing, cfg) + shift
+    s_all = _row_s(profile, k, spacing) + shift
     st = np.column_stack([s_all, np.full(5, -profile.centers[k])])  # t = -z for the approach -z
     width = float(profile.width[k]) if width is None else width
     return Layout(st, np.array([0.5 * spacing, profile.thickness]), spacing, width)
 
 
-def _row_s(profile: SliceProfile, k: int, spacing: float, cfg) -> np.ndarray:
-    """(5,) s of thumb, index .. little for a row centred on slice ``k``'s s-extent."""
+def _row_s(profile: SliceProfile, k: int, spacing: float) -> np.ndarray:
+    """(5,) s of thumb, index .. little for a row centred on slice ``k``'s s-extent, the thumb opposite the index
+    (``thumb_shift`` is applied later, by :func:`thumb_moved`, as in side grasps)."""
     s_f = 0.5 * (profile.lo[k, 1] + profile.hi[k, 1]) + (np.arange(4) - 1.5) * spacing
-    return np.concatenate([[s_f[0] + cfg.thumb_shift * spacing], s_f])
+    return np.concatenate([[s_f[0]], s_f])
 
 
 def _shifted_row(profile: SliceProfile, k: int, spacing: float, cfg, rows: RowWidths) -> Layout | None:
     """The layout of slice ``k`` whose row lies nearest the middle of the slice and over a graspable width,
     or None. Every contact's band (+-spacing/4 along s) stays within the slice's s-extent."""
-    s_row = _row_s(profile, k, spacing, cfg)
+    s_row = _row_s(profile, k, spacing)
     half = BAND_SCALE * 0.5 * spacing
     lo_shift = profile.lo[k, 1] + half - s_row.min()
     hi_shift = profile.hi[k, 1] - half - s_row.max()
@@ -193,7 +194,7 @@ def _shifted_row(profile: SliceProfile, k: int, spacing: float, cfg, rows: RowWi
         s = s_row + shift
         width = rows.width(k, s.min() - half, s.max() + half)
         if cfg.min_width <= width <= cfg.max_width:
-            return _vertical(profile, k, spacing, cfg, shift=float(shift), width=width)
+            return _vertical(profile, k, spacing, shift=float(shift), width=width)
     return None
 
 
@@ -238,14 +239,14 @@ def horizontal_layouts(profile: SliceProfile, ok: np.ndarray, z_range: tuple[flo
     heights = tops[:, None] - spacing * np.arange(4)[None, :]  # (n_windows, 4) index..little
     heights = heights[ok[profile.index(heights)].all(axis=1)]
     order = np.argsort(np.abs(heights.mean(axis=1) - z_pref), kind="stable")
-    return [_horizontal(profile, heights[i], spacing, cfg) for i in order[: cfg.layouts_per_axis]]
+    return [_horizontal(profile, heights[i], spacing) for i in order[: cfg.layouts_per_axis]]
 
 
-def _horizontal(profile: SliceProfile, h: np.ndarray, spacing: float, cfg) -> Layout:
+def _horizontal(profile: SliceProfile, h: np.ndarray, spacing: float) -> Layout:
     """Layout with the fingers at heights ``h`` (4,), each aimed at the middle of its slice along t."""
     k = profile.index(h)
     t_mid = 0.5 * (profile.lo[k, 2] + profile.hi[k, 2])
-    st = np.column_stack([np.concatenate([[-h[0] + cfg.thumb_shift * spacing], -h]), np.r_[t_mid[0], t_mid]])
+    st = np.column_stack([np.concatenate([[-h[0]], -h]), np.r_[t_mid[0], t_mid]])  # thumb opposite the index
     return Layout(st, np.array([0.5 * spacing, np.inf]), spacing, float(profile.width[k[0]]))
 
 
