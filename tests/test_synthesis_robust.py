@@ -14,7 +14,7 @@ import pytest
 
 from ges_core.config import parse_model
 from ges_core.dataset import open_dataset
-from ges_core.errors import ConfigError
+from ges_core.errors import ConfigError, SimulationError
 from ges_core.objects.asset import ObjectAsset
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
@@ -208,3 +208,16 @@ def test_trial_scenes_build_a_new_backend_per_trial_and_close_it_even_after_an_e
     assert first is not second and built == [("sapien", SceneConfig())] * 2
     assert log == [("hand", id(first), hand, True), ("close", id(first)), ("hand", id(second), hand, True),
                    ("close", id(second))]  # fmt: skip
+
+
+def test_trial_scenes_close_a_backend_whose_hand_does_not_load():
+    log, hand = [], load_registry().build_hand("allegro")
+
+    class Refusing(_Backend):
+        def load_hand(self, hand, floating):
+            raise SimulationError("double: no such hand")
+
+    scenes = TrialScenes(lambda name, cfg: Refusing(log), "sapien", SceneConfig(), hand)
+    with pytest.raises(SimulationError, match="no such hand"), scenes.open():
+        pass
+    assert log == [("close", log[0][1])] and scenes.seconds == 0.0  # closed, and no setup time counted
