@@ -33,12 +33,18 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--protocol", default="paper", choices=("paper", "peers"), help="success protocol (paper)")
     p.add_argument("--resamples", type=positive_int, default=4000, help="bootstrap resamples (4000)")
     p.add_argument("--seed", type=non_negative_int, default=0, help="seed of the resampling (0)")
+    p.add_argument(
+        "--by-grasp", nargs="?", const="", metavar="DATASET",
+        help="also per Stage 1 verdict of each object's grasp (robust / validated / refined / other), from DATASET "
+        "(default: the dataset the first matrix was evaluated on)",
+    )  # fmt: skip
     p.add_argument("--out", type=Path, metavar="JSON", help="also write the comparison here")
     p.set_defaults(func=run_compare_experts)
 
 
 def run_compare_experts(args: argparse.Namespace) -> int:
     """Pool, print both tables, optionally write the JSON."""
+    from ges_core.experts.by_grasp import GRASP_GROUPS
     from ges_core.experts.compare import (
         column_list,
         compare_to_baseline,
@@ -49,7 +55,7 @@ def run_compare_experts(args: argparse.Namespace) -> int:
         select_columns,
     )
     from ges_core.experts.matrix import load_matrix
-    from ges_core.experts.table import expert_table
+    from ges_core.experts.table import expert_table, split_rates
     from ges_core.paths import atomic_write_text
 
     matrices = [load_matrix(path) for path in args.matrices]
@@ -71,17 +77,49 @@ def run_compare_experts(args: argparse.Namespace) -> int:
         picks = [select_columns(m, chosen) for m in matrices] if chosen else matrices
         held = held_out_oracle(picks[0], pool_matrices(picks[1:]), args.protocol)
         print("\n" + held_out_oracle_table(held))
+    grouped = None
+    if args.by_grasp is not None:
+        grouped = _by_grasp(matrix, args.matrices[0], args.by_grasp)
+        groups = tuple(g for g in GRASP_GROUPS if g in grouped.splits)
+        counts = ", ".join(f"{g} {grouped.splits.count(g)}" for g in groups)
+        grasp_diffs = compare_to_baseline(
+            grouped, args.protocol, splits=(*groups, None), resamples=args.resamples, seed=args.seed
+        )
+        print(f"\nby the Stage 1 verdict of each object's grasp (objects: {counts}; docs/experts.md)\n")
+        print(expert_table(grouped, args.protocol, splits=groups) + "\n\n" + comparison_table(grasp_diffs))
     if args.out:
         record = {
             "matrices": [str(p) for p in args.matrices], "protocol": args.protocol, "resamples": args.resamples,
             "seed": args.seed, "level": 0.95,
-            "rows": [{"expert": d.expert, "split": d.split or "all", "objects": d.objects, "points": d.points,
-                      "low": d.low, "high": d.high, "better": d.better, "worse": d.worse, "verdict": d.verdict}
-                     for d in diffs],
+            "rows": [_row(d) for d in diffs],
             "held_out_oracle": [{"split": h.split or "all", "objects": h.objects, "same": h.same,
                                  "held_out": h.held_out, "other": h.other, "best_single": h.best_single,
                                  "best_label": h.best_label} for h in held or []],
         }  # fmt: skip
+        if grouped is not None:
+            record["by_grasp"] = {
+                "groups": {g: grouped.splits.count(g) for g in groups},
+                "rates": {g or "all": split_rates(grouped, args.protocol, g) for g in (*groups, None)},
+                "rows": [_row(d) for d in grasp_diffs],
+            }
         atomic_write_text(args.out, json.dumps(record, indent=1) + "\n")
         print(f"\nwrote {args.out}")
     return 0
+
+
+def _row(d) -> dict:
+    """One :class:`ges_core.experts.compare.BaselineDifference` as a JSON row."""
+    return {"expert": d.expert, "split": d.split or "all", "objects": d.objects, "points": d.points, "low": d.low,
+            "high": d.high, "better": d.better, "worse": d.worse, "verdict": d.verdict}  # fmt: skip
+
+
+def _by_grasp(matrix, path: Path, dataset: str):
+    """``matrix`` grouped by grasp verdict (:func:`ges_core.experts.by_grasp.by_grasp`), with the hand, the grasp keys
+    and (``dataset`` empty) the dataset read from the matrix file at ``path``."""
+    from ges_core.dataset import open_dataset
+    from ges_core.experts.by_grasp import by_grasp
+    from ges_core.experts.matrix import read_matrix_json
+
+    data = read_matrix_json(path)
+    keys = {oid: entry.get("grasp_key") for oid, entry in data.get("objects", {}).items()}
+    return by_grasp(matrix, keys, open_dataset(dataset or data["dataset"]), data["run"]["hand"])
