@@ -13,6 +13,7 @@ from ges_core.objects.library import LibraryConfig, ObjectLibrary
 from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.contacts.force_closure import ForceClosureConfig, ferrari_canny
 from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts, squeeze_imbalance
+from ges_core.synthesis.contacts.lift_friction import lift_capacity
 
 CFG = ContactConfig()
 PINCH = ContactConfig(thumb_balance_shifts=())
@@ -182,11 +183,35 @@ def test_layout_rank_walks_the_candidates_in_force_closure_until_they_run_out(re
 def test_layout_rank_is_stored_only_when_set_so_older_datasets_resume():
     """A run at rank 0 stores the run_config it stored before the field existed (its hash is in every record)."""
     run = SynthesisConfig()
-    assert "layout_rank" not in run.dump()["contacts"]
+    assert "layout_rank" not in run.dump()["contacts"] and "lift_candidates" not in run.dump()["contacts"]
     assert SynthesisConfig.model_validate(run.dump()).contacts.layout_rank == 0
     ranked = SynthesisConfig.model_validate({"contacts": {"layout_rank": 2}})
     assert ranked.dump()["contacts"]["layout_rank"] == 2
     assert config_differences(run.dump(), ranked.dump()) == ["contacts.layout_rank: '<absent>' -> 2"]
+
+
+def test_lift_candidates_pick_the_candidate_in_force_closure_that_lifts_most(clouds):
+    """lift_candidates = N returns, of the first N candidates in force closure (layout_rank 0 .. N-1, walked
+    independently here), the one with the largest lift_capacity about the cloud's centroid; 1 is the first."""
+    changed = 0
+    for oid in ids("box/000 sphere/000 bottle/000 stamp/000 capsule/001 hammer/000"):
+        points, normals = clouds[oid]
+        center = points.mean(axis=0)
+        radius = float(np.linalg.norm(points - center, axis=1).max())
+        ranked, first = [], CFG.model_copy(update={"lift_candidates": 1})
+        for rank in range(3):
+            try:
+                ranked.append(generate_contacts(points, normals, first.model_copy(update={"layout_rank": rank})))
+            except SynthesisError:
+                break
+        lifts = [lift_capacity(r.contacts.positions, r.contacts.normals, CFG.force_closure.mu, center, radius=radius)
+                 for r in ranked]  # fmt: skip
+        picked = generate_contacts(points, normals, CFG.model_copy(update={"lift_candidates": 3}))
+        assert np.array_equal(picked.contacts.positions, ranked[int(np.argmax(lifts))].contacts.positions), oid
+        changed += int(np.argmax(lifts)) != 0
+    assert changed > 0  # the objects include some whose first candidate is not the one that lifts most
+    with pytest.raises(ValidationError, match="layout_rank and lift_candidates"):
+        ContactConfig(layout_rank=1, lift_candidates=2)
 
 
 @pytest.mark.parametrize("oid", ids("box/000 mug/000 wedge/000 l_bracket/001"))

@@ -10,7 +10,7 @@ import trimesh
 from scipy.optimize import linprog
 
 from ges_core.errors import ArrayError
-from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
+from ges_core.synthesis.contacts.lift_friction import lift_capacity, lift_friction_bound
 
 MIN_HEIGHT = 0.01
 
@@ -76,3 +76,40 @@ def test_bad_clouds_are_refused():
         lift_friction_bound(np.zeros((4, 3)), np.zeros((3, 3)), MIN_HEIGHT)
     with pytest.raises(ArrayError, match="points"):
         lift_friction_bound(np.full((4, 3), np.nan), np.ones((4, 3)), MIN_HEIGHT)
+
+
+# --- lift_capacity: weight held per unit total normal force, by a linear program ---------------------------------
+
+CENTER = np.array([0.0, 0.0, 0.05])
+
+
+def _pair(tilt_deg: float, dy: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """A thumb at +x and four fingers at -x (stacked in y about ``dy``), at the centre's height, their outward
+    normals turned ``tilt_deg`` up from horizontal (a roof: the squeeze pushes the object down when positive)."""
+    c, s = math.cos(math.radians(tilt_deg)), math.sin(math.radians(tilt_deg))
+    positions = np.array([[0.03, dy, 0.05], *[[-0.03, dy + y, 0.05] for y in (-0.015, -0.005, 0.005, 0.015)]])
+    normals = np.array([[c, 0.0, s], *[[-c, 0.0, s]] * 4])
+    return positions, normals
+
+
+@pytest.mark.parametrize("tilt", [-20.0, 0.0, 10.0, 20.0])
+def test_the_capacity_of_a_tilted_squeeze_is_the_friction_left_after_the_slope(tilt):
+    # per unit normal force a contact on a face tilted up by t gives at most mu cos t - sin t upward (the cone's
+    # steepest edge), so the best split of a unit normal budget holds that much weight; 64 edges ~ the round cone
+    positions, normals = _pair(tilt)
+    got = lift_capacity(positions, normals, 0.5, CENTER, radius=0.05, cone_edges=64)
+    t = math.radians(tilt)
+    assert got == pytest.approx(max(0.0, 0.5 * math.cos(t) - math.sin(t)), rel=2e-3, abs=1e-9)
+
+
+def test_a_slope_steeper_than_the_friction_holds_nothing_and_more_friction_helps():
+    positions, normals = _pair(31.0)  # tan 31 deg = 0.60 > 0.5
+    assert lift_capacity(positions, normals, 0.5, CENTER, radius=0.05) == 0.0
+    assert lift_capacity(positions, normals, 1.0, CENTER, radius=0.05) > 0.3
+
+
+def test_weight_off_the_contacts_needs_torque_and_costs_capacity():
+    # the centre of mass 4 cm beside the contact rows: the contacts must also balance the weight's torque
+    near = lift_capacity(*_pair(0.0), 0.5, CENTER, radius=0.05)
+    far = lift_capacity(*_pair(0.0, dy=0.04), 0.5, CENTER, radius=0.05)
+    assert 0.0 <= far < near

@@ -40,6 +40,7 @@ from ges_core.synthesis.contacts.frame import (
     pca,
     symmetry_score,
 )
+from ges_core.synthesis.contacts.lift_friction import lift_capacity
 from ges_core.synthesis.contacts.optimize import SLOT_WEIGHTS, optimize_contacts
 from ges_core.synthesis.types import ContactResult
 
@@ -128,6 +129,13 @@ class ContactConfig(ConfigModel):
         "first; 1, 2, ...: the next ones, to try another contact layout on an object whose first does not hold)",
         json_schema_extra=STORED_WHEN_SET,  # added after datasets were written: stored only when set
     )
+    lift_candidates: int = Field(
+        1,
+        ge=1,
+        description="among the first this many candidate grasps in force closure (order of preference), the one "
+        "that holds the most weight per unit of squeeze at force_closure.mu (lift_capacity); 1: the first",
+        json_schema_extra=STORED_WHEN_SET,
+    )
     right_hand: bool = Field(True, description="chirality of the finger order (both built-in hands are right hands)")
     force_closure: ForceClosureConfig = Field(default_factory=ForceClosureConfig)
 
@@ -138,6 +146,8 @@ class ContactConfig(ConfigModel):
             for lo, hi in (("min_width", "max_width"), ("min_spacing", "finger_spacing"))
             if getattr(self, lo) >= getattr(self, hi)
         ]
+        if self.layout_rank > 0 and self.lift_candidates > 1:
+            problems.append("layout_rank and lift_candidates > 1 choose the candidate two ways: set one of them")
         if problems:
             raise ValueError("; ".join(problems))
         return self
@@ -260,28 +270,34 @@ class _Plan:
 
 def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, primary: str) -> _Plan:
     """The grasp to use: the ``layout_rank``-th candidate (from 0), in order of preference, whose optimized
-    contacts are in force closure (coarse epsilon > 0); at rank 0 the most preferred one when none is.
+    contacts are in force closure (coarse epsilon > 0), or of the first ``lift_candidates`` of them the one that
+    holds the most weight per unit of squeeze (:func:`.lift_friction.lift_capacity`); at rank 0 the most
+    preferred one when none is in force closure.
 
     Preference: the PCA strategy before the other one; within a strategy, the squeeze axis that leaves
     the fingers more room before the other one; within an axis, the layouts in their rank order; for
     each layout, the thumb side that screens better.
     """
-    first, widths, found_layout, openings, closed = None, [], False, [], 0
+    first, widths, found_layout, openings, closing = None, [], False, [], []
     rank = ctx.cfg.layout_rank
+    wanted = rank + 1 if rank else ctx.cfg.lift_candidates  # ContactConfig refuses both set
     for strategy in (primary, "vertical" if primary == "horizontal" else "horizontal"):
         for col, layouts in _ranked_axes(pts, nrm, ctx, strategy, widths):
             found_layout = True
             for plan in _side_plans(pts, nrm, ctx, strategy, col, layouts, openings):
                 first = first or plan
-                if plan.screen > 0.0:
-                    if closed == rank:
-                        return plan
-                    closed += 1
+                if plan.screen <= 0.0:
+                    continue
+                closing.append(plan)
+                if len(closing) == wanted:
+                    return closing[rank] if rank else _most_lifting(pts, nrm, ctx, closing)
+    if closing and rank == 0:  # fewer in force closure than lift_candidates
+        return _most_lifting(pts, nrm, ctx, closing)
     if rank > 0 and first is not None:
         raise _fail(
             "no_more_layouts",
             ctx.object_id,
-            f"layout_rank={rank} asks for candidate {rank + 1} in force closure; the object has {closed}",
+            f"layout_rank={rank} asks for candidate {rank + 1} in force closure; the object has {len(closing)}",
         )
     if first is not None:
         return first
@@ -301,6 +317,15 @@ def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, primary: str) -> _Pla
         f"no slice above min_height has a width in [{ctx.cfg.min_width}, {ctx.cfg.max_width}] m (narrowest found: "
         f"{min(widths, default=float('inf')):.3f} m); the object is too wide or too thin for a hand",
     )
+
+
+def _most_lifting(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, plans: list[_Plan]) -> _Plan:
+    """The plan whose optimized contacts hold the most weight per unit squeeze (the first of equals)."""
+    if len(plans) == 1:
+        return plans[0]
+    mu = ctx.cfg.force_closure.mu
+    lift = [lift_capacity(pts[p.optimized], nrm[p.optimized], mu, ctx.center, radius=ctx.radius) for p in plans]
+    return plans[int(np.argmax(lift))]
 
 
 def _ranked_axes(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategy: str, widths: list[float]):

@@ -26,7 +26,7 @@ import numpy as np
 
 from ges_core.arrays import checked_array
 
-__all__ = ["lift_friction_bound"]
+__all__ = ["lift_capacity", "lift_friction_bound"]
 
 
 def lift_friction_bound(points: np.ndarray, normals: np.ndarray, min_height: float) -> float:
@@ -45,3 +45,34 @@ def lift_friction_bound(points: np.ndarray, normals: np.ndarray, min_height: flo
     if lowest <= 0.0:
         return 0.0
     return float(lowest / math.sqrt(max(1.0 - lowest * lowest, 1e-24)))
+
+
+def lift_capacity(
+    positions: np.ndarray, normals: np.ndarray, mu: float, center: np.ndarray, *, radius: float, cone_edges: int = 8
+) -> float:
+    """The largest weight point contacts can hold per unit of their total normal force (0: none).
+
+    positions, normals: (n, 3) contacts and outward unit normals, resting frame (z up), metres. Each contact pushes
+    inside its linearized friction cone (``mu``, ``cone_edges``; :func:`.force_closure.cone_forces`, unit normal
+    component per edge), the normal forces sum to at most 1, and the net force is ``(0, 0, W)`` with no net torque
+    about ``center`` (the object's centre of mass; torques scaled by ``1 / radius``). Returns the largest such ``W``,
+    by a linear program (scipy's HiGHS). Where force closure at ``mu`` holds it is above the Ferrari-Canny epsilon;
+    it ranks grasps by how hard the hand must squeeze to lift, which epsilon (the worst direction) does not.
+    """
+    from scipy.optimize import linprog
+
+    from ges_core.synthesis.contacts.force_closure import cone_forces
+
+    pos = np.asarray(positions, dtype=np.float64)
+    forces = cone_forces(np.asarray(normals, dtype=np.float64), mu, cone_edges)  # (n, e, 3)
+    torques = np.cross((pos - np.asarray(center, dtype=np.float64))[:, None, :], forces) / radius
+    k = forces.shape[0] * forces.shape[1]
+    a_eq = np.zeros((6, k + 1))
+    a_eq[:3, :k] = forces.reshape(k, 3).T
+    a_eq[2, k] = -1.0  # sum of forces - W e_z = 0
+    a_eq[3:, :k] = torques.reshape(k, 3).T
+    a_ub = np.concatenate([np.ones(k), [0.0]])[None]
+    cost = np.zeros(k + 1)
+    cost[k] = -1.0
+    res = linprog(cost, A_ub=a_ub, b_ub=[1.0], A_eq=a_eq, b_eq=np.zeros(6), bounds=(0, None), method="highs")
+    return float(max(res.x[k], 0.0)) if res.status == 0 else 0.0
