@@ -16,6 +16,9 @@ out of reach wrongly by a coarse cloud. On the procedural library at the robust 
 (``atan 0.5 = 26.6 deg``) it singles out the squat cones and pyramids (sides tilted 27-37 deg from the vertical):
 10 of the 280 objects, none of them robust before this bound was used. Stage 1 uses it to stop searching for a
 placement that passes the friction trial (:mod:`ges_core.synthesis.run.worker`).
+
+:func:`lift_capacity` asks the same of one contact set with torques balanced: the weight it holds per unit of squeeze
+(``ContactConfig.lift_candidates`` ranks candidate grasps by it; measured in docs/synthesis/contacts.md).
 """
 
 from __future__ import annotations
