@@ -43,15 +43,16 @@ def dataset(tmp_path):
 
 
 def _matrix(path, dataset, keys=None):
-    """A matrix of :data:`WINS` on ``dataset``'s shadow records, each object stamped with its grasp key (or ``keys``)."""
+    """A matrix of :data:`WINS` on ``dataset``'s shadow records, each object stamped with its grasp key (or
+    ``keys``)."""
     keys = keys or {oid: grasp_key(dataset.get(oid, "shadow")) for oid in CASES}
     write_matrix(path, {
         "dataset": str(dataset.root), "run": {"hand": "shadow"}, "baseline": "scripted",
         "experts": {"scripted": {"name": "scripted", "settings": {}}, "e1": {"name": "ppo", "settings": {}}},
         "objects": {oid: {"split": "train", "category": oid.split("/")[1], "cluster": 0, "grasp_key": keys[oid]}
                     for oid in CASES},
-        "cells": {oid: {e: {"episodes": 4, "paper": w, "peers": w} for e, w in zip(("scripted", "e1"), WINS[oid])}
-                  for oid in CASES},
+        "cells": {oid: {e: {"episodes": 4, "paper": w, "peers": w}
+                        for e, w in zip(("scripted", "e1"), WINS[oid], strict=True)} for oid in CASES},
     })  # fmt: skip
     return path
 
