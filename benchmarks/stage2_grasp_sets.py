@@ -8,6 +8,10 @@ per Stage 1 verdict of the new grasp (:mod:`ges_core.experts.by_grasp`). Several
 pooled first. Prints the tables and writes ``benchmarks/results/stage2_grasp_sets.json``.
 
     python benchmarks/stage2_grasp_sets.py --old M_OLD [M_OLD ...] --new M_NEW [M_NEW ...] [--experts scripted,res1s2]
+        [--results PATH]
+
+The two sides must have run the same settings (the matrices' ``run``: hand, simulator, seeds, environment) and the
+same settings per compared column; anything else is refused.
 """
 
 from __future__ import annotations
@@ -61,14 +65,19 @@ def main() -> None:
     parser.add_argument("--new", nargs="+", type=Path, required=True, help="matrices run on the new dataset")
     parser.add_argument("--experts", default="scripted", help="expert columns to compare (comma-separated)")
     parser.add_argument("--protocol", default="paper", choices=tuple(PROTOCOLS))
+    parser.add_argument("--results", type=Path, default=RESULTS, help=f"results JSON (default {RESULTS.name})")
     args = parser.parse_args()
     old, new = pool_matrices([load_matrix(p) for p in args.old]), pool_matrices([load_matrix(p) for p in args.new])
     data = read_matrix_json(args.new[0])
+    if differ := _run_differences(read_matrix_json(args.old[0])["run"], data["run"]):
+        parser.error(f"the two sides ran other settings, so their episodes are not comparable: {differ}")
     keys = {oid: entry.get("grasp_key") for oid, entry in data["objects"].items()}
     new_groups = by_grasp(new, keys, open_dataset(data["dataset"]), data["run"]["hand"])
     out = {"benchmark": "stage2_grasp_sets", "old": [str(p) for p in args.old], "new": [str(p) for p in args.new],
            "protocol": args.protocol, "experts": {}, "code": code_state()}  # fmt: skip
     for expert in column_list(args.experts):
+        if old.expert_settings[old.column(expert)] != new.expert_settings[new.column(expert)]:
+            parser.error(f"column '{expert}' ran other settings on the two sides (another checkpoint?)")
         pair = paired(old, new, expert)
         groups = paired(old, new_groups, expert)
         present = tuple(g for g in GRASP_GROUPS if g in groups.splits)
@@ -87,8 +96,13 @@ def main() -> None:
             "split_differences": [_row(d) for d in split_diffs],
             "group_differences": [_row(d) for d in group_diffs],
         }
-    write_results(RESULTS, out)
+    write_results(args.results, out)
     print(json.dumps({e: v["rates"]["all"] for e, v in out["experts"].items()}))
+
+
+def _run_differences(a: dict, b: dict) -> list[str]:
+    """The run settings (``ges eval-experts``' ``run``) that differ between two matrices."""
+    return [f"{k}: {a.get(k)!r} vs {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
 
 
 def _row(d) -> dict:
