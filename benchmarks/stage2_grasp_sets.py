@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ges_core.dataset import open_dataset
+from ges_core.dataset.layout import config_differences
 from ges_core.experts.by_grasp import GRASP_GROUPS, by_grasp
 from ges_core.experts.compare import column_list, compare_to_baseline, comparison_table, pool_matrices
 from ges_core.experts.matrix import PROTOCOLS, SuccessMatrix, load_matrix, read_matrix_json
@@ -69,7 +70,7 @@ def main() -> None:
     args = parser.parse_args()
     old, new = pool_matrices([load_matrix(p) for p in args.old]), pool_matrices([load_matrix(p) for p in args.new])
     data = read_matrix_json(args.new[0])
-    if differ := _run_differences(read_matrix_json(args.old[0])["run"], data["run"]):
+    if differ := config_differences(read_matrix_json(args.old[0])["run"], data["run"]):
         parser.error(f"the two sides ran other settings, so their episodes are not comparable: {differ}")
     keys = {oid: entry.get("grasp_key") for oid, entry in data["objects"].items()}
     new_groups = by_grasp(new, keys, open_dataset(data["dataset"]), data["run"]["hand"])
@@ -98,11 +99,6 @@ def main() -> None:
         }
     write_results(args.results, out)
     print(json.dumps({e: v["rates"]["all"] for e, v in out["experts"].items()}))
-
-
-def _run_differences(a: dict, b: dict) -> list[str]:
-    """The run settings (``ges eval-experts``' ``run``) that differ between two matrices."""
-    return [f"{k}: {a.get(k)!r} vs {b.get(k)!r}" for k in sorted(set(a) | set(b)) if a.get(k) != b.get(k)]
 
 
 def _row(d) -> dict:

@@ -58,15 +58,15 @@ def by_grasp(matrix: SuccessMatrix, grasp_keys: dict[str, str | None], dataset: 
     stored, not checked). ConfigError naming the object when ``dataset`` holds no record of it for ``hand``, or a
     record whose grasp is not the one evaluated.
     """
-    records = {(e["object_id"], e["hand"]) for e in dataset.entries}
     groups = []
     for oid in matrix.object_ids:
-        if (oid, hand) not in records:
+        try:
+            record = dataset.get(oid, hand)
+        except KeyError:
             raise ConfigError(
                 f"dataset {dataset.root} holds no '{hand}' record of '{oid}', an object of the matrix; give the "
                 "dataset the matrix was evaluated on"
-            )
-        record = dataset.get(oid, hand)
+            ) from None
         ran = grasp_keys.get(oid)
         if ran is not None and ran != grasp_key(record):
             raise ConfigError(

@@ -28,6 +28,7 @@ import math
 import numpy as np
 
 from ges_core.arrays import checked_array
+from ges_core.synthesis.contacts.force_closure import cone_forces
 
 __all__ = ["lift_capacity", "lift_friction_bound"]
 
@@ -62,9 +63,7 @@ def lift_capacity(
     by a linear program (scipy's HiGHS). Where force closure at ``mu`` holds it is above the Ferrari-Canny epsilon;
     it ranks grasps by how hard the hand must squeeze to lift, which epsilon (the worst direction) does not.
     """
-    from scipy.optimize import linprog
-
-    from ges_core.synthesis.contacts.force_closure import cone_forces
+    from scipy.optimize import linprog  # lazily: every Stage 1 worker imports this module, few call this
 
     pos = np.asarray(positions, dtype=np.float64)
     forces = cone_forces(np.asarray(normals, dtype=np.float64), mu, cone_edges)  # (n, e, 3)
