@@ -14,13 +14,16 @@ import torch
 
 from ges_core.dataset import open_dataset
 from ges_core.env.grasp_env import EnvConfig, GraspEnv
+from ges_core.env.grasp_pool import GraspPool
 from ges_core.env.grasp_source import (
     SELECTIONS,
+    contacts_off_surface,
     grasp_targets,
     library_for,
     load_grasp,
     object_rest_pose,
     open_grasp_dataset,
+    record_asset,
     rejection,
     select_records,
 )
@@ -181,6 +184,71 @@ def test_record_errors_say_why_it_gives_no_grasp(dataset, grasped, registry, all
         grasp_targets(cube, allegro.description, 0)
     with pytest.raises(ArrayError, match=r"grasp_targets: object_pose (has shape|holds NaN|has a zero quaternion)"):
         grasp_targets(cube, allegro.description, 1, np.zeros(7))
+
+
+class _Rescaled:
+    """Test double of an ObjectLibrary that builds one object 1.5 times as large about its own centre (a library
+    change since Stage 1 ran: the stored grasp no longer fits it); other objects as the real library builds them."""
+
+    def __init__(self, library, object_id: str, folder) -> None:
+        self.library, self.object_id, self.folder = library, object_id, folder
+
+    def get(self, object_id: str):
+        import trimesh
+
+        asset = self.library.get(object_id)
+        if object_id != self.object_id:
+            return asset
+        mesh = trimesh.load(asset.mesh_path, force="mesh", process=False)
+        mesh.apply_translation(-mesh.centroid)
+        mesh.apply_scale(1.5)
+        path = self.folder / "rescaled.obj"
+        mesh.export(path)
+        return dataclasses.replace(asset, mesh_path=path)
+
+
+def test_a_record_is_checked_against_the_object_the_library_builds_now(dataset, grasped, allegro, tmp_path):
+    """Every Stage 2 way in (record_asset, load_grasp, the training pool) takes the object only if the record's
+    contacts lie on its surface; an object rebuilt 1.5 times as large is refused by name."""
+    record, library = dataset.get(grasped, "allegro"), library_for(dataset)
+    asset = record_asset(library, record)
+    assert asset == library.get(grasped)
+    assert contacts_off_surface(asset, record.contacts.positions) < 1e-6  # sampled on the surface
+    rescaled = _Rescaled(library, grasped, tmp_path)
+    moved = contacts_off_surface(rescaled.get(grasped), record.contacts.positions)
+    assert moved > 0.005  # every contact of a convex object moves out by 0.5 x its distance from the centre
+    with pytest.raises(AssetError, match=rf"\({grasped}, allegro\): its contacts lie up to {moved * 1e3:.1f} mm off"):
+        record_asset(rescaled, record)
+    with pytest.raises(AssetError, match=f"regenerate its records \\(`ges synth --objects {grasped} --hands allegro`"):
+        GraspPool.from_selection(select_records(dataset, "allegro"), allegro, rescaled)
+    from ges_core.env.evaluate import BaselineConfig
+    from ges_core.env.evaluate.runner import evaluate_object
+
+    config = BaselineConfig(hand="allegro", sim="sapien", envs=2)
+    row = evaluate_object(load_registry(), allegro, record, rescaled, config, SceneConfig())
+    assert row["end_reasons"] == ["error", "error"] and "mm off the surface" in row["error"]  # an error row, named
+    assert record_asset(rescaled, record, tolerance=moved + 1e-6) is not None  # the tolerance is what decides
+    no_contacts = dataclasses.replace(record, contacts=None)  # e.g. imported without them: nothing to check
+    assert record_asset(rescaled, no_contacts).mesh_path == tmp_path / "rescaled.obj"
+
+
+def test_contacts_off_surface_is_the_distance_to_the_nearest_face(dataset, grasped):
+    """Cross-check with the box geometry: points outside the object's bounding box, straight out from a face
+    centre, lie exactly that far from a box-like object (the first candidates are a cube and a box)."""
+    asset = library_for(dataset).get(grasped)
+    import trimesh
+
+    mesh = trimesh.load(asset.mesh_path, force="mesh", process=False)
+    lo, hi = mesh.bounds
+    centre = (lo + hi) / 2
+    top = np.array([centre[0], centre[1], hi[2]])
+    if contacts_off_surface(asset, top[None]) > 1e-6:
+        pytest.skip(f"{grasped} has no face at the centre of its top (not a box)")
+    for d in (0.0, 0.003, 0.02):
+        point = top + np.array([0.0, 0.0, d])
+        assert contacts_off_surface(asset, point[None]) == pytest.approx(d, abs=1e-9)
+    inside = (top - np.array([0.0, 0.0, 0.004]))[None]  # inside the solid: 4 mm from the top face at least
+    assert contacts_off_surface(asset, inside) <= 0.004 + 1e-9
 
 
 def test_library_needs_a_pipeline_run_config(dataset):

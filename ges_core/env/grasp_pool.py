@@ -98,8 +98,9 @@ class GraspPool:
     @classmethod
     def from_selection(cls, selection, hand: HandModel, library) -> GraspPool:
         """One entry per record of a :class:`~ges_core.env.grasp_source.GraspSelection` (its objects from
-        ``library``, an ObjectLibrary), grasps mapped to ``hand``'s joint order. AssetError if it is empty."""
-        from ges_core.env.grasp_source import grasp_targets
+        ``library``, an ObjectLibrary, checked by :func:`~ges_core.env.grasp_source.record_asset`), grasps mapped to
+        ``hand``'s joint order. AssetError if it is empty or a record does not fit its object."""
+        from ges_core.env.grasp_source import grasp_targets, record_asset
 
         if not selection.records:
             raise AssetError(
@@ -110,6 +111,6 @@ class GraspPool:
         for record in selection.records:
             t = grasp_targets(record, hand.description, 1)  # object frame: no object pose given
             entries.append(
-                PoolEntry(library.get(record.object_id), t.wrist_pose[0], t.q[0], t.pre_wrist_pose[0], t.pre_q[0])
+                PoolEntry(record_asset(library, record), t.wrist_pose[0], t.q[0], t.pre_wrist_pose[0], t.pre_q[0])
             )
         return cls(entries)

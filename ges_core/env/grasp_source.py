@@ -7,7 +7,7 @@ they come from a ContactGrasp-style dataset (``docs/dataset.md``)::
     chosen = select_records(dataset, "allegro", split="train", selection="validated")
     library = library_for(dataset)
     for record in chosen.records:                       # one GraspEnv per object, many envs each
-        asset = library.get(record.object_id)
+        asset = record_asset(library, record)           # checked: the record's contacts lie on it
         pose = object_rest_pose(registry, "sapien", asset)  # the env's object frame in the world
         targets = grasp_targets(record, hand.description, num_envs=8, object_pose=pose)
         env = GraspEnv(sim, hand, asset, targets, EnvConfig())
@@ -38,6 +38,7 @@ from ges_core.sim import SceneConfig
 from ges_core.transforms import compose
 
 __all__ = [
+    "CONTACT_TOLERANCE",
     "SELECTIONS",
     "GraspSelection",
     "grasp_targets",
@@ -45,6 +46,7 @@ __all__ = [
     "load_grasp",
     "object_rest_pose",
     "open_grasp_dataset",
+    "record_asset",
     "rejection",
     "select_records",
 ]
@@ -192,6 +194,44 @@ def library_for(dataset: Dataset):
     return parse_model(LibraryConfig, settings, where=f"{dataset.root} run_config.library").build()
 
 
+CONTACT_TOLERANCE = 0.002
+"""m: how far a record's contacts may lie from its object's surface. Stage 1 samples them on the surface: on the
+procedural library they lie on it to round-off, on the 15k-face real scans within 0.12 mm (the cloud is sampled
+from the processed mesh); a changed placement moves them by centimetres."""
+
+
+def record_asset(library, record: GraspRecord, *, tolerance: float = CONTACT_TOLERANCE) -> ObjectAsset:
+    """The ``library``'s :class:`ObjectAsset` of ``record``'s object, checked to be the object the grasp was made on.
+
+    AssetError (naming the object, the distance and what to do) when a contact of the record lies farther than
+    ``tolerance`` m from the asset's surface mesh: the library now builds that object with another mesh or resting
+    frame than when Stage 1 ran. A record without contacts (none generated, or imported without them) is not
+    checked.
+    """
+    asset = library.get(record.object_id)
+    if record.contacts is None:
+        return asset
+    distance = contacts_off_surface(asset, np.asarray(record.contacts.positions, dtype=np.float64))
+    if distance > tolerance:
+        raise AssetError(
+            f"record of ({record.object_id}, {record.hand}): its contacts lie up to {distance * 1e3:.1f} mm off the "
+            f"surface of '{record.object_id}' as the library builds it now (allowed: {tolerance * 1e3:.1f} mm). The "
+            "object's mesh or resting frame changed since Stage 1 ran, so the stored grasp would run in the wrong "
+            f"place; regenerate its records (`ges synth --objects {record.object_id} --hands {record.hand}` into a "
+            "new dataset folder)"
+        )
+    return asset
+
+
+def contacts_off_surface(asset: ObjectAsset, points: np.ndarray) -> float:
+    """Largest distance, m, from the (n, 3) object-frame ``points`` to ``asset``'s surface mesh."""
+    import trimesh
+
+    mesh = trimesh.load(asset.mesh_path, force="mesh", process=False)
+    _, distance, _ = trimesh.proximity.closest_point(mesh, points)
+    return float(np.max(distance))
+
+
 def grasp_targets(
     record: GraspRecord, hand: HandDescription, num_envs: int, object_pose: np.ndarray | None = None
 ) -> GraspTargets:
@@ -265,7 +305,7 @@ def load_grasp(
 
     With ``registry`` and ``sim_name`` the targets are in that simulator's world (the object's rest
     pose, :func:`object_rest_pose`); without, in the object frame. AssetError when the record is
-    missing or does not pass ``selection`` (saying why).
+    missing, does not pass ``selection`` (saying why) or does not fit the library's object (:func:`record_asset`).
     """
     if not isinstance(dataset, Dataset):
         dataset = open_grasp_dataset(dataset)
@@ -282,6 +322,6 @@ def load_grasp(
             f"record of ({object_id}, {hand.name}) in {dataset.root} gives no grasp under selection "
             f"'{selection}' ({SELECTIONS[selection]}): {why}"
         )
-    asset = library_for(dataset).get(object_id)
+    asset = record_asset(library_for(dataset), record)
     pose = None if registry is None or sim_name is None else object_rest_pose(registry, sim_name, asset)
     return asset, grasp_targets(record, hand, num_envs, pose)

@@ -27,6 +27,7 @@ from ges_core.env.grasp_source import (
     grasp_targets,
     object_rest_pose,
     open_grasp_dataset,
+    record_asset,
     select_records,
 )
 from ges_core.env.metrics import METRIC_NAMES
@@ -123,7 +124,7 @@ def evaluate_object(registry, hand, record: GraspRecord, library, config: Baseli
     result["grasp_key"] = grasp_key(record)
     n, sim = config.envs, None
     try:
-        asset = library.get(record.object_id)
+        asset = record_asset(library, record)
         pose = object_rest_pose(registry, config.sim, asset, scene)
         targets = grasp_targets(record, hand.description, n, pose)
         sim = registry.build_sim(config.sim, scene)
