@@ -12,7 +12,7 @@ nominal-failed), plus ``--controls`` robust ones drawn with a seed (to see what 
 work). ``--all`` takes every refined grasp instead.
 
     python benchmarks/stage1_replay.py runs/stage1_dataset_procedural_v2 --hands allegro shadow \\
-        -o validate.close_profile=touch_first --controls 30 --workers 2 --results stage1_replay_touch_first
+        -o validate.lift_steps=120 --controls 30 --workers 2 --results stage1_replay_slow_lift
 
 Prints a table per hand and writes ``benchmarks/results/<--results>.json`` (default ``stage1_replay.json``).
 """

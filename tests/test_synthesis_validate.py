@@ -11,7 +11,6 @@ import pytest
 import torch
 from test_synthesis_refine import DOWN, REGISTRY, SIMS, ExplodingBackend, box_object, top_grasp
 
-from ges_core.config import stored_dump
 from ges_core.errors import ConfigError
 from ges_core.kinematics import HandKinematics
 from ges_core.sim import SceneConfig
@@ -19,14 +18,7 @@ from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
 from ges_core.synthesis.physics.scene import tip_rule
 from ges_core.synthesis.physics.squeeze import press_directions, squeeze_targets
-from ges_core.synthesis.physics.validate import (
-    HoldRecord,
-    ValidateConfig,
-    agreement,
-    classify,
-    close_target,
-    validate_grasp,
-)
+from ges_core.synthesis.physics.validate import HoldRecord, ValidateConfig, agreement, classify, validate_grasp
 from ges_core.synthesis.types import Grasp, ValidationResult
 
 CONFIG = ValidateConfig()
@@ -115,27 +107,6 @@ def test_press_directions_oppose_the_thumb():
     u = press_directions(d, tips)
     np.testing.assert_allclose(u[thumb], [1.0, 0.0, 0.0])
     np.testing.assert_allclose(np.delete(u, thumb, axis=0), np.tile([-1.0, 0.0, 0.0], (3, 1)))
-
-
-def test_close_profiles():
-    """linear: the ramp of the first datasets, to the bit; touch_first: every joint at the touching pose at
-    touch_fraction (all fingers together), then on to the squeeze, each piece a straight line; the new fields are
-    stored only when set, so datasets written before them keep their config hashes."""
-    rng = np.random.default_rng(3)
-    q_pre, q_touch, q_close = rng.uniform(-1, 1, (3, 16))
-    linear, first = ValidateConfig(close_steps=60), ValidateConfig(close_steps=60, close_profile="touch_first")
-    for i in range(61):
-        assert np.array_equal(close_target(q_pre, q_touch, q_close, i, linear), q_pre + (q_close - q_pre) * i / 60)
-    path = np.array([close_target(q_pre, q_touch, q_close, i, first) for i in range(61)])
-    np.testing.assert_allclose(path[0], q_pre, atol=1e-12)
-    np.testing.assert_allclose(path[36], q_touch, atol=1e-12)  # 0.6 x 60
-    np.testing.assert_allclose(path[60], q_close, atol=1e-12)
-    np.testing.assert_allclose(np.diff(path[:37], 2, axis=0), 0, atol=1e-12)  # constant steps up to the touch
-    np.testing.assert_allclose(np.diff(path[36:], 2, axis=0), 0, atol=1e-12)  # and after it
-    assert "close_profile" not in stored_dump(linear) and "touch_fraction" not in stored_dump(linear)
-    assert stored_dump(first)["close_profile"] == "touch_first"
-    with pytest.raises(ValueError):
-        ValidateConfig(close_profile="thumb_last")
 
 
 def test_agreement():

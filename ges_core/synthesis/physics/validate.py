@@ -37,13 +37,12 @@ from __future__ import annotations
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Literal
 
 import numpy as np
 from pydantic import Field
 
 from ges_core.arrays import checked_poses
-from ges_core.config import STORED_WHEN_SET, ConfigModel
+from ges_core.config import ConfigModel
 from ges_core.errors import ArrayError, ConfigError, SimulationError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
@@ -58,16 +57,7 @@ from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE
 from ges_core.synthesis.types import Grasp, ValidationResult
 from ges_core.transforms import compose, interpolate_pose, quat_mul
 
-__all__ = [
-    "REASONS",
-    "HoldRecord",
-    "ValidateConfig",
-    "agreement",
-    "classify",
-    "close_target",
-    "shifted",
-    "validate_grasp",
-]
+__all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "shifted", "validate_grasp"]
 
 REASONS = ("success", "no_contact", "palm_only", "dropped", "not_lifted", "unstable")
 """Every reason :func:`validate_grasp` can give."""
@@ -101,23 +91,6 @@ class ValidateConfig(ConfigModel):
     # actuators give turns it on in its YAML (settings.validate.drive_limits: the Ability, docs/hands/assets.md).
     drive_limits: bool = Field(
         False, description="cap the hand's drives at HandDescription.effort_limits in the nominal trial too"
-    )
-    # Added after datasets were written: stored only when set, so their run configs keep their hashes.
-    close_profile: Literal["linear", "touch_first", "thumb_first", "thumb_last"] = Field(
-        "linear",
-        description="linear: every joint ramps from the pre-grasp to the squeezed targets over close_steps (the "
-        "fingers touch when each one's share of the ramp is done); touch_first: every joint reaches the grasp's "
-        "touching pose at touch_fraction of the close, all fingers together, then ramps on to the squeeze; "
-        "thumb_first / thumb_last: the thumb's joints (the other fingers' joints) ramp linearly over the first "
-        "touch_fraction of the close and then hold, the rest over the whole close",
-        json_schema_extra=STORED_WHEN_SET,
-    )
-    touch_fraction: float = Field(
-        0.6,
-        gt=0,
-        lt=1,
-        description="touch_first: share of close_steps spent reaching the touching pose",
-        json_schema_extra=STORED_WHEN_SET,
     )
 
 
@@ -235,41 +208,14 @@ def _run(
     q_close = squeeze_targets(
         hand, grasp.q, force=config.squeeze_force, min_squeeze=config.min_squeeze, max_squeeze=config.max_squeeze
     )
-    q_touch = d.apply_couplings(np.asarray(grasp.q, dtype=np.float64))
-    thumb = np.zeros(d.num_joints, bool)
-    thumb[d.joint_index(d.finger_for_slot("thumb").joints)] = True
     for i in range(1, config.close_steps + 1):
-        sim.set_joint_targets(close_target(q_pre, q_touch, q_close, i, config, thumb)[None])
+        sim.set_joint_targets((q_pre + (q_close - q_pre) * i / config.close_steps)[None])
         probe.step()
     flags["reached_grasp"] = bool(np.linalg.norm(sim.wrist_pose()[0, :3] - goal[:3]) < config.reach_tolerance)
     flags["fingertips_touching"] = probe.rule()
     _lift(sim, goal, probe, config)
     flags["lifted"] = bool(sim.object_pose()[0, 2] - z0 >= config.lift_height - config.lift_tolerance)
     return _hold(sim, probe, z0, flags["lifted"], config, full_hold)
-
-
-def close_target(
-    q_pre: np.ndarray,
-    q_touch: np.ndarray,
-    q_close: np.ndarray,
-    i: int,
-    config: ValidateConfig,
-    thumb: np.ndarray | None = None,
-) -> np.ndarray:
-    """(K,) finger targets at step ``i`` of ``config.close_steps``: from the pre-grasp ``q_pre`` to the squeezed
-    ``q_close``, through the touching pose ``q_touch`` at ``config.touch_fraction`` with ``touch_first``."""
-    if config.close_profile == "linear":
-        return q_pre + (q_close - q_pre) * i / config.close_steps  # the arithmetic of the first datasets
-    a, t = config.touch_fraction, i / config.close_steps
-    if config.close_profile in ("thumb_first", "thumb_last"):
-        lead = np.zeros(len(q_pre), bool) if thumb is None else np.asarray(thumb, bool)
-        if config.close_profile == "thumb_last":
-            lead = ~lead
-        share = np.where(lead, min(t / a, 1.0), t)
-        return q_pre + (q_close - q_pre) * share
-    if t <= a:
-        return q_pre + (q_touch - q_pre) * (t / a)
-    return q_touch + (q_close - q_touch) * ((t - a) / (1.0 - a))
 
 
 def shifted(pose: np.ndarray, shift: np.ndarray) -> np.ndarray:
