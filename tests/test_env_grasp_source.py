@@ -206,6 +206,9 @@ class _Rescaled:
         mesh.export(path)
         return dataclasses.replace(asset, mesh_path=path)
 
+    def processed(self, object_id: str):
+        return self.get(object_id)  # what the check reads of it: mesh_path
+
 
 def test_a_record_is_checked_against_the_object_the_library_builds_now(dataset, grasped, allegro, tmp_path):
     """Every Stage 2 way in (record_asset, load_grasp, the training pool) takes the object only if the record's
@@ -213,9 +216,9 @@ def test_a_record_is_checked_against_the_object_the_library_builds_now(dataset, 
     record, library = dataset.get(grasped, "allegro"), library_for(dataset)
     asset = record_asset(library, record)
     assert asset == library.get(grasped)
-    assert contacts_off_surface(asset, record.contacts.positions) < 1e-6  # sampled on the surface
+    assert contacts_off_surface(asset.mesh_path, record.contacts.positions) < 1e-6  # sampled on the surface
     rescaled = _Rescaled(library, grasped, tmp_path)
-    moved = contacts_off_surface(rescaled.get(grasped), record.contacts.positions)
+    moved = contacts_off_surface(rescaled.get(grasped).mesh_path, record.contacts.positions)
     assert moved > 0.005  # every contact of a convex object moves out by 0.5 x its distance from the centre
     with pytest.raises(AssetError, match=rf"\({grasped}, allegro\): its contacts lie up to {moved * 1e3:.1f} mm off"):
         record_asset(rescaled, record)
@@ -232,6 +235,21 @@ def test_a_record_is_checked_against_the_object_the_library_builds_now(dataset, 
     assert record_asset(rescaled, no_contacts).mesh_path == tmp_path / "rescaled.obj"
 
 
+def test_dataset_validate_objects_names_the_records_that_no_longer_fit(dataset, grasped, tmp_path, monkeypatch, capsys):
+    from ges_core.cli import main
+    from ges_core.env import grasp_source
+
+    assert main(["dataset", "validate", str(dataset.root), "--objects"]) == 0
+    assert "no problems, each record's contacts on its object's surface" in capsys.readouterr().out
+    real = grasp_source.library_for
+    monkeypatch.setattr(grasp_source, "library_for", lambda d: _Rescaled(real(d), grasped, tmp_path))
+    assert main(["dataset", "validate", str(dataset.root), "--objects"]) == 1
+    out = capsys.readouterr().out.splitlines()
+    assert out[0].startswith(f"({grasped}, allegro): contacts up to ") and "mm off the object's surface" in out[0]
+    assert out[-1] == f"1 problem(s) in {dataset.root}"  # the sheet has no contacts: nothing to check
+    assert main(["dataset", "validate", str(dataset.root)]) == 0  # without --objects the records alone are checked
+
+
 def test_contacts_off_surface_is_the_distance_to_the_nearest_face(dataset, grasped):
     """Cross-check with the box geometry: points outside the object's bounding box, straight out from a face
     centre, lie exactly that far from a box-like object (the first candidates are a cube and a box)."""
@@ -242,13 +260,13 @@ def test_contacts_off_surface_is_the_distance_to_the_nearest_face(dataset, grasp
     lo, hi = mesh.bounds
     centre = (lo + hi) / 2
     top = np.array([centre[0], centre[1], hi[2]])
-    if contacts_off_surface(asset, top[None]) > 1e-6:
+    if contacts_off_surface(asset.mesh_path, top[None]) > 1e-6:
         pytest.skip(f"{grasped} has no face at the centre of its top (not a box)")
     for d in (0.0, 0.003, 0.02):
         point = top + np.array([0.0, 0.0, d])
-        assert contacts_off_surface(asset, point[None]) == pytest.approx(d, abs=1e-9)
-    inside = (top - np.array([0.0, 0.0, 0.004]))[None]  # inside the solid: 4 mm from the top face at least
-    assert contacts_off_surface(asset, inside) <= 0.004 + 1e-9
+        assert contacts_off_surface(asset.mesh_path, point[None]) == pytest.approx(d, abs=1e-9)
+    inside = (top - np.array([0.0, 0.0, 0.004]))[None]  # inside the solid, centimetres from every other face
+    assert contacts_off_surface(asset.mesh_path, inside) == pytest.approx(0.004, abs=1e-9)
 
 
 def test_library_needs_a_pipeline_run_config(dataset):

@@ -19,6 +19,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     ip.set_defaults(func=run_info)
     vp = dsub.add_parser("validate", help="check every record; one line per problem, exit 1 on problems")
     vp.add_argument("path", type=Path, metavar="PATH", help="dataset folder (holds manifest.json)")
+    vp.add_argument(
+        "--objects",
+        action="store_true",
+        help="also rebuild each record's object from the dataset's library and check that the record's contacts "
+        "still lie on its surface (a library change since Stage 1 would make Stage 2 refuse the record)",
+    )
     vp.set_defaults(func=run_validate)
 
 
@@ -35,10 +41,15 @@ def run_validate(args: argparse.Namespace) -> int:
     from ges_core.dataset import open_dataset, validate_dataset
 
     problems = validate_dataset(args.path)
+    if args.objects and not problems:  # a damaged dataset is mended first: its records may not open
+        from ges_core.env.grasp_source import object_problems
+
+        problems = object_problems(open_dataset(args.path))
     for line in problems:
         print(line)
     if problems:
         print(f"{len(problems)} problem(s) in {args.path}")
         return 1
-    print(f"{args.path}: {len(open_dataset(args.path))} records, no problems")
+    checked = ", each record's contacts on its object's surface" if args.objects else ""
+    print(f"{args.path}: {len(open_dataset(args.path))} records, no problems{checked}")
     return 0

@@ -30,7 +30,7 @@ import numpy as np
 from ges_core.arrays import checked_poses
 from ges_core.dataset import Dataset, GraspRecord, open_dataset
 from ges_core.env.grasp_env import GraspTargets
-from ges_core.errors import AssetError, ConfigError
+from ges_core.errors import AssetError, ConfigError, GesError
 from ges_core.hand import HandDescription
 from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.splits import SPLITS
@@ -40,10 +40,12 @@ from ges_core.transforms import compose
 __all__ = [
     "CONTACT_TOLERANCE",
     "SELECTIONS",
+    "contacts_off_surface",
     "GraspSelection",
     "grasp_targets",
     "library_for",
     "load_grasp",
+    "object_problems",
     "object_rest_pose",
     "open_grasp_dataset",
     "record_asset",
@@ -211,7 +213,7 @@ def record_asset(library, record: GraspRecord, *, tolerance: float = CONTACT_TOL
     asset = library.get(record.object_id)
     if record.contacts is None:
         return asset
-    distance = contacts_off_surface(asset, np.asarray(record.contacts.positions, dtype=np.float64))
+    distance = contacts_off_surface(asset.mesh_path, record.contacts.positions)
     if distance > tolerance:
         raise AssetError(
             f"record of ({record.object_id}, {record.hand}): its contacts lie up to {distance * 1e3:.1f} mm off the "
@@ -223,13 +225,39 @@ def record_asset(library, record: GraspRecord, *, tolerance: float = CONTACT_TOL
     return asset
 
 
-def contacts_off_surface(asset: ObjectAsset, points: np.ndarray) -> float:
-    """Largest distance, m, from the (n, 3) object-frame ``points`` to ``asset``'s surface mesh."""
+def contacts_off_surface(mesh_path: str | Path, points: np.ndarray) -> float:
+    """Largest distance, m, from the (n, 3) object-frame ``points`` to the surface mesh at ``mesh_path``."""
     import trimesh
 
-    mesh = trimesh.load(asset.mesh_path, force="mesh", process=False)
-    _, distance, _ = trimesh.proximity.closest_point(mesh, points)
+    mesh = trimesh.load(mesh_path, force="mesh", process=False)
+    _, distance, _ = trimesh.proximity.closest_point(mesh, np.asarray(points, dtype=np.float64))
     return float(np.max(distance))
+
+
+def object_problems(dataset: Dataset, *, tolerance: float = CONTACT_TOLERANCE) -> list[str]:
+    """One line per record whose object the dataset's library cannot build any more, or whose contacts lie farther
+    than ``tolerance`` m off that object's surface (``ges dataset validate --objects``); [] when every record fits.
+
+    Only the placed surface mesh is built (no collision decomposition), so it is quick; the check is
+    :func:`record_asset`'s.
+    """
+    library = library_for(dataset)
+    problems = []
+    for record in dataset.records():
+        if record.contacts is None:
+            continue
+        try:
+            mesh = library.processed(record.object_id).mesh_path
+        except GesError as error:
+            problems.append(f"({record.object_id}, {record.hand}): the library cannot build the object: {error}")
+            continue
+        distance = contacts_off_surface(mesh, record.contacts.positions)
+        if distance > tolerance:
+            problems.append(
+                f"({record.object_id}, {record.hand}): contacts up to {distance * 1e3:.1f} mm off the object's "
+                f"surface (allowed {tolerance * 1e3:.1f} mm): the library builds it otherwise than when Stage 1 ran"
+            )
+    return problems
 
 
 def grasp_targets(
