@@ -245,7 +245,7 @@ def test_dataset_validate_objects_names_the_records_that_no_longer_fit(dataset, 
     monkeypatch.setattr(grasp_source, "library_for", lambda d: _Rescaled(real(d), grasped, tmp_path))
     assert main(["dataset", "validate", str(dataset.root), "--objects"]) == 1
     out = capsys.readouterr().out.splitlines()
-    assert out[0].startswith(f"({grasped}, allegro): contacts up to ") and "mm off the object's surface" in out[0]
+    assert out[0].startswith(f"({grasped}, allegro): its contacts lie up to ") and "mm off the surface" in out[0]
     assert out[-1] == f"1 problem(s) in {dataset.root}"  # the sheet has no contacts: nothing to check
     assert main(["dataset", "validate", str(dataset.root)]) == 0  # without --objects the records alone are checked
 

@@ -40,8 +40,8 @@ from ges_core.transforms import compose
 __all__ = [
     "CONTACT_TOLERANCE",
     "SELECTIONS",
-    "contacts_off_surface",
     "GraspSelection",
+    "contacts_off_surface",
     "grasp_targets",
     "library_for",
     "load_grasp",
@@ -211,18 +211,29 @@ def record_asset(library, record: GraspRecord, *, tolerance: float = CONTACT_TOL
     checked.
     """
     asset = library.get(record.object_id)
-    if record.contacts is None:
-        return asset
-    distance = contacts_off_surface(asset.mesh_path, record.contacts.positions)
-    if distance > tolerance:
+    misfit = _misfit(record, asset.mesh_path, tolerance)
+    if misfit:
         raise AssetError(
-            f"record of ({record.object_id}, {record.hand}): its contacts lie up to {distance * 1e3:.1f} mm off the "
-            f"surface of '{record.object_id}' as the library builds it now (allowed: {tolerance * 1e3:.1f} mm). The "
-            "object's mesh or resting frame changed since Stage 1 ran, so the stored grasp would run in the wrong "
+            f"record of ({record.object_id}, {record.hand}): {misfit}, so the stored grasp would run in the wrong "
             f"place; regenerate its records (`ges synth --objects {record.object_id} --hands {record.hand}` into a "
             "new dataset folder)"
         )
     return asset
+
+
+def _misfit(record: GraspRecord, mesh_path: str | Path, tolerance: float) -> str:
+    """Why ``record`` does not fit the object whose surface mesh is at ``mesh_path`` ('' when it does, or when it
+    holds no contacts to check)."""
+    if record.contacts is None:
+        return ""
+    distance = contacts_off_surface(mesh_path, record.contacts.positions)
+    if distance <= tolerance:
+        return ""
+    return (
+        f"its contacts lie up to {distance * 1e3:.1f} mm off the surface of '{record.object_id}' as the library "
+        f"builds it now (allowed: {tolerance * 1e3:.1f} mm): the object's mesh or resting frame changed since "
+        "Stage 1 ran"
+    )
 
 
 def contacts_off_surface(mesh_path: str | Path, points: np.ndarray) -> float:
@@ -251,12 +262,9 @@ def object_problems(dataset: Dataset, *, tolerance: float = CONTACT_TOLERANCE) -
         except GesError as error:
             problems.append(f"({record.object_id}, {record.hand}): the library cannot build the object: {error}")
             continue
-        distance = contacts_off_surface(mesh, record.contacts.positions)
-        if distance > tolerance:
-            problems.append(
-                f"({record.object_id}, {record.hand}): contacts up to {distance * 1e3:.1f} mm off the object's "
-                f"surface (allowed {tolerance * 1e3:.1f} mm): the library builds it otherwise than when Stage 1 ran"
-            )
+        misfit = _misfit(record, mesh, tolerance)
+        if misfit:
+            problems.append(f"({record.object_id}, {record.hand}): {misfit}")
     return problems
 
 
