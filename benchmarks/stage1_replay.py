@@ -26,7 +26,6 @@ from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
-import yaml
 
 from ges_core.dataset import open_dataset, software_versions
 
@@ -94,11 +93,13 @@ def _chosen(dataset, args) -> list:
 
 
 def _verdict(record) -> str:
-    """robust, validated (nominal held, a perturbation did not) or failed (nominal failed), primary simulator."""
-    main = record.validations.get(record.simulator)
-    if main is None or not main.success:
-        return "failed"
-    return "robust" if main.robust else "validated"
+    """robust, validated (nominal held, a perturbation did not) or failed (nominal failed), primary simulator:
+    :func:`ges_core.experts.by_grasp.grasp_group`, whose ``refined`` (refined, nominal failed) this table calls
+    ``failed`` (every replayed record refined)."""
+    from ges_core.experts.by_grasp import grasp_group
+
+    group = grasp_group(record)
+    return "failed" if group == "refined" else group
 
 
 def _one_thread() -> None:
@@ -113,7 +114,7 @@ _CACHE: dict = {}
 
 def _replay(job) -> dict:
     """One record validated again with its dataset's settings and with the changed ones (module docs)."""
-    from ges_core.config import parse_model
+    from ges_core.config import apply_overrides, parse_model
     from ges_core.env.grasp_source import library_for, record_asset
     from ges_core.registry import load_registry
     from ges_core.synthesis import SynthesisConfig
@@ -123,16 +124,16 @@ def _replay(job) -> dict:
     from ges_core.synthesis.types import Grasp
 
     root, object_id, hand, overrides = job
-    if root not in _CACHE:
+    if root not in _CACHE:  # once per worker process: the dataset, its library and both configs
         dataset = open_dataset(root)
-        _CACHE[root] = (dataset, library_for(dataset), load_registry(), {})
-    dataset, library, registry, hands = _CACHE[root]
+        base = SynthesisConfig.of_dataset(dataset)
+        changed = parse_model(SynthesisConfig, apply_overrides(base.dump(), overrides), where="-o")
+        _CACHE[root] = (dataset, library_for(dataset), load_registry(), {}, base, changed)
+    dataset, library, registry, hands, base, changed = _CACHE[root]
     record = dataset.get(object_id, hand)
     if hand not in hands:
         hands[hand] = registry.build_hand(hand)
     model = hands[hand]
-    base = SynthesisConfig.of_dataset(dataset)
-    changed = parse_model(SynthesisConfig, _with_overrides(base.dump(), overrides), where="-o")
     asset = record_asset(library, record)
     grasp = Grasp(hand, record.grasp.wrist_pose, record.grasp.q)
     pre = Grasp(hand, record.pregrasp.wrist_pose, record.pregrasp.q)
@@ -152,19 +153,6 @@ def _replay(job) -> dict:
         row[f"{side}_nominal"] = nominal.reason
         row[f"{side}_trials"] = trials
     return row
-
-
-def _with_overrides(data: dict, overrides: list[str]) -> dict:
-    """``data`` with each ``a.b.c=value`` (value read as YAML) set."""
-    out = yaml.safe_load(yaml.safe_dump(data))
-    for item in overrides:
-        key, _, value = item.partition("=")
-        node = out
-        *parents, leaf = key.split(".")
-        for part in parents:
-            node = node.setdefault(part, {})
-        node[leaf] = yaml.safe_load(value)
-    return out
 
 
 def _summary(rows: list[dict]) -> dict:
