@@ -97,6 +97,43 @@ def test_resume_skips_stored_pairs_and_redoes_a_lost_one(first_run):
 
 
 @pytest.mark.sim
+def test_resume_makes_again_a_record_whose_object_changed(tmp_path, capsys):
+    """A user's box file replaced by a 1.3x larger one between two runs: the resumed run finds the stored record's
+    contacts off the new surface, moves the record to .damaged/ (kept) and makes the pair again; the new record's
+    contacts lie on the new box. An unchanged object's record is skipped as before."""
+    from ges_core.cli import main
+    from ges_core.dataset.object_fit import CONTACT_TOLERANCE, contacts_off_surface
+
+    objects, out = tmp_path / "objects", tmp_path / "ds"
+    (objects / "box").mkdir(parents=True)
+    trimesh.creation.box((0.05, 0.06, 0.08)).export(objects / "box" / "small.obj")
+    config = small_config(objects, attempts=1, robust={"enabled": False})
+    ids = ["user/box/small", "procedural/cube/000"]
+    run_synthesis(ids, ["allegro"], config, out)
+    before = open_dataset(out).get("user/box/small", "allegro")
+    assert before.contacts is not None
+    trimesh.creation.box((0.065, 0.078, 0.104)).export(objects / "box" / "small.obj")  # the user edits the file
+    mesh_now = config.library.build().processed("user/box/small").mesh_path
+    assert contacts_off_surface(mesh_now, before.contacts.positions) > CONTACT_TOLERANCE
+    report = run_synthesis(ids, ["allegro"], config, out)
+    assert report.redone == [("user/box/small", "allegro")]
+    assert report.written == [("user/box/small", "allegro")] and report.skipped == [("procedural/cube/000", "allegro")]
+    assert any("its contacts lie up to" in note and ".damaged/" in note for note in report.recovered)
+    after = open_dataset(out).get("user/box/small", "allegro")
+    assert contacts_off_surface(mesh_now, after.contacts.positions) < 1e-6
+    assert len(list((out / ".damaged").rglob("*.npz"))) == 1  # the old record is kept, not deleted
+    assert validate_dataset(out) == []
+    # the CLI says so; a third run finds nothing stale (the same library, the same records)
+    args = ["synth", "--user-dir", str(objects), "--objects", "user/box/small", "--hands", "allegro", "--out"]
+    assert run_synthesis(ids, ["allegro"], config, out).redone == []
+    trimesh.creation.box((0.05, 0.06, 0.08)).export(objects / "box" / "small.obj")  # and back again
+    capsys.readouterr()
+    assert main([*args, str(out), "--no-progress", "--allow-config-change", "-o", "attempts=1",
+                 "-o", "robust.enabled=false", "-o", "validate.hold_steps=60"]) == 0  # fmt: skip
+    assert "1 stored record(s) no longer fit their object" in capsys.readouterr().out
+
+
+@pytest.mark.sim
 def test_workers_give_identical_records(first_run, tmp_path):
     out, config, _ = first_run
     run_synthesis([*GOOD, FLAT, HUGE], ["allegro"], config, tmp_path / "two", workers=2)

@@ -114,10 +114,15 @@ def run_synth_cmd(args: argparse.Namespace) -> int:
     ids = ids if args.limit is None else ids[: args.limit]
     _check_objects(config, ids)
     _prepare(config, ids, args.workers or 1, args)
-    run_synthesis(
+    report = run_synthesis(
         ids, args.hands, config, args.out, workers=args.workers or 1, progress=not args.no_progress,
         registry=_registry(args), pictures=args.pictures, allow_config_change=args.allow_config_change, **where,
     )  # fmt: skip
+    if report.redone:
+        print(
+            f"{len(report.redone)} stored record(s) no longer fit their object as the library builds it now "
+            f"(e.g. {report.redone[0][0]}, {report.redone[0][1]}): set aside in {args.out}/.damaged/ and made again"
+        )
     records = _print_table(args.out, {(o, h) for o in ids for h in args.hands})
     if args.pictures is not None:
         from ges_core.synthesis.run.demo import draw_contact_sheet

@@ -189,6 +189,25 @@ class DatasetWriter:
             self.flush()
         return path
 
+    def record(self, object_id: str, hand: str) -> GraspRecord:
+        """The stored record of ``(object_id, hand)``; KeyError if there is none."""
+        return load_record(self.root, self._entries[(object_id, hand)]["file"])
+
+    def set_aside(self, object_id: str, hand: str, why: str) -> str:
+        """Move the stored record of ``(object_id, hand)`` (and its timing file) into ``.damaged/``, so a resumed
+        run makes the pair again; nothing is deleted. Says so in :attr:`recovered` (and the log); returns where
+        the record went, relative to the folder."""
+        if self._closed:
+            raise ValueError(f"the writer of dataset {self.root} is closed; open a new DatasetWriter to change it")
+        entry = self._entries.pop((object_id, hand))
+        where = _move_with_timing(self.root, entry["file"])
+        self._dirty = True
+        note = f"moved {entry['file']} to {where}: {why}; its pair will be generated again"
+        self.recovered.append(note)
+        _LOG.warning("ges: note: %s", note)
+        self.flush()  # the manifest no longer lists it, even if this run is killed before it makes the pair
+        return where
+
     def _open(self, allow_config_change: bool) -> tuple[dict, dict[tuple[str, str], dict]]:
         """The manifest to keep and the index, from the records; the folder repaired (checks first, then moves)."""
         manifest, why = try_read_manifest(self.root)

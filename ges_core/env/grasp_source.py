@@ -29,6 +29,8 @@ import numpy as np
 
 from ges_core.arrays import checked_poses
 from ges_core.dataset import Dataset, GraspRecord, open_dataset
+from ges_core.dataset.object_fit import CONTACT_TOLERANCE, contacts_off_surface
+from ges_core.dataset.object_fit import misfit as record_misfit
 from ges_core.env.grasp_env import GraspTargets
 from ges_core.errors import AssetError, ConfigError, GesError
 from ges_core.hand import HandDescription
@@ -196,12 +198,6 @@ def library_for(dataset: Dataset):
     return parse_model(LibraryConfig, settings, where=f"{dataset.root} run_config.library").build()
 
 
-CONTACT_TOLERANCE = 0.002
-"""m: how far a record's contacts may lie from its object's surface. Stage 1 samples them on the surface: on the
-procedural library they lie on it to round-off, on the 15k-face real scans within 0.12 mm (the cloud is sampled
-from the processed mesh); a changed placement moves them by centimetres."""
-
-
 def record_asset(library, record: GraspRecord, *, tolerance: float = CONTACT_TOLERANCE) -> ObjectAsset:
     """The ``library``'s :class:`ObjectAsset` of ``record``'s object, checked to be the object the grasp was made on.
 
@@ -211,7 +207,7 @@ def record_asset(library, record: GraspRecord, *, tolerance: float = CONTACT_TOL
     checked.
     """
     asset = library.get(record.object_id)
-    misfit = _misfit(record, asset.mesh_path, tolerance)
+    misfit = record_misfit(record, asset.mesh_path, tolerance)
     if misfit:
         raise AssetError(
             f"record of ({record.object_id}, {record.hand}): {misfit}, so the stored grasp would run in the wrong "
@@ -219,30 +215,6 @@ def record_asset(library, record: GraspRecord, *, tolerance: float = CONTACT_TOL
             "new dataset folder)"
         )
     return asset
-
-
-def _misfit(record: GraspRecord, mesh_path: str | Path, tolerance: float) -> str:
-    """Why ``record`` does not fit the object whose surface mesh is at ``mesh_path`` ('' when it does, or when it
-    holds no contacts to check)."""
-    if record.contacts is None:
-        return ""
-    distance = contacts_off_surface(mesh_path, record.contacts.positions)
-    if distance <= tolerance:
-        return ""
-    return (
-        f"its contacts lie up to {distance * 1e3:.1f} mm off the surface of '{record.object_id}' as the library "
-        f"builds it now (allowed: {tolerance * 1e3:.1f} mm): the object's mesh or resting frame changed since "
-        "Stage 1 ran"
-    )
-
-
-def contacts_off_surface(mesh_path: str | Path, points: np.ndarray) -> float:
-    """Largest distance, m, from the (n, 3) object-frame ``points`` to the surface mesh at ``mesh_path``."""
-    import trimesh
-
-    mesh = trimesh.load(mesh_path, force="mesh", process=False)
-    _, distance, _ = trimesh.proximity.closest_point(mesh, np.asarray(points, dtype=np.float64))
-    return float(np.max(distance))
 
 
 def object_problems(dataset: Dataset, *, tolerance: float = CONTACT_TOLERANCE) -> list[str]:
@@ -262,7 +234,7 @@ def object_problems(dataset: Dataset, *, tolerance: float = CONTACT_TOLERANCE) -
         except GesError as error:
             problems.append(f"({record.object_id}, {record.hand}): the library cannot build the object: {error}")
             continue
-        misfit = _misfit(record, mesh, tolerance)
+        misfit = record_misfit(record, mesh, tolerance)
         if misfit:
             problems.append(f"({record.object_id}, {record.hand}): {misfit}")
     return problems

@@ -19,13 +19,15 @@ workers; each (object, hand) gets fresh simulators (a reused scene carries the p
 history, see :mod:`.worker`), so a record does not depend on its chunk mates, on resuming or on
 ``workers`` or on the executor (:mod:`ges_core.executors`: local worker processes or Ray tasks, whose
 records travel back to this process). The parent process alone writes the dataset (atomic, resumable:
-stored (object, hand) pairs are skipped), each task's records as soon as that task finishes. It keeps each
+stored (object, hand) pairs are skipped, unless their record no longer fits its object as the library builds it
+now, :mod:`.resume`), each task's records as soon as that task finishes. It keeps each
 hand's description and hash in the manifest and refuses to resume with a hand that changed
 (:mod:`ges_core.dataset.hands`).
 """
 
 from __future__ import annotations
 
+import uuid
 from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -34,6 +36,7 @@ from ges_core.dataset import DatasetWriter
 from ges_core.errors import ConfigError
 from ges_core.executors import DEFAULT_MAX_RETRIES, TaskLostError, make_executor
 from ges_core.synthesis.run.config import SynthesisConfig
+from ges_core.synthesis.run.resume import set_aside_misfits
 from ges_core.synthesis.run.tasks import (
     RegistrySpec,
     RunContext,
@@ -58,7 +61,10 @@ class RunReport:
     skipped: list[tuple[str, str]] = field(default_factory=list)
     """Pairs already in the dataset (resume)."""
     recovered: list[str] = field(default_factory=list)
-    """What opening the dataset repaired (see DatasetWriter.recovered)."""
+    """What opening the dataset repaired (see DatasetWriter.recovered), and the records set aside as stale."""
+    redone: list[tuple[str, str]] = field(default_factory=list)
+    """Stored pairs whose record no longer fit its object as the library builds it now (:mod:`.resume`): moved to
+    the dataset's ``.damaged/`` folder and made again by this run."""
 
 
 def run_synthesis(
@@ -99,9 +105,11 @@ def run_synthesis(
     check_plugin_names(hands, config, registry)  # before the dataset folder exists
     entries = hand_entries(hands, registry)  # a resumed dataset refuses hands that changed (docs/dataset.md)
     with DatasetWriter(out, config.dump(), hands=entries, allow_config_change=allow_config_change) as writer:
-        report = RunReport(Path(out), recovered=list(writer.recovered))
+        report = RunReport(Path(out))
+        report.redone = set_aside_misfits(writer, object_ids, hands, config.library.build())
+        report.recovered = list(writer.recovered)
         tasks, report.skipped = plan_tasks(list(object_ids), list(hands), config.chunk_size, writer.has)
-        context = RunContext(config, registry, str(pictures) if pictures else None, _source(source))
+        context = RunContext(config, registry, str(pictures) if pictures else None, _source(source), uuid.uuid4().hex)
         bar = _progress_bar(sum(t.size for t in tasks), progress)
         results = _results(tasks, context, workers, threads=threads, executor=executor, address=address)
         try:

@@ -110,3 +110,6 @@ class RunContext:
     """Folder of one PNG per record, or None."""
     source: tuple[str, str] | None
     """(dataset folder, hand) whose stored contacts are reused, or None."""
+    run_id: str = ""
+    """Unique per :func:`~ges_core.synthesis.run.pipeline.run_synthesis` call: a process's built library, hands and
+    retargeters serve one run only, so a second run in the same process sees objects edited in between."""

@@ -50,7 +50,7 @@ from ges_core.synthesis.types import Grasp, RefinedGrasp
 __all__ = ["run_task"]
 
 _STATES: dict[int, _State] = {}
-"""Per-process cache: id of the run context -> built hands, retargeters and library."""
+"""Per-process cache: the run context (one per run) -> built hands, retargeters and library."""
 _LOG = logging.getLogger(__name__)
 
 
@@ -108,7 +108,7 @@ class _State:
 
 
 def _state(context: RunContext) -> _State:
-    key = hash((context.config.model_dump_json(), context.registry, context.pictures, context.source))
+    key = hash((context.config.model_dump_json(), context.registry, context.pictures, context.source, context.run_id))
     if key not in _STATES:
         cfg = context.config
         state = _State(context, context.registry.load(), cfg.library.build())
