@@ -123,10 +123,10 @@ def test_resume_makes_again_a_record_whose_object_changed(tmp_path, capsys):
     assert contacts_off_surface(mesh_now, after.contacts.positions) < 1e-6
     assert len(list((out / ".damaged").rglob("*.npz"))) == 1  # the old record is kept, not deleted
     assert validate_dataset(out) == []
-    # the CLI says so; a third run finds nothing stale (the same library, the same records)
+    assert run_synthesis(ids, ["allegro"], config, out).redone == []  # a third run: the same box, nothing stale
+    # the file edited back: the CLI makes the pair again and says so
+    trimesh.creation.box((0.05, 0.06, 0.08)).export(objects / "box" / "small.obj")
     args = ["synth", "--user-dir", str(objects), "--objects", "user/box/small", "--hands", "allegro", "--out"]
-    assert run_synthesis(ids, ["allegro"], config, out).redone == []
-    trimesh.creation.box((0.05, 0.06, 0.08)).export(objects / "box" / "small.obj")  # and back again
     capsys.readouterr()
     assert main([*args, str(out), "--no-progress", "--allow-config-change", "-o", "attempts=1",
                  "-o", "robust.enabled=false", "-o", "validate.hold_steps=60"]) == 0  # fmt: skip
