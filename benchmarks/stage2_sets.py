@@ -20,8 +20,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from ges_core.dataset import open_dataset
-from ges_core.experts.by_grasp import GRASP_GROUPS, by_grasp
+from ges_core.experts.by_grasp import GRASP_GROUPS, by_grasp_of_file
 from ges_core.experts.compare import compare_to_baseline, pool_matrices
 from ges_core.experts.matrix import load_matrix, read_matrix_json
 from ges_core.experts.table import split_rates
@@ -36,26 +35,20 @@ PROTOCOL = "paper"
 
 def measure_set(label: str, paths: list[Path]) -> dict:
     """Pooled rates per expert, split and grasp verdict of one set's matrices; the learned columns' differences."""
-    matrices = [load_matrix(p) for p in paths]
-    matrix = pool_matrices(matrices)
+    matrix = pool_matrices([load_matrix(p) for p in paths])
     data = read_matrix_json(paths[0])
-    keys = {oid: entry.get("grasp_key") for oid, entry in data.get("objects", {}).items()}
-    grouped = by_grasp(matrix, keys, open_dataset(data["dataset"]), data["run"]["hand"])
+    grouped = by_grasp_of_file(matrix, paths[0])
     groups = [g for g in GRASP_GROUPS if g in grouped.splits]
     rates = {s or "all": split_rates(matrix, PROTOCOL, s) for s in (*SPLITS, None)}
     verdicts = {g: split_rates(grouped, PROTOCOL, g) for g in groups}
-    diffs = [d for d in compare_to_baseline(matrix, PROTOCOL) if d.split is None]
+    diffs = compare_to_baseline(matrix, PROTOCOL, splits=(None,))  # over all objects, the column the table shows
     return {
         "label": label, "matrices": [str(p) for p in paths], "hand": data["run"]["hand"], "sim": data["run"]["sim"],
         "dataset": data["dataset"], "experts": list(matrix.experts), "baseline": matrix.baseline,
         "objects": {s or "all": int(matrix.rows(s).sum()) for s in (*SPLITS, None)},
         "grasp_groups": {g: grouped.splits.count(g) for g in groups},
         "episodes": int(matrix.episodes.sum()), "rates": rates, "by_grasp": verdicts,
-        "against_baseline": [
-            {"expert": d.expert, "points": d.points, "low": d.low, "high": d.high, "better": d.better,
-             "worse": d.worse, "verdict": d.verdict}
-            for d in diffs
-        ],
+        "against_baseline": [d.as_dict() for d in diffs],
     }  # fmt: skip
 
 

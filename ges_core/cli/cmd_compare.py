@@ -44,7 +44,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 
 def run_compare_experts(args: argparse.Namespace) -> int:
     """Pool, print both tables, optionally write the JSON."""
-    from ges_core.experts.by_grasp import GRASP_GROUPS
+    from ges_core.experts.by_grasp import GRASP_GROUPS, by_grasp_of_file
     from ges_core.experts.compare import (
         column_list,
         compare_to_baseline,
@@ -79,7 +79,7 @@ def run_compare_experts(args: argparse.Namespace) -> int:
         print("\n" + held_out_oracle_table(held))
     grouped = None
     if args.by_grasp is not None:
-        grouped = _by_grasp(matrix, args.matrices[0], args.by_grasp)
+        grouped = by_grasp_of_file(matrix, args.matrices[0], args.by_grasp)
         groups = tuple(g for g in GRASP_GROUPS if g in grouped.splits)
         counts = ", ".join(f"{g} {grouped.splits.count(g)}" for g in groups)
         grasp_diffs = compare_to_baseline(
@@ -91,7 +91,7 @@ def run_compare_experts(args: argparse.Namespace) -> int:
         record = {
             "matrices": [str(p) for p in args.matrices], "protocol": args.protocol, "resamples": args.resamples,
             "seed": args.seed, "level": 0.95,
-            "rows": [_row(d) for d in diffs],
+            "rows": [d.as_dict() for d in diffs],
             "held_out_oracle": [{"split": h.split or "all", "objects": h.objects, "same": h.same,
                                  "held_out": h.held_out, "other": h.other, "best_single": h.best_single,
                                  "best_label": h.best_label} for h in held or []],
@@ -100,26 +100,8 @@ def run_compare_experts(args: argparse.Namespace) -> int:
             record["by_grasp"] = {
                 "groups": {g: grouped.splits.count(g) for g in groups},
                 "rates": {g or "all": split_rates(grouped, args.protocol, g) for g in (*groups, None)},
-                "rows": [_row(d) for d in grasp_diffs],
+                "rows": [d.as_dict() for d in grasp_diffs],
             }
         atomic_write_text(args.out, json.dumps(record, indent=1) + "\n")
         print(f"\nwrote {args.out}")
     return 0
-
-
-def _row(d) -> dict:
-    """One :class:`ges_core.experts.compare.BaselineDifference` as a JSON row."""
-    return {"expert": d.expert, "split": d.split or "all", "objects": d.objects, "points": d.points, "low": d.low,
-            "high": d.high, "better": d.better, "worse": d.worse, "verdict": d.verdict}  # fmt: skip
-
-
-def _by_grasp(matrix, path: Path, dataset: str):
-    """``matrix`` grouped by grasp verdict (:func:`ges_core.experts.by_grasp.by_grasp`), with the hand, the grasp keys
-    and (``dataset`` empty) the dataset read from the matrix file at ``path``."""
-    from ges_core.dataset import open_dataset
-    from ges_core.experts.by_grasp import by_grasp
-    from ges_core.experts.matrix import read_matrix_json
-
-    data = read_matrix_json(path)
-    keys = {oid: entry.get("grasp_key") for oid, entry in data.get("objects", {}).items()}
-    return by_grasp(matrix, keys, open_dataset(dataset or data["dataset"]), data["run"]["hand"])

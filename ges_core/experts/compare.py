@@ -77,6 +77,12 @@ class BaselineDifference:
             return "below"
         return "not distinguishable"
 
+    def as_dict(self) -> dict:
+        """The JSON row of ``ges compare-experts --out`` (split None written ``all``, the verdict included)."""
+        return {"expert": self.expert, "split": self.split or "all", "objects": self.objects, "points": self.points,
+                "low": self.low, "high": self.high, "better": self.better, "worse": self.worse,
+                "verdict": self.verdict}  # fmt: skip
+
 
 def pool_matrices(matrices: list[SuccessMatrix]) -> SuccessMatrix:
     """One matrix whose cells add the episodes and successes of ``matrices`` (runs of the same objects under other
