@@ -197,8 +197,37 @@ def test_cli_prints_both_tables_from_the_stored_matrix(full, dataset, capsys):
     j = m.column("low")
     points = 100 * (m.successes["paper"][:, j].sum() / m.episodes[:, j].sum() - k / n)
     assert low.split("|")[-2].strip().startswith(f"{points:+.1f} [")
+    notes = [line for line in text.splitlines() if line.startswith("note: expert ")]
+    late = m.timeouts[:, j].sum()  # 'low' carries 5 cm up and holds there: lifted, never at 0.2 m, out of steps
+    assert late == m.episodes[:, j].sum() and len(notes) == 1  # the baseline's episodes end otherwise: not named
+    assert notes[0].startswith(f"note: expert 'low': {late} of {late} episodes (100 %) ran out of the episode's 200 ")
     assert main([*args, "--expert", "x=nosuch"]) == 1
     assert "unknown expert 'nosuch'" in capsys.readouterr().err
+
+
+def test_late_columns_names_the_columns_that_run_out_of_steps(tmp_path):
+    """The note's rule on its own: a column is named from LATE_SHARE of its episodes ending 'timeout' on."""
+    from ges_core.experts.table import LATE_SHARE, late_columns
+
+    def cell(reasons):
+        return {"episodes": len(reasons), "paper": reasons.count("success"), "peers": 0, "end_reasons": reasons}
+
+    n = 100  # one object, 100 episodes per column: 'edge' has exactly LATE_SHARE of them late, 'under' one fewer
+    k = round(LATE_SHARE * n)
+    reasons = {
+        "edge": ["timeout"] * k + ["success"] * (n - k),
+        "under": ["timeout"] * (k - 1) + ["dropped"] * (n - k + 1),
+    }
+    data = {"format": "ges.expert_matrix", "version": 1, "experts": {c: {"name": "s", "settings": {}} for c in reasons},
+            "objects": {"o": {"split": "train", "category": "c"}},
+            "cells": {"o": {c: cell(r) for c, r in reasons.items()}}}  # fmt: skip
+    path = tmp_path / "m.json"
+    path.write_text(json.dumps(data))
+    m = load_matrix(path)
+    assert m.timeouts.tolist() == [[k, k - 1]]
+    lines = late_columns(m, episode_length=150)
+    assert len(lines) == 1 and lines[0].startswith(f"expert 'edge': {k} of {n} episodes") and "150 control" in lines[0]
+    assert late_columns(m, episode_length=150, share=1.0) == []
 
 
 def test_the_reader_refuses_other_files(tmp_path):

@@ -43,4 +43,7 @@ class ScriptedConfig(ConfigModel):
     )
     """With a hand the closing targets are Stage 1 validation's squeeze (the overshoot rule pushed the Shadow thumb
     across its contact: 0 of 21 objects lifted, benchmarks/scripted_baseline.py); None reads the force from the
-    hand YAML's ``settings.validate`` over ValidateConfig's defaults, as Stage 1 does."""
+    hand YAML's ``settings.validate`` over ValidateConfig's defaults, as Stage 1 does. On a hand with stiff drives
+    it changes nothing: the Allegro's Kp = 400 N·m/rad turns 5 N into about 0.001 rad past the grasp, far under the
+    squeeze's 0.05 rad floor, so 2.5 N and 10 N gave the same episodes as 5 N to the last digit (94 procedural
+    objects, docs/evaluate.md). The Shadow's (Kp 1-5) asks 0.4-0.6 rad: there the force sets the grip."""
