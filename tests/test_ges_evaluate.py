@@ -247,6 +247,8 @@ def test_cli(run, dataset, gate, tmp_path, capsys):
     assert "| GES (centroid) |" in out and "| oracle (best of scripted, low per object) |" in out
     assert "2 taken from the matrix (identical settings and code)" in out
     assert "GES against the best single expert of each split" in out and "too few objects" in out  # 2 objects
+    notes = [line for line in out.splitlines() if line.startswith("note: expert ")]
+    assert len(notes) == 1 and notes[0].startswith("note: expert 'low': 2 of 2 episodes (100 %) ran out")  # 5 cm up
     assert (tmp_path / "fusion-allegro-sapien.png").stat().st_size > 10_000
     assert main([*base, *experts, "--gate", str(tmp_path / "none.pt")]) == 1
     assert "none.pt: no such file" in capsys.readouterr().err
