@@ -198,8 +198,10 @@ def test_cli_prints_both_tables_from_the_stored_matrix(full, dataset, capsys):
     points = 100 * (m.successes["paper"][:, j].sum() / m.episodes[:, j].sum() - k / n)
     assert low.split("|")[-2].strip().startswith(f"{points:+.1f} [")
     notes = [line for line in text.splitlines() if line.startswith("note: expert ")]
-    late = m.timeouts[:, j].sum()  # 'low' carries 5 cm up and holds there: lifted, never at 0.2 m, out of steps
-    assert late == m.episodes[:, j].sum() and len(notes) == 1  # the baseline's episodes end otherwise: not named
+    cells = json.loads(matrix_path(out, "allegro", "sapien").read_text())["cells"]
+    late = sum(cells[oid]["low"]["end_reasons"].count("timeout") for oid in m.object_ids)
+    # 'low' carries 5 cm up and holds there: lifted, never at 0.2 m, out of steps; the baseline's end otherwise
+    assert late == m.episodes[:, j].sum() and len(notes) == 1
     assert notes[0].startswith(f"note: expert 'low': {late} of {late} episodes (100 %) ran out of the episode's 200 ")
     assert main([*args, "--expert", "x=nosuch"]) == 1
     assert "unknown expert 'nosuch'" in capsys.readouterr().err
@@ -224,10 +226,11 @@ def test_late_columns_names_the_columns_that_run_out_of_steps(tmp_path):
     path = tmp_path / "m.json"
     path.write_text(json.dumps(data))
     m = load_matrix(path)
-    assert m.timeouts.tolist() == [[k, k - 1]]
-    lines = late_columns(m, episode_length=150)
+    lines = late_columns(data["cells"], m, episode_length=150)
     assert len(lines) == 1 and lines[0].startswith(f"expert 'edge': {k} of {n} episodes") and "150 control" in lines[0]
-    assert late_columns(m, episode_length=150, share=1.0) == []
+    assert late_columns(data["cells"], m, episode_length=150, share=1.0) == []
+    other = late_columns({"o2": data["cells"]["o"]}, m, episode_length=150)  # cells of objects not in the view
+    assert other == []
 
 
 def test_the_reader_refuses_other_files(tmp_path):

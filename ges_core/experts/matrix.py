@@ -77,9 +77,6 @@ class SuccessMatrix:
     """Protocol (:data:`PROTOCOLS`) -> (n_objects, n_experts) int64 successful episodes."""
     baseline: str | None = None
     """Label of the scripted baseline's column, if the run had one."""
-    timeouts: np.ndarray | None = None
-    """(n_objects, n_experts) int64 episodes that ran out of control steps with the object lifted, neither held
-    long enough nor dropped (end reason ``timeout``); None where the source gave no end reasons."""
 
     def rates(self, protocol: str = "paper") -> np.ndarray:
         """(n_objects, n_experts) float64 success rates in [0, 1]; NaN where a cell has no episodes."""
@@ -148,7 +145,6 @@ def matrix_from_json(data: dict) -> SuccessMatrix:
     oids, labels = tuple(objects), tuple(experts)
     episodes = np.zeros((len(oids), len(labels)), dtype=np.int64)
     wins = {p: np.zeros_like(episodes) for p in PROTOCOLS}
-    timeouts = np.zeros_like(episodes)
     for i, oid in enumerate(oids):
         for j, label in enumerate(labels):
             cell = cells.get(oid, {}).get(label)
@@ -156,7 +152,6 @@ def matrix_from_json(data: dict) -> SuccessMatrix:
                 episodes[i, j] = cell["episodes"]
                 for p in PROTOCOLS:
                     wins[p][i, j] = cell[p]
-                timeouts[i, j] = sum(reason == "timeout" for reason in cell.get("end_reasons", ()))
     return SuccessMatrix(
         object_ids=oids,
         splits=tuple(objects[o]["split"] for o in oids),
@@ -168,7 +163,6 @@ def matrix_from_json(data: dict) -> SuccessMatrix:
         episodes=episodes,
         successes=wins,
         baseline=data.get("baseline"),
-        timeouts=timeouts,
     )
 
 

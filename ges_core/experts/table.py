@@ -60,15 +60,15 @@ def _cell(matrix: SuccessMatrix, protocol: str, split: str | None, column: int) 
     return f"{100 * k / n:.1f} % ({k}/{n})" if n else "-"
 
 
-def late_columns(matrix: SuccessMatrix, episode_length: int, share: float = LATE_SHARE) -> list[str]:
-    """One line per expert column whose episodes ran out of control steps with the object lifted (end reason
-    ``timeout``) in at least ``share`` of its episodes: its plan may not fit ``episode_length`` steps, which the
-    paper protocol's hold needs at the end. Empty when none does or the matrix has no end reasons."""
-    if matrix.timeouts is None:
-        return []
+def late_columns(cells: dict, matrix: SuccessMatrix, episode_length: int, share: float = LATE_SHARE) -> list[str]:
+    """One line per expert column of ``matrix`` whose episodes ran out of control steps with the object lifted (end
+    reason ``timeout``) in at least ``share`` of its episodes on ``matrix``'s objects: its plan may not fit
+    ``episode_length`` steps, which the paper protocol's hold needs at the end. ``cells``: the matrix file's cells
+    (``read_matrix_json(path)["cells"]``, where each episode's end reason is kept). Empty when no column does."""
     lines = []
-    for j, label in enumerate(matrix.experts):
-        n, late = int(matrix.episodes[:, j].sum()), int(matrix.timeouts[:, j].sum())
+    for label in matrix.experts:
+        reasons = [r for oid in matrix.object_ids for r in cells.get(oid, {}).get(label, {}).get("end_reasons", ())]
+        n, late = len(reasons), reasons.count("timeout")
         if n and late / n >= share:
             lines.append(
                 f"expert '{label}': {late} of {n} episodes ({100 * late / n:.0f} %) ran out of the episode's "
