@@ -24,10 +24,10 @@ from __future__ import annotations
 from dataclasses import replace
 from pathlib import Path
 
-from ges_core.dataset import Dataset, GraspRecord
+from ges_core.dataset import Dataset, GraspRecord, open_dataset
 from ges_core.env.evaluate.store import grasp_key
 from ges_core.errors import ConfigError
-from ges_core.experts.matrix import SuccessMatrix
+from ges_core.experts.matrix import SuccessMatrix, read_matrix_json
 
 __all__ = ["GRASP_GROUPS", "by_grasp", "by_grasp_of_file", "grasp_group"]
 
@@ -81,9 +81,6 @@ def by_grasp(matrix: SuccessMatrix, grasp_keys: dict[str, str | None], dataset: 
 def by_grasp_of_file(matrix: SuccessMatrix, path: str | Path, dataset: str | Path | None = None) -> SuccessMatrix:
     """:func:`by_grasp` of ``matrix`` with the hand, the grasp keys and (``dataset`` None or empty) the dataset
     read from the matrix file at ``path`` (``matrix`` may pool that file with other seeds' files)."""
-    from ges_core.dataset import open_dataset
-    from ges_core.experts.matrix import read_matrix_json
-
     data = read_matrix_json(path)
     keys = {oid: entry.get("grasp_key") for oid, entry in data.get("objects", {}).items()}
     return by_grasp(matrix, keys, open_dataset(dataset or data["dataset"]), data["run"]["hand"])
