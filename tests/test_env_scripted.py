@@ -11,8 +11,12 @@ import numpy as np
 import pytest
 import torch
 from helpers_env import build_grasp_env
+from scipy.spatial.transform import Rotation
 
 from ges_core.env.layout import ActionLayout, ObservationLayout
+from ges_core.errors import ConfigError
+from ges_core.registry import load_registry
+from ges_core.sim_check import grasp_start_pose
 from ges_core.transforms_torch import quat_conj, quat_mul, quat_to_rotvec
 from ges_plugins.experts.scripted.expert import ScriptedExpert
 
@@ -142,3 +146,39 @@ def test_the_experts_wrist_target_is_the_envs(sim_name: str) -> None:
         assert bool((target[:, 2] > grasp[:, 2] + 0.02).all())  # 11 carry steps: well above the grasp
     finally:
         env.sim.close()
+
+
+@pytest.mark.parametrize("hand_name", ["allegro", "shadow"])
+def test_palm_and_finger_shifts_move_the_grasp_along_the_hands_own_axes(hand_name: str) -> None:
+    """A palm-down grasp (grasp_start_pose: palm normal to world -z, fingers to +x, set from the wrist link's
+    convention) moved by ``palm_shift`` goes down and by ``finger_shift`` goes along +x. The Shadow's wrist link
+    (its palm) sits behind two wrist joints, so its offset must be turned through the wrist link, not the base."""
+    hand = load_registry().build_hand(hand_name)
+    d = hand.description
+    centre = np.array([0.0, 0.0, 0.05])
+    pose = grasp_start_pose(hand, centre, 0.5, object_top=0.1)
+    layout = ObservationLayout.for_hand(d, (*d.tip_links, d.wrist.link))
+    lower, upper = (torch.as_tensor(v, dtype=torch.float64) for v in zip(*d.joint_limits, strict=True))
+    acts = ActionLayout(lower, upper, STEP, TURN)
+    zeros = {n: torch.zeros(1, s) for n, s in layout.sizes().items()}
+    open_q, closed_q = torch.as_tensor(d.open_pose), torch.as_tensor(d.closed_pose(0.5))
+    rotvec = Rotation.from_quat(pose[3:], scalar_first=True).as_rotvec()
+    blocks = {**zeros, "q": open_q[None], "goal_q": (closed_q - open_q)[None], "obj_pos": torch.tensor(centre)[None]}
+    blocks["wrist_pose"] = torch.as_tensor(np.concatenate([pose[:3], rotvec]))[None]
+    obs = layout.pack(blocks)
+
+    def grasp_pos(**shift: float) -> torch.Tensor:
+        expert = ScriptedExpert(layout, acts, hand=hand, **shift)
+        expert.act(obs)
+        return expert.plan["grasp_pos"][0]
+
+    base = grasp_pos()
+    torch.testing.assert_close(base, torch.as_tensor(pose[:3]), atol=1e-6, rtol=0)
+    for shift, way in (({"palm_shift": 0.01}, [0.0, 0.0, -0.01]), ({"finger_shift": -0.02}, [-0.02, 0.0, 0.0])):
+        moved = grasp_pos(**shift) - base
+        torch.testing.assert_close(moved, torch.tensor(way, dtype=torch.float64), atol=5e-4, rtol=0)
+
+
+def test_a_shift_without_the_hand_is_refused() -> None:
+    with pytest.raises(ConfigError, match="palm_shift and finger_shift need the hand"):
+        Scene(palm_shift=0.01)

@@ -38,6 +38,17 @@ class ScriptedConfig(ConfigModel):
     """Per carry step, past DRIFT_TOLERANCE. Without it a squeezed test box dragged 8-9 cm sideways in a PyBullet
     Allegro hand stayed out of the peers' 5 cm; gain 1 on every drift (the first version) rocked the carried object
     and dropped Shadow grasps. 0.2: a time constant of 5 control steps, well above the wrist's PD lag of 1-2."""
+    palm_shift: float = Field(
+        0.0, ge=-0.05, le=0.05, description="m the grasp's wrist is moved along the palm normal (+: into the object)"
+    )
+    """0: the Stage 1 grasp. Needs the hand (its ``wrist.palm_normal``, taken through the wrist link's pose at the
+    goal joints). The approach still stops where the wrist link touches the object, so a deeper grasp is not driven
+    into it. A grasp that differs from the given one in a way that depends on the object's shape: a gate's choice
+    (docs/evaluate.md, "Scripted experts that grasp elsewhere")."""
+    finger_shift: float = Field(
+        0.0, ge=-0.05, le=0.05, description="m the grasp's wrist is moved along the finger direction (+: fingers on)"
+    )
+    """0: the Stage 1 grasp. As ``palm_shift``, along the hand's ``wrist.finger_direction``."""
     squeeze_force: float | None = Field(
         None, ge=0, description="N each fingertip is driven to press with (None: the hand's validate squeeze)"
     )

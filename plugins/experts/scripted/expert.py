@@ -43,9 +43,17 @@ from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
 from ges_core.errors import ConfigError
 from ges_core.hand import HandModel
 from ges_core.hand_settings import hand_validate_config
+from ges_core.kinematics import shared_kinematics
 from ges_core.policy import Expert, ExpertContext
 from ges_core.synthesis.physics.squeeze import SQUEEZE_FORCE, squeeze_targets
-from ges_core.transforms_torch import interpolate_pose, quat_conj, quat_mul, quat_to_rotvec, rotvec_to_quat
+from ges_core.transforms_torch import (
+    interpolate_pose,
+    quat_conj,
+    quat_mul,
+    quat_rotate,
+    quat_to_rotvec,
+    rotvec_to_quat,
+)
 from ges_plugins.experts.scripted.config import ScriptedConfig
 
 __all__ = ["ScriptedExpert", "build_expert"]
@@ -96,12 +104,28 @@ class ScriptedExpert(Expert):
         self.hand, self.squeeze_force, self.overshoot = hand, squeeze_force, c.overshoot
         self.approach_steps, self.close_steps, self.pause_steps = c.approach_steps, c.close_steps, c.pause_steps
         self.lift, self.carry_margin, self.carry_gain = c.lift, c.carry_margin, c.carry_gain
+        self.grasp_shift = self._grasp_shift(hand, c.palm_shift, c.finger_shift)
+        """(3,) float64 wrist-frame offset of the grasp position, m (None: the Stage 1 grasp)."""
         self.t: torch.Tensor | None = None
         self.plan: dict[str, torch.Tensor] = {}
         """Per env, set at its episode's first step (float64): start_q, close_q (n, K); start_obj, start_pos,
         grasp_pos, target_pos (n, 3) m; start_rot, grasp_rot, target_rot (n, 4) wxyz; progress (n,) of the
         approach in [0, 1]; drift (n, 2) m, the lifted object's smoothed sideways offset (:meth:`_drift`).
         target_* mirror the env's integrated wrist target (world frame)."""
+
+    @staticmethod
+    def _grasp_shift(hand: HandModel | None, palm: float, finger: float) -> torch.Tensor | None:
+        """(3,) wrist-frame offset ``palm`` m along the palm normal + ``finger`` m along the finger direction."""
+        if palm == 0.0 and finger == 0.0:
+            return None
+        if hand is None:
+            raise ConfigError(
+                "settings of expert 'scripted': palm_shift and finger_shift need the hand (its wrist.palm_normal "
+                "and wrist.finger_direction); build the expert with the env's hand"
+            )
+        w = hand.description.wrist
+        normal, direction = (torch.tensor(v, dtype=torch.float64) for v in (w.palm_normal, w.finger_direction))
+        return palm * normal + finger * direction
 
     def reset(self, env_ids: torch.Tensor | None = None) -> None:
         """Restart the script in ``env_ids`` (all if None)."""
@@ -132,6 +156,7 @@ class ScriptedExpert(Expert):
         q, wrist = unpack(obs, "q"), unpack(obs, "wrist_pose")
         goal_q = q + unpack(obs, "goal_q")
         rot = rotvec_to_quat(wrist[:, 3:])
+        grasp_rot = quat_mul(rotvec_to_quat(unpack(obs, "goal_rot")), rot)
         new = {
             "start_q": q,
             "close_q": self._closing_targets(q, goal_q, fresh),
@@ -140,8 +165,8 @@ class ScriptedExpert(Expert):
             "start_rot": rot,
             "target_pos": wrist[:, :3],
             "target_rot": rot,
-            "grasp_pos": wrist[:, :3] + unpack(obs, "goal_pos"),
-            "grasp_rot": quat_mul(rotvec_to_quat(unpack(obs, "goal_rot")), rot),
+            "grasp_pos": wrist[:, :3] + unpack(obs, "goal_pos") + self._shift(goal_q, grasp_rot),
+            "grasp_rot": grasp_rot,
             "progress": torch.full((q.shape[0],), 0.0 if self.approach_steps else 1.0, dtype=torch.float64),
             "drift": torch.zeros(q.shape[0], 2, dtype=torch.float64),
         }
@@ -149,6 +174,18 @@ class ScriptedExpert(Expert):
             old = self.plan.get(key)
             self.plan[key] = value.clone() if old is None or old.shape != value.shape else old
             self.plan[key][fresh] = value[fresh]
+
+    def _shift(self, goal_q: torch.Tensor, grasp_rot: torch.Tensor) -> torch.Tensor:
+        """(n, 3) world offset of the grasp position: :attr:`grasp_shift` from the wrist link's frame at the goal
+        joints ``goal_q`` (n, K) through the base link's grasp orientation ``grasp_rot`` (n, 4) wxyz; zeros if unset.
+
+        The observation's wrist pose is the base link's; the wrist link may sit behind wrist joints (the Shadow's
+        palm), so the offset is turned by the base-to-wrist-link rotation at the goal joints first."""
+        if self.grasp_shift is None:
+            return torch.zeros(goal_q.shape[0], 3, dtype=torch.float64)
+        link = self.hand.description.wrist.link
+        base_to_wrist = shared_kinematics(self.hand).link_poses(goal_q, [link])[:, 0, :3, :3].to(torch.float64)
+        return quat_rotate(grasp_rot, base_to_wrist @ self.grasp_shift)
 
     def _closing_targets(self, q: torch.Tensor, goal: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
         """(n, K) where the finger targets end, past the goal joints (only the rows of ``fresh`` envs matter)."""
