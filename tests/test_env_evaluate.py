@@ -185,6 +185,21 @@ def test_other_settings_are_refused_but_another_selection_reuses(full_run, datas
     assert again.results == [r for r in report.results if r["object_id"] in want]
 
 
+def test_results_stored_before_the_expert_gained_a_setting_are_reused(full_run, dataset, tmp_path):
+    """Results written before the scripted expert had finger_shift ran its default: reused, not refused; a stored
+    value other than the default is a difference."""
+    report, out = full_run
+    stored = json.loads(results_path(out, report.config).read_text())
+    assert stored["run"]["expert_defaults"].pop("finger_shift") == 0.0
+    results_path(tmp_path, report.config).write_text(json.dumps(stored))
+    again = evaluate_baseline(dataset, report.config, tmp_path, registry=CountingRegistry(refuse=True))
+    assert again.evaluated == [] and again.results == report.results
+    stored["run"]["expert_defaults"]["finger_shift"] = 0.01
+    results_path(tmp_path, report.config).write_text(json.dumps(stored))
+    with pytest.raises(ConfigError, match=r"other settings \(expert_defaults.finger_shift: 0.01 -> 0.0\)"):
+        evaluate_baseline(dataset, report.config, tmp_path, registry=CountingRegistry(refuse=True))
+
+
 def test_results_of_another_version_are_refused_and_kept(full_run, dataset, tmp_path):
     report, out = full_run
     source = results_path(out, report.config)

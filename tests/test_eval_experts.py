@@ -15,6 +15,7 @@ from ges_core.env.evaluate import BaselineConfig
 from ges_core.env.evaluate.fanout import Fanout
 from ges_core.errors import AssetError, ConfigError, UnknownNameError
 from ges_core.experts import parse_expert
+from ges_core.experts.compare import pool_matrices
 from ges_core.experts.evaluate import RANDOMIZED, evaluate_experts
 from ges_core.experts.matrix import load_matrix, matrix_path
 from ges_core.experts.table import expert_table, split_rates
@@ -171,6 +172,30 @@ def test_other_settings_under_a_stored_label_or_run_are_refused(full, dataset):
         evaluate_experts(dataset, run_config(), [parse_expert("a=scripted"), parse_expert("a=scripted")], out)
     with pytest.raises(UnknownNameError, match=r"unknown expert 'scriptd'"):
         evaluate_experts(dataset, run_config(), [parse_expert("scriptd")], out, registry=refuse)
+
+
+def test_a_column_stored_before_its_expert_gained_a_setting_is_the_same_column(full, dataset, tmp_path):
+    """A matrix written before the scripted expert had palm_shift lacks it: its columns ran the default (0), so they
+    are reused and pool with new ones; a stored column that ran another value is still refused."""
+    report, _, _ = full
+    raw = json.loads(report.path.read_text())
+    for column in raw["experts"].values():
+        assert column["settings"].pop("palm_shift") == 0.0  # as written before the setting existed
+    old = tmp_path / "old" / report.path.name
+    old.parent.mkdir()
+    old.write_text(json.dumps(raw))
+    pooled = pool_matrices([load_matrix(report.path), load_matrix(old)])
+    assert (pooled.episodes == 4).all()
+    experts = [parse_expert(e) for e in EXPERTS]
+    again = evaluate_experts(dataset, run_config(), experts, old.parent, registry=InterruptingRegistry(refuse=True))
+    assert (again.evaluated, again.reused) == (0, 4)
+    assert json.loads(old.read_text())["experts"]["low"]["settings"]["palm_shift"] == 0.0  # completed in the file
+    raw["experts"]["low"]["settings"]["palm_shift"] = 0.01
+    old.write_text(json.dumps(raw))
+    with pytest.raises(ConfigError, match=r"column 'low' .* other settings \(settings.palm_shift: 0.01 -> 0.0\)"):
+        evaluate_experts(dataset, run_config(), experts, old.parent, registry=InterruptingRegistry(refuse=True))
+    with pytest.raises(ConfigError, match=r"expert column 'low' ran other settings in matrix 2"):
+        pool_matrices([load_matrix(report.path), load_matrix(old)])
 
 
 def test_a_bad_clusters_file_is_a_clear_error(full, dataset, tmp_path):

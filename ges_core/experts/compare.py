@@ -24,6 +24,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from ges_core.errors import ConfigError
+from ges_core.experts.gained import with_gained_settings
 from ges_core.experts.matrix import PROTOCOLS, SuccessMatrix
 from ges_core.objects.splits import SPLITS
 
@@ -84,6 +85,15 @@ class BaselineDifference:
                 "verdict": self.verdict}  # fmt: skip
 
 
+def _same_but_gained(a: dict, b: dict, name: str) -> bool:
+    """Whether settings ``a`` and ``b`` of expert ``name`` differ only by settings the plugin gained since one of
+    them was stored, at their defaults (:mod:`ges_core.experts.gained`)."""
+    from ges_core.registry import load_registry
+
+    registry = load_registry()
+    return with_gained_settings(a, name, registry) == with_gained_settings(b, name, registry)
+
+
 def pool_matrices(matrices: list[SuccessMatrix]) -> SuccessMatrix:
     """One matrix whose cells add the episodes and successes of ``matrices`` (runs of the same objects under other
     seeds), over the expert columns every matrix has (in the first one's order; see :func:`common_columns`).
@@ -108,8 +118,9 @@ def pool_matrices(matrices: list[SuccessMatrix]) -> SuccessMatrix:
         raise ConfigError(f"the matrices share no expert column: {[list(m.experts) for m in matrices]}")
     subsets = [select_columns(m, labels) for m in matrices]
     for k, m in enumerate(subsets[1:], start=2):
-        for label, a, b in zip(labels, subsets[0].expert_settings, m.expert_settings, strict=True):
-            if a != b:
+        for j, label in enumerate(labels):
+            a, b = subsets[0].expert_settings[j], m.expert_settings[j]
+            if a != b and not _same_but_gained(a, b, subsets[0].expert_names[j]):
                 raise ConfigError(f"expert column '{label}' ran other settings in matrix {k} ({b}) than in 1 ({a})")
     return replace(
         subsets[0],

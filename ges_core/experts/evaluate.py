@@ -36,6 +36,7 @@ from ges_core.env.evaluate.fanout import Cell, Fanout, evaluate_cells
 from ges_core.env.grasp_source import open_grasp_dataset
 from ges_core.errors import AssetError, ConfigError
 from ges_core.experts.choice import ExpertChoice
+from ges_core.experts.gained import with_gained_settings
 from ges_core.experts.matrix import SuccessMatrix, matrix_from_json, matrix_path, read_matrix_json, write_matrix
 from ges_core.experts.table import expert_table
 from ges_core.paths import file_sha256
@@ -47,6 +48,7 @@ __all__ = [
     "cell_config",
     "cells_by_other_code",
     "check_stored_run",
+    "stored_columns",
     "code_stamp",
     "column_identity",
     "evaluate_experts",
@@ -149,7 +151,7 @@ def evaluate_experts(
         if matrix_file is not None
         else matrix_path(out, config.hand, config.sim, is_randomized(config))
     )
-    matrix = _MatrixFile.open(path, run_header(config), columns, data.root.resolve())
+    matrix = _MatrixFile.open(path, run_header(config), columns, data.root.resolve(), registry)
     matrix.set_objects(records, clusters)
     todo = [(r, c) for r in records for c in choices if not matrix.has(r.object_id, c.label)]
     report = EvalReport(path, matrix.view(records, choices), reused=len(records) * len(choices) - len(todo))
@@ -186,12 +188,14 @@ class _MatrixFile:
         self.path, self.data, self.dataset = path, data, dataset
 
     @classmethod
-    def open(cls, path: Path, header: dict, columns: dict[str, dict], dataset: Path) -> _MatrixFile:
-        """The file at ``path`` (empty if there is none), checked against this run's header and columns, with the
-        run's columns added (stored columns first, in their order)."""
+    def open(cls, path: Path, header: dict, columns: dict[str, dict], dataset: Path, registry) -> _MatrixFile:
+        """The file at ``path`` (empty if there is none), checked against this run's header and columns (stored
+        columns completed by :func:`stored_columns`), with the run's columns added (stored columns first, in their
+        order)."""
         data = {"run": header, "experts": {}, "baseline": None, "clusters": None, "objects": {}, "cells": {}}
         if path.is_file():
             data |= read_matrix_json(path)
+            data["experts"] = stored_columns(data.get("experts", {}), registry)
             check_stored_run(path, "success matrix", data, header, columns)
         data["experts"] |= columns
         data["baseline"] = BASELINE.label
@@ -230,6 +234,15 @@ class _MatrixFile:
         part = {**self.data, "objects": {r.object_id: objects[r.object_id] for r in records},
                 "experts": {c.label: experts[c.label] for c in choices}}  # fmt: skip
         return matrix_from_json(part)
+
+
+def stored_columns(columns: dict[str, dict], registry) -> dict[str, dict]:
+    """Stored expert columns (label -> :func:`column_identity`), each with the settings its expert gained since it
+    was written at their defaults (:func:`~ges_core.experts.gained.with_gained_settings`)."""
+    return {
+        label: {**c, "settings": with_gained_settings(c.get("settings", {}), c.get("name", ""), registry)}
+        for label, c in columns.items()
+    }
 
 
 def check_stored_run(path: Path, what: str, stored: dict, header: dict, columns: dict[str, dict]) -> None:

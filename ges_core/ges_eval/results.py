@@ -20,7 +20,7 @@ from pathlib import Path
 from ges_core.dataset.layout import utc_now
 from ges_core.env.evaluate import grasp_key
 from ges_core.errors import AssetError
-from ges_core.experts.evaluate import check_stored_run
+from ges_core.experts.evaluate import check_stored_run, stored_columns
 from ges_core.experts.matrix import PROTOCOLS
 from ges_core.paths import atomic_write_text
 
@@ -57,13 +57,17 @@ class ResultsFile:
         self.path, self.data = path, data
 
     @classmethod
-    def open(cls, path: Path, header: dict, experts: dict[str, dict], dataset: Path, matrix: Path) -> ResultsFile:
+    def open(
+        cls, path: Path, header: dict, experts: dict[str, dict], dataset: Path, matrix: Path, registry
+    ) -> ResultsFile:
         """The file at ``path`` (empty if none), checked: the stored run settings and every stored expert this run
-        names must be this run's (ConfigError naming the differences otherwise)."""
+        names must be this run's (ConfigError naming the differences otherwise; a setting an expert gained since
+        the file was written counts at its default, :func:`~ges_core.experts.evaluate.stored_columns`)."""
         data = {"run": header, "dataset": str(dataset), "matrix": str(matrix), "experts": {}, "gates": {},
                 "objects": {}, "cells": {}}  # fmt: skip
         if path.is_file():
             stored = read_results_json(path)
+            stored["experts"] = stored_columns(stored.get("experts", {}), registry)
             check_stored_run(path, "GES results", stored, header, experts)
             data |= {k: stored[k] for k in ("experts", "gates", "objects", "cells") if k in stored}
         data["experts"] |= experts

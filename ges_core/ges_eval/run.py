@@ -134,7 +134,7 @@ def evaluate_ges(
                                fanout=fanout, matrix_file=mfile)  # fmt: skip
     columns = {c.label: column_identity(registry, c) for c in experts}
     results = ResultsFile.open(results_path(out, config.hand, config.sim, is_randomized(config)), run_header(config),
-                               columns, data.root.resolve(), mfile.resolve())  # fmt: skip
+                               columns, data.root.resolve(), mfile.resolve(), registry)  # fmt: skip
     results.set_objects(records)
     for g in loaded:
         results.set_gate(g.label, g.describe(), picks[g.label])

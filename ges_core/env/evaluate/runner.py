@@ -256,7 +256,7 @@ def evaluate_baseline(
     path, header = results_path(out, config), results_header(config, expert_defaults(registry, config))
     selection = select_records(data, config.hand, selection=config.selection)
     records = config_records(data, config, selection)
-    store = read_results(path, header)  # every stored object (those outside this selection stay in the file)
+    store = read_results(path, header, registry)  # every stored object (those outside this selection stay in the file)
     report = BaselineReport(path, config, selection, [])
     todo = [r for r in records if store.get(r.object_id, {}).get("grasp_key") != grasp_key(r)]
     fresh = {r.object_id for r in todo}

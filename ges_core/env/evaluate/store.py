@@ -18,6 +18,7 @@ from ges_core.dataset import GraspRecord
 from ges_core.dataset.layout import config_differences, utc_now
 from ges_core.env.evaluate.config import BaselineConfig
 from ges_core.errors import AssetError, ConfigError
+from ges_core.experts.gained import with_gained_settings
 from ges_core.paths import atomic_write_text
 
 __all__ = [
@@ -56,8 +57,9 @@ def results_header(config: BaselineConfig, defaults: dict) -> dict:
     return {"expert": config.expert, "expert_defaults": defaults, "config": settings}
 
 
-def read_results(path: Path, header: dict) -> dict[str, dict]:
-    """Stored per-object results of a run with ``header``; {} if there is no file yet."""
+def read_results(path: Path, header: dict, registry) -> dict[str, dict]:
+    """Stored per-object results of a run with ``header``; {} if there is no file yet. A setting the expert gained
+    since the file was written counts at the plugin's default (:mod:`ges_core.experts.gained`)."""
     if not path.is_file():
         return {}
     try:
@@ -71,7 +73,10 @@ def read_results(path: Path, header: dict) -> dict[str, dict]:
             f"{path} holds baseline results of version {data.get('version')!r}, this code reads {RESULTS_VERSION}; "
             "choose another --out or delete the file to start over"
         )
-    diffs = config_differences(data.get("run"), header)
+    run = data.get("run")
+    if isinstance(run, dict) and isinstance(run.get("expert_defaults"), dict):
+        run = {**run, "expert_defaults": with_gained_settings(run["expert_defaults"], str(run.get("expert")), registry)}
+    diffs = config_differences(run, header)
     if diffs:
         raise ConfigError(
             f"baseline results {path} were written with other settings ({'; '.join(diffs)}); choose another "
