@@ -1,0 +1,113 @@
+"""GES runs of several episode seeds pooled: Table 2, GES against the best single expert and the held-out oracle.
+
+One ``ges evaluate`` run scores GES on 4 episodes per object, where one episode moves a split's rate by 0.4-2.6
+points. This pools runs of the same gates, experts and objects under other episode seeds (``--seed N`` into
+another ``--out``, each with its own matrix): the episodes of each (object, expert) cell and of each gate's picks
+add up, and the comparisons of ``benchmarks/ges_evaluate.py`` are made on the sums.
+
+    python benchmarks/ges_pooled.py runs/proc/ges_shift/ges-allegro-sapien.json \\
+        runs/proc/ges_shift3/ges-allegro-sapien.json --oracle-from M_SEED0 M_SEED1 --results ges_shift_pooled
+
+Each GES results file names its matrix; the gates' picks come from the results files (a gate's pick does not
+depend on the episode seed when the clouds are sampled with the same seed; if they differ, the episodes of each
+run's own pick are added). Writes ``benchmarks/results/NAME.json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+
+from ges_core.experts.compare import held_out_oracle, held_out_oracle_table, pool_matrices, select_columns
+from ges_core.experts.matrix import PROTOCOLS, load_matrix
+from ges_core.ges_eval.against_best import against_best_json, ges_against_best, ges_against_best_table
+from ges_core.ges_eval.results import read_results_json
+from ges_core.ges_eval.table import GesRow, table2
+
+from _results import code_state, write_results
+
+ROOT = Path(__file__).resolve().parent
+
+
+def ges_rows(data: dict, object_ids: tuple[str, ...], column) -> list[GesRow]:
+    """Each gate's episodes per object of ``object_ids`` from one GES results file's JSON ``data``."""
+    rows = []
+    for label, gate in data["gates"].items():
+        n = len(object_ids)
+        episodes, picked = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
+        wins = {p: np.zeros(n, dtype=np.int64) for p in PROTOCOLS}
+        for i, oid in enumerate(object_ids):
+            chosen = gate["picks"][oid]
+            picked[i] = column(chosen)
+            cell = data["cells"].get(oid, {}).get(chosen)
+            if cell is not None:
+                episodes[i] = cell["episodes"]
+                for p in PROTOCOLS:
+                    wins[p][i] = cell[p]
+        rows.append(GesRow(label, wins, episodes, picked))
+    return rows
+
+
+def pooled_rows(runs: list[list[GesRow]]) -> list[GesRow]:
+    """The gates' rows of several runs (same gates, same objects) with their episodes added."""
+    out = []
+    for same in zip(*runs, strict=True):
+        labels = {r.label for r in same}
+        if len(labels) != 1:
+            raise SystemExit(f"the runs hold other gates in the same place: {sorted(labels)}")
+        out.append(GesRow(
+            same[0].label, {p: sum(r.successes[p] for r in same) for p in PROTOCOLS},
+            sum(r.episodes for r in same), same[0].picked,
+        ))  # fmt: skip
+    return out
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("results_files", nargs="+", type=Path, help="GES results JSON of each run (ges evaluate)")
+    parser.add_argument("--oracle-from", nargs="+", type=Path, default=[], metavar="MATRIX",
+                        help="matrices the gates were trained on (pooled): the oracle picked on them, scored on the "
+                        "pooled runs")  # fmt: skip
+    parser.add_argument("--results", default="ges_pooled", help="name of the JSON under benchmarks/results/")
+    args = parser.parse_args()
+
+    datas = [read_results_json(p) for p in args.results_files]
+    experts = list(datas[0]["experts"])
+    for p, d in zip(args.results_files, datas, strict=True):
+        if list(d["experts"]) != experts or list(d["gates"]) != list(datas[0]["gates"]):
+            raise SystemExit(f"{p} chooses among {list(d['experts'])} with gates {list(d['gates'])}; the first run "
+                             f"among {experts} with {list(datas[0]['gates'])}: pool runs of the same GES")  # fmt: skip
+    views = [select_columns(load_matrix(d["matrix"]), experts) for d in datas]
+    ids = tuple(oid for oid in views[0].object_ids if all(oid in d["cells"] for d in datas))
+    if any(v.object_ids != views[0].object_ids for v in views):
+        raise SystemExit("the runs' matrices hold other objects; pool runs of one dataset selection")
+    matrix = pool_matrices(views)
+    rows = pooled_rows([ges_rows(d, views[0].object_ids, views[0].column) for d in datas])
+    missing = [r.label for r in rows if (r.episodes == 0).any()]
+    if missing:
+        print(f"note: gates {missing} lack GES episodes on some objects (left out of their comparisons)")
+    print(f"{len(args.results_files)} runs pooled: {len(matrix.object_ids)} objects ({len(ids)} with GES cells in "
+          f"every run), experts {', '.join(experts)}, gates {', '.join(r.label for r in rows)}\n")  # fmt: skip
+    table = table2(matrix, tuple(experts), rows)
+    for p in PROTOCOLS:
+        print(table.markdown(p) + "\n")
+    diffs = ges_against_best(matrix, rows, experts)
+    print(ges_against_best_table(diffs))
+    held = []
+    if args.oracle_from:
+        pick = pool_matrices([select_columns(load_matrix(m), experts) for m in args.oracle_from])
+        held = held_out_oracle(pick, matrix)
+        print("\n" + held_out_oracle_table(held, picked="the gates' matrices", scored="the pooled runs"))
+    write_results(ROOT / "results" / f"{args.results}.json", {
+        "runs": [str(p) for p in args.results_files], "matrices": [d["matrix"] for d in datas],
+        "experts": experts, "table2": table.rows, "against_best": against_best_json(diffs),
+        "oracle_from": [str(m) for m in args.oracle_from], "held_out_oracle": [r.__dict__ for r in held],
+        "code": code_state(),
+    })  # fmt: skip
+    print(f"\nwrote benchmarks/results/{args.results}.json")
+
+
+if __name__ == "__main__":
+    main()
