@@ -147,19 +147,24 @@ def test_nan_actions_end_episodes_and_training_goes_on(tmp_path, clusters, monke
     assert all(torch.isfinite(w).all() for w in _weights(run.checkpoint).values())
 
 
-def test_residual_mode_starts_at_the_scripted_expert(tmp_path, clusters) -> None:
+def test_residual_mode_starts_at_its_base_expert_with_the_runs_base_settings(tmp_path, clusters) -> None:
+    """A residual run on ``scripted:palm_shift=0.01`` stores the base settings; its checkpoint as an expert acts as
+    that base at the start (not as the plain script, whose grasp is 1 cm elsewhere)."""
     from helpers_env import build_grasp_env
 
     run = _train(tmp_path / "run", clusters, "iterations=1", "action_mode=residual", "ppo.learning_rate=1e-9",
-                 "ppo.schedule=fixed")  # fmt: skip
+                 "ppo.schedule=fixed", "base_expert_settings={palm_shift: 0.01}")  # fmt: skip
+    assert read_checkpoint(run.checkpoint)["ges"]["base_expert_settings"] == {"palm_shift": 0.01}
     reg = load_registry()
     env = build_grasp_env("sapien", 2, reach_steps=2, settle_steps=1)
     env.reset_all()
     ctx = ExpertContext.of_env(env, registry=reg)
     residual = reg.build_expert("ppo", ctx, checkpoint=run.checkpoint)
-    scripted = reg.build_expert("scripted", ctx)
+    deep, plain = reg.build_expert("scripted", ctx, palm_shift=0.01), reg.build_expert("scripted", ctx)
     obs = env.observe()[0]
-    assert residual.residual and torch.allclose(residual.act(obs), scripted.act(obs), atol=1e-4)
+    action = residual.act(obs)
+    assert residual.residual and torch.allclose(action, deep.act(obs), atol=1e-4)
+    assert (action - plain.act(obs)).abs().max() > 0.1  # the wrist heads for another grasp position
     env.close()
 
 

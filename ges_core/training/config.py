@@ -7,7 +7,7 @@ config is the preset, then ``--config`` YAML, then ``-o key=value`` overrides (:
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import Field
 
@@ -202,6 +202,11 @@ class TrainConfig(ConfigModel):
     )
     residual_scale: float = Field(0.1, gt=0, le=2, description="residual mode: scale of the policy's output")
     base_expert: str = Field("scripted", description="residual mode: the registry expert the residual is added to")
+    base_expert_settings: dict[str, Any] = Field(
+        default_factory=dict,
+        description="residual mode: the base expert's settings over its registered ones, e.g. {palm_shift: 0.01}",
+    )
+    """Stored in the checkpoint: the PPO expert rebuilds its base with them (a checkpoint without them: none)."""
     reward_preset: Literal["udgr", "tsr", "tsr_scr", "custom"] = Field(
         "tsr_scr", description="reward weights (env/reward.py REWARD_PRESETS); custom: env.reward as given"
     )

@@ -80,7 +80,8 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
         from ges_core.training.residual import ResidualVecEnv
 
         context = ExpertContext.of_env(venv.env, sim=sim_name, registry=registry)
-        venv = ResidualVecEnv(venv, registry.build_expert(cfg.base_expert, context), cfg.residual_scale)
+        base = registry.build_expert(cfg.base_expert, context, **cfg.base_expert_settings)
+        venv = ResidualVecEnv(venv, base, cfg.residual_scale)
     return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, rejected, cfg)
 
 

@@ -145,6 +145,7 @@ def _meta(setup: TrainingSetup, cfg: TrainConfig, train_cfg: dict, runner: Grasp
             "actor": train_cfg["actor"], "num_actions": setup.venv.num_actions,
         },
         "action_mode": cfg.action_mode, "residual_scale": cfg.residual_scale, "base_expert": cfg.base_expert,
+        "base_expert_settings": cfg.base_expert_settings,
         "hand": setup.hand, "sim": setup.sim, "train_config": cfg.model_dump(mode="json"),
         "objects": list(setup.pool.keys),
     }  # fmt: skip

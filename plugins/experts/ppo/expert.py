@@ -83,14 +83,16 @@ def build_expert(context: ExpertContext, checkpoint: str | None = None, determin
     check_expert_fits(scope, context, who=f"PPO checkpoint {checkpoint}")
     base = None
     if data["ges"]["action_mode"] == "residual":
-        base = _base_expert(data["ges"]["base_expert"], context)
+        base = _base_expert(data["ges"]["base_expert"], context, data["ges"].get("base_expert_settings", {}))
     return PPOExpert(data, base=base, deterministic=bool(deterministic), path=str(Path(checkpoint)))
 
 
-def _base_expert(name: str, context: ExpertContext) -> Expert:
+def _base_expert(name: str, context: ExpertContext, settings: dict) -> Expert:
+    """The residual policy's base expert as it trained: ``name`` with the run's ``base_expert_settings`` (a
+    checkpoint written before runs stored them trained on the registered settings: ``settings`` = {})."""
     registry = context.registry
     if registry is None:
         from ges_core.registry import load_registry
 
         registry = load_registry()
-    return registry.build_expert(name, context)
+    return registry.build_expert(name, context, **settings)
