@@ -48,7 +48,6 @@ __all__ = [
     "cell_config",
     "cells_by_other_code",
     "check_stored_run",
-    "stored_columns",
     "code_stamp",
     "column_identity",
     "evaluate_experts",
@@ -56,6 +55,7 @@ __all__ = [
     "matrix_cell",
     "read_clusters",
     "run_header",
+    "stored_columns",
 ]
 
 BASELINE = ExpertChoice("scripted", "scripted", {})

@@ -2,7 +2,7 @@
 
 Stored results name every setting their expert ran with (a matrix column, a GES results file, baseline results).
 When a plugin gains a setting, older files lack it. A setting added to an expert must keep the expert's behaviour
-at its default (docs/plugins.md, "Adding a setting to an expert"), so a stored result that lacks it ran as the
+at its default (docs/experts.md, "Adding a setting to an expert"), so a stored result that lacks it ran as the
 plugin's default: :func:`with_gained_settings` fills it in before stored and new settings are compared. Without
 this rule every stored result of the expert would be refused after the setting is added. (A code change that does
 alter the episodes is what the matrix's code stamp reports; :func:`ges_core.experts.evaluate.cells_by_other_code`.)

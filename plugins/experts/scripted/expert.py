@@ -9,7 +9,8 @@ Phases per env, counted in control steps from the episode's start (the pre-grasp
    (linear position, slerp rotation) in equal steps, fingers at the start joints. A step in which the
    wrist link touches the object (the ``contact`` block's last entry) does not advance: the palm is
    not driven into the object (a test grasp with the palm 7 mm inside a box pressed it into the table
-   with 100 N, and the box shot out of the PyBullet hand when the fingers closed);
+   with 100 N, and the box shot out of the PyBullet hand when the fingers closed). ``palm_shift`` /
+   ``finger_shift`` move the grasp position first, along the hand's palm normal / finger direction;
 2. **close** (``close_steps``): the finger targets ramp from the start joints to the closing targets
    (Stage 1 validation's squeeze with ``hand``, else the overshoot rule); the wrist target stays;
 3. **pause** (``pause_steps``): everything held while the grip builds;
