@@ -61,8 +61,6 @@ def run_evaluate(args: argparse.Namespace) -> int:
     """Evaluate, write Table 2 and the figure, print both tables and the summary."""
     from ges_core.cli import registry_from_args
     from ges_core.errors import ConfigError
-    from ges_core.experts.matrix import read_matrix_json
-    from ges_core.experts.table import late_columns
     from ges_core.ges_eval import evaluate_ges, parse_gate
     from ges_core.ges_eval.against_best import ges_against_best_table
     from ges_core.ges_eval.outputs import write_outputs
@@ -83,7 +81,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
           f"{randomization_text(args)}\n")  # fmt: skip
     print(report.table.markdown("paper") + "\n\n" + report.table.markdown("peers") + "\n")
     print(report.table.accuracy_markdown("paper") + "\n")
-    for line in late_columns(read_matrix_json(report.matrix_path)["cells"], report.matrix, config.env.episode_length):
+    for line in report.late:
         print(f"note: {line}")
     if report.against_best:
         print(ges_against_best_table(report.against_best) + "\n(GES is above the best single expert of a split when "

@@ -126,8 +126,6 @@ def run_eval_experts(args: argparse.Namespace) -> int:
     """Evaluate, print both tables and the summary."""
     from ges_core.cli import registry_from_args
     from ges_core.experts.evaluate import evaluate_experts
-    from ges_core.experts.matrix import read_matrix_json
-    from ges_core.experts.table import late_columns
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
@@ -142,7 +140,7 @@ def run_eval_experts(args: argparse.Namespace) -> int:
     print(f"{len(report.matrix.experts)} expert(s) | hand {config.hand} | sim {config.sim} | {args.episodes} "
           f"episode(s) per cell | {randomization_text(args)}\n")  # fmt: skip
     print(report.table("paper") + "\n\n" + report.table("peers"))
-    for line in late_columns(read_matrix_json(report.path)["cells"], report.matrix, config.env.episode_length):
+    for line in report.late:
         print(f"note: {line}")
     if report.matrix.baseline in report.matrix.experts and len(report.matrix.experts) > 1:
         from ges_core.experts.compare import compare_to_baseline, comparison_table

@@ -38,7 +38,7 @@ from ges_core.errors import AssetError, ConfigError
 from ges_core.experts.choice import ExpertChoice
 from ges_core.experts.gained import with_gained_settings
 from ges_core.experts.matrix import SuccessMatrix, matrix_from_json, matrix_path, read_matrix_json, write_matrix
-from ges_core.experts.table import expert_table
+from ges_core.experts.table import expert_table, late_columns
 from ges_core.paths import file_sha256
 
 __all__ = [
@@ -90,6 +90,9 @@ class EvalReport:
     but not necessarily the same episodes."""
     errors: list[str] = field(default_factory=list)
     """``object / expert: message`` per cell of this run whose object could not be set up or run."""
+    late: list[str] = field(default_factory=list)
+    """A line per column of :attr:`matrix` whose episodes often run out of steps (:func:`~ges_core.experts.table.
+    late_columns`), from the cells in memory."""
     seconds: float = 0.0
 
     def table(self, protocol: str = "paper") -> str:
@@ -160,6 +163,7 @@ def evaluate_experts(
     if todo:
         _run_cells(data, registry, config, todo, matrix, report, progress, fanout or Fanout())
     report.matrix = matrix.view(records, choices)
+    report.late = late_columns(matrix.data["cells"], report.matrix, config.env.episode_length)
     report.seconds = time.perf_counter() - start
     return report
 

@@ -77,6 +77,8 @@ class GesReport:
     resumed_other_code: int = 0
     """Resumed GES cells that other code ran."""
     errors: list[str] = field(default_factory=list)
+    late: list[str] = field(default_factory=list)
+    """The matrix run's :attr:`~ges_core.experts.evaluate.EvalReport.late` lines (columns that run out of steps)."""
     seconds: float = 0.0
     against_best: list = field(default_factory=list)
     """Per split and gate (paper protocol): ``(best single expert, BaselineDifference of GES against it)``
@@ -141,6 +143,7 @@ def evaluate_ges(
     results.write()
     report = GesReport(results.path, mfile, Table2(), mreport.matrix, picks)
     report.matrix_evaluated, report.matrix_reused = mreport.evaluated, mreport.reused
+    report.late = mreport.late
     matrix_cells = read_matrix_json(mfile).get("cells", {})  # the file as evaluate_experts left it, read once
     report.matrix_other_code = cells_by_other_code(matrix_cells, records, columns)
     todo = _todo(records, picks, results, report, reuse_matrix)
