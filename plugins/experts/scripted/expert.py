@@ -166,7 +166,7 @@ class ScriptedExpert(Expert):
             "start_rot": rot,
             "target_pos": wrist[:, :3],
             "target_rot": rot,
-            "grasp_pos": wrist[:, :3] + unpack(obs, "goal_pos") + self._shift(goal_q, grasp_rot),
+            "grasp_pos": wrist[:, :3] + unpack(obs, "goal_pos") + self._shift(goal_q, grasp_rot, fresh),
             "grasp_rot": grasp_rot,
             "progress": torch.full((q.shape[0],), 0.0 if self.approach_steps else 1.0, dtype=torch.float64),
             "drift": torch.zeros(q.shape[0], 2, dtype=torch.float64),
@@ -176,17 +176,20 @@ class ScriptedExpert(Expert):
             self.plan[key] = value.clone() if old is None or old.shape != value.shape else old
             self.plan[key][fresh] = value[fresh]
 
-    def _shift(self, goal_q: torch.Tensor, grasp_rot: torch.Tensor) -> torch.Tensor:
+    def _shift(self, goal_q: torch.Tensor, grasp_rot: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
         """(n, 3) world offset of the grasp position: :attr:`grasp_shift` from the wrist link's frame at the goal
-        joints ``goal_q`` (n, K) through the base link's grasp orientation ``grasp_rot`` (n, 4) wxyz; zeros if unset.
+        joints ``goal_q`` (n, K) through the base link's grasp orientation ``grasp_rot`` (n, 4) wxyz; zeros if unset
+        and in the rows that are not ``fresh`` (n,) (only fresh rows are latched, so only they get the kinematics).
 
         The observation's wrist pose is the base link's; the wrist link may sit behind wrist joints (the Shadow's
         palm), so the offset is turned by the base-to-wrist-link rotation at the goal joints first."""
+        out = torch.zeros(goal_q.shape[0], 3, dtype=torch.float64)
         if self.grasp_shift is None:
-            return torch.zeros(goal_q.shape[0], 3, dtype=torch.float64)
+            return out
         link = self.hand.description.wrist.link
-        base_to_wrist = shared_kinematics(self.hand).link_poses(goal_q, [link])[:, 0, :3, :3].to(torch.float64)
-        return quat_rotate(grasp_rot, base_to_wrist @ self.grasp_shift)
+        turn = shared_kinematics(self.hand).link_poses(goal_q[fresh], [link])[:, 0, :3, :3].to(torch.float64)
+        out[fresh] = quat_rotate(grasp_rot[fresh], turn @ self.grasp_shift)
+        return out
 
     def _closing_targets(self, q: torch.Tensor, goal: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
         """(n, K) where the finger targets end, past the goal joints (only the rows of ``fresh`` envs matter)."""
