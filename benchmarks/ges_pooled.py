@@ -18,36 +18,16 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-import numpy as np
-
 from ges_core.experts.compare import held_out_oracle, held_out_oracle_table, pool_matrices, select_columns
 from ges_core.experts.matrix import PROTOCOLS, load_matrix
 from ges_core.ges_eval.against_best import against_best_json, ges_against_best, ges_against_best_table
-from ges_core.ges_eval.results import read_results_json
+from ges_core.ges_eval.results import ResultsFile, read_results_json
+from ges_core.ges_eval.run import ges_row
 from ges_core.ges_eval.table import GesRow, table2
 
 from _results import code_state, write_results
 
 ROOT = Path(__file__).resolve().parent
-
-
-def ges_rows(data: dict, object_ids: tuple[str, ...], column) -> list[GesRow]:
-    """Each gate's episodes per object of ``object_ids`` from one GES results file's JSON ``data``."""
-    rows = []
-    for label, gate in data["gates"].items():
-        n = len(object_ids)
-        episodes, picked = np.zeros(n, dtype=np.int64), np.zeros(n, dtype=np.int64)
-        wins = {p: np.zeros(n, dtype=np.int64) for p in PROTOCOLS}
-        for i, oid in enumerate(object_ids):
-            chosen = gate["picks"][oid]
-            picked[i] = column(chosen)
-            cell = data["cells"].get(oid, {}).get(chosen)
-            if cell is not None:
-                episodes[i] = cell["episodes"]
-                for p in PROTOCOLS:
-                    wins[p][i] = cell[p]
-        rows.append(GesRow(label, wins, episodes, picked))
-    return rows
 
 
 def pooled_rows(runs: list[list[GesRow]]) -> list[GesRow]:
@@ -81,10 +61,13 @@ def main() -> None:
                              f"among {experts} with {list(datas[0]['gates'])}: pool runs of the same GES")  # fmt: skip
     views = [select_columns(load_matrix(d["matrix"]), experts) for d in datas]
     ids = tuple(oid for oid in views[0].object_ids if all(oid in d["cells"] for d in datas))
-    if any(v.object_ids != views[0].object_ids for v in views):
-        raise SystemExit("the runs' matrices hold other objects; pool runs of one dataset selection")
-    matrix = pool_matrices(views)
-    rows = pooled_rows([ges_rows(d, views[0].object_ids, views[0].column) for d in datas])
+    matrix = pool_matrices(views)  # ConfigError unless the runs' matrices hold the same objects
+    rows = pooled_rows(
+        [
+            [ges_row(view, label, gate["picks"], ResultsFile(path, d)) for label, gate in d["gates"].items()]
+            for path, d, view in zip(args.results_files, datas, views, strict=True)
+        ]
+    )
     missing = [r.label for r in rows if (r.episodes == 0).any()]
     if missing:
         print(f"note: gates {missing} lack GES episodes on some objects (left out of their comparisons)")

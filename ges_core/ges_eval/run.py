@@ -47,7 +47,7 @@ from ges_core.ges_eval.gates import GateChoice, LoadedGate, Picks, clouds_for, l
 from ges_core.ges_eval.results import ResultsFile, results_path
 from ges_core.ges_eval.table import GesRow, Table2, table2
 
-__all__ = ["GesReport", "evaluate_ges"]
+__all__ = ["GesReport", "evaluate_ges", "ges_row"]
 
 
 @dataclass
@@ -150,7 +150,7 @@ def evaluate_ges(
     if reuse_matrix:
         todo = _take_from_matrix(todo, matrix_cells, results, report)
     _run(data, registry, config, {c.label: c for c in experts}, todo, results, report, progress, fanout or Fanout())
-    report.ges_rows = [_ges_row(mreport.matrix, g.label, picks, results) for g in loaded]
+    report.ges_rows = [ges_row(mreport.matrix, g.label, picks[g.label].chosen, results) for g in loaded]
     report.table = table2(mreport.matrix, labels, report.ges_rows)
     report.against_best = ges_against_best(mreport.matrix, report.ges_rows, labels)
     report.seconds = time.perf_counter() - start
@@ -244,13 +244,13 @@ def _run(data, registry, config, choices: dict[str, ExpertChoice], todo, results
     bar.close()
 
 
-def _ges_row(matrix: SuccessMatrix, label: str, picks: dict[str, Picks], results: ResultsFile) -> GesRow:
-    """Gate ``label``'s episodes per object of ``matrix`` (its rows), from the results file."""
+def ges_row(matrix: SuccessMatrix, label: str, chosen: dict[str, str], results: ResultsFile) -> GesRow:
+    """Gate ``label``'s episodes per object of ``matrix`` (its rows) from the results file, ``chosen``: object id ->
+    the expert label the gate picked (:attr:`Picks.chosen`, or a stored results file's ``gates[label]["picks"]``)."""
     n = len(matrix.object_ids)
     episodes = np.zeros(n, dtype=np.int64)
     wins = {p: np.zeros(n, dtype=np.int64) for p in PROTOCOLS}
     picked = np.zeros(n, dtype=np.int64)
-    chosen = picks[label].chosen
     for i, oid in enumerate(matrix.object_ids):
         picked[i] = matrix.column(chosen[oid])
         cell = results.cell(oid, chosen[oid])
