@@ -50,7 +50,7 @@ from ges_core.errors import AssetError, UnknownNameError
 if TYPE_CHECKING:
     from ges_core.hand import HandModel
 
-__all__ = ["HandKinematics", "shared_kinematics"]
+__all__ = ["HandKinematics", "palm_offset", "shared_kinematics"]
 
 _REVOLUTE = 1
 """Index of ``"revolute"`` in ``pytorch_kinematics.frame.Joint.TYPES`` (0 fixed, 2 prismatic)."""
@@ -264,3 +264,20 @@ def shared_kinematics(hand: HandModel) -> HandKinematics:
 @lru_cache(maxsize=8)
 def _cached_kinematics(urdf_text: str, joint_names: tuple[str, ...]) -> HandKinematics:
     return HandKinematics(urdf_text, joint_names)
+
+
+def palm_offset(hand: HandModel, q: torch.Tensor, palm: float = 0.0, finger: float = 0.0) -> torch.Tensor:
+    """(B, 3) float64 base-frame vector: ``palm`` m along the hand's palm normal plus ``finger`` m along its finger
+    direction (``HandDescription.wrist``, given in the wrist link's frame), with the hand at joints ``q`` (B, K).
+
+    The wrist link may sit behind wrist joints (the Shadow's palm is two joints past its base), so the wrist-frame
+    vector is turned by the base-to-wrist-link rotation at ``q`` (set coupled joints first). Turn the result by the
+    base link's orientation for a world (or object-frame) offset of the base: moving the base by it moves the palm
+    the same way, since the hand is rigid at fixed joints.
+    """
+    w = hand.description.wrist
+    local = palm * torch.tensor(w.palm_normal, dtype=torch.float64) + finger * torch.tensor(
+        w.finger_direction, dtype=torch.float64
+    )
+    turn = shared_kinematics(hand).link_poses(q, [w.link])[:, 0, :3, :3].to(torch.float64)
+    return turn @ local

@@ -44,7 +44,7 @@ from ges_core.env.layout import WRIST_DOF, ActionLayout, ObservationLayout
 from ges_core.errors import ConfigError
 from ges_core.hand import HandModel
 from ges_core.hand_settings import hand_validate_config
-from ges_core.kinematics import shared_kinematics
+from ges_core.kinematics import palm_offset
 from ges_core.policy import Expert, ExpertContext
 from ges_core.synthesis.physics.squeeze import SQUEEZE_FORCE, squeeze_targets
 from ges_core.transforms_torch import (
@@ -106,7 +106,8 @@ class ScriptedExpert(Expert):
         self.approach_steps, self.close_steps, self.pause_steps = c.approach_steps, c.close_steps, c.pause_steps
         self.lift, self.carry_margin, self.carry_gain = c.lift, c.carry_margin, c.carry_gain
         self.grasp_shift = self._grasp_shift(hand, c.palm_shift, c.finger_shift)
-        """(3,) float64 wrist-frame offset of the grasp position, m (None: the Stage 1 grasp)."""
+        """(palm, finger) offset of the grasp position along the hand's palm normal and finger direction, m (None:
+        the Stage 1 grasp)."""
         self.t: torch.Tensor | None = None
         self.plan: dict[str, torch.Tensor] = {}
         """Per env, set at its episode's first step (float64): start_q, close_q (n, K); start_obj, start_pos,
@@ -115,8 +116,9 @@ class ScriptedExpert(Expert):
         target_* mirror the env's integrated wrist target (world frame)."""
 
     @staticmethod
-    def _grasp_shift(hand: HandModel | None, palm: float, finger: float) -> torch.Tensor | None:
-        """(3,) wrist-frame offset ``palm`` m along the palm normal + ``finger`` m along the finger direction."""
+    def _grasp_shift(hand: HandModel | None, palm: float, finger: float) -> tuple[float, float] | None:
+        """(palm, finger): the grasp position's offset along the palm normal and the finger direction, m (None when
+        both are 0); ConfigError without the hand, whose wrist convention gives the directions."""
         if palm == 0.0 and finger == 0.0:
             return None
         if hand is None:
@@ -124,9 +126,7 @@ class ScriptedExpert(Expert):
                 "settings of expert 'scripted': palm_shift and finger_shift need the hand (its wrist.palm_normal "
                 "and wrist.finger_direction); build the expert with the env's hand"
             )
-        w = hand.description.wrist
-        normal, direction = (torch.tensor(v, dtype=torch.float64) for v in (w.palm_normal, w.finger_direction))
-        return palm * normal + finger * direction
+        return palm, finger
 
     def reset(self, env_ids: torch.Tensor | None = None) -> None:
         """Restart the script in ``env_ids`` (all if None)."""
@@ -186,9 +186,8 @@ class ScriptedExpert(Expert):
         out = torch.zeros(goal_q.shape[0], 3, dtype=torch.float64)
         if self.grasp_shift is None:
             return out
-        link = self.hand.description.wrist.link
-        turn = shared_kinematics(self.hand).link_poses(goal_q[fresh], [link])[:, 0, :3, :3].to(torch.float64)
-        out[fresh] = quat_rotate(grasp_rot[fresh], turn @ self.grasp_shift)
+        offset = palm_offset(self.hand, goal_q[fresh], *self.grasp_shift)
+        out[fresh] = quat_rotate(grasp_rot[fresh], offset)
         return out
 
     def _closing_targets(self, q: torch.Tensor, goal: torch.Tensor, fresh: torch.Tensor) -> torch.Tensor:
