@@ -52,6 +52,8 @@ __all__ = ["run_task"]
 _STATES: dict[int, _State] = {}
 """Per-process cache: the run context (one per run) -> built hands, retargeters and library."""
 _LOG = logging.getLogger(__name__)
+UNSTABLE_REST = "unstable_rest"
+"""The reason of an object that does not stay at its resting pose on its own (refine.check_rest)."""
 
 
 def run_task(task: Task, context: RunContext) -> list[GraspRecord]:
@@ -240,21 +242,26 @@ class _Attempt:
         return self.passed and (self.robust.ok or self.robust.reason == NOT_RUN)
 
     @property
+    def resting_validations(self) -> list[SimVerdict]:
+        """The verdicts of the validating simulators in which the object stays at rest (a grasp can be judged)."""
+        return [v for v in self.validations.values() if v.reason != UNSTABLE_REST]
+
+    @property
     def holds_everywhere(self) -> bool:
-        """:attr:`robust_ok`, and in every other validating simulator too: every trial held there, or with
-        robust validation off the nominal trial did."""
+        """:attr:`robust_ok`, and in every other validating simulator in which the object stays at rest too: every
+        trial held there, or with robust validation off the nominal trial did."""
         if self.robust.reason == NOT_RUN:
-            return self.passed and all(v.success for v in self.validations.values())
+            return self.passed and all(v.success for v in self.resting_validations)
         return self.holds_all_but(None)
 
     def holds_all_but(self, trial: str | None) -> bool:
-        """Passed, and in every validating simulator every perturbation trial but ``trial`` held (``None``: every
-        trial, ``SimVerdict.robust`` everywhere); False when the trials did not run."""
-        if not self.passed or self.robust.reason == NOT_RUN or not self.validations:
+        """Passed, and in every validating simulator in which the object stays at rest every perturbation trial but
+        ``trial`` held (``None``: every trial, ``SimVerdict.robust`` there); False when the trials did not run."""
+        if not self.passed or self.robust.reason == NOT_RUN or not self.resting_validations:
             return False
         return all(
             v.success and v.robustness is not None and all(t.success or t.name == trial for t in v.trials)
-            for v in self.validations.values()
+            for v in self.resting_validations
         )
 
     @property
@@ -285,17 +292,23 @@ def _attempts(
     lists every attempt's verdicts and the chosen one's index when it passed; its refinement, validation and robust
     times are the sums over the attempts.
 
+    An object that does not stay at rest on its own in a validating simulator (its verdict there is
+    ``unstable_rest``, whatever the placement) leaves that simulator out of "every validating simulator"; one that does
+    not rest in the refining simulator fails every placement's refinement alike, so the search stops at the first.
+
     An object that no grasp from above can lift at the friction trial's coefficient
     (:func:`ges_core.synthesis.contacts.lift_friction.lift_friction_bound`) cannot give a robust placement: the search
     then stops at the first placement that holds every other trial, and the record's robust error says why."""
-    retry = state.config(hand).robust.retry
-    out_of_reach, why = _friction_out_of_reach(state.config(hand), work)
+    cfg = state.config(hand)
+    retry = cfg.robust.retry
+    out_of_reach, why = _friction_out_of_reach(cfg, work)
     tries, stopped = [], False
     for grasp in grasps:
         tries.append(_attempt(state, sims, hand, work, grasp))
         last = tries[-1]
         stopped = bool(out_of_reach) and last.holds_all_but(out_of_reach)
-        if last.holds_everywhere or (last.passed and not retry) or stopped:
+        unrested = last.refinement.reason == UNSTABLE_REST  # the object rolls off on its own: every placement would
+        if last.holds_everywhere or (last.passed and not retry) or stopped or unrested:
             break
     index = _chosen(tries)
     chosen = tries[index]
