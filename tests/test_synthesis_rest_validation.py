@@ -44,7 +44,7 @@ def test_a_drift_in_another_validating_engine_is_its_verdict(plain, tmp_path, mo
 
     monkeypatch.setattr(worker, "check_rest", drifting_in_pybullet)
     record = _record(run_synthesis([OBJECT], ["allegro"], CONFIG, tmp_path / "ds").root)
-    assert calls == ["pybullet"]  # refinement's own engine is checked by refine_grasp, each other one once
+    assert calls == ["sapien", "pybullet"]  # each engine once per object, the refining one before refinement
     assert plain.validations["pybullet"].reason != "unstable_rest"
     assert record.validations["pybullet"].reason == "unstable_rest" and not record.validations["pybullet"].success
     assert "does not stay at rest in pybullet" in record.errors["validation_pybullet"]

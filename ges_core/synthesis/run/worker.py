@@ -381,18 +381,24 @@ def _attempt(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gra
 def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp):
     """(RefinedGrasp or None, the refinement step's outcome, {"refinement": error message} or {})."""
     cfg, model = state.config(hand), state.hand(hand)
-    start = time.perf_counter()
+    start, rested = time.perf_counter(), sims.rest_seconds
     try:
         asset = state.library.get(work.object_id)
+        drifted = sims.rest_problem(hand, cfg.refine_sim, asset)  # checked once per object, not per placement
+        rest_seconds = sims.rest_seconds - rested  # 0 after the first placement
+        if drifted is not None:
+            outcome = StepOutcome.failed(drifted.reason, rest_seconds)
+            return None, outcome, {"refinement": str(drifted)}
+        settings = cfg.refine.model_copy(update={"rest_steps": 0})  # the object rests: checked just above
         with sims.scenes(hand, cfg.refine_sim).open() as sim:
-            refined = refine_grasp(sim, model, asset, grasp, cfg.refine, thumb_keep=cfg.thumb_keep)
+            refined = refine_grasp(sim, model, asset, grasp, settings, thumb_keep=cfg.thumb_keep)
     except AssetError as error:
         return None, StepOutcome.failed("no_collision_model", time.perf_counter() - start), {"refinement": str(error)}
     except (SynthesisError, SimulationError, ArrayError) as error:  # a non-finite command counts as a blow-up
         outcome = StepOutcome.failed(getattr(error, "reason", "unstable"), time.perf_counter() - start)
         return None, outcome, {"refinement": str(error)}
     verdict = refine_verdict(refined, model, cfg.refine)
-    seconds = float(refined.seconds)
+    seconds = float(refined.seconds) + rest_seconds
     outcome = StepOutcome(ok=True, seconds=seconds) if verdict == "ok" else StepOutcome.failed(verdict, seconds)
     return refined, outcome, {}
 
@@ -407,7 +413,7 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
     asset = state.library.get(work.object_id)
     verdicts, errors = {}, {}
     for name in cfg.validate_sims:
-        drifted = None if name == cfg.refine_sim else sims.rest_problem(hand, name, asset)
+        drifted = sims.rest_problem(hand, name, asset)  # the refining engine's was checked before refinement
         if drifted is not None:  # the object does not stay at rest in this engine: no grasp is judged there
             errors[f"validation_{name}"] = str(drifted)
             verdicts[name] = SimVerdict(success=False, reason=drifted.reason)  # unstable_rest (or unstable)
@@ -462,20 +468,25 @@ class _Sims:
         self.trial_scenes: dict[tuple[str, str], TrialScenes] = {}
         self.rest: dict[tuple[str, str], SynthesisError | None] = {}
         """(hand, simulator) -> why the object does not stay at rest there (None: it does), checked once."""
+        self.rest_seconds = 0.0
+        """Seconds the rest checks have stepped physics since the last :meth:`reset` (their builds excluded)."""
 
     def rest_problem(self, hand: str, name: str, asset) -> SynthesisError | None:
         """Why ``asset`` does not stay at its resting pose on its own in simulator ``name`` (None: it does).
 
-        Refinement checks this in its own engine (:func:`ges_core.synthesis.physics.refine.check_rest`); every
-        other validating engine is checked here, once per (object, hand), in a simulator of its own."""
+        :func:`ges_core.synthesis.physics.refine.check_rest`, once per (object, hand, simulator), in a simulator of
+        its own: the refining engine's before the first refinement, every other validating engine's before its
+        first validation. Its physics time (not the backend's build) is added to :attr:`rest_seconds`."""
         key = (hand, name)
         if key not in self.rest:
             self.rest[key] = None
             with self.scenes(hand, name).open() as sim:
+                start = time.perf_counter()
                 try:
                     check_rest(sim, self.state.hand(hand), asset, self.state.config(hand).refine)
                 except SynthesisError as error:  # reason unstable_rest, or unstable if it blew up settling
                     self.rest[key] = error
+                self.rest_seconds += time.perf_counter() - start
         return self.rest[key]
 
     def scenes(self, hand: str, name: str) -> TrialScenes:
@@ -499,6 +510,7 @@ class _Sims:
         """Forget the setup times and rest checks (between objects)."""
         self.trial_scenes.clear()
         self.rest = {}
+        self.rest_seconds = 0.0
 
 
 def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
