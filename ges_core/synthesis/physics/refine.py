@@ -53,7 +53,10 @@ from ges_core.synthesis.physics.squeeze import press_torques, retract_joints
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 from ges_core.transforms import compose, relative
 
-__all__ = ["RefineConfig", "check_rest", "refine_grasp", "refine_verdict"]
+__all__ = ["UNSTABLE_REST", "RefineConfig", "check_rest", "refine_grasp", "refine_verdict"]
+
+UNSTABLE_REST = "unstable_rest"
+"""The reason :func:`check_rest` gives for an object that does not stay at its resting pose on its own."""
 
 
 class RefineConfig(ConfigModel):
@@ -179,7 +182,7 @@ def check_rest(sim: SimBackend, hand: HandModel, obj: ObjectAsset, config: Refin
             f"{drift.turn_deg:.1f} deg in {drift.seconds:.2f} s (limits {config.rest_max_shift * 1000:g} mm, "
             f"{config.rest_max_turn_deg:g} deg). It rolls or tips over from the library's resting pose; give the "
             "mesh a flatter base or another orientation, or set refine.rest_steps=0 to skip this check",
-            reason="unstable_rest",
+            reason=UNSTABLE_REST,
         )
 
 

@@ -36,7 +36,7 @@ from ges_core.errors import ArrayError, AssetError, SimulationError, StorageErro
 from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
 from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
 from ges_core.synthesis.physics.pregrasp import pregrasp
-from ges_core.synthesis.physics.refine import check_rest, refine_grasp, refine_verdict
+from ges_core.synthesis.physics.refine import UNSTABLE_REST, check_rest, refine_grasp, refine_verdict
 from ges_core.synthesis.physics.robust import friction_trial_name, robust_validate
 from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.physics.validate import validate_grasp
@@ -52,8 +52,6 @@ __all__ = ["run_task"]
 _STATES: dict[int, _State] = {}
 """Per-process cache: the run context (one per run) -> built hands, retargeters and library."""
 _LOG = logging.getLogger(__name__)
-UNSTABLE_REST = "unstable_rest"
-"""The reason of an object that does not stay at its resting pose on its own (refine.check_rest)."""
 
 
 def run_task(task: Task, context: RunContext) -> list[GraspRecord]:
@@ -307,7 +305,7 @@ def _attempts(
         tries.append(_attempt(state, sims, hand, work, grasp))
         last = tries[-1]
         stopped = bool(out_of_reach) and last.holds_all_but(out_of_reach)
-        unrested = last.refinement.reason == UNSTABLE_REST  # the object rolls off on its own: every placement would
+        unrested = last.refinement.reason == UNSTABLE_REST  # the object moves on its own: no placement can refine
         if last.holds_everywhere or (last.passed and not retry) or stopped or unrested:
             break
     index = _chosen(tries)
