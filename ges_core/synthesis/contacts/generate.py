@@ -29,7 +29,7 @@ from scipy.spatial import cKDTree
 
 from ges_core.config import STORED_WHEN_SET, ConfigModel
 from ges_core.contact import ContactSet
-from ges_core.errors import SynthesisError
+from ges_core.errors import ConfigError, SynthesisError
 from ges_core.synthesis.contacts import slicing as sl
 from ges_core.synthesis.contacts.force_closure import ForceClosureConfig, ferrari_canny
 from ges_core.synthesis.contacts.frame import (
@@ -44,7 +44,7 @@ from ges_core.synthesis.contacts.lift_friction import lift_capacity
 from ges_core.synthesis.contacts.optimize import SLOT_WEIGHTS, optimize_contacts
 from ges_core.synthesis.types import ContactResult
 
-__all__ = ["ContactConfig", "generate_contacts", "squeeze_imbalance"]
+__all__ = ["STRATEGIES", "ContactConfig", "generate_contacts", "other_strategy", "squeeze_imbalance"]
 
 SCREEN_EDGES = 4
 """Cone edges of the coarse epsilon that ranks candidate contact sets: a 20-wrench hull costs ~2 ms
@@ -153,17 +153,36 @@ class ContactConfig(ConfigModel):
         return self
 
 
+STRATEGIES = ("horizontal", "vertical")
+"""Grasp strategies: from the side (a tall object), from above."""
+
+
+def other_strategy(strategy: str) -> str:
+    """The strategy that is not ``strategy``."""
+    return "vertical" if strategy == "horizontal" else "horizontal"
+
+
 def generate_contacts(
-    points: np.ndarray, normals: np.ndarray, config: ContactConfig | None = None, *, object_id: str = "", seed: int = 0
+    points: np.ndarray,
+    normals: np.ndarray,
+    config: ContactConfig | None = None,
+    *,
+    object_id: str = "",
+    seed: int = 0,
+    strategy: str | None = None,
 ) -> ContactResult:
     """Five contacts on the object and the grasp's strategy, approach direction and epsilon.
 
     points, normals: (N, 3) surface samples and outward unit normals, resting frame (z up, table at
-    z = 0), metres. seed: used only to subsample clouds above ``max_points``. Raises SynthesisError
-    (reasons ``bad_input``, ``empty_cloud``, ``nan_in_cloud``, ``degenerate_cloud``, ``too_low``,
+    z = 0), metres. seed: used only to subsample clouds above ``max_points``. strategy: None chooses it by PCA
+    and falls back to the other one when no slice fits; ``horizontal`` or ``vertical`` uses that one only (the
+    pipeline's other-strategy pass, :attr:`ges_core.synthesis.SynthesisConfig.other_strategy`). Raises
+    SynthesisError (reasons ``bad_input``, ``empty_cloud``, ``nan_in_cloud``, ``degenerate_cloud``, ``too_low``,
     ``no_graspable_width``, ``no_contact_surface``) when the object cannot be handled, and ``no_more_layouts``
     when ``config.layout_rank`` asks for more candidates in force closure than the object has.
     """
+    if strategy not in (None, *STRATEGIES):
+        raise ConfigError(f"generate_contacts: strategy must be None, 'horizontal' or 'vertical', got {strategy!r}")
     t0 = time.perf_counter()
     cfg = config or ContactConfig()
     pts, nrm, keep = _checked(points, normals, cfg, object_id, seed)
@@ -172,7 +191,8 @@ def generate_contacts(
     symmetric = horizontal_eig_ratio(pts) >= cfg.symmetry_eig_ratio and symmetry_score(pts, nrm) <= cfg.symmetry_tol
     ctx = _Context.build(pts, p, canonical_frame(pts, symmetric, eig_ratio=cfg.symmetry_eig_ratio), cfg, object_id)
     primary = choose_strategy(p, max_tilt_deg=cfg.tall_max_tilt_deg, dominance=cfg.tall_dominance)
-    plan = _plan(pts, nrm, ctx, primary)
+    order = (primary, other_strategy(primary)) if strategy is None else (strategy,)
+    plan = _plan(pts, nrm, ctx, order)
     idx, eps = _final(pts, nrm, ctx, plan)
     meta = _meta(plan, ctx, primary, keep[idx], _opening(pts, idx, plan.axes))
     contacts = ContactSet(pts[idx], nrm[idx], object_id, meta)
@@ -268,20 +288,20 @@ class _Plan:
     """Coarse epsilon (SCREEN_EDGES cone edges) of ``optimized``."""
 
 
-def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, primary: str) -> _Plan:
+def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategies: tuple[str, ...]) -> _Plan:
     """The grasp to use: the ``layout_rank``-th candidate (from 0), in order of preference, whose optimized
     contacts are in force closure (coarse epsilon > 0), or of the first ``lift_candidates`` of them the one that
     holds the most weight per unit of squeeze (:func:`.lift_friction.lift_capacity`); at rank 0 the most
     preferred one when none is in force closure.
 
-    Preference: the PCA strategy before the other one; within a strategy, the squeeze axis that leaves
+    Preference: ``strategies`` in order (the PCA one before the other); within a strategy, the squeeze axis that leaves
     the fingers more room before the other one; within an axis, the layouts in their rank order; for
     each layout, the thumb side that screens better.
     """
     first, widths, found_layout, openings, closing = None, [], False, [], []
     rank = ctx.cfg.layout_rank
     wanted = rank + 1 if rank else ctx.cfg.lift_candidates  # ContactConfig refuses both set
-    for strategy in (primary, "vertical" if primary == "horizontal" else "horizontal"):
+    for strategy in strategies:
         for col, layouts in _ranked_axes(pts, nrm, ctx, strategy, widths):
             found_layout = True
             for plan in _side_plans(pts, nrm, ctx, strategy, col, layouts, openings):

@@ -48,6 +48,15 @@ class SynthesisConfig(ConfigModel):
         description="wrist placements tried per object and hand until one passes refinement and validation (and "
         "every perturbation trial, with robust.retry)",
     )
+    # other_strategy: the contacts' strategy comes from the cloud's PCA (side grasps of tall objects, docs/synthesis/
+    # contacts.md); where none of its placements passes, the other strategy often does. Measured (2026-12-04, the
+    # YCB soup can stood upright): the side grasp's 16 placements all touched the table (Allegro) or were out of
+    # reach (Shadow), the grasp from above held in both engines. It costs time only for the pairs that failed.
+    other_strategy: bool = Field(
+        True,
+        description="when no wrist placement of the contacts' strategy passes refinement and the nominal validation "
+        "(or retargeting fails), generate contacts with the other strategy and try its placements too",
+    )
     # One opened hand for every step: retargeting checks the table clearance of the hand that refinement
     # starts from and that the pre-grasp opens (see THUMB_KEEP for the value).
     thumb_keep: int = Field(

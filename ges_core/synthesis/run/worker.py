@@ -33,7 +33,7 @@ from ges_core.dataset import (
     software_versions,
 )
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
-from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
+from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts, other_strategy
 from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import UNSTABLE_REST, check_rest, refine_grasp, refine_verdict
@@ -148,7 +148,8 @@ def _all_contacts(state: _State, task: Task) -> dict[tuple[str, str], ObjectWork
     return works
 
 
-def _contacts(state: _State, object_id: str, contacts: ContactConfig) -> ObjectWork:
+def _contacts(state: _State, object_id: str, contacts: ContactConfig, strategy: str | None = None) -> ObjectWork:
+    """The object's contact step (``strategy``: None chooses it, else only that one is tried)."""
     lib, cfg = state.library, state.context.config
     entry = lib.entry(object_id)
     seed = object_seed(cfg.seed, object_id)
@@ -162,7 +163,7 @@ def _contacts(state: _State, object_id: str, contacts: ContactConfig) -> ObjectW
     start = time.perf_counter()
     try:
         points, normals = lib.point_cloud(object_id, cfg.points, seed=seed)
-        result = generate_contacts(points, normals, contacts, object_id=object_id, seed=seed)
+        result = generate_contacts(points, normals, contacts, object_id=object_id, seed=seed, strategy=strategy)
     except SynthesisError as error:
         return work.failed_contacts(error.reason, str(error), time.perf_counter() - start)
     except AssetError as error:
@@ -189,22 +190,74 @@ def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[lis
 
 # -- steps 3-5: refinement, pre-grasp, validation ---------------------------------------------
 def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> GraspRecord:
+    """The record of ``(work.object_id, hand)``: steps 3-5 on ``result`` (the retargeted placements), and on the
+    other strategy's placements too when none of these passed (:func:`_other_strategy`)."""
+    pair = _pair(state, sims, hand, work, result)
+    if not _wants_other_strategy(state, hand, work, pair):
+        return build_record(state, hand, work, pair)
+    return _other_strategy(state, sims, hand, work, pair)
+
+
+def _pair(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> PairResult:
     steps = {"contacts": work.step}
     if result is None:
-        skipped = _skipped("retargeting", "refinement", "validation", "robust")
-        return build_record(state, hand, work, PairResult(steps | skipped))
+        return PairResult(steps | _skipped("retargeting", "refinement", "validation", "robust"))
     if isinstance(result, SynthesisError):
         steps["retargeting"] = StepOutcome.failed(result.reason)
-        pair = PairResult(steps | _skipped("refinement", "validation", "robust"), errors={"retargeting": str(result)})
-        return build_record(state, hand, work, pair)
+        return PairResult(steps | _skipped("refinement", "validation", "robust"), errors={"retargeting": str(result)})
     best = result[0]
     seconds = float(best.meta.get("seconds", 0.0))
     if not bool(best.meta.get("reached", True)):
         steps["retargeting"] = StepOutcome.failed("unreachable", seconds)
-        pair = PairResult(steps | _skipped("refinement", "validation", "robust"), grasp=best, stage="retargeting")
-        return build_record(state, hand, work, pair)
+        return PairResult(steps | _skipped("refinement", "validation", "robust"), grasp=best, stage="retargeting")
     steps["retargeting"] = StepOutcome(ok=True, seconds=seconds)
-    return build_record(state, hand, work, _attempts(state, sims, hand, work, result, steps))
+    return _attempts(state, sims, hand, work, result, steps)
+
+
+def _wants_other_strategy(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
+    """Whether the pair goes on to the other strategy: on in the settings, contacts generated here (not taken from a
+    stored record), and no placement passed refinement and the nominal validation (or retargeting failed)."""
+    return (
+        state.config(hand).other_strategy
+        and state.source is None
+        and work.result is not None
+        and pair.attempt is None
+        and pair.steps["refinement"].reason != UNSTABLE_REST  # the object moves on its own: no grasp can refine
+    )
+
+
+def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, first: PairResult) -> GraspRecord:
+    """Contacts of the strategy ``work``'s are not (``generate_contacts(strategy=...)``), retargeted and taken
+    through steps 3-5 like the first ones. The record keeps the other strategy's contacts and outcome when one of
+    its placements passed, else the first strategy's; either way its ``attempts`` list both strategies' placements
+    (the first's first), every step's seconds are the two passes' sums, and ``extra["other_strategy"]`` says what
+    was tried (``strategy``, ``first_attempt``: the index of its first attempt, ``kept``, ``reason`` if it failed).
+    """
+    strategy = other_strategy(work.result.strategy)
+    other = _contacts(state, work.object_id, state.config(hand).contacts, strategy=strategy)
+    second = _pair(state, sims, hand, other, _retarget(state, hand, [other])[0] if other.result else None)
+    kept = second.attempt is not None
+    pair = _joined(first, second, kept)
+    note = {"strategy": strategy, "first_attempt": len(first.attempts), "kept": kept}
+    if not kept:
+        failed = next((n for n, o in second.steps.items() if not o.ok), "contacts")
+        note["reason"] = f"{failed}: {second.steps[failed].reason}"
+    record = build_record(state, hand, other if kept else work, pair)
+    return replace(record, extra={**record.extra, "other_strategy": note})
+
+
+def _joined(first: PairResult, second: PairResult, second_kept: bool) -> PairResult:
+    """The kept pass (``second`` if ``second_kept``) with both passes' attempts and summed step and setup seconds."""
+    kept = second if second_kept else first
+    steps = {
+        name: replace(outcome, seconds=first.steps[name].seconds + second.steps[name].seconds)
+        for name, outcome in kept.steps.items()
+    }
+    setup = dict(first.setup_seconds)
+    for name, seconds in second.setup_seconds.items():
+        setup[name] = setup.get(name, 0.0) + seconds
+    attempt = None if kept.attempt is None else kept.attempt + (len(first.attempts) if second_kept else 0)
+    return replace(kept, steps=steps, attempts=first.attempts + second.attempts, attempt=attempt, setup_seconds=setup)
 
 
 def _skipped(*names: str) -> dict[str, StepOutcome]:

@@ -1,0 +1,106 @@
+"""The other grasp strategy: contacts of a forced strategy, and the pipeline's second pass when none of the PCA
+strategy's placements passes (``SynthesisConfig.other_strategy``)."""
+
+from __future__ import annotations
+
+import pytest
+
+from ges_core.dataset import open_dataset
+from ges_core.errors import ConfigError
+from ges_core.objects.library import ObjectLibrary
+from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis.contacts.generate import generate_contacts
+
+OID = "procedural/can/000"  # upright and tall: PCA chooses the side grasp (horizontal)
+
+
+@pytest.fixture(scope="module")
+def can_cloud():
+    return ObjectLibrary(sources=("procedural",), procedural_count=1).point_cloud(OID, 1024, seed=0)
+
+
+def test_a_forced_strategy_is_the_only_one_tried(can_cloud) -> None:
+    points, normals = can_cloud
+    chosen = generate_contacts(points, normals, object_id=OID)
+    forced = generate_contacts(points, normals, object_id=OID, strategy="vertical")
+    assert chosen.strategy == "horizontal" and forced.strategy == "vertical"
+    assert forced.contacts.meta["strategy_pca"] == "horizontal"  # what PCA chose, as without forcing
+    assert forced.approach[2] < -0.99 and abs(chosen.approach[2]) < 0.1  # from above; from the side
+    again = generate_contacts(points, normals, object_id=OID, strategy="horizontal")
+    assert (again.contacts.positions == chosen.contacts.positions).all()  # forcing PCA's own choice changes nothing
+    with pytest.raises(ConfigError, match="strategy must be"):
+        generate_contacts(points, normals, object_id=OID, strategy="diagonal")
+
+
+def _doubles(monkeypatch, *, fails: set[str]) -> dict[str, list]:
+    """Test doubles: refinement's verdict is ``table_contact`` for placements of a strategy in ``fails``; every
+    validation and perturbation trial holds. Returns the strategies generated and each refinement's seconds."""
+    from ges_core.synthesis.physics.robust import RobustResult, TrialResult
+    from ges_core.synthesis.run import worker
+    from ges_core.synthesis.types import ValidationResult
+
+    seen: dict[str, list] = {"strategies": [], "refined": []}
+    real_generate, real_refine, real_verdict = worker.generate_contacts, worker.refine_grasp, worker.refine_verdict
+
+    def generate(*args, **kwargs):
+        result = real_generate(*args, **kwargs)
+        seen["strategies"].append(result.strategy)
+        return result
+
+    def refine(*args, **kwargs):
+        refined = real_refine(*args, **kwargs)
+        seen["refined"].append(refined.seconds)
+        return refined
+
+    def verdict(*args, **kwargs):
+        return "table_contact" if seen["strategies"][-1] in fails else real_verdict(*args, **kwargs)
+
+    monkeypatch.setattr(worker, "generate_contacts", generate)
+    monkeypatch.setattr(worker, "refine_grasp", refine)
+    monkeypatch.setattr(worker, "refine_verdict", verdict)
+    monkeypatch.setattr(worker, "validate_grasp", lambda *a, **k: ValidationResult(True, "success", {}, 0.01))
+    monkeypatch.setattr(
+        worker, "robust_validate", lambda *a, **k: RobustResult((TrialResult("pose_1", True, "success", 0.01),), True)
+    )
+    return seen
+
+
+def _run(tmp_path, **settings):
+    library = {"sources": ["procedural"], "procedural_count": 1}
+    config = SynthesisConfig.model_validate({"library": library, "attempts": 3, **settings})
+    run_synthesis([OID], ["allegro"], config, tmp_path / "ds")
+    (record,) = open_dataset(tmp_path / "ds")
+    return record
+
+
+@pytest.mark.sim
+def test_when_no_side_placement_refines_the_grasp_from_above_is_tried_and_kept(tmp_path, monkeypatch) -> None:
+    seen = _doubles(monkeypatch, fails={"horizontal"})
+    record = _run(tmp_path)
+    assert seen["strategies"] == ["horizontal", "vertical"]
+    assert record.strategy == "vertical" and record.contacts.meta["strategy_pca"] == "horizontal"
+    assert [a.refinement for a in record.attempts] == ["table_contact"] * 3 + ["ok"]
+    assert record.attempt == 3 and record.robust
+    assert record.extra["other_strategy"] == {"strategy": "vertical", "first_attempt": 3, "kept": True}
+    # both passes' refinements are counted (the resting check adds its own physics time once)
+    assert record.steps["refinement"].seconds >= sum(seen["refined"])
+    assert record.approach[2] < -0.99
+
+
+@pytest.mark.sim
+def test_when_both_strategies_fail_the_first_is_kept_and_the_second_is_noted(tmp_path, monkeypatch) -> None:
+    seen = _doubles(monkeypatch, fails={"horizontal", "vertical"})
+    record = _run(tmp_path)
+    assert seen["strategies"] == ["horizontal", "vertical"] and record.strategy == "horizontal"
+    assert len(record.attempts) == 6 and record.attempt is None and not record.success
+    assert record.extra["other_strategy"] == {
+        "strategy": "vertical", "first_attempt": 3, "kept": False, "reason": "refinement: table_contact"
+    }  # fmt: skip
+
+
+@pytest.mark.sim
+def test_switched_off_the_pipeline_stops_with_the_first_strategy(tmp_path, monkeypatch) -> None:
+    seen = _doubles(monkeypatch, fails={"horizontal"})
+    record = _run(tmp_path, other_strategy=False)
+    assert seen["strategies"] == ["horizontal"] and record.strategy == "horizontal"
+    assert len(record.attempts) == 3 and record.attempt is None and "other_strategy" not in record.extra
