@@ -39,7 +39,7 @@ def _doubles(monkeypatch, *, fails: set[str]) -> dict[str, list]:
     from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
 
-    seen: dict[str, list] = {"strategies": [], "refined": []}
+    seen: dict[str, list] = {"strategies": [], "refined": [], "setup": []}
     real_generate, real_refine, real_verdict = worker.generate_contacts, worker.refine_grasp, worker.refine_verdict
 
     def generate(*args, **kwargs):
@@ -55,6 +55,14 @@ def _doubles(monkeypatch, *, fails: set[str]) -> dict[str, list]:
     def verdict(*args, **kwargs):
         return "table_contact" if seen["strategies"][-1] in fails else real_verdict(*args, **kwargs)
 
+    real_reset = worker._Sims.reset
+
+    def reset(self):  # the backends built for the object, read before they are forgotten
+        if self.trial_scenes:
+            seen["setup"].append(self.setup_seconds())
+        real_reset(self)
+
+    monkeypatch.setattr(worker._Sims, "reset", reset)
     monkeypatch.setattr(worker, "generate_contacts", generate)
     monkeypatch.setattr(worker, "refine_grasp", refine)
     monkeypatch.setattr(worker, "refine_verdict", verdict)
@@ -84,6 +92,7 @@ def test_when_no_side_placement_refines_the_grasp_from_above_is_tried_and_kept(t
     assert record.extra["other_strategy"] == {"strategy": "vertical", "first_attempt": 3, "kept": True}
     # both passes' refinements are counted (the resting check adds its own physics time once)
     assert record.steps["refinement"].seconds >= sum(seen["refined"])
+    assert record.setup_seconds == pytest.approx(seen["setup"][0])  # every backend of both passes, once
     assert record.approach[2] < -0.99
 
 

@@ -237,7 +237,7 @@ def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, fir
     other = _contacts(state, work.object_id, state.config(hand).contacts, strategy=strategy)
     second = _pair(state, sims, hand, other, _retarget(state, hand, [other])[0] if other.result else None)
     kept = second.attempt is not None
-    pair = _joined(first, second, kept)
+    pair = replace(_joined(first, second, kept), setup_seconds=sims.setup_seconds())  # every backend of both passes
     note = {"strategy": strategy, "first_attempt": len(first.attempts), "kept": kept}
     if not kept:
         failed = next((n for n, o in second.steps.items() if not o.ok), "contacts")
@@ -247,17 +247,15 @@ def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, fir
 
 
 def _joined(first: PairResult, second: PairResult, second_kept: bool) -> PairResult:
-    """The kept pass (``second`` if ``second_kept``) with both passes' attempts and summed step and setup seconds."""
+    """The kept pass (``second`` if ``second_kept``) with both passes' attempts and summed step seconds (a pass's
+    ``setup_seconds`` are :meth:`_Sims.setup_seconds`, already every backend since the object began)."""
     kept = second if second_kept else first
     steps = {
         name: replace(outcome, seconds=first.steps[name].seconds + second.steps[name].seconds)
         for name, outcome in kept.steps.items()
     }
-    setup = dict(first.setup_seconds)
-    for name, seconds in second.setup_seconds.items():
-        setup[name] = setup.get(name, 0.0) + seconds
     attempt = None if kept.attempt is None else kept.attempt + (len(first.attempts) if second_kept else 0)
-    return replace(kept, steps=steps, attempts=first.attempts + second.attempts, attempt=attempt, setup_seconds=setup)
+    return replace(kept, steps=steps, attempts=first.attempts + second.attempts, attempt=attempt)
 
 
 def _skipped(*names: str) -> dict[str, StepOutcome]:
