@@ -3,16 +3,23 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Literal, get_args
 
 import numpy as np
 
 from ges_core.contact import ContactSet
 
-__all__ = ["ContactResult", "Grasp", "RefinedGrasp", "ValidationResult"]
+__all__ = ["STRATEGIES", "ContactResult", "Grasp", "RefinedGrasp", "Strategy", "ValidationResult", "other_strategy"]
 
 Strategy = Literal["horizontal", "vertical"]
 """Horizontal: approach from the side (tall objects); vertical: approach from above."""
+STRATEGIES: tuple[Strategy, ...] = get_args(Strategy)
+"""Every :data:`Strategy`."""
+
+
+def other_strategy(strategy: Strategy) -> Strategy:
+    """The strategy that is not ``strategy``."""
+    return "vertical" if strategy == "horizontal" else "horizontal"
 
 
 @dataclass(frozen=True)

@@ -42,9 +42,9 @@ from ges_core.synthesis.contacts.frame import (
 )
 from ges_core.synthesis.contacts.lift_friction import lift_capacity
 from ges_core.synthesis.contacts.optimize import SLOT_WEIGHTS, optimize_contacts
-from ges_core.synthesis.types import ContactResult
+from ges_core.synthesis.types import STRATEGIES, ContactResult, Strategy, other_strategy
 
-__all__ = ["STRATEGIES", "ContactConfig", "generate_contacts", "other_strategy", "squeeze_imbalance"]
+__all__ = ["ContactConfig", "generate_contacts", "squeeze_imbalance"]
 
 SCREEN_EDGES = 4
 """Cone edges of the coarse epsilon that ranks candidate contact sets: a 20-wrench hull costs ~2 ms
@@ -153,15 +153,6 @@ class ContactConfig(ConfigModel):
         return self
 
 
-STRATEGIES = ("horizontal", "vertical")
-"""Grasp strategies: from the side (a tall object), from above."""
-
-
-def other_strategy(strategy: str) -> str:
-    """The strategy that is not ``strategy``."""
-    return "vertical" if strategy == "horizontal" else "horizontal"
-
-
 def generate_contacts(
     points: np.ndarray,
     normals: np.ndarray,
@@ -169,7 +160,7 @@ def generate_contacts(
     *,
     object_id: str = "",
     seed: int = 0,
-    strategy: str | None = None,
+    strategy: Strategy | None = None,
 ) -> ContactResult:
     """Five contacts on the object and the grasp's strategy, approach direction and epsilon.
 
@@ -288,7 +279,7 @@ class _Plan:
     """Coarse epsilon (SCREEN_EDGES cone edges) of ``optimized``."""
 
 
-def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategies: tuple[str, ...]) -> _Plan:
+def _plan(pts: np.ndarray, nrm: np.ndarray, ctx: _Context, strategies: tuple[Strategy, ...]) -> _Plan:
     """The grasp to use: the ``layout_rank``-th candidate (from 0), in order of preference, whose optimized
     contacts are in force closure (coarse epsilon > 0), or of the first ``lift_candidates`` of them the one that
     holds the most weight per unit of squeeze (:func:`.lift_friction.lift_capacity`); at rank 0 the most

@@ -33,7 +33,7 @@ from ges_core.dataset import (
     software_versions,
 )
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
-from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts, other_strategy
+from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
 from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import UNSTABLE_REST, check_rest, refine_grasp, refine_verdict
@@ -45,7 +45,7 @@ from ges_core.synthesis.retarget.search import ObjectCloud
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.records import ObjectWork, PairResult, build_record, contacts_from_record
 from ges_core.synthesis.run.tasks import RunContext, Task, object_seed
-from ges_core.synthesis.types import Grasp, RefinedGrasp
+from ges_core.synthesis.types import Grasp, RefinedGrasp, Strategy, other_strategy
 
 __all__ = ["run_task"]
 
@@ -148,8 +148,15 @@ def _all_contacts(state: _State, task: Task) -> dict[tuple[str, str], ObjectWork
     return works
 
 
-def _contacts(state: _State, object_id: str, contacts: ContactConfig, strategy: str | None = None) -> ObjectWork:
-    """The object's contact step (``strategy``: None chooses it, else only that one is tried)."""
+def _contacts(
+    state: _State,
+    object_id: str,
+    contacts: ContactConfig,
+    strategy: Strategy | None = None,
+    cloud: ObjectCloud | None = None,
+) -> ObjectWork:
+    """The object's contact step (``strategy``: None chooses it, else only that one is tried; ``cloud``: the
+    object's samples when already drawn with the object's seed, else they are drawn here)."""
     lib, cfg = state.library, state.context.config
     entry = lib.entry(object_id)
     seed = object_seed(cfg.seed, object_id)
@@ -162,7 +169,10 @@ def _contacts(state: _State, object_id: str, contacts: ContactConfig, strategy: 
             return work
     start = time.perf_counter()
     try:
-        points, normals = lib.point_cloud(object_id, cfg.points, seed=seed)
+        if cloud is None:
+            points, normals = lib.point_cloud(object_id, cfg.points, seed=seed)
+        else:
+            points, normals = cloud.points, cloud.normals
         result = generate_contacts(points, normals, contacts, object_id=object_id, seed=seed, strategy=strategy)
     except SynthesisError as error:
         return work.failed_contacts(error.reason, str(error), time.perf_counter() - start)
@@ -234,10 +244,10 @@ def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, fir
     was tried (``strategy``, ``first_attempt``: the index of its first attempt, ``kept``, ``reason`` if it failed).
     """
     strategy = other_strategy(work.result.strategy)
-    other = _contacts(state, work.object_id, state.config(hand).contacts, strategy=strategy)
+    other = _contacts(state, work.object_id, state.config(hand).contacts, strategy=strategy, cloud=work.cloud)
     second = _pair(state, sims, hand, other, _retarget(state, hand, [other])[0] if other.result else None)
     kept = second.attempt is not None
-    pair = replace(_joined(first, second, kept), setup_seconds=sims.setup_seconds())  # every backend of both passes
+    pair = replace(_joined(first, second), setup_seconds=sims.setup_seconds())  # every backend of both passes
     note = {"strategy": strategy, "first_attempt": len(first.attempts), "kept": kept}
     if not kept:
         failed = next((n for n, o in second.steps.items() if not o.ok), "contacts")
@@ -246,15 +256,17 @@ def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, fir
     return replace(record, extra={**record.extra, "other_strategy": note})
 
 
-def _joined(first: PairResult, second: PairResult, second_kept: bool) -> PairResult:
-    """The kept pass (``second`` if ``second_kept``) with both passes' attempts and summed step seconds (a pass's
-    ``setup_seconds`` are :meth:`_Sims.setup_seconds`, already every backend since the object began)."""
-    kept = second if second_kept else first
+def _joined(first: PairResult, second: PairResult) -> PairResult:
+    """The kept pass (``second`` when one of its placements passed, else ``first``) with both passes' attempts and
+    summed step seconds (``setup_seconds`` is left to the caller: :meth:`_Sims.setup_seconds` already counts both)."""
+    if second.attempt is None:
+        kept, attempt = first, None
+    else:
+        kept, attempt = second, len(first.attempts) + second.attempt
     steps = {
         name: replace(outcome, seconds=first.steps[name].seconds + second.steps[name].seconds)
         for name, outcome in kept.steps.items()
     }
-    attempt = None if kept.attempt is None else kept.attempt + (len(first.attempts) if second_kept else 0)
     return replace(kept, steps=steps, attempts=first.attempts + second.attempts, attempt=attempt)
 
 
