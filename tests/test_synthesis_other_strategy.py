@@ -1,5 +1,5 @@
 """The other grasp strategy: contacts of a forced strategy, and the pipeline's second pass when none of the PCA
-strategy's placements passes (``SynthesisConfig.other_strategy``)."""
+strategy's placements passes, or none holds every perturbation trial (``SynthesisConfig.other_strategy``)."""
 
 from __future__ import annotations
 
@@ -32,9 +32,10 @@ def test_a_forced_strategy_is_the_only_one_tried(can_cloud) -> None:
         generate_contacts(points, normals, object_id=OID, strategy="diagonal")
 
 
-def _doubles(monkeypatch, *, fails: set[str]) -> dict[str, list]:
+def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = None) -> dict[str, list]:
     """Test doubles: refinement's verdict is ``table_contact`` for placements of a strategy in ``fails``; every
-    validation and perturbation trial holds. Returns the strategies generated and each refinement's seconds."""
+    validation holds; of four perturbation trials, a strategy in ``fragile`` fails that many (from the last), the
+    others none. Returns the strategies generated and each refinement's seconds."""
     from ges_core.synthesis.physics.robust import RobustResult, TrialResult
     from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
@@ -67,9 +68,14 @@ def _doubles(monkeypatch, *, fails: set[str]) -> dict[str, list]:
     monkeypatch.setattr(worker, "refine_grasp", refine)
     monkeypatch.setattr(worker, "refine_verdict", verdict)
     monkeypatch.setattr(worker, "validate_grasp", lambda *a, **k: ValidationResult(True, "success", {}, 0.01))
-    monkeypatch.setattr(
-        worker, "robust_validate", lambda *a, **k: RobustResult((TrialResult("pose_1", True, "success", 0.01),), True)
-    )
+    def robust(*args, **kwargs):
+        failed = (fragile or {}).get(seen["strategies"][-1], 0)
+        names = ("pose_1", "pose_2", "mass_x2", "friction_0.5")
+        trials = tuple(TrialResult(n, i < 4 - failed, "success" if i < 4 - failed else "dropped", 0.01)
+                       for i, n in enumerate(names))  # fmt: skip
+        return RobustResult(trials, True)
+
+    monkeypatch.setattr(worker, "robust_validate", robust)
     return seen
 
 
@@ -110,6 +116,47 @@ def test_when_both_strategies_fail_the_first_is_kept_and_the_second_is_noted(tmp
 @pytest.mark.sim
 def test_switched_off_the_pipeline_stops_with_the_first_strategy(tmp_path, monkeypatch) -> None:
     seen = _doubles(monkeypatch, fails={"horizontal"})
-    record = _run(tmp_path, other_strategy=False)
+    record = _run(tmp_path, other_strategy="never")
     assert seen["strategies"] == ["horizontal"] and record.strategy == "horizontal"
     assert len(record.attempts) == 3 and record.attempt is None and "other_strategy" not in record.extra
+
+
+@pytest.mark.sim
+def test_when_no_side_placement_is_robust_the_robust_grasp_from_above_is_kept(tmp_path, monkeypatch) -> None:
+    seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
+    record = _run(tmp_path)
+    assert seen["strategies"] == ["horizontal", "vertical"]
+    assert [a.robust for a in record.attempts] == ["friction_0.5"] * 3 + ["ok"]
+    assert [a.robustness for a in record.attempts] == [0.75] * 3 + [1.0]
+    assert record.strategy == "vertical" and record.attempt == 3 and record.robust
+    assert record.extra["other_strategy"] == {"strategy": "vertical", "first_attempt": 3, "kept": True}
+
+
+@pytest.mark.sim
+def test_a_second_strategy_that_holds_no_better_leaves_the_first(tmp_path, monkeypatch) -> None:
+    seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1, "vertical": 2})
+    record = _run(tmp_path)
+    assert seen["strategies"] == ["horizontal", "vertical"] and record.strategy == "horizontal"
+    assert len(record.attempts) == 6 and record.attempt == 0 and record.steps["validation"].ok and not record.robust
+    assert record.extra["other_strategy"] == {
+        "strategy": "vertical", "first_attempt": 3, "kept": False,
+        "reason": "held no better: merit [1, 0.5] against the first strategy's [1, 0.75]",
+    }  # fmt: skip
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("setting", ["failed", True])
+def test_failed_tries_the_other_strategy_only_where_nothing_passed(tmp_path, monkeypatch, setting) -> None:
+    seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
+    record = _run(tmp_path, other_strategy=setting)
+    assert seen["strategies"] == ["horizontal"] and record.strategy == "horizontal"
+    assert len(record.attempts) == 3 and record.attempt == 0 and record.steps["validation"].ok and not record.robust
+    assert "other_strategy" not in record.extra
+
+
+def test_other_strategy_settings() -> None:
+    assert SynthesisConfig().other_strategy == "not_robust"
+    assert SynthesisConfig(other_strategy=True).other_strategy == "failed"  # the bool of datasets before 12-04
+    assert SynthesisConfig(other_strategy=False).other_strategy == "never"
+    with pytest.raises(ValueError, match="'never', 'failed' or 'not_robust'"):
+        SynthesisConfig(other_strategy="always")

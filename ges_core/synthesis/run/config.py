@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import copy
-from typing import Any
+from typing import Any, Literal
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
@@ -19,7 +19,10 @@ from ges_core.synthesis.physics.robust import RobustConfig
 from ges_core.synthesis.physics.validate import ValidateConfig
 from ges_core.synthesis.retarget.retargeter import RetargetConfig
 
-__all__ = ["SynthesisConfig"]
+__all__ = ["OtherStrategy", "SynthesisConfig"]
+
+OtherStrategy = Literal["never", "failed", "not_robust"]
+"""When a pair tries the other grasp strategy (:attr:`SynthesisConfig.other_strategy`)."""
 
 
 class SynthesisConfig(ConfigModel):
@@ -51,12 +54,24 @@ class SynthesisConfig(ConfigModel):
     # other_strategy: the contacts' strategy comes from the cloud's PCA (side grasps of tall objects, docs/synthesis/
     # contacts.md); where none of its placements passes, the other strategy often does. Measured (2026-12-04, the
     # YCB soup can stood upright): the side grasp's 16 placements all touched the table (Allegro) or were out of
-    # reach (Shadow), the grasp from above held in both engines. It costs time only for the pairs that failed.
-    other_strategy: bool = Field(
-        True,
-        description="when no wrist placement of the contacts' strategy passes refinement and the nominal validation "
-        "(or retargeting fails), generate contacts with the other strategy and try its placements too",
+    # reach (Shadow), the grasp from above held in both engines. "not_robust" also tries it where placements passed
+    # the nominal trial but none held every perturbation trial in every validating engine (docs/synthesis/
+    # refine_validate.md, "The other strategy"). It costs time only for the pairs that go on.
+    other_strategy: OtherStrategy = Field(
+        "not_robust",
+        description="when to generate contacts with the other strategy and try its placements too: 'failed' (no "
+        "wrist placement of the contacts' strategy passed refinement and the nominal validation, or retargeting "
+        "failed), 'not_robust' (that, or none held every perturbation trial in every validating simulator; with "
+        "robust.enabled and robust.retry), 'never'; true and false mean 'failed' and 'never'",
     )
+
+    @field_validator("other_strategy", mode="before")
+    @classmethod
+    def _other_strategy_from_bool(cls, value: Any) -> Any:
+        if isinstance(value, bool):  # the key was a bool before 2026-12-04's 'not_robust'
+            return "failed" if value else "never"
+        return value
+
     # One opened hand for every step: retargeting checks the table clearance of the hand that refinement
     # starts from and that the pre-grasp opens (see THUMB_KEEP for the value).
     thumb_keep: int = Field(

@@ -86,6 +86,10 @@ class PairResult:
     """Error message per failed step (retargeting, refinement, validation_<sim>)."""
     setup_seconds: dict[str, float] = field(default_factory=dict)
     """Per simulator built for this pair, its build + hand load, seconds."""
+    merit: tuple[int, float] = (0, 0.0)
+    """How well the chosen attempt held, for comparing two passes of one pair (greater is better): (3 held every
+    trial in every validating simulator, 2 robust in the primary one, 1 passed the nominal trial, 0 did not pass;
+    the primary simulator's robustness score or 0)."""
 
 
 def build_record(state, hand: str, work: ObjectWork, pair: PairResult) -> GraspRecord:

@@ -201,7 +201,7 @@ def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[lis
 # -- steps 3-5: refinement, pre-grasp, validation ---------------------------------------------
 def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> GraspRecord:
     """The record of ``(work.object_id, hand)``: steps 3-5 on ``result`` (the retargeted placements), and on the
-    other strategy's placements too when none of these passed (:func:`_other_strategy`)."""
+    other strategy's placements too when these fell short (:func:`_wants_other_strategy`, :func:`_other_strategy`)."""
     pair = _pair(state, sims, hand, work, result)
     if not _wants_other_strategy(state, hand, work, pair):
         return build_record(state, hand, work, pair)
@@ -225,44 +225,56 @@ def _pair(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> Pa
 
 
 def _wants_other_strategy(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
-    """Whether the pair goes on to the other strategy: on in the settings, contacts generated here (not taken from a
-    stored record), and no placement passed refinement and the nominal validation (or retargeting failed)."""
-    return (
-        state.config(hand).other_strategy
-        and state.source is None
-        and work.result is not None
-        and pair.attempt is None
-        and pair.steps["refinement"].reason != UNSTABLE_REST  # the object moves on its own: no grasp can refine
-    )
+    """Whether the pair goes on to the other strategy: ``other_strategy`` is not 'never', contacts were generated
+    here (not taken from a stored record), the object rests in the refining engine, and no placement passed
+    refinement and the nominal validation (or retargeting failed); with 'not_robust' (and ``robust.retry``) also
+    when placements passed but none held every trial in every validating simulator, unless the friction trial is out
+    of any placement's reach (:func:`_friction_out_of_reach`: it is the cloud's, so the other strategy's too)."""
+    cfg = state.config(hand)
+    if cfg.other_strategy == "never" or state.source is not None or work.result is None:
+        return False
+    if pair.steps["refinement"].reason == UNSTABLE_REST:  # the object moves on its own: no grasp can refine
+        return False
+    if pair.attempt is None:
+        return True
+    fragile = pair.merit[0] < _HOLDS_EVERYWHERE and cfg.robust.enabled and cfg.robust.retry
+    return cfg.other_strategy == "not_robust" and fragile and _friction_out_of_reach(cfg, work)[0] is None
 
 
 def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, first: PairResult) -> GraspRecord:
     """Contacts of the strategy ``work``'s are not (``generate_contacts(strategy=...)``), retargeted and taken
-    through steps 3-5 like the first ones. The record keeps the other strategy's contacts and outcome when one of
-    its placements passed, else the first strategy's; either way its ``attempts`` list both strategies' placements
+    through steps 3-5 like the first ones. The record keeps the other strategy's contacts and outcome when its chosen
+    placement held better (:attr:`PairResult.merit`: held everywhere, robust in the primary simulator, passed, then
+    the robustness score), else the first strategy's; either way its ``attempts`` list both strategies' placements
     (the first's first), every step's seconds are the two passes' sums, and ``extra["other_strategy"]`` says what
-    was tried (``strategy``, ``first_attempt``: the index of its first attempt, ``kept``, ``reason`` if it failed).
+    was tried (``strategy``, ``first_attempt``: the index of its first attempt, ``kept``, ``reason`` when not kept).
     """
     strategy = other_strategy(work.result.strategy)
     other = _contacts(state, work.object_id, state.config(hand).contacts, strategy=strategy, cloud=work.cloud)
     second = _pair(state, sims, hand, other, _retarget(state, hand, [other])[0] if other.result else None)
-    kept = second.attempt is not None
-    pair = replace(_joined(first, second), setup_seconds=sims.setup_seconds())  # every backend of both passes
+    kept = second.merit > first.merit
+    pair = replace(_joined(first, second, kept), setup_seconds=sims.setup_seconds())  # every backend of both passes
     note = {"strategy": strategy, "first_attempt": len(first.attempts), "kept": kept}
     if not kept:
-        failed = next((n for n, o in second.steps.items() if not o.ok), "contacts")
-        note["reason"] = f"{failed}: {second.steps[failed].reason}"
+        note["reason"] = _why_not_kept(first, second)
     record = build_record(state, hand, other if kept else work, pair)
     return replace(record, extra={**record.extra, "other_strategy": note})
 
 
-def _joined(first: PairResult, second: PairResult) -> PairResult:
-    """The kept pass (``second`` when one of its placements passed, else ``first``) with both passes' attempts and
-    summed step seconds (``setup_seconds`` is left to the caller: :meth:`_Sims.setup_seconds` already counts both)."""
+def _why_not_kept(first: PairResult, second: PairResult) -> str:
+    """``step: reason`` of the second pass's first failed step; when it passed, how it held no better."""
     if second.attempt is None:
-        kept, attempt = first, None
-    else:
-        kept, attempt = second, len(first.attempts) + second.attempt
+        failed = next((n for n, o in second.steps.items() if not o.ok), "contacts")
+        return f"{failed}: {second.steps[failed].reason}"
+    return f"held no better: merit {list(second.merit)} against the first strategy's {list(first.merit)}"
+
+
+def _joined(first: PairResult, second: PairResult, second_kept: bool) -> PairResult:
+    """The kept pass (``second`` when ``second_kept``, else ``first``) with both passes' attempts and summed step
+    seconds (``setup_seconds`` is left to the caller: :meth:`_Sims.setup_seconds` already counts both)."""
+    kept = second if second_kept else first
+    offset = len(first.attempts) if second_kept else 0
+    attempt = None if kept.attempt is None else offset + kept.attempt
     steps = {
         name: replace(outcome, seconds=first.steps[name].seconds + second.steps[name].seconds)
         for name, outcome in kept.steps.items()
@@ -392,7 +404,17 @@ def _attempts(
         validations=chosen.validations,
         errors=errors,
         setup_seconds=sims.setup_seconds(),  # every trial's backend, summed per simulator
+        merit=_merit(chosen),
     )
+
+
+_HOLDS_EVERYWHERE = 3
+
+
+def _merit(attempt: _Attempt) -> tuple[int, float]:
+    """:attr:`PairResult.merit` of ``attempt``."""
+    level = _HOLDS_EVERYWHERE if attempt.holds_everywhere else 2 if attempt.robust_ok else 1 if attempt.passed else 0
+    return level, float(attempt.robustness or 0.0) if attempt.passed else 0.0
 
 
 def _friction_out_of_reach(cfg: SynthesisConfig, work: ObjectWork) -> tuple[str | None, str]:
