@@ -140,7 +140,7 @@ def test_a_second_strategy_that_holds_no_better_leaves_the_first(tmp_path, monke
     assert len(record.attempts) == 6 and record.attempt == 0 and record.steps["validation"].ok and not record.robust
     assert record.extra["other_strategy"] == {
         "strategy": "vertical", "first_attempt": 3, "kept": False,
-        "reason": "held no better: merit [1, 0.5] against the first strategy's [1, 0.75]",
+        "reason": "held no better: merit [2, 0.5] against the first strategy's [2, 0.75]",
     }  # fmt: skip
 
 
@@ -160,3 +160,36 @@ def test_other_strategy_settings() -> None:
     assert SynthesisConfig(other_strategy=False).other_strategy == "never"
     with pytest.raises(ValueError, match="'never', 'failed' or 'not_robust'"):
         SynthesisConfig(other_strategy="always")
+
+
+def _tried(primary: tuple[bool, float | None], other: tuple[bool, float | None]):
+    """A test double of one placement that passed refinement and SAPIEN's nominal trial, judged (nominal trial
+    held, robustness) in SAPIEN (the primary simulator) and PyBullet."""
+    from ges_core.dataset import SimVerdict, StepOutcome, TrialVerdict
+    from ges_core.synthesis.run.worker import _Attempt
+
+    def verdict(success: bool, robustness: float | None) -> SimVerdict:
+        held = round(7 * (robustness or 0.0))
+        trials = tuple(TrialVerdict(name=f"t{i}", success=i < held, reason="") for i in range(7)) if success else ()
+        return SimVerdict(success=success, reason="success" if success else "palm_only", trials=trials,
+                          robustness=robustness if success else None)  # fmt: skip
+
+    sapien, pybullet = verdict(*primary), verdict(*other)
+    robust = StepOutcome(ok=True) if sapien.robust else StepOutcome.failed("t6")
+    ok = StepOutcome(ok=True)
+    return _Attempt(None, None, ok, None, ok, robust, {"sapien": sapien, "pybullet": pybullet}, {}, sapien)
+
+
+def test_without_a_robust_placement_the_one_that_holds_in_both_engines_is_kept() -> None:
+    from ges_core.synthesis.run.worker import _chosen
+
+    fails_in_pybullet = _tried((True, 6 / 7), (False, None))
+    holds_in_both = _tried((True, 5 / 7), (True, 5 / 7))
+    assert fails_in_pybullet.merit == (1, pytest.approx(3 / 7)) and holds_in_both.merit == (2, pytest.approx(5 / 7))
+    assert _chosen([fails_in_pybullet, holds_in_both]) == 1  # before: 0, the primary engine's higher score alone
+    robust_in_sapien = _tried((True, 1.0), (False, None))
+    assert robust_in_sapien.merit[0] == 3 and _chosen([holds_in_both, robust_in_sapien]) == 1
+    everywhere = _tried((True, 1.0), (True, 1.0))
+    assert everywhere.merit == (4, 1.0) and _chosen([robust_in_sapien, everywhere, everywhere]) == 1
+    weaker = _tried((True, 4 / 7), (True, 4 / 7))
+    assert _chosen([weaker, holds_in_both, holds_in_both]) == 1  # the higher mean score, the first of equals

@@ -23,6 +23,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
+import numpy as np
+
 from ges_core.dataset import (
     NOT_RUN,
     AttemptVerdict,
@@ -244,8 +246,7 @@ def _wants_other_strategy(state: _State, hand: str, work: ObjectWork, pair: Pair
 def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, first: PairResult) -> GraspRecord:
     """Contacts of the strategy ``work``'s are not (``generate_contacts(strategy=...)``), retargeted and taken
     through steps 3-5 like the first ones. The record keeps the other strategy's contacts and outcome when its chosen
-    placement held better (:attr:`PairResult.merit`: held everywhere, robust in the primary simulator, passed, then
-    the robustness score), else the first strategy's; either way its ``attempts`` list both strategies' placements
+    placement held better (:attr:`PairResult.merit`), else the first strategy's; either way its ``attempts`` list both strategies' placements
     (the first's first), every step's seconds are the two passes' sums, and ``extra["other_strategy"]`` says what
     was tried (``strategy``, ``first_attempt``: the index of its first attempt, ``kept``, ``reason`` when not kept).
     """
@@ -284,6 +285,10 @@ def _joined(first: PairResult, second: PairResult, second_kept: bool) -> PairRes
 
 def _skipped(*names: str) -> dict[str, StepOutcome]:
     return dict.fromkeys(names, StepOutcome.skipped())
+
+
+_HOLDS_EVERYWHERE = 4
+"""The :attr:`_Attempt.merit` level of an attempt that held every trial in every validating simulator."""
 
 
 @dataclass(eq=False)
@@ -343,6 +348,22 @@ class _Attempt:
         return self.primary.robustness if self.primary is not None else None
 
     @property
+    def merit(self) -> tuple[int, float]:
+        """How well this attempt held, greater is better (:attr:`PairResult.merit`): the level (4 held every trial in
+        every validating simulator where the object rests, 3 robust in the primary one, 2 passed and its nominal trial
+        held in every such simulator, 1 passed, 0 did not pass) and the mean over those simulators of the robustness
+        score (a failed nominal trial 0; trials off: 1 for a held nominal trial)."""
+        if not self.passed:
+            return 0, 0.0
+        resting = self.resting_validations
+        if self.holds_everywhere:
+            level = _HOLDS_EVERYWHERE
+        else:
+            level = 3 if self.robust_ok else 2 if all(v.success for v in resting) else 1
+        scores = [(1.0 if v.robustness is None else v.robustness) if v.success else 0.0 for v in resting]
+        return level, float(np.mean(scores)) if scores else float(self.robustness or 0.0)
+
+    @property
     def verdict(self) -> AttemptVerdict:
         return AttemptVerdict(
             refinement=self.refinement.reason or "ok",
@@ -359,9 +380,10 @@ def _attempts(
     every validating simulator, and its perturbation trials too when robust validation is on; with
     ``robust.retry`` off, until one passes the primary simulator's nominal trial.
 
-    The result is the first attempt that holds in every validating simulator; else the first robust in the
-    primary one (with robust validation off: the first that passed there); else the passing attempt with the
-    highest robustness score (the first of equals); none passing, the first that refined, else the first. It
+    The result is the passing attempt of the highest :attr:`_Attempt.merit` (the first of equals): the first that
+    holds in every validating simulator; else the first robust in the primary one (with robust validation off: the
+    first that passed there); else one whose nominal trial held in every validating simulator, then the highest mean
+    robustness score over them. None passing, the first that refined, else the first. It
     lists every attempt's verdicts and the chosen one's index when it passed; its refinement, validation and robust
     times are the sums over the attempts.
 
@@ -404,17 +426,8 @@ def _attempts(
         validations=chosen.validations,
         errors=errors,
         setup_seconds=sims.setup_seconds(),  # every trial's backend, summed per simulator
-        merit=_merit(chosen),
+        merit=chosen.merit,
     )
-
-
-_HOLDS_EVERYWHERE = 3
-
-
-def _merit(attempt: _Attempt) -> tuple[int, float]:
-    """:attr:`PairResult.merit` of ``attempt``."""
-    level = _HOLDS_EVERYWHERE if attempt.holds_everywhere else 2 if attempt.robust_ok else 1 if attempt.passed else 0
-    return level, float(attempt.robustness or 0.0) if attempt.passed else 0.0
 
 
 def _friction_out_of_reach(cfg: SynthesisConfig, work: ObjectWork) -> tuple[str | None, str]:
@@ -436,15 +449,11 @@ def _friction_out_of_reach(cfg: SynthesisConfig, work: ObjectWork) -> tuple[str 
 
 
 def _chosen(tries: list[_Attempt]) -> int:
-    """Index of the attempt a record keeps (see :func:`_attempts`)."""
-    first = next((i for i, t in enumerate(tries) if t.holds_everywhere), None)
-    if first is None:
-        first = next((i for i, t in enumerate(tries) if t.robust_ok), None)
-    if first is not None:
-        return first
+    """Index of the attempt a record keeps (see :func:`_attempts`): the passing one of the highest
+    :attr:`_Attempt.merit` (the first of equals); none passing, the first that refined, else the first."""
     passed = [i for i, t in enumerate(tries) if t.passed]
     if passed:
-        return max(passed, key=lambda i: (tries[i].robustness or 0.0, -i))
+        return max(passed, key=lambda i: (tries[i].merit, -i))
     return next((i for i, t in enumerate(tries) if t.refinement.ok), 0)
 
 
