@@ -89,3 +89,28 @@ def test_info_counts_single_trial_and_robust_per_simulator(tmp_path, capsys):
     (row,) = [line.split() for line in out.splitlines() if line.split()[:2] == ["allegro", "sapien"]]
     assert row[2:7] == ["2/3", "(66.7%)", "1/3", "(33.3%)", "0.750"] and row[-2:] == ["mass_x2", "x1"]
     assert "total time = contacts + retargeting + refinement + validation" in out
+
+
+def test_info_counts_the_pairs_that_tried_the_other_strategy(tmp_path, capsys):
+    from dataclasses import replace
+
+    notes = [
+        None,
+        {"strategy": "vertical", "first_attempt": 16, "kept": True},
+        {"strategy": "horizontal", "first_attempt": 16, "kept": False, "reason": "contacts: no_graspable_width"},
+        {"strategy": "horizontal", "first_attempt": 3, "kept": False,
+         "reason": "held no better: merit [2, 0.5] against the first strategy's [2, 0.75]"},
+    ]  # fmt: skip
+    with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
+        for i, note in enumerate(notes):
+            record = make_record(f"procedural/box/00{i}", "allegro")
+            writer.add(record if note is None else replace(record, extra={"other_strategy": note}))
+        writer.add(make_record("procedural/box/000", "shadow"))
+    summary = summarize(open_dataset(tmp_path / "ds"))
+    assert summary.other == {  # shadow never went on: left out
+        "allegro": {"records": 4, "tried": 3, "kept": 1,
+                    "reasons": {"contacts: no_graspable_width": 1, "held no better": 1}},
+    }  # fmt: skip
+    assert cli.main(["dataset", "info", str(tmp_path / "ds")]) == 0
+    out = capsys.readouterr().out
+    assert "allegro             tried 3 of 4, kept 1; not kept: contacts: no_graspable_width x1, held no better x1" in out

@@ -27,6 +27,7 @@ __all__ = [
     "failure_reasons",
     "format_failures",
     "format_sim_stats",
+    "other_strategy_stats",
     "sim_stats",
     "step_stats",
     "summarize",
@@ -36,6 +37,10 @@ TOTAL_TIME = "total time = " + " + ".join(TOTAL_STEPS) + " (the nominal trial), 
 """What "total time" means wherever it is printed (one meaning everywhere)."""
 
 COUNT_FIELDS = ("hand", "simulator", "split", "category")
+
+HELD_NO_BETTER = "held no better"
+"""How the Stage 1 pipeline's ``extra["other_strategy"]["reason"]`` begins when the second pass passed but was not
+kept (``ges_core.synthesis.run.worker._why_not_kept``)."""
 
 
 @dataclass(frozen=True)
@@ -97,6 +102,8 @@ class DatasetSummary:
     """Per hand and validating simulator: single-trial and robust counts (:func:`sim_stats`)."""
     agreement: dict[str, dict] = field(default_factory=dict)
     """Per hand, cross-engine agreement (:func:`agreement`)."""
+    other: dict[str, dict] = field(default_factory=dict)
+    """Per hand, the pairs that tried the other grasp strategy (:func:`other_strategy_stats`)."""
 
     def format(self) -> str:
         """Human-readable text, one table row per group."""
@@ -111,6 +118,9 @@ class DatasetSummary:
         lines += [_row(g) for g in self.groups]
         lines.append("failure reasons per step (each record counted at its first failed step):")
         lines += [f"  {g.label:<20}{format_failures(g.failures)}" for g in self.groups]
+        if self.other:
+            lines.append("the other grasp strategy (pairs that went on to it; why a second pass was not kept):")
+            lines += [_other_row(hand, row) for hand, row in sorted(self.other.items())]
         if self.sims:
             lines += ["", format_sim_stats(self.sims, self.agreement)]
         return "\n".join(lines)
@@ -141,8 +151,43 @@ def summarize(dataset: Dataset) -> DatasetSummary:
         groups.append(_group("all", list(entries)))
     records = list(dataset)
     return DatasetSummary(
-        str(dataset.root), len(entries), counts, tuple(groups), dataset.notes, sim_stats(records), agreement(records)
+        str(dataset.root),
+        len(entries),
+        counts,
+        tuple(groups),
+        dataset.notes,
+        sim_stats(records),
+        agreement(records),
+        other_strategy_stats(records),
     )
+
+
+def other_strategy_stats(records: Iterable[GraspRecord]) -> dict[str, dict]:
+    """Per hand, over the records whose pair went on to the other grasp strategy (``extra["other_strategy"]``, the
+    Stage 1 pipeline's note): ``{"records", "tried", "kept", "reasons"}``, ``reasons`` counting why a second pass
+    was not kept (``step: reason``; "held no better" without its figures). Hands with no such record are left out."""
+    out: dict[str, dict] = {}
+    seen: Counter[str] = Counter()
+    for record in records:
+        seen[record.hand] += 1
+        note = record.extra.get("other_strategy")
+        if not isinstance(note, dict):
+            continue
+        row = out.setdefault(record.hand, {"records": 0, "tried": 0, "kept": 0, "reasons": Counter()})
+        row["tried"] += 1
+        row["kept"] += bool(note.get("kept"))
+        if not note.get("kept"):
+            reason = str(note.get("reason", "?"))
+            row["reasons"][HELD_NO_BETTER if reason.startswith(HELD_NO_BETTER) else reason] += 1
+    for hand, row in out.items():
+        row["records"] = seen[hand]
+        row["reasons"] = dict(row["reasons"].most_common())
+    return out
+
+
+def _other_row(hand: str, row: dict) -> str:
+    reasons = ", ".join(f"{k} x{n}" for k, n in row["reasons"].items()) or "-"
+    return f"  {hand:<20}tried {row['tried']} of {row['records']}, kept {row['kept']}; not kept: {reasons}"
 
 
 def _group(label: str, entries: list[dict]) -> GroupStats:

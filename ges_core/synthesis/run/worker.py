@@ -34,6 +34,7 @@ from ges_core.dataset import (
     TrialVerdict,
     software_versions,
 )
+from ges_core.dataset.summary import HELD_NO_BETTER
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
 from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
 from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
@@ -246,9 +247,10 @@ def _wants_other_strategy(state: _State, hand: str, work: ObjectWork, pair: Pair
 def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, first: PairResult) -> GraspRecord:
     """Contacts of the strategy ``work``'s are not (``generate_contacts(strategy=...)``), retargeted and taken
     through steps 3-5 like the first ones. The record keeps the other strategy's contacts and outcome when its chosen
-    placement held better (:attr:`PairResult.merit`), else the first strategy's; either way its ``attempts`` list both strategies' placements
-    (the first's first), every step's seconds are the two passes' sums, and ``extra["other_strategy"]`` says what
-    was tried (``strategy``, ``first_attempt``: the index of its first attempt, ``kept``, ``reason`` when not kept).
+    placement held better (:attr:`PairResult.merit`), else the first strategy's; either way its ``attempts`` list
+    both strategies' placements (the first's first), every step's seconds are the two passes' sums, and
+    ``extra["other_strategy"]`` says what was tried (``strategy``, ``first_attempt``: the index of its first
+    attempt, ``kept``, ``reason`` when not kept: :func:`_why_not_kept`).
     """
     strategy = other_strategy(work.result.strategy)
     other = _contacts(state, work.object_id, state.config(hand).contacts, strategy=strategy, cloud=work.cloud)
@@ -267,7 +269,7 @@ def _why_not_kept(first: PairResult, second: PairResult) -> str:
     if second.attempt is None:
         failed = next((n for n, o in second.steps.items() if not o.ok), "contacts")
         return f"{failed}: {second.steps[failed].reason}"
-    return f"held no better: merit {list(second.merit)} against the first strategy's {list(first.merit)}"
+    return f"{HELD_NO_BETTER}: merit {list(second.merit)} against the first strategy's {list(first.merit)}"
 
 
 def _joined(first: PairResult, second: PairResult, second_kept: bool) -> PairResult:
