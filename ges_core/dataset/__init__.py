@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from ges_core.dataset.layout import DATASET_FORMAT, DATASET_VERSION, record_relpath
 from ges_core.dataset.record import (
+    HELD_NO_BETTER,
     NOT_RUN,
     SKIPPED,
     STEPS,
@@ -30,6 +31,7 @@ from ges_core.dataset.validate import validate_dataset
 __all__ = [
     "DATASET_FORMAT",
     "DATASET_VERSION",
+    "HELD_NO_BETTER",
     "NOT_RUN",
     "SKIPPED",
     "STEPS",

@@ -29,6 +29,7 @@ from ges_core.dataset.record_v1 import timing_v1
 from ges_core.dataset.record_v2 import upgraded
 
 __all__ = [
+    "HELD_NO_BETTER",
     "NOT_RUN",
     "RECORD_FORMAT",
     "RECORD_VERSION",
@@ -73,6 +74,9 @@ SKIPPED = "skipped"
 """Reason of a step that was not attempted because an earlier step failed."""
 NOT_RUN = "not_run"
 """Reason of a step that the run configuration switched off (e.g. no physics validation)."""
+HELD_NO_BETTER = "held no better"
+"""How ``extra["other_strategy"]["reason"]`` begins when the Stage 1 pipeline's second strategy passed but was not
+kept (its chosen placement held no better than the first strategy's; docs/synthesis/pipeline.md)."""
 
 JSON_KEY = "record_json"
 """Name of the npz entry holding the record's scalars as JSON text (a 0-d unicode array)."""

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ges_core.dataset.record import NOT_RUN, STEPS, TOTAL_STEPS, GraspRecord, StepOutcome
+from ges_core.dataset.record import HELD_NO_BETTER, NOT_RUN, STEPS, TOTAL_STEPS, GraspRecord, StepOutcome
 from ges_core.dataset.store import Dataset
 
 __all__ = [
@@ -37,10 +37,6 @@ TOTAL_TIME = "total time = " + " + ".join(TOTAL_STEPS) + " (the nominal trial), 
 """What "total time" means wherever it is printed (one meaning everywhere)."""
 
 COUNT_FIELDS = ("hand", "simulator", "split", "category")
-
-HELD_NO_BETTER = "held no better"
-"""How the Stage 1 pipeline's ``extra["other_strategy"]["reason"]`` begins when the second pass passed but was not
-kept (``ges_core.synthesis.run.worker._why_not_kept``)."""
 
 
 @dataclass(frozen=True)

@@ -79,7 +79,8 @@ class RobustConfig(ConfigModel):
         description="the attempt loop goes on to the next wrist placement when the nominal trial passes but a "
         "perturbation fails, or the grasp does not hold in another validating simulator (every trial there; its "
         "nominal trial with robust validation off); it keeps the first attempt that holds everywhere, else the "
-        "first robust in the primary simulator, else the best of the rest (docs/synthesis/pipeline.md, Attempts)",
+        "most robust (averaged over the validating simulators) of those robust in the primary one, else of the rest "
+        "(docs/synthesis/pipeline.md)",
     )
 
     @field_validator("mass_scales")

@@ -26,6 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from ges_core.dataset import (
+    HELD_NO_BETTER,
     NOT_RUN,
     AttemptVerdict,
     GraspRecord,
@@ -34,7 +35,6 @@ from ges_core.dataset import (
     TrialVerdict,
     software_versions,
 )
-from ges_core.dataset.summary import HELD_NO_BETTER
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
 from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
 from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
@@ -382,10 +382,11 @@ def _attempts(
     every validating simulator, and its perturbation trials too when robust validation is on; with
     ``robust.retry`` off, until one passes the primary simulator's nominal trial.
 
-    The result is the passing attempt of the highest :attr:`_Attempt.merit` (the first of equals): the first that
-    holds in every validating simulator; else the first robust in the primary one (with robust validation off: the
-    first that passed there); else one whose nominal trial held in every validating simulator, then the highest mean
-    robustness score over them. None passing, the first that refined, else the first. It
+    The result is the passing attempt of the highest :attr:`_Attempt.merit`, the first of equals: the first that
+    holds in every validating simulator; else, of those robust in the primary one (with robust validation off: that
+    passed there), the one of the highest robustness score averaged over the validating simulators; else the same
+    among those whose nominal trial held in every validating simulator, else among all that passed. None passing,
+    the first that refined, else the first. It
     lists every attempt's verdicts and the chosen one's index when it passed; its refinement, validation and robust
     times are the sums over the attempts.
 
