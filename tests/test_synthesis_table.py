@@ -54,3 +54,12 @@ def test_agreement_rates_count_grasps_judged_alike_by_every_simulator():
     rates = agreement_rates(records)
     assert list(rates) == ["allegro"]
     assert rates["allegro"] == {"grasps": 3, "agree": 2, "sims": ["pybullet", "sapien"], "rate": 2 / 3}
+
+
+def test_the_run_table_says_which_pairs_went_on_to_the_other_strategy():
+    note = {"strategy": "vertical", "first_attempt": 16, "kept": False, "reason": "contacts: no_graspable_width"}
+    went_on = replace(make_record("procedural/can/000"), extra={"other_strategy": note})
+    records = [make_record("procedural/box/000"), went_on]
+    text = format_table(table_rows(records))
+    assert "shadow              tried 1 of 2, kept 0; not kept: contacts: no_graspable_width x1" in text
+    assert "other grasp strategy" not in format_table(table_rows(records[:1]))  # no pair went on: no block

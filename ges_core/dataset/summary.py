@@ -26,6 +26,7 @@ __all__ = [
     "agreement",
     "failure_reasons",
     "format_failures",
+    "format_other_strategy",
     "format_sim_stats",
     "other_strategy_stats",
     "sim_stats",
@@ -114,9 +115,7 @@ class DatasetSummary:
         lines += [_row(g) for g in self.groups]
         lines.append("failure reasons per step (each record counted at its first failed step):")
         lines += [f"  {g.label:<20}{format_failures(g.failures)}" for g in self.groups]
-        if self.other:
-            lines.append("the other grasp strategy (pairs that went on to it; why a second pass was not kept):")
-            lines += [_other_row(hand, row) for hand, row in sorted(self.other.items())]
+        lines += format_other_strategy(self.other)
         if self.sims:
             lines += ["", format_sim_stats(self.sims, self.agreement)]
         return "\n".join(lines)
@@ -181,9 +180,15 @@ def other_strategy_stats(records: Iterable[GraspRecord]) -> dict[str, dict]:
     return out
 
 
-def _other_row(hand: str, row: dict) -> str:
-    reasons = ", ".join(f"{k} x{n}" for k, n in row["reasons"].items()) or "-"
-    return f"  {hand:<20}tried {row['tried']} of {row['records']}, kept {row['kept']}; not kept: {reasons}"
+def format_other_strategy(stats: dict[str, dict]) -> list[str]:
+    """:func:`other_strategy_stats` as text lines, a heading and one per hand; none when no pair went on."""
+    if not stats:
+        return []
+    lines = ["the other grasp strategy (pairs that went on to it; why a second pass was not kept):"]
+    for hand, row in sorted(stats.items()):
+        reasons = ", ".join(f"{k} x{n}" for k, n in row["reasons"].items()) or "-"
+        lines.append(f"  {hand:<20}tried {row['tried']} of {row['records']}, kept {row['kept']}; not kept: {reasons}")
+    return lines
 
 
 def _group(label: str, entries: list[dict]) -> GroupStats:

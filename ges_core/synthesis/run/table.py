@@ -24,7 +24,9 @@ from ges_core.dataset.summary import (
     agreement,
     failure_reasons,
     format_failures,
+    format_other_strategy,
     format_sim_stats,
+    other_strategy_stats,
     sim_stats,
     step_stats,
 )
@@ -118,7 +120,8 @@ def agreement_rates(records: Iterable[GraspRecord]) -> dict[str, dict]:
 
 def format_table(rows: list[TableRow]) -> str:
     """Markdown: per step success rate and median time per object, validated (single trial) and robust shares,
-    median total time and robust-trial time; then the validation per simulator and the failure reasons per step."""
+    median total time and robust-trial time; then the validation per simulator, the failure reasons per step and the
+    pairs that went on to the other grasp strategy."""
     head = (
         "| hand | sim | objects | contacts | retargeting | refinement | validated (single trial) | robust "
         "(all perturbations) | total (median) | robust trials (median, all attempts) |"
@@ -142,6 +145,7 @@ def format_table(rows: list[TableRow]) -> str:
     for r in rows:
         failed = [(rec.failed_step, rec.steps[rec.failed_step].reason) for rec in r.records if rec.failed_step]
         lines.append(f"  {r.hand} / {r.simulator}: {format_failures(failure_reasons(failed))}")
+    lines += format_other_strategy(other_strategy_stats(records))
     return "\n".join(lines)
 
 
