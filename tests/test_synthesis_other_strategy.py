@@ -68,6 +68,7 @@ def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = N
     monkeypatch.setattr(worker, "refine_grasp", refine)
     monkeypatch.setattr(worker, "refine_verdict", verdict)
     monkeypatch.setattr(worker, "validate_grasp", lambda *a, **k: ValidationResult(True, "success", {}, 0.01))
+
     def robust(*args, **kwargs):
         failed = (fragile or {}).get(seen["strategies"][-1], 0)
         names = ("pose_1", "pose_2", "mass_x2", "friction_0.5")

@@ -87,10 +87,8 @@ class PairResult:
     setup_seconds: dict[str, float] = field(default_factory=dict)
     """Per simulator built for this pair, its build + hand load, seconds."""
     merit: tuple[int, float] = (0, 0.0)
-    """How well the chosen attempt held, for comparing two passes of one pair (greater is better): (4 held every
-    trial in every validating simulator where the object rests, 3 robust in the primary one, 2 passed and its
-    nominal trial held in every such simulator, 1 passed, 0 did not pass; the mean robustness score over those
-    simulators, a failed nominal trial counting 0). ``ges_core.synthesis.run.worker._Attempt.merit``."""
+    """The chosen attempt's merit (``ges_core.synthesis.run.worker._Attempt.merit``; greater held better), which
+    compares the two strategies' passes of one pair; (0, 0.0) when no attempt ran."""
 
 
 def build_record(state, hand: str, work: ObjectWork, pair: PairResult) -> GraspRecord:

@@ -23,8 +23,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 
-import numpy as np
-
 from ges_core.dataset import (
     HELD_NO_BETTER,
     NOT_RUN,
@@ -363,7 +361,7 @@ class _Attempt:
         else:
             level = 3 if self.robust_ok else 2 if all(v.success for v in resting) else 1
         scores = [(1.0 if v.robustness is None else v.robustness) if v.success else 0.0 for v in resting]
-        return level, float(np.mean(scores)) if scores else float(self.robustness or 0.0)
+        return level, sum(scores) / len(scores) if scores else 0.0
 
     @property
     def verdict(self) -> AttemptVerdict:
