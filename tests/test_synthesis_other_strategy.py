@@ -262,3 +262,26 @@ def test_a_placement_that_failed_in_one_engine_defers_the_other_engines_trials(t
     assert deferred.attempt == 1 and deferred.robust
     assert [t[1:3] for t in ran_deferred].count((0, "pybullet")) == 0  # it could not hold everywhere any more
     assert len(ran_deferred) == 2 + 4 + 4 and len(ran_full) == 4 * 4
+
+
+@pytest.mark.sim
+def test_a_backend_that_fails_for_deferred_trials_makes_that_placement_unstable(tmp_path, monkeypatch) -> None:
+    """Every placement fails friction_0.5, so their deferred trials run after the loop; the backend for placement 0's
+    first deferred trial fails to build: that placement's verdict becomes ``unstable`` (as when it fails during
+    validation) and the record keeps the next placement, the first of the rest (equal merits)."""
+    from ges_core.errors import SimulationError
+    from ges_core.synthesis.run import worker
+
+    seen = _doubles(monkeypatch, fails=set(), trial_fails=lambda placement, sim, trial: trial == "friction_0.5")
+    doubled = worker.run_trial
+
+    def trial(scenes, asset, grasp, pre, config, perturbation, limits):
+        result = doubled(scenes, asset, grasp, pre, config, perturbation, limits)
+        if seen["trials"][-1][1:] == (0, "sapien", "pose_1"):
+            raise SimulationError("sapien: the scene failed to build")
+        return result
+
+    monkeypatch.setattr(worker, "run_trial", trial)
+    record = _run(tmp_path, other_strategy="never")
+    assert [a.validation for a in record.attempts] == ["unstable", "ok", "ok"]
+    assert record.attempt == 1 and [a.robustness for a in record.attempts] == [None, 0.75, 0.75]
