@@ -32,15 +32,23 @@ def test_a_forced_strategy_is_the_only_one_tried(can_cloud) -> None:
         generate_contacts(points, normals, object_id=OID, strategy="diagonal")
 
 
-def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = None) -> dict[str, list]:
+TRIALS = ("mass_x2", "friction_0.5", "pose_1", "pose_2")
+"""The perturbation trials of these tests, in order (:data:`ROBUST`)."""
+ROBUST = {"limits_trial": False, "mass_scales": [2.0], "pose_trials": 2}
+
+
+def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = None, trial_fails=None) -> dict:
     """Test doubles: refinement's verdict is ``table_contact`` for placements of a strategy in ``fails``; every
-    validation holds; of four perturbation trials, a strategy in ``fragile`` fails that many (from the last), the
-    others none. Returns the strategies generated and each refinement's seconds."""
-    from ges_core.synthesis.physics.robust import RobustResult, TrialResult
+    validation holds; of the four perturbation trials (:data:`TRIALS`), a strategy in ``fragile`` fails that many
+    (from the last), the others none; or, given ``trial_fails(placement, simulator, trial) -> bool`` (placement:
+    0, 1, ... in the order refined), the trials it says. Returns the strategies generated, each refinement's seconds
+    and the trials run (strategy, placement, simulator, trial name)."""
+    from ges_core.synthesis.physics.robust import TrialResult
     from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
 
-    seen: dict[str, list] = {"strategies": [], "refined": [], "setup": []}
+    seen: dict[str, list] = {"strategies": [], "refined": [], "setup": [], "trials": []}
+    placement_of: dict[int, int] = {}  # id of a refined grasp -> its placement
     real_generate, real_refine, real_verdict = worker.generate_contacts, worker.refine_grasp, worker.refine_verdict
 
     def generate(*args, **kwargs):
@@ -50,6 +58,7 @@ def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = N
 
     def refine(*args, **kwargs):
         refined = real_refine(*args, **kwargs)
+        placement_of[id(refined.grasp)] = len(seen["refined"])
         seen["refined"].append(refined.seconds)
         return refined
 
@@ -69,20 +78,22 @@ def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = N
     monkeypatch.setattr(worker, "refine_verdict", verdict)
     monkeypatch.setattr(worker, "validate_grasp", lambda *a, **k: ValidationResult(True, "success", {}, 0.01))
 
-    def robust(*args, **kwargs):
-        failed = (fragile or {}).get(seen["strategies"][-1], 0)
-        names = ("pose_1", "pose_2", "mass_x2", "friction_0.5")
-        trials = tuple(TrialResult(n, i < 4 - failed, "success" if i < 4 - failed else "dropped", 0.01)
-                       for i, n in enumerate(names))  # fmt: skip
-        return RobustResult(trials, True)
+    def trial(scenes, asset, grasp, pre, config, perturbation, limits):
+        strategy, placement = seen["strategies"][-1], placement_of[id(grasp)]
+        seen["trials"].append((strategy, placement, scenes.name, perturbation.name))
+        if trial_fails is not None:
+            held = not trial_fails(placement, scenes.name, perturbation.name)
+        else:
+            held = TRIALS.index(perturbation.name) < len(TRIALS) - (fragile or {}).get(strategy, 0)
+        return TrialResult(perturbation.name, held, "success" if held else "dropped", 0.01)
 
-    monkeypatch.setattr(worker, "robust_validate", robust)
+    monkeypatch.setattr(worker, "run_trial", trial)
     return seen
 
 
 def _run(tmp_path, **settings):
     library = {"sources": ["procedural"], "procedural_count": 1}
-    config = SynthesisConfig.model_validate({"library": library, "attempts": 3, **settings})
+    config = SynthesisConfig.model_validate({"library": library, "attempts": 3, "robust": ROBUST, **settings})
     run_synthesis([OID], ["allegro"], config, tmp_path / "ds")
     (record,) = open_dataset(tmp_path / "ds")
     return record
@@ -127,7 +138,7 @@ def test_when_no_side_placement_is_robust_the_robust_grasp_from_above_is_kept(tm
     seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
     record = _run(tmp_path)
     assert seen["strategies"] == ["horizontal", "vertical"]
-    assert [a.robust for a in record.attempts] == ["friction_0.5"] * 3 + ["ok"]
+    assert [a.robust for a in record.attempts] == ["pose_2"] * 3 + ["ok"]
     assert [a.robustness for a in record.attempts] == [0.75] * 3 + [1.0]
     assert record.strategy == "vertical" and record.attempt == 3 and record.robust
     assert record.extra["other_strategy"] == {"strategy": "vertical", "first_attempt": 3, "kept": True}
@@ -194,3 +205,83 @@ def test_without_a_robust_placement_the_one_that_holds_in_both_engines_is_kept()
     assert everywhere.merit == (4, 1.0) and _chosen([robust_in_sapien, everywhere, everywhere]) == 1
     weaker = _tried((True, 4 / 7), (True, 4 / 7))
     assert _chosen([weaker, holds_in_both, holds_in_both]) == 1  # the higher mean score, the first of equals
+
+
+# -- robust.defer_trials: a placement's trials stop at its first failure, the rest run only when needed --------
+def _compared(tmp_path, monkeypatch, trial_fails, **settings):
+    """The record and the trials run, with ``robust.defer_trials`` on and off (same doubles, same inputs)."""
+    out = {}
+    for defer in (True, False):
+        seen = _doubles(monkeypatch, fails=set(), trial_fails=trial_fails)
+        robust = ROBUST | {"defer_trials": defer}
+        out[defer] = (_run(tmp_path / str(defer), robust=robust, **settings), seen["trials"])
+    return out
+
+
+def _same_outcome(a, b) -> None:
+    """Two records keep the same placement with the same verdicts and joints (attempt robustness aside)."""
+    assert a.attempt == b.attempt and a.strategy == b.strategy and a.validations == b.validations
+    assert [(v.refinement, v.validation, v.robust) for v in a.attempts] == [
+        (v.refinement, v.validation, v.robust) for v in b.attempts
+    ]
+    assert (a.grasp.q == b.grasp.q).all() and a.robust == b.robust
+
+
+@pytest.mark.sim
+def test_deferred_trials_stop_at_the_first_failure_when_a_later_placement_holds(tmp_path, monkeypatch) -> None:
+    runs = _compared(tmp_path, monkeypatch, lambda placement, sim, trial: placement == 0 and trial == "friction_0.5")
+    (deferred, ran_deferred), (full, ran_full) = runs[True], runs[False]
+    _same_outcome(deferred, full)
+    assert deferred.attempt == 1 and deferred.robust and deferred.attempts[0].robust == "friction_0.5"
+    assert [t[1:] for t in ran_deferred[:2]] == [(0, "sapien", "mass_x2"), (0, "sapien", "friction_0.5")]
+    assert len(ran_deferred) == 2 + 4 and len(ran_full) == 4 + 4  # pose_1 and pose_2 of placement 0 never ran
+    assert deferred.attempts[0].robustness is None and full.attempts[0].robustness == 0.75  # not a score of 2 trials
+
+
+@pytest.mark.sim
+def test_deferred_trials_run_after_all_when_no_placement_holds(tmp_path, monkeypatch) -> None:
+    runs = _compared(tmp_path, monkeypatch, lambda placement, sim, trial: trial == "friction_0.5")
+    (deferred, ran_deferred), (full, ran_full) = runs[True], runs[False]
+    _same_outcome(deferred, full)
+    assert len(deferred.attempts) == 6 and deferred.extra == full.extra  # both strategies tried, the first kept
+    assert [a.robustness for a in deferred.attempts] == [a.robustness for a in full.attempts] == [0.75] * 6
+    assert sorted(ran_deferred) == sorted(ran_full)  # the same trials: the choice compares every score
+    assert ran_deferred != ran_full  # each placement's last two ran after the others' first two
+
+
+@pytest.mark.sim
+def test_a_placement_that_failed_in_one_engine_defers_the_other_engines_trials(tmp_path, monkeypatch) -> None:
+    runs = _compared(
+        tmp_path,
+        monkeypatch,
+        lambda placement, sim, trial: (placement, sim, trial) == (0, "sapien", "friction_0.5"),
+        validate_sims=["sapien", "pybullet"],
+    )
+    (deferred, ran_deferred), (full, ran_full) = runs[True], runs[False]
+    _same_outcome(deferred, full)
+    assert deferred.attempt == 1 and deferred.robust
+    assert [t[1:3] for t in ran_deferred].count((0, "pybullet")) == 0  # it could not hold everywhere any more
+    assert len(ran_deferred) == 2 + 4 + 4 and len(ran_full) == 4 * 4
+
+
+@pytest.mark.sim
+def test_a_backend_that_fails_for_deferred_trials_makes_that_placement_unstable(tmp_path, monkeypatch) -> None:
+    """Every placement fails friction_0.5, so their deferred trials run after the loop; the backend for placement 0's
+    first deferred trial fails to build: that placement's verdict becomes ``unstable`` (as when it fails during
+    validation) and the record keeps the next placement, the first of the rest (equal merits)."""
+    from ges_core.errors import SimulationError
+    from ges_core.synthesis.run import worker
+
+    seen = _doubles(monkeypatch, fails=set(), trial_fails=lambda placement, sim, trial: trial == "friction_0.5")
+    doubled = worker.run_trial
+
+    def trial(scenes, asset, grasp, pre, config, perturbation, limits):
+        result = doubled(scenes, asset, grasp, pre, config, perturbation, limits)
+        if seen["trials"][-1][1:] == (0, "sapien", "pose_1"):
+            raise SimulationError("sapien: the scene failed to build")
+        return result
+
+    monkeypatch.setattr(worker, "run_trial", trial)
+    record = _run(tmp_path, other_strategy="never")
+    assert [a.validation for a in record.attempts] == ["unstable", "ok", "ok"]
+    assert record.attempt == 1 and [a.robustness for a in record.attempts] == [None, 0.75, 0.75]

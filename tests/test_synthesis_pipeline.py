@@ -323,7 +323,9 @@ def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeyp
     assert record.grasp_stage == "refinement"
     assert len(rested) == 1
     expected = sum(r.seconds for _, r in calls) + rested[0]
-    assert record.steps["refinement"].seconds == pytest.approx(expected, abs=1e-3)
+    # the pipeline's timer around the resting check encloses this test's: never less, and more only by the call's
+    # overhead (on a loaded machine a preempted process adds some milliseconds there)
+    assert expected - 1e-9 <= record.steps["refinement"].seconds <= expected + 0.05
     if attempts == 1:
         assert record.steps["refinement"].reason == "few_contacts" and record.attempt is None
         assert record.steps["validation"].reason == "skipped"
@@ -379,26 +381,28 @@ def test_retry_goes_on_until_a_placement_holds_in_every_engine(tmp_path, monkeyp
     keeps the first placement that holds in both; when none does, the first that holds in the primary engine.
     (Test doubles of the two validators: SAPIEN's trials always hold; PyBullet's (its perturbation trial, or with
     robust validation off its nominal trial) fail until attempt ``pybullet_holds_from``, or always.)"""
-    from ges_core.synthesis.physics.robust import RobustResult, TrialResult
+    from ges_core.synthesis.physics.robust import TrialResult
     from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
 
     judged = {"sapien": 0, "pybullet": 0}
+    placement_of: dict[int, int] = {}  # id of a judged grasp -> the placement's index among the judged ones
 
     def pybullet_holds(attempt: int) -> bool:
         return pybullet_holds_from is not None and attempt >= pybullet_holds_from
 
-    def validate(sim, *args, **kwargs):
+    def validate(sim, hand, obj, grasp, *args, **kwargs):
         judged[sim.name] += 1
-        holds = robust or sim.name == "sapien" or pybullet_holds(judged[sim.name] - 1)
+        placement = placement_of.setdefault(id(grasp), len(placement_of))
+        holds = robust or sim.name == "sapien" or pybullet_holds(placement)
         return ValidationResult(holds, "success" if holds else "dropped", {}, 0.01)
 
-    def robust_trials(sim, *args, **kwargs):
-        holds = sim.name == "sapien" or pybullet_holds(judged[sim.name] - 1)
-        return RobustResult((TrialResult("pose_1", holds, "success" if holds else "dropped", 0.01),), True)
+    def trial(scenes, asset, grasp, pre, config, perturbation, limits):
+        holds = scenes.name == "sapien" or pybullet_holds(placement_of[id(grasp)])
+        return TrialResult(perturbation.name, holds, "success" if holds else "dropped", 0.01)
 
     monkeypatch.setattr(worker, "validate_grasp", validate)
-    monkeypatch.setattr(worker, "robust_validate", robust_trials)
+    monkeypatch.setattr(worker, "run_trial", trial)
     config = SynthesisConfig.model_validate(
         {
             "library": {"sources": ["procedural"], "procedural_count": 1},
@@ -428,25 +432,28 @@ def test_the_search_stops_early_where_no_grasp_can_pass_the_friction_trial(tmp_p
     friction_0.5, so the search stops at the first placement that holds every other trial and the record says why;
     on the cube (bound 0) it goes on to the placement that holds them all. (Test doubles of the validators: the
     nominal trial holds; the judged placements fail mass_x2 and friction_0.5, then friction_0.5 alone, then none.)"""
-    from ges_core.synthesis.physics.robust import RobustResult, TrialResult
+    from ges_core.synthesis.physics.robust import TrialResult
     from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
 
     fails = [{"mass_x2", "friction_0.5"}, {"friction_0.5"}, set()]
-    judged = []
+    placement_of: dict[int, int] = {}  # id of a judged grasp -> the placement's index among the judged ones
+    judged = []  # the failing trials of each placement whose perturbation trials ran, in the order they began
 
-    def validate(sim, *args, **kwargs):
+    def validate(sim, hand, obj, grasp, *args, **kwargs):
+        placement_of.setdefault(id(grasp), len(placement_of))
         return ValidationResult(True, "success", {}, 0.01)
 
-    def robust_trials(*args, **kwargs):
-        failing = fails[min(len(judged), 2)]
-        judged.append(failing)
-        names = ("mass_x2", "friction_0.5", "pose_1")
-        return RobustResult(tuple(TrialResult(n, n not in failing, "dropped" if n in failing else "success", 0.01)
-                                  for n in names), True)  # fmt: skip
+    def trial(scenes, asset, grasp, pre, config, perturbation, limits):
+        placement = placement_of[id(grasp)]
+        failing = fails[min(placement, 2)]
+        if placement == len(judged):
+            judged.append(failing)
+        held = perturbation.name not in failing
+        return TrialResult(perturbation.name, held, "success" if held else "dropped", 0.01)
 
     monkeypatch.setattr(worker, "validate_grasp", validate)
-    monkeypatch.setattr(worker, "robust_validate", robust_trials)
+    monkeypatch.setattr(worker, "run_trial", trial)
     library = {"sources": ["procedural"], "procedural_count": 1}
     config = SynthesisConfig.model_validate({"library": library, "validate_sims": ["sapien"], "attempts": 16})
     run_synthesis([oid], ["allegro"], config, tmp_path / "ds")

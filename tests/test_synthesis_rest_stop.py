@@ -16,7 +16,7 @@ def _doubles(monkeypatch, *, holds: set[int], rest: dict[str, str]):
     it drops; the perturbation trials hold; ``rest`` maps an engine to the reason its rest check gives. Returns the
     grasps refinement was given, in order."""
     from ges_core.errors import SynthesisError
-    from ges_core.synthesis.physics.robust import RobustResult, TrialResult
+    from ges_core.synthesis.physics.robust import TrialResult
     from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
 
@@ -32,8 +32,8 @@ def _doubles(monkeypatch, *, holds: set[int], rest: dict[str, str]):
         ok = judged[sim.name] - 1 in holds
         return ValidationResult(ok, "success" if ok else "dropped", {}, 0.01)
 
-    def robust_trials(sim, *args, **kwargs):
-        return RobustResult((TrialResult("pose_1", True, "success", 0.01),), True)
+    def trial(scenes, asset, grasp, pre, config, perturbation, limits):
+        return TrialResult(perturbation.name, True, "success", 0.01)
 
     def rest_problem(self, hand, name, asset):
         reason = rest.get(name)
@@ -41,7 +41,7 @@ def _doubles(monkeypatch, *, holds: set[int], rest: dict[str, str]):
 
     monkeypatch.setattr(worker, "refine_grasp", refine)
     monkeypatch.setattr(worker, "validate_grasp", validate)
-    monkeypatch.setattr(worker, "robust_validate", robust_trials)
+    monkeypatch.setattr(worker, "run_trial", trial)
     monkeypatch.setattr(worker._Sims, "rest_problem", rest_problem)
     return given
 

@@ -184,6 +184,35 @@ def test_a_stored_verdict_replays_exactly_outside_the_pipeline(weak_box_run, sim
     assert len(built) == 1 + len(replay.trials) and scenes.seconds > 0  # a backend per trial
 
 
+@pytest.mark.sim
+def test_deferred_trials_keep_the_record_and_skip_a_failed_placements_other_trials(tmp_path, monkeypatch):
+    """Allegro, ``procedural/cross/002``, SAPIEN: its first placement passes the nominal trial and fails the first
+    perturbation trial (the drive limits); the second holds every trial. With ``robust.defer_trials`` the first
+    placement's six other trials never run, and the record is the one every trial gives."""
+    records, builds, real_build = {}, [], TrialScenes.build
+    monkeypatch.setattr(TrialScenes, "build", lambda self: builds.append(self.name) or real_build(self))
+    counts = {}
+    for defer in (True, False):
+        builds.clear()
+        config = parse_model(
+            SynthesisConfig,
+            {"library": {"sources": ["procedural"], "procedural_count": 3}, "robust": {"defer_trials": defer}},
+            where="test",
+        )
+        run_synthesis(["procedural/cross/002"], ["allegro"], config, tmp_path / str(defer), progress=False)
+        (records[defer],) = list(open_dataset(tmp_path / str(defer)))
+        counts[defer] = len(builds)  # a backend per rest check, refinement, nominal trial and perturbation trial
+    deferred, full = records[True], records[False]
+    assert full.attempts[0].robust == "limits" and full.attempt == 1 and full.robust  # the case this test is about
+    assert full.attempts[0].robustness == pytest.approx(3 / 7)
+    assert deferred.attempts[0].robust == "limits" and deferred.attempts[0].robustness is None
+    assert (deferred.attempt, deferred.robust, deferred.robustness) == (full.attempt, full.robust, full.robustness)
+    assert (deferred.grasp.q == full.grasp.q).all() and (deferred.grasp.wrist_pose == full.grasp.wrist_pose).all()
+    a, b = deferred.validations["sapien"], full.validations["sapien"]
+    assert (a.success, a.reason, dict(a.flags), a.trials) == (b.success, b.reason, dict(b.flags), b.trials)
+    assert counts[False] - counts[True] == 6
+
+
 class _Backend:
     """Test double of a backend: records what TrialScenes does with it."""
 

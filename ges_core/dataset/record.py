@@ -189,7 +189,8 @@ class AttemptVerdict:
     robust: str = NOT_RUN
     """'ok', the primary simulator's first failed perturbation, 'skipped' (validation failed) or 'not_run'."""
     robustness: float | None = None
-    """The primary simulator's robustness score of this attempt, or None when its trials did not run."""
+    """The primary simulator's robustness score of this attempt, or None when its trials did not run, or stopped at
+    the failed one ``robust`` names because a later placement held everywhere (``robust.defer_trials``)."""
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -51,6 +51,8 @@ __all__ = [
     "object_friction_for",
     "perturbations",
     "robust_validate",
+    "run_trial",
+    "trial_limits",
 ]
 
 
@@ -81,6 +83,14 @@ class RobustConfig(ConfigModel):
         "nominal trial with robust validation off); it keeps the first attempt that holds everywhere, else the "
         "most robust (averaged over the validating simulators) of those robust in the primary one, else of the rest "
         "(docs/synthesis/pipeline.md)",
+    )
+    # Every trial runs in a fresh backend (TrialScenes), so a trial's verdict does not depend on which trials ran
+    # before it: deferring some changes no verdict, only which placements' trials run at all.
+    defer_trials: bool = Field(
+        True,
+        description="the pipeline stops a placement's trials at its first failed one (and skips its trials in the "
+        "other validating simulators) and runs the rest only if no placement holds everywhere, where the choice "
+        "needs every score; the record kept is the same, the other placements' stored robustness is then null",
     )
 
     @field_validator("mass_scales")
@@ -222,18 +232,46 @@ def robust_validate(
     with the changed density or friction; every trial runs with the hand's effort limits when
     ``config.drive_limits`` and the hand declares them. The hand is ``scenes.hand``.
     """
-    hand = scenes.hand
-    limits = hand.description.effort_limits_array if config.drive_limits else None
-    trials = []
-    for p in perturbations(config, scenes.config.hand_friction, obj, seed):
-        asset = _perturbed(obj, p)
-        with scenes.open() as sim:  # its build and hand load count in scenes.seconds, not the trial's
-            start = time.perf_counter()
-            result = validate_grasp(
-                sim, hand, asset, grasp, pregrasp_grasp, validate_config, object_shift=p.shift, drive_limits=limits
-            )
-            trials.append(TrialResult(p.name, result.success, result.reason, time.perf_counter() - start))
+    limits = trial_limits(scenes, config)
+    trials = [
+        run_trial(scenes, obj, grasp, pregrasp_grasp, validate_config, p, limits)
+        for p in perturbations(config, scenes.config.hand_friction, obj, seed)
+    ]
     return RobustResult(tuple(trials), limits is not None)
+
+
+def trial_limits(scenes: TrialScenes, config: RobustConfig) -> np.ndarray | None:
+    """(K,) N·m drive caps of every perturbation trial: the hand's effort limits when ``config.drive_limits`` and
+    the hand declares them, else None."""
+    return scenes.hand.description.effort_limits_array if config.drive_limits else None
+
+
+def run_trial(
+    scenes: TrialScenes,
+    obj: ObjectAsset,
+    grasp: Grasp,
+    pregrasp_grasp: Grasp,
+    validate_config: ValidateConfig,
+    perturbation: Perturbation,
+    limits: np.ndarray | None,
+) -> TrialResult:
+    """One trial of :func:`robust_validate`: ``perturbation`` applied, drives capped at ``limits``
+    (:func:`trial_limits`), in a fresh backend of ``scenes``, so its verdict does not depend on the trials run
+    before it or on their order."""
+    asset = _perturbed(obj, perturbation)
+    with scenes.open() as sim:  # its build and hand load count in scenes.seconds, not the trial's
+        start = time.perf_counter()
+        result = validate_grasp(
+            sim,
+            scenes.hand,
+            asset,
+            grasp,
+            pregrasp_grasp,
+            validate_config,
+            object_shift=perturbation.shift,
+            drive_limits=limits,
+        )
+        return TrialResult(perturbation.name, result.success, result.reason, time.perf_counter() - start)
 
 
 def _perturbed(obj: ObjectAsset, p: Perturbation) -> ObjectAsset:

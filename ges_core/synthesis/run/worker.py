@@ -38,7 +38,13 @@ from ges_core.synthesis.contacts.generate import ContactConfig, generate_contact
 from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import UNSTABLE_REST, check_rest, refine_grasp, refine_verdict
-from ges_core.synthesis.physics.robust import friction_trial_name, robust_validate
+from ges_core.synthesis.physics.robust import (
+    Perturbation,
+    friction_trial_name,
+    perturbations,
+    run_trial,
+    trial_limits,
+)
 from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.physics.validate import validate_grasp
 from ges_core.synthesis.retarget.retargeter import GraspRetargeter
@@ -308,6 +314,9 @@ class _Attempt:
     """Error message per failed step of this attempt."""
     primary: SimVerdict | None = None
     """The primary simulator's verdict, or None."""
+    pending: dict[str, tuple[Perturbation, ...]] = field(default_factory=dict)
+    """Per validating simulator, the perturbation trials not run yet (``robust.defer_trials``: they stopped at a
+    failed trial, or another simulator's did): :func:`_completed` runs them when the choice needs every score."""
 
     @property
     def passed(self) -> bool:
@@ -365,11 +374,13 @@ class _Attempt:
 
     @property
     def verdict(self) -> AttemptVerdict:
+        """What the record lists for this attempt; its robustness is None while trials are deferred (a score over
+        some of the trials would read as a lower or higher one than the placement's)."""
         return AttemptVerdict(
             refinement=self.refinement.reason or "ok",
             validation=self.validation.reason or "ok",
             robust=self.robust.reason or "ok",
-            robustness=self.robustness,
+            robustness=None if any(self.pending.values()) else self.robustness,
         )
 
 
@@ -406,6 +417,8 @@ def _attempts(
         unrested = last.refinement.reason == UNSTABLE_REST  # the object moves on its own: no placement can refine
         if last.holds_everywhere or (last.passed and not retry) or stopped or unrested:
             break
+    if not tries[-1].holds_everywhere:  # the choice compares scores: every deferred trial is needed
+        tries = [_completed(state, sims, hand, work, t) for t in tries]
     index = _chosen(tries)
     chosen = tries[index]
     errors = chosen.errors
@@ -466,9 +479,9 @@ def _attempt(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gra
     if not refinement.ok:
         skipped = StepOutcome.skipped()
         return _Attempt(grasp, refined, refinement, pre, skipped, skipped, {}, errors)
-    validation, robust, verdicts, failures = _validate(state, sims, hand, work, refined.grasp, pre)
+    validation, robust, verdicts, failures, pending = _validate(state, sims, hand, work, refined.grasp, pre)
     primary = verdicts.get(cfg.primary_sim) if cfg.primary_sim else None
-    return _Attempt(grasp, refined, refinement, pre, validation, robust, verdicts, errors | failures, primary)
+    return _Attempt(grasp, refined, refinement, pre, validation, robust, verdicts, errors | failures, primary, pending)
 
 
 def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp):
@@ -499,45 +512,139 @@ def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gras
 def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, pre: Grasp):
     """Validate in every configured simulator, then run the perturbation trials where the nominal trial passed:
     (the primary one's nominal verdict as the validation step, its trials as the robust step, the verdict per
-    simulator, {"validation_<sim>": error message} of the simulators that failed to run)."""
+    simulator, {"validation_<sim>": error message} of the simulators that failed to run, the trials deferred per
+    simulator). With ``robust.defer_trials`` a simulator's trials stop at its first failed one (but the friction
+    trial where it is out of every placement's reach, :func:`_friction_out_of_reach`), and once one has failed the
+    later simulators' trials are all deferred (the primary simulator's run first): the placement cannot hold
+    everywhere any more, and only :func:`_completed` needs the rest."""
     cfg = state.config(hand)
     if not cfg.validate_sims:
-        return StepOutcome(ok=False, reason=NOT_RUN), StepOutcome(ok=False, reason=NOT_RUN), {}, {}
+        return StepOutcome(ok=False, reason=NOT_RUN), StepOutcome(ok=False, reason=NOT_RUN), {}, {}, {}
     asset = state.library.get(work.object_id)
-    verdicts, errors = {}, {}
-    for name in cfg.validate_sims:
+    verdicts, errors, pending = {}, {}, {}
+    tolerated = _friction_out_of_reach(cfg, work)[0]
+    for name in sorted(cfg.validate_sims, key=lambda n: n != cfg.primary_sim):  # the primary simulator first
         drifted = sims.rest_problem(hand, name, asset)  # the refining engine's was checked before refinement
         if drifted is not None:  # the object does not stay at rest in this engine: no grasp is judged there
             errors[f"validation_{name}"] = str(drifted)
             verdicts[name] = SimVerdict(success=False, reason=drifted.reason)  # unstable_rest (or unstable)
             continue
+        failed = any(_failed_trial(v, tolerated) for v in verdicts.values())
+        defer = None if not cfg.robust.defer_trials else "all" if failed else "after_failure"
         try:
-            verdicts[name] = _sim_verdict(state, sims.scenes(hand, name), hand, work, asset, grasp, pre)
+            verdicts[name], pending[name] = _sim_verdict(
+                state, sims.scenes(hand, name), hand, work, asset, grasp, pre, defer=defer, tolerated=tolerated
+            )
         except (SimulationError, ArrayError) as error:  # failing to build or load, or a NaN command: a blow-up
             errors[f"validation_{name}"] = str(error)
-            verdicts[name] = SimVerdict(success=False, reason="unstable")
+            verdicts[name], pending[name] = SimVerdict(success=False, reason="unstable"), ()
+    verdicts = {name: verdicts[name] for name in cfg.validate_sims}  # the configured order
     main = verdicts[cfg.primary_sim]
     validation = (
         StepOutcome(ok=True, seconds=main.seconds) if main.success else StepOutcome.failed(main.reason, main.seconds)
     )
-    return validation, _robust_step(main, cfg.robust.enabled), verdicts, errors
+    pending = {name: trials for name, trials in pending.items() if trials}
+    return validation, _robust_step(main, cfg.robust.enabled), verdicts, errors, pending
+
+
+def _failed_trial(verdict: SimVerdict, tolerated: str | None) -> bool:
+    """Some perturbation trial of ``verdict`` failed, other than ``tolerated``."""
+    return any(not t.success and t.name != tolerated for t in verdict.trials)
 
 
 def _sim_verdict(
-    state: _State, scenes: TrialScenes, hand: str, work: ObjectWork, asset, grasp: Grasp, pre: Grasp
-) -> SimVerdict:
+    state: _State,
+    scenes: TrialScenes,
+    hand: str,
+    work: ObjectWork,
+    asset,
+    grasp: Grasp,
+    pre: Grasp,
+    *,
+    defer: str | None = None,
+    tolerated: str | None = None,
+) -> tuple[SimVerdict, tuple[Perturbation, ...]]:
     """The nominal trial and, if it passed and robust validation is on, the perturbation trials; each in a new
-    backend of ``scenes``."""
+    backend of ``scenes``. defer: None runs every trial; "after_failure" stops after the first failed one other
+    than ``tolerated``; "all" runs none. Returns the verdict and the trials not run."""
     cfg, model = state.config(hand), state.hand(hand)
     with scenes.open() as sim:
         result = validate_grasp(sim, model, asset, grasp, pre, cfg.validate_)
     flags = {k: bool(v) for k, v in result.flags.items()}
     verdict = SimVerdict(success=result.success, reason=result.reason, flags=flags, seconds=result.seconds)
     if not (result.success and cfg.robust.enabled):
-        return verdict
-    robust = robust_validate(scenes, asset, grasp, pre, cfg.validate_, cfg.robust, seed=work.seed)
-    trials = tuple(TrialVerdict(name=t.name, success=t.success, reason=t.reason) for t in robust.trials)
-    return replace(verdict, trials=trials, robustness=robust.score, robust_seconds=robust.seconds)
+        return verdict, ()
+    todo = tuple(perturbations(cfg.robust, scenes.config.hand_friction, asset, work.seed))
+    if defer == "all":
+        return verdict, todo
+    return _trials_run(
+        state, scenes, hand, asset, grasp, pre, verdict, todo, stop=defer is not None, tolerated=tolerated
+    )
+
+
+def _trials_run(
+    state: _State,
+    scenes: TrialScenes,
+    hand: str,
+    asset,
+    grasp: Grasp,
+    pre: Grasp,
+    verdict: SimVerdict,
+    todo: tuple[Perturbation, ...],
+    *,
+    stop: bool = False,
+    tolerated: str | None = None,
+) -> tuple[SimVerdict, tuple[Perturbation, ...]]:
+    """``verdict`` with the trials of ``todo`` run and appended in order (its robustness the share held of all its
+    trials, its robust seconds summed); with ``stop`` they stop after the first failed one other than ``tolerated``.
+    Returns it and the trials not run."""
+    cfg = state.config(hand)
+    limits = trial_limits(scenes, cfg.robust)
+    trials, seconds = list(verdict.trials), verdict.robust_seconds or 0.0
+    for i, p in enumerate(todo):
+        t = run_trial(scenes, asset, grasp, pre, cfg.validate_, p, limits)
+        trials.append(TrialVerdict(name=t.name, success=t.success, reason=t.reason))
+        seconds += t.seconds
+        if stop and not t.success and t.name != tolerated:
+            todo = todo[i + 1 :]
+            break
+    else:
+        todo = ()
+    robustness = sum(t.success for t in trials) / len(trials) if trials else 1.0
+    return replace(verdict, trials=tuple(trials), robustness=robustness, robust_seconds=seconds), todo
+
+
+def _completed(state: _State, sims: _Sims, hand: str, work: ObjectWork, attempt: _Attempt) -> _Attempt:
+    """``attempt`` with its deferred trials (:attr:`_Attempt.pending`) run: the same verdicts as running them all at
+    once, as every trial has a backend of its own. A simulator that fails to build there makes its verdict
+    ``unstable``, as in :func:`_validate`."""
+    if not attempt.pending:
+        return attempt
+    cfg = state.config(hand)
+    asset = state.library.get(work.object_id)
+    verdicts, errors = dict(attempt.validations), dict(attempt.errors)
+    for name, todo in attempt.pending.items():
+        try:
+            scenes = sims.scenes(hand, name)
+            verdicts[name], _ = _trials_run(
+                state, scenes, hand, asset, attempt.refined.grasp, attempt.pre, verdicts[name], todo
+            )
+        except (SimulationError, ArrayError) as error:
+            errors[f"validation_{name}"] = str(error)
+            verdicts[name] = SimVerdict(success=False, reason="unstable")
+    main = verdicts[cfg.primary_sim]
+    validation = attempt.validation
+    if not main.success:  # the primary simulator failed to build for its deferred trials
+        validation = StepOutcome.failed(main.reason, attempt.validation.seconds)
+    return replace(
+        attempt,
+        validation=validation,
+        robust=_robust_step(main, cfg.robust.enabled),
+        validations=verdicts,
+        errors=errors,
+        primary=main,
+        pending={},
+    )
 
 
 def _robust_step(verdict: SimVerdict, enabled: bool) -> StepOutcome:
