@@ -397,7 +397,8 @@ def _attempts(
     among those whose nominal trial held in every validating simulator, else among all that passed. None passing,
     the first that refined, else the first. It
     lists every attempt's verdicts and the chosen one's index when it passed; its refinement, validation and robust
-    times are the sums over the attempts.
+    times are the sums over the attempts. With ``robust.defer_trials`` the trials a placement left after its first
+    failure (:attr:`_Attempt.pending`) run before the choice when no placement holds everywhere (:func:`_completed`).
 
     An object that does not stay at rest on its own in a validating simulator (its verdict there is
     ``unstable_rest``, whatever the placement) leaves that simulator out of "every validating simulator"; one that does
