@@ -215,6 +215,7 @@ def _compared(tmp_path, monkeypatch, trial_fails, **settings):
         seen = _doubles(monkeypatch, fails=set(), trial_fails=trial_fails)
         robust = ROBUST | {"defer_trials": defer}
         out[defer] = (_run(tmp_path / str(defer), robust=robust, **settings), seen["trials"])
+        monkeypatch.undo()  # the second run's doubles wrap the real functions, not the first run's doubles
     return out
 
 

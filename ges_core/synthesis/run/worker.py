@@ -22,6 +22,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Literal
 
 from ges_core.dataset import (
     HELD_NO_BETTER,
@@ -412,7 +413,7 @@ def _attempts(
     out_of_reach, why = _friction_out_of_reach(cfg, work)
     tries, stopped = [], False
     for grasp in grasps:
-        tries.append(_attempt(state, sims, hand, work, grasp))
+        tries.append(_attempt(state, sims, hand, work, grasp, out_of_reach))
         last = tries[-1]
         stopped = bool(out_of_reach) and last.holds_all_but(out_of_reach)
         unrested = last.refinement.reason == UNSTABLE_REST  # the object moves on its own: no placement can refine
@@ -472,7 +473,11 @@ def _chosen(tries: list[_Attempt]) -> int:
     return next((i for i, t in enumerate(tries) if t.refinement.ok), 0)
 
 
-def _attempt(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp) -> _Attempt:
+def _attempt(
+    state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, tolerated: str | None = None
+) -> _Attempt:
+    """``grasp`` through refinement, the pre-grasp and validation; ``tolerated``: the friction trial out of every
+    placement's reach (:func:`_friction_out_of_reach`, found once per pair), which does not stop deferred trials."""
     cfg = state.config(hand)
     refined, refinement, errors = _refine(state, sims, hand, work, grasp)
     settled = refined.grasp if refined is not None else grasp
@@ -480,7 +485,7 @@ def _attempt(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gra
     if not refinement.ok:
         skipped = StepOutcome.skipped()
         return _Attempt(grasp, refined, refinement, pre, skipped, skipped, {}, errors)
-    validation, robust, verdicts, failures, pending = _validate(state, sims, hand, work, refined.grasp, pre)
+    validation, robust, verdicts, failures, pending = _validate(state, sims, hand, work, refined.grasp, pre, tolerated)
     primary = verdicts.get(cfg.primary_sim) if cfg.primary_sim else None
     return _Attempt(grasp, refined, refinement, pre, validation, robust, verdicts, errors | failures, primary, pending)
 
@@ -510,12 +515,14 @@ def _refine(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gras
     return refined, outcome, {}
 
 
-def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, pre: Grasp):
+def _validate(
+    state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Grasp, pre: Grasp, tolerated: str | None = None
+):
     """Validate in every configured simulator, then run the perturbation trials where the nominal trial passed:
     (the primary one's nominal verdict as the validation step, its trials as the robust step, the verdict per
     simulator, {"validation_<sim>": error message} of the simulators that failed to run, the trials deferred per
     simulator). With ``robust.defer_trials`` a simulator's trials stop at its first failed one (but the friction
-    trial where it is out of every placement's reach, :func:`_friction_out_of_reach`), and once one has failed the
+    trial ``tolerated``, out of every placement's reach: :func:`_friction_out_of_reach`), and once one has failed the
     later simulators' trials are all deferred (the primary simulator's run first): the placement cannot hold
     everywhere any more, and only :func:`_completed` needs the rest."""
     cfg = state.config(hand)
@@ -523,7 +530,6 @@ def _validate(state: _State, sims: _Sims, hand: str, work: ObjectWork, grasp: Gr
         return StepOutcome(ok=False, reason=NOT_RUN), StepOutcome(ok=False, reason=NOT_RUN), {}, {}, {}
     asset = state.library.get(work.object_id)
     verdicts, errors, pending = {}, {}, {}
-    tolerated = _friction_out_of_reach(cfg, work)[0]
     for name in sorted(cfg.validate_sims, key=lambda n: n != cfg.primary_sim):  # the primary simulator first
         drifted = sims.rest_problem(hand, name, asset)  # the refining engine's was checked before refinement
         if drifted is not None:  # the object does not stay at rest in this engine: no grasp is judged there
@@ -562,7 +568,7 @@ def _sim_verdict(
     grasp: Grasp,
     pre: Grasp,
     *,
-    defer: str | None = None,
+    defer: Literal["after_failure", "all"] | None = None,
     tolerated: str | None = None,
 ) -> tuple[SimVerdict, tuple[Perturbation, ...]]:
     """The nominal trial and, if it passed and robust validation is on, the perturbation trials; each in a new
