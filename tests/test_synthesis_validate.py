@@ -18,7 +18,14 @@ from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
 from ges_core.synthesis.physics.scene import tip_rule
 from ges_core.synthesis.physics.squeeze import press_directions, squeeze_targets
-from ges_core.synthesis.physics.validate import HoldRecord, ValidateConfig, agreement, classify, validate_grasp
+from ges_core.synthesis.physics.validate import (
+    HoldRecord,
+    ValidateConfig,
+    agreement,
+    classify,
+    tips_needed,
+    validate_grasp,
+)
 from ges_core.synthesis.types import Grasp, ValidationResult
 
 CONFIG = ValidateConfig()
@@ -223,18 +230,23 @@ def test_simulators_agree_on_clear_cases(validated):
 
 # -- the hold ends once the verdict is settled -------------------------------------------------
 class _ScriptedHold:
-    """A test double for the hold: the object's height and the fingertip touch per step, from lists."""
+    """A test double for the hold: the object's height, the fingertip touch and the fingertip rule per step, from
+    lists (the rule holds at every step unless given); counts the steps and the steps that read the forces."""
 
-    def __init__(self, heights, touches) -> None:
+    def __init__(self, heights, touches, rules=None) -> None:
         self.heights, self.touches, self.steps = list(heights), list(touches), 0
-        self.touched = False
+        self.rules = list(rules) if rules is not None else [True] * len(self.heights)
+        self.touched, self.reads, self.read_last = False, 0, False
 
-    def step(self) -> None:  # the probe's step
+    def step(self, *, read: bool = False) -> None:  # the probe's step
         self.touched = self.touched or self.touches[self.steps]
         self.steps += 1
+        self.read_last = read
+        self.reads += read
 
     def rule(self) -> bool:
-        return True
+        assert self.read_last, "the rule was asked at a step that did not read the forces"
+        return self.rules[self.steps - 1]
 
     def object_pose(self) -> np.ndarray:  # the backend's, read after each step
         return np.array([[0.0, 0.0, self.heights[self.steps - 1], 1.0, 0.0, 0.0, 0.0]])
@@ -264,11 +276,52 @@ def test_the_hold_stops_once_the_verdict_is_settled(lifted, touched_before, heig
     assert verdicts[True] == (reason, 10)  # the full hold: every step, the same verdict
 
 
+@pytest.mark.parametrize(
+    ("steps", "fraction"), [(200, 0.9), (10, 0.9), (7, 0.5), (3, 1 / 3), (10, 1.0), (200, 0.95), (9, 0.7)]
+)
+def test_tips_needed_is_where_classify_turns_to_success(steps, fraction):
+    """classify's own verdict, with the fingertip rule at the first n of the hold steps: palm_only below
+    tips_needed, success from it on."""
+    config = ValidateConfig(hold_steps=steps, hold_fraction=fraction)
+    needed = tips_needed(config)
+    verdicts = [
+        classify(HoldRecord(True, True, np.ones(steps, bool), np.arange(steps) < n), config) for n in range(steps + 1)
+    ]
+    assert verdicts == ["palm_only"] * needed + ["success"] * (steps + 1 - needed)
+
+
+@pytest.mark.parametrize(
+    ("rules", "reason", "reads"),
+    [
+        ([True] * 10, "success", 9),  # 9 of 10 steps with the rule pass 0.9: the last step is not read
+        ([False] + [True] * 9, "success", 10),  # one miss: every step is needed
+        ([False, False] + [True] * 8, "palm_only", 2),  # two misses: 0.9 is out of reach, no more reads
+        ([True] * 5 + [False] + [True] * 4, "success", 10),
+        ([True] * 8 + [False] * 2, "palm_only", 10),  # the second miss at the last step decides
+    ],
+)
+def test_the_hold_reads_the_fingertip_rule_until_its_share_is_decided(rules, reason, reads):
+    """The verdict is the one of reading every step (full_hold); the reads stop once the share cannot change
+    side of hold_fraction (10 steps, 0.9: 9 steps with the rule needed, a second miss is decisive)."""
+    from ges_core.synthesis.physics.validate import _hold
+
+    config = ValidateConfig(hold_steps=10)
+    runs = {}
+    for full in (False, True):
+        double = _ScriptedHold([0.2] * 10, [True] * 10, rules)
+        double.touched = True
+        record = _hold(double, double, 0.0, True, config, full_hold=full)
+        runs[full] = (classify(record, config), double.steps, double.reads)
+    assert runs[True] == (reason, 10, 10)
+    assert runs[False] == (reason, 10, reads)
+
+
 @pytest.mark.sim
 @pytest.mark.parametrize("sim_name", SIMS)
 def test_an_early_verdict_is_the_full_holds_verdict_in_the_engines(allegro, sim_name):
     """The controls that fail (not lifted, dropped) take fewer physics steps and give the full hold's verdict
-    and flags; a grasp that holds runs every step either way."""
+    and flags; a grasp that holds runs every step either way. Every trial but a ``no_contact`` one reads the
+    fingertip forces at fewer steps than it runs, and gives the verdict and flags of reading them at every step."""
     with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
         counted = {"steps": 0}
         step = sim.step
@@ -278,22 +331,37 @@ def test_an_early_verdict_is_the_full_holds_verdict_in_the_engines(allegro, sim_
             return step(*args, **kwargs)
 
         sim.step = counting_step
+        forces = sim.contact_forces
+
+        def counting_forces(*args, **kwargs):
+            counted["reads"] += 1
+            return forces(*args, **kwargs)
+
+        counted["reads"] = 0
+        sim.contact_forces = counting_forces
         cases = _cases(allegro)
         good = refine_grasp(sim, allegro, box_object(), cases["good"][0]).grasp
-        shorter = 0
+        shorter = read_less = 0
         for name, grasp in [("good", good), *((n, g) for n, (g, refine) in cases.items() if not refine)]:
             pre = pregrasp(allegro, grasp, DOWN)
             runs = []
             for full in (False, True):
-                before = counted["steps"]
+                before, reads_before = counted["steps"], counted["reads"]
                 result = validate_grasp(sim, allegro, box_object(), grasp, pre, full_hold=full)
-                runs.append((result.reason, result.flags, counted["steps"] - before))
-            (early, early_flags, n_early), (full, full_flags, n_full) = runs
-            print(f"\n{sim_name} {name}: {early} in {n_early} steps, full hold {full} in {n_full}")
+                runs.append((result.reason, result.flags, counted["steps"] - before, counted["reads"] - reads_before))
+            (early, early_flags, n_early, reads_early), (full, full_flags, n_full, reads_full) = runs
+            print(f"\n{sim_name} {name}: {early} in {n_early} steps, full hold {full} in {n_full}; reads {runs}")
             assert (early, early_flags) == (full, full_flags), (name, runs)
+            assert reads_full == n_full  # the reference run reads the fingertip forces at every step
+            if early == "no_contact":  # only every step's forces can tell that no fingertip touched
+                assert reads_early == n_early, (name, runs)
+            else:
+                assert reads_early < n_early, (name, runs)
+                read_less += 1
             if early in ("not_lifted", "dropped"):
                 assert n_early < n_full, (name, runs)
                 shorter += 1
             else:
                 assert n_early == n_full, (name, runs)
         assert shorter >= 1  # at least one control was settled before the end of the hold
+        assert read_less >= 2  # the good grasp and a control

@@ -15,6 +15,13 @@ also requires a *fingertip* grasp through the hold. Phases, all through
    ``dropped``, whatever the remaining steps do); ``full_hold=True`` runs every step (the same verdict, checked
    by the tests, ``benchmarks/validation_early.py`` measures the time saved).
 
+Fingertip forces are read (:func:`ges_core.synthesis.physics.scene.tip_forces`, about a quarter of a trial's CPU
+time) only where the verdict reads them: every step until a fingertip first touches (``touched`` never turns back),
+the last closing step (``fingertips_touching``), and the hold steps while the fingertip rule's share can still
+decide between success and not. Reading changes nothing in the scene, so the verdict and flags are those of reading
+every step (``full_hold=True`` reads every step too; the tests compare both, ``benchmarks/validation_reads.py``
+measures the time saved).
+
 Verdict (:func:`classify`), from what was measured:
 
 * ``unstable``: the backend raised SimulationError, or refused a NaN command (ArrayError) computed from a
@@ -57,7 +64,16 @@ from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE
 from ges_core.synthesis.types import Grasp, ValidationResult
 from ges_core.transforms import compose, interpolate_pose, quat_mul
 
-__all__ = ["REASONS", "HoldRecord", "ValidateConfig", "agreement", "classify", "shifted", "validate_grasp"]
+__all__ = [
+    "REASONS",
+    "HoldRecord",
+    "ValidateConfig",
+    "agreement",
+    "classify",
+    "shifted",
+    "tips_needed",
+    "validate_grasp",
+]
 
 REASONS = ("success", "no_contact", "palm_only", "dropped", "not_lifted", "unstable")
 """Every reason :func:`validate_grasp` can give."""
@@ -130,7 +146,8 @@ def validate_grasp(
     about its own origin, while the hand still aims at the resting pose. drive_limits: (K,) N·m or None; the
     hand's drives are capped there (:meth:`ges_core.sim.SimBackend.set_drive_limits`) for this trial only; None
     with ``config.drive_limits`` caps them at the hand's effort limits. full_hold: run every hold step even after
-    the verdict is settled (module docs; a blow-up in the skipped steps would have said ``unstable`` instead).
+    the verdict is settled and read the fingertip forces at every step (module docs; the reference run: a blow-up
+    in the skipped steps would have said ``unstable`` instead).
     """
     config = config or ValidateConfig()
     start = time.perf_counter()
@@ -201,7 +218,7 @@ def _run(
     start, goal = compose(object_pose, pre.wrist_pose), compose(object_pose, grasp.wrist_pose)
     q_pre = d.apply_couplings(pre.q)
     sim.set_hand_state(q_pre[None], start[None])
-    probe = _Probe(sim, d, config)
+    probe = _Probe(sim, d, config, every_step=full_hold)
     for i in range(1, config.approach_steps + 1):
         sim.set_wrist_targets(interpolate_pose(start, goal, i / config.approach_steps)[None])
         probe.step()
@@ -210,7 +227,7 @@ def _run(
     )
     for i in range(1, config.close_steps + 1):
         sim.set_joint_targets((q_pre + (q_close - q_pre) * i / config.close_steps)[None])
-        probe.step()
+        probe.step(read=i == config.close_steps)  # the fingertip rule after closing reads the last step's forces
     flags["reached_grasp"] = bool(np.linalg.norm(sim.wrist_pose()[0, :3] - goal[:3]) < config.reach_tolerance)
     flags["fingertips_touching"] = probe.rule()
     _lift(sim, goal, probe, config)
@@ -232,15 +249,30 @@ def _hold(
 ) -> HoldRecord:
     """``hold_steps`` at the top, recording per step the object's height check and the fingertip rule; unless
     ``full_hold``, it stops as soon as :func:`classify` can give nothing but one verdict (the steps not run stay
-    False, which that verdict does not read)."""
-    hold_high, hold_tips = np.zeros(config.hold_steps, bool), np.zeros(config.hold_steps, bool)
-    for i in range(config.hold_steps):
+    False, which that verdict does not read), and it stops reading the fingertip rule once its share is decided
+    (:func:`tips_needed` steps with the rule reached, or too many without it to reach them; the steps not read stay
+    False, which leaves the share on the same side of ``hold_fraction``)."""
+    steps = config.hold_steps
+    needed = tips_needed(config)
+    hold_high, hold_tips = np.zeros(steps, bool), np.zeros(steps, bool)
+    with_rule = without_rule = 0
+    for i in range(steps):
         if not full_hold and _settled(probe.touched, lifted, i == 0 or bool(hold_high[i - 1])):
             break
-        probe.step()
+        open_share = full_hold or (with_rule < needed and without_rule <= steps - needed)
+        probe.step(read=open_share)
         hold_high[i] = sim.object_pose()[0, 2] - z0 >= config.lift_height - config.lift_tolerance
-        hold_tips[i] = probe.rule()
+        if open_share:
+            hold_tips[i] = probe.rule()
+            with_rule, without_rule = with_rule + hold_tips[i], without_rule + (not hold_tips[i])
     return HoldRecord(probe.touched, lifted, hold_high, hold_tips)
+
+
+def tips_needed(config: ValidateConfig) -> int:
+    """The fewest hold steps with the fingertip rule that :func:`classify` passes: the least ``n`` with
+    ``n / hold_steps >= hold_fraction``, in the same floating point as its share (``np.mean`` of the steps)."""
+    steps = config.hold_steps
+    return next(n for n in range(steps + 1) if n / steps >= config.hold_fraction)
 
 
 def _settled(touched: bool, lifted: bool, high: bool) -> bool:
@@ -260,22 +292,28 @@ def _lift(sim: SimBackend, goal: np.ndarray, probe: _Probe, config: ValidateConf
 
 
 class _Probe:
-    """Steps the backend and keeps the fingertip force reads of the last step."""
+    """Steps the backend and reads the fingertip forces where the verdict needs them (module docs)."""
 
-    def __init__(self, sim: SimBackend, d: HandDescription, config: ValidateConfig) -> None:
-        self.sim, self.config = sim, config
+    def __init__(self, sim: SimBackend, d: HandDescription, config: ValidateConfig, *, every_step: bool) -> None:
+        self.sim, self.config, self.every_step = sim, config, every_step
         self.tips = list(d.tip_links)
         self.thumb = self.tips.index(d.finger_for_slot("thumb").tip_link)
-        self.forces = np.zeros(len(self.tips))
+        self.forces: np.ndarray | None = None
+        """(T,) N: the last step's fingertip forces, None when that step did not read them."""
         self.touched = False
 
-    def step(self) -> None:
-        """One physics step, then read the fingertip forces."""
+    def step(self, *, read: bool = False) -> None:
+        """One physics step; its fingertip forces are read when ``read``, at every step with ``every_step``, and
+        while no fingertip has touched yet (after that, reads could not change ``touched``)."""
         self.sim.step()
-        self.forces = tip_forces(self.sim, self.tips)
-        self.touched = self.touched or bool(self.forces.max() > self.config.min_tip_force)
+        self.forces = None
+        if read or self.every_step or not self.touched:
+            self.forces = tip_forces(self.sim, self.tips)
+            self.touched = self.touched or bool(self.forces.max() > self.config.min_tip_force)
 
     def rule(self) -> bool:
-        """The fingertip rule on the last step's forces."""
+        """The fingertip rule on the last step's forces (that step must have read them)."""
+        if self.forces is None:
+            raise RuntimeError("validate._Probe.rule: the last step did not read the fingertip forces")
         c = self.config
         return tip_rule(self.forces, self.thumb, c.min_tip_force, c.min_tips, c.require_thumb)
