@@ -1,0 +1,125 @@
+"""Stage 1 with the fingertip forces read at every validation step, and as shipped: the same records, less CPU.
+
+Validation (the nominal trial and every perturbation trial) reads the fingertip forces only where its verdict reads
+them (``ges_core.synthesis.physics.validate``, module docs: until a fingertip first touches, the last closing step,
+and the hold steps while the fingertip rule's share is undecided). This runs the Stage 1 pipeline
+(``run_synthesis``, one process, one torch thread, SAPIEN, the defaults: robust trials on) twice over the same
+objects: reading every step (``every_step``, the code before) and as shipped (``as_needed``), and compares record by
+record the verdicts, the placement histories, the kept joints and wrist pose, and the CPU seconds of validation plus
+the perturbation trials (``time.process_time``: a busy machine does not bend the comparison).
+
+    python benchmarks/validation_reads.py [--procedural N] [--real N] [--hands allegro shadow]
+
+Procedural objects (object 000 of the first N categories) and real scans (the first N of the ``real`` set) are
+reported apart. Prints a markdown table and writes ``benchmarks/results/validation_reads.json``.
+"""
+
+from __future__ import annotations
+
+import statistics
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from stage1_speed import run_pipeline
+from validation_early import history, object_sets_and_config, options, seconds, verdicts
+
+from ges_core.dataset import software_versions
+from ges_core.synthesis.physics import validate
+
+from _results import code_state, write_results
+
+RESULTS = Path(__file__).parent / "results" / "validation_reads.json"
+VARIANTS = ("every_step", "as_needed")
+
+
+class _EveryStep(validate._Probe):
+    """The probe of the code before: it reads the fingertip forces at every step."""
+
+    def __init__(self, *args, **kwargs) -> None:
+        super().__init__(*args, **{**kwargs, "every_step": True})
+
+
+def run(ids: list[str], hands: list[str], config, folder: Path, variant: str) -> tuple[dict, float]:
+    """{(object, hand): record} of one pipeline run and its CPU seconds."""
+    probe = validate._Probe
+    if variant == "every_step":
+        validate._Probe = _EveryStep
+    try:
+        records, spent = run_pipeline(ids, hands, config, folder, "cpu")
+    finally:
+        validate._Probe = probe
+    return {r.key: r for r in records}, spent["cpu"]
+
+
+def grasp(record) -> tuple:
+    """The kept grasp's joints and wrist pose (empty when none was kept), as bytes: equal means bit-identical."""
+    if record.grasp is None:
+        return ()
+    return np.asarray(record.grasp.q).tobytes(), np.asarray(record.grasp.wrist_pose).tobytes()
+
+
+def _outcome(record) -> tuple:
+    return verdicts(record), history(record), grasp(record)
+
+
+def compare(runs: dict[str, dict]) -> dict:
+    """As shipped against every step, record by record."""
+    keys = sorted(runs["every_step"])
+    old, new = runs["every_step"], runs["as_needed"]
+    same = {what.__name__: sum(what(old[k]) == what(new[k]) for k in keys) for what in (verdicts, history, grasp)}
+    before = [seconds(old[k]) for k in keys]
+    after = [seconds(new[k]) for k in keys]
+    ratios = [a / b for a, b in zip(after, before, strict=True) if b > 0]
+    return {
+        "records": len(keys),
+        "identical_verdicts": same["verdicts"],
+        "identical_histories": same["history"],
+        "identical_grasps": same["grasp"],
+        "differing": [
+            list(k) for k in keys if (verdicts(old[k]), history(old[k])) != (verdicts(new[k]), history(new[k]))
+        ],
+        "median_seconds_every_step": statistics.median(before),
+        "median_seconds_as_needed": statistics.median(after),
+        "sum_seconds_every_step": sum(before),
+        "sum_seconds_as_needed": sum(after),
+        "median_ratio": statistics.median(ratios) if ratios else None,
+    }
+
+
+def main() -> None:
+    args = options(__doc__.splitlines()[0])
+    sets, config = object_sets_and_config(args)
+    rows, cpu = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        run([sets["procedural"][0]], args.hands[:1], config, Path(tmp) / "warm", "as_needed")  # imports, caches
+        for name, ids in sets.items():
+            runs = {}
+            for variant in VARIANTS:
+                runs[variant], cpu[f"{name}/{variant}"] = run(
+                    ids, args.hands, config, Path(tmp) / name / variant, variant
+                )
+                print(f"{name} {variant}: {len(runs[variant])} records, {cpu[f'{name}/{variant}']:.1f} CPU s")
+            rows[name] = compare(runs)
+    print(
+        "\n| objects | records | same verdicts / placement histories / grasps | validation + robust CPU s per record, "
+        "median: every step / as needed | median ratio | whole run CPU s: every step / as needed |"
+    )
+    print("|---|---|---|---|---|---|")
+    for name, r in rows.items():
+        print(
+            f"| {name} | {r['records']} | {r['identical_verdicts']} / {r['identical_histories']} / "
+            f"{r['identical_grasps']} | {r['median_seconds_every_step']:.2f} / {r['median_seconds_as_needed']:.2f} | "
+            f"{r['median_ratio']:.2f} | {cpu[f'{name}/every_step']:.1f} / {cpu[f'{name}/as_needed']:.1f} |"
+        )
+        for key in r["differing"]:
+            print(f"  differs: {' '.join(key)}")
+    write_results(RESULTS, {
+        "benchmark": "validation_reads", "objects": sets, "hands": args.hands, "rows": rows, "cpu_seconds": cpu,
+        "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
+        "code": code_state(),
+    })  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
