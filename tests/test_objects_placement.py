@@ -54,4 +54,3 @@ def test_a_steady_most_probable_pose_is_kept():
     vertices, transforms = _poses()
     upright_first = transforms[::-1].copy()
     assert placement._steadiest(upright_first, np.asarray([0.09, 0.08]), vertices, np.zeros(3)) == 0
-
