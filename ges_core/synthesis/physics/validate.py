@@ -15,7 +15,7 @@ also requires a *fingertip* grasp through the hold. Phases, all through
    ``dropped``, whatever the remaining steps do); ``full_hold=True`` runs every step (the same verdict, checked
    by the tests, ``benchmarks/validation_early.py`` measures the time saved).
 
-Fingertip forces are read (:func:`ges_core.synthesis.physics.scene.tip_forces`, about a quarter of a trial's CPU
+Fingertip forces are read (:func:`ges_core.synthesis.physics.scene.tip_forces`, about a fifth of a trial's CPU
 time) only where the verdict reads them: every step until a fingertip first touches (``touched`` never turns back),
 the last closing step (``fingertips_touching``), and the hold steps while the fingertip rule's share can still
 decide between success and not. Reading changes nothing in the scene, so the verdict and flags are those of reading
