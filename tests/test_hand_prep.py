@@ -13,11 +13,13 @@ import trimesh
 from ges_core.errors import AssetError
 from ges_core.hand import JointCoupling
 from ges_core.hand_files import FileHand
+from ges_core.hand_prep.engine_files import engine_file_memo, note_parts_written
 from ges_core.hand_prep.engine_urdf import engine_urdf
 from ges_core.hand_prep.geometry import hull_penetration, link_shapes, mesh_gap
 from ges_core.hand_prep.meshes import converted_mesh, converted_mesh_if_cached, resolve_mesh_path
 from ges_core.hand_prep.mimic import mimic_couplings, strip_mimic
 from ges_core.kinematics import HandKinematics
+from ges_core.paths import CACHE_ENV, cached_text_file
 from ges_core.urdf import parse_urdf
 
 from conftest import REPO
@@ -173,3 +175,26 @@ def test_hull_penetration_and_mesh_gap_of_boxes():
     c = _box([0.02, 0.02, 0.02], [0.023, 0, 0])
     assert hull_penetration(np.asarray(a.vertices), np.asarray(c.vertices)) == 0.0
     assert mesh_gap(a, c) == pytest.approx(0.003, abs=1e-6)
+
+
+def test_an_engine_file_is_made_once_per_process_and_again_when_it_may_be_stale(tmp_path, monkeypatch):
+    """The same arguments give the file made the first time; other arguments, a removed file, a decomposition
+    written since (its parts belong in the file) or another cache folder make it again."""
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "a"))
+    made = []
+
+    @engine_file_memo
+    def make(text: str, *, floating: bool) -> Path:
+        made.append((text, floating))
+        return cached_text_file(f"{text} {floating}", "test", stem="hand")
+
+    first = make("<robot/>", floating=True)
+    assert make("<robot/>", floating=True) == first and len(made) == 1
+    assert make("<robot/>", floating=False) != first and len(made) == 2
+    first.unlink()
+    assert make("<robot/>", floating=True) == first and first.is_file() and len(made) == 3
+    note_parts_written()
+    assert make("<robot/>", floating=True) == first and len(made) == 4
+    monkeypatch.setenv(CACHE_ENV, str(tmp_path / "b"))
+    moved = make("<robot/>", floating=True)
+    assert moved.is_relative_to(tmp_path / "b") and len(made) == 5

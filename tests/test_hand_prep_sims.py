@@ -129,3 +129,32 @@ def test_prepared_parts_are_what_both_engines_collide(capsys, tmp_path):
         code = main(["hand", "lint", str(path), "--sim", sim, "--skip", "fk"])
         out = capsys.readouterr().out
         assert code == 0 and "[self-collision]" not in out and "[hull-overlap]" not in out, out
+
+
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_every_backend_loads_the_hand_file_made_once(sim_name, monkeypatch):
+    """Three backends load the Allegro: its engine URDF is made once (one engine_urdf pass), and the file they load
+    is the one the plugin's function makes without the memo."""
+    from ges_core.hand_prep import engine_files
+    from ges_core.hand_prep import engine_urdf as module
+    from ges_plugins.sims.pybullet.hand_urdf import pybullet_hand_urdf
+    from ges_plugins.sims.sapien.loading import _prepared_urdf
+
+    calls, real = [], module.engine_urdf
+    monkeypatch.setattr(module, "engine_urdf", lambda *args: calls.append(args) or real(*args))
+    engine_files.note_parts_written()  # what earlier tests left in the memo is stale now
+    registry = load_registry(autoload=False)
+    hand = registry.build_hand("allegro")
+    for _ in range(3):
+        with registry.build_sim(sim_name, SceneConfig()) as sim:
+            sim.load_hand(hand)
+    assert len(calls) == 1, calls
+    source = hand.urdf_path()
+    if sim_name == "sapien":
+        memo, fresh = _prepared_urdf, _prepared_urdf.__wrapped__
+        args, kwargs = (source.read_text(), source.parent, hand.name, True), {}
+    else:
+        memo, fresh = pybullet_hand_urdf, pybullet_hand_urdf.__wrapped__
+        args, kwargs = (hand.urdf_text(), hand.name), {"floating": True, "base_dir": source.parent}
+    assert memo(*args, **kwargs) == fresh(*args, **kwargs)
+    assert len(calls) == 2  # the one call without the memo

@@ -13,6 +13,7 @@ import json
 from dataclasses import replace
 from pathlib import Path
 
+from ges_core.hand_prep.engine_files import note_parts_written
 from ges_core.objects.decompose import FAST, cached_parts, decompose, decomposition_dir
 from ges_core.paths import file_sha256
 
@@ -41,7 +42,9 @@ def decompose_link_mesh(mesh: Path, *, name: str) -> list[Path]:
     parts = cached_parts(key, HAND_COACD)
     if parts is not None:
         return parts
-    return decompose(trimesh.load(str(mesh), force="mesh"), key, HAND_COACD, name=name)
+    parts = decompose(trimesh.load(str(mesh), force="mesh"), key, HAND_COACD, name=name)
+    note_parts_written()  # engine URDFs made before in this process lack these parts
+    return parts
 
 
 def decomposition_seconds(mesh: Path) -> float:

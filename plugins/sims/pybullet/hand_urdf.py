@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ges_core.hand_prep.engine_files import engine_file_memo
 from ges_core.paths import cached_text_file
 from ges_core.urdf import add_floating_base, inertia_tensor, parse_urdf, root_link
 
@@ -49,15 +50,17 @@ _TRIANGLE_SLACK = 1e-3
 tripped PyBullet's check after the decimal round trip (3 Allegro links)."""
 
 
+@engine_file_memo  # made once per process (every backend loads the hand again)
 def pybullet_hand_urdf(text: str, name: str, *, floating: bool, base_dir: Path | None = None) -> Path:
-    """Write the PyBullet-ready URDF of a hand to the cache (keyed by its text) and return the path.
+    """Write the PyBullet-ready URDF of a hand to the cache (keyed by its text) and return the path; made once
+    per process for the same arguments (:func:`ges_core.hand_prep.engine_files.engine_file_memo`).
 
     base_dir: the folder of the hand's URDF file. With it, :func:`ges_core.hand_prep.engine_urdf.engine_urdf`
     first makes mesh paths absolute, converts meshes PyBullet cannot load (``.glb``: "invalid mesh filename
     extension", the shape is dropped) to OBJ, drops ``<mimic>`` tags and uses ``ges hand prepare``'s convex parts.
     """
     if base_dir is not None:
-        from ges_core.hand_prep.engine_urdf import engine_urdf
+        from ges_core.hand_prep.engine_urdf import engine_urdf  # trimesh and CoACD: imported when first needed
 
         text = engine_urdf(text, base_dir)
     text = add_floating_base(text, world_link=WORLD_LINK) if floating else add_fixed_base(text)

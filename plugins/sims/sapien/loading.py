@@ -7,12 +7,14 @@ render shape is ever created (they need a Vulkan device), URDFs are loaded from 
 
 from __future__ import annotations
 
+import functools
 from pathlib import Path
 
 import numpy as np
 
 from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
+from ges_core.hand_prep.engine_files import engine_file_memo
 from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
 from ges_core.paths import cached_text_file
 from ges_core.sim import SceneConfig
@@ -72,16 +74,21 @@ def prepare_urdf(hand: HandModel, *, floating: bool) -> Path:
     :func:`ges_core.hand_prep.engine_urdf.engine_urdf` removes ``<mimic>`` tags (SAPIEN's loader would
     build them as fixed tendons that fight the followers' PD drives: the hand explodes), converts
     collision meshes to OBJ where needed and uses ``ges hand prepare``'s convex parts. Written once to
-    the cache (keyed by a hash of the text) and reused.
+    the cache (keyed by a hash of the text) and reused; made once per process
+    (:func:`ges_core.hand_prep.engine_files.engine_file_memo`).
     """
-    from ges_core.hand_prep.engine_urdf import engine_urdf
-
     source = hand.urdf_path()
-    text = engine_urdf(strip_render_data(source.read_text()), source.parent)
-    text = absolutize_mesh_paths(text, source.parent)
+    return _prepared_urdf(source.read_text(), source.parent, hand.name, floating)
+
+
+@engine_file_memo  # made once per process (every backend loads the hand again)
+def _prepared_urdf(text: str, folder: Path, name: str, floating: bool) -> Path:
+    from ges_core.hand_prep.engine_urdf import engine_urdf  # trimesh and CoACD: imported when first needed
+
+    text = absolutize_mesh_paths(engine_urdf(strip_render_data(text), folder), folder)
     if floating:
         text = add_floating_base(text)
-    return cached_text_file(text, "sapien", "urdf", stem=f"{hand.name}_{'floating' if floating else 'fixed'}")
+    return cached_text_file(text, "sapien", "urdf", stem=f"{name}_{'floating' if floating else 'fixed'}")
 
 
 def build_hand(
@@ -110,13 +117,19 @@ def build_hand(
 
 
 def pair_exclusion_bits(hand_name: str, urdf_text: str) -> dict[str, int]:
+    """:func:`_pair_exclusion_bits`, worked out once per process for each hand and text (a fresh dict each call)."""
+    return dict(_pair_exclusion_bits(hand_name, urdf_text))
+
+
+@functools.lru_cache(maxsize=16)
+def _pair_exclusion_bits(hand_name: str, urdf_text: str) -> tuple[tuple[str, int], ...]:
     """Group-2 bits that keep apart exactly the neighbour pairs that PhysX does not already skip.
 
     :func:`ges_core.urdf.neighbour_link_pairs` lists the pairs that must not collide. A PhysX
     articulation never collides a link with its parent; every other neighbour pair whose two links
     both have collision geometry gets its own bit, set on both links. Two links then share a bit
     exactly when they form such a pair, so every other pair keeps colliding.
-    Returns link name -> bit mask (links without excluded pairs absent).
+    Returns (link name, bit mask) pairs (links without excluded pairs absent).
     """
     root = parse_urdf(urdf_text)
     solid = {link.get("name") for link in root.findall("link") if link.find("collision") is not None}
@@ -132,7 +145,7 @@ def pair_exclusion_bits(hand_name: str, urdf_text: str) -> dict[str, int]:
     for bit, pair in enumerate(extra):
         for name in pair:
             bits[name] = bits.get(name, 0) | 1 << bit
-    return bits
+    return tuple(bits.items())
 
 
 def _configure_hand_body(articulation: sapien.physx.PhysxArticulation, config: SceneConfig) -> None:
