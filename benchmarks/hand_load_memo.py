@@ -1,9 +1,10 @@
-"""Loading a hand into a fresh backend, with the engine's URDF file made every time and made once per process.
+"""Loading a hand into a fresh backend, with its files made and parsed every time and once per process.
 
 Every backend loads the hand again (Stage 1 builds one per trial). The plugins now make the engine-ready URDF file
 once per process (``ges_core.hand_prep.engine_files.engine_file_memo``: SAPIEN's ``loading._prepared_urdf`` and
-``pair_exclusion_bits``, PyBullet's ``hand_urdf.pybullet_hand_urdf``). This measures, in one process with one torch
-thread, CPU seconds (``time.process_time``):
+``pair_exclusion_bits``, PyBullet's ``hand_urdf.pybullet_hand_urdf``), and SAPIEN parses it once per process
+(``loading._HAND_BUILDERS``). This measures, in one process with one torch thread, CPU seconds
+(``time.process_time``):
 
 * **per backend**: build a backend, load the hand, close it, for each hand and engine, both ways (median of
   ``--repeats`` rounds, alternating);
@@ -46,17 +47,25 @@ HANDS = ("allegro", "shadow")
 SIMS = ("sapien", "pybullet")
 
 
+class _Forgetful(dict):
+    """A builder cache that keeps nothing: SAPIEN parses the URDF at every hand load, as before."""
+
+    def __setitem__(self, key, value) -> None:
+        pass
+
+
 @contextlib.contextmanager
 def unmemoized():
-    """The plugins' functions without their memo: the file is made at every hand load, as before."""
-    saved = (loading._prepared_urdf, loading._pair_exclusion_bits, hand_urdf.pybullet_hand_urdf)
+    """The plugins without their memos: the file is made and parsed at every hand load, as before."""
+    saved = (loading._prepared_urdf, loading._pair_exclusion_bits, loading._HAND_BUILDERS, hand_urdf.pybullet_hand_urdf)
     loading._prepared_urdf = loading._prepared_urdf.__wrapped__
     loading._pair_exclusion_bits = loading._pair_exclusion_bits.__wrapped__
+    loading._HAND_BUILDERS = _Forgetful()
     hand_urdf.pybullet_hand_urdf = scene.pybullet_hand_urdf = hand_urdf.pybullet_hand_urdf.__wrapped__
     try:
         yield
     finally:
-        loading._prepared_urdf, loading._pair_exclusion_bits, memo = saved
+        loading._prepared_urdf, loading._pair_exclusion_bits, loading._HAND_BUILDERS, memo = saved
         hand_urdf.pybullet_hand_urdf = scene.pybullet_hand_urdf = memo
 
 
@@ -119,7 +128,7 @@ def main() -> None:
     args = parser.parse_args()
     set_torch_threads(1)
     backends = per_backend(args.repeats)
-    print("\n| hand / engine | backend + hand load, ms: file made every time / once per process | ratio |")
+    print("\n| hand / engine | backend + hand load, ms: made and parsed every time / once per process | ratio |")
     print("|---|---|---|")
     for key, row in backends.items():
         print(f"| {key} | {row['every_time']:.1f} / {row['once']:.1f} | {row['once'] / row['every_time']:.2f} |")

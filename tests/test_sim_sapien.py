@@ -332,3 +332,39 @@ def test_vulkan_warning_stays_out_of_ges_output():
     ges = run_python("-m", "ges_core.cli", "sim", "check", *args)
     assert "hand allegro in sapien:" in ges.stdout, ges.stderr  # the check ran and printed its report
     assert "libvulkan" not in ges.stderr + ges.stdout
+
+
+# -- the parsed hand, reused ----------------------------------------------------------------------
+@pytest.mark.parametrize("self_collision", [True, False])
+def test_a_hand_parsed_once_builds_what_a_fresh_parse_builds(hand, monkeypatch, self_collision):
+    """The first backend parses the URDF, the next ones reuse the builder (with two envs: one parse for both); the
+    fingers then close on a box in each, and every joint, fingertip pose and fingertip force of every step is
+    bit-identical to the backend whose hand was parsed fresh."""
+    from ges_plugins.sims.sapien import loading
+
+    parses, parse = [], loading._parsed_hand
+    monkeypatch.setattr(loading, "_parsed_hand", lambda *args: parses.append(args[1]) or parse(*args))
+    monkeypatch.setattr(loading, "_HAND_BUILDERS", {})
+    closed = np.asarray(hand.description.open_pose) + 0.6
+    box = box_asset()
+
+    def run(num_envs: int) -> list[np.ndarray]:
+        sim = make_sim(hand, num_envs=num_envs, self_collision=self_collision)
+        with sim:
+            sim.load_object(box)
+            sim.set_object_pose(np.tile([0.0, 0.0, 0.03, 1.0, 0.0, 0.0, 0.0], (num_envs, 1)))
+            above = np.array([0.0, -0.02, 0.16, 0.0, 1.0, 0.0, 0.0])
+            sim.set_hand_state(open_q(hand, num_envs), np.tile(above, (num_envs, 1)))
+            trace = []
+            for step in range(60):
+                sim.set_joint_targets(np.tile(closed * min(1.0, step / 30), (num_envs, 1)))
+                sim.step()
+                trace += [sim.joint_state()[0], sim.link_poses(ALLEGRO_TIPS), sim.contact_forces(ALLEGRO_TIPS)]
+            return [np.asarray(a)[:1] for a in trace]
+
+    fresh = run(1)
+    again, two_envs = run(1), run(2)
+    assert len(parses) == 1  # one parse for all three backends and both envs of the last
+    for a, b, c in zip(fresh, again, two_envs, strict=True):
+        assert np.array_equal(a, b) and np.array_equal(a, c)
+    assert any(np.abs(f).max() > 0 for f in fresh[2::3])  # the fingertips did touch the box

@@ -94,10 +94,33 @@ def _prepared_urdf(text: str, folder: Path, name: str, floating: bool) -> Path:
 def build_hand(
     scene: sapien.Scene, urdf: Path, config: SceneConfig, pair_bits: dict[str, int] | None = None
 ) -> sapien.physx.PhysxArticulation:
-    """Load the articulation with its root fixed in the world, hand friction, optional self-collision.
+    """Load the articulation with its root fixed in the world, hand friction, optional self-collision; the URDF is
+    parsed once per process for each file and setting (:data:`_HAND_BUILDERS`).
 
     pair_bits: link name -> group-2 bits that switch off its excluded pairs (:func:`pair_exclusion_bits`).
     """
+    bits = tuple(sorted(pair_bits.items())) if pair_bits and config.self_collision else ()
+    key = (str(urdf), config.hand_friction, config.self_collision, bits)
+    builder = _HAND_BUILDERS.get(key)
+    if builder is None:
+        builder = _HAND_BUILDERS[key] = _parsed_hand(scene, urdf, config, dict(bits))
+    articulation = builder.set_scene(scene).build(fix_root_link=True)
+    builder.set_scene(None)  # the builder outlives the scene
+    _configure_hand_body(articulation, config)
+    return articulation
+
+
+_HAND_BUILDERS: dict[tuple, sapien.wrapper.articulation_builder.ArticulationBuilder] = {}
+"""Parsed hands, per URDF file, hand friction and collision bits: SAPIEN's URDF parser (Python) took about 15 of the
+18-28 ms of a hand load, and every Stage 1 trial builds a backend. A builder keeps only records (shapes by file
+name, materials, joints) and builds into whichever scene it is given, unchanged by building, so the articulation
+is the one a fresh parse gives (the tests compare them step by step)."""
+
+
+def _parsed_hand(
+    scene: sapien.Scene, urdf: Path, config: SceneConfig, pair_bits: dict[str, int]
+) -> sapien.wrapper.articulation_builder.ArticulationBuilder:
+    """The hand's articulation builder as SAPIEN's loader parses it, render records cleared, collision bits set."""
     loader = scene.create_urdf_loader()
     loader.fix_root_link = True
     loader.set_material(config.hand_friction, config.hand_friction, 0.0)
@@ -111,9 +134,7 @@ def build_hand(
             link_builder.collision_groups[2] |= NO_SELF_COLLISION_BIT
         elif pair_bits:
             link_builder.collision_groups[2] |= pair_bits.get(link_builder.name, 0)
-    articulation = builder.build(fix_root_link=True)
-    _configure_hand_body(articulation, config)
-    return articulation
+    return builder
 
 
 def pair_exclusion_bits(hand_name: str, urdf_text: str) -> dict[str, int]:
