@@ -111,10 +111,10 @@ def build_hand(
 
 
 _HAND_BUILDERS: dict[tuple, sapien.wrapper.articulation_builder.ArticulationBuilder] = {}
-"""Parsed hands, per URDF file, hand friction and collision bits: SAPIEN's URDF parser (Python) took about 15 of the
-18-28 ms of a hand load, and every Stage 1 trial builds a backend. A builder keeps only records (shapes by file
-name, materials, joints) and builds into whichever scene it is given, unchanged by building, so the articulation
-is the one a fresh parse gives (the tests compare them step by step)."""
+"""Parsed hands, per URDF file, hand friction and collision bits. SAPIEN's URDF parser (Python) took most of the
+16-24 ms of a hand load (benchmarks/hand_load_memo.py), and every Stage 1 trial builds a backend. A builder keeps
+only records (shapes by file name, materials, joints) and builds into whichever scene it is given, unchanged by
+building, so the articulation is the one a fresh parse gives (the tests compare them step by step)."""
 
 
 def _parsed_hand(
