@@ -15,22 +15,16 @@ from pathlib import Path
 
 from ges_core.paths import cache_root
 
-__all__ = ["engine_file_memo", "note_parts_written", "parts_written"]
+__all__ = ["engine_file_memo", "note_parts_written"]
 
 _parts_written = 0
-"""Link decompositions this process has written (:func:`parts_written`)."""
+"""Link decompositions this process has written: an engine URDF made before the last one may lack its parts."""
 
 
 def note_parts_written() -> None:
     """Called by :func:`ges_core.hand_prep.decompose.decompose_link_mesh` when it wrote a decomposition."""
     global _parts_written
     _parts_written += 1
-
-
-def parts_written() -> int:
-    """How many link decompositions this process has written so far: an engine URDF made before the last one may
-    lack its parts."""
-    return _parts_written
 
 
 def engine_file_memo(make: Callable[..., Path]) -> Callable[..., Path]:
