@@ -27,8 +27,7 @@ import time
 from pathlib import Path
 
 from stage1_speed import run_pipeline
-from validation_early import history, verdicts
-from validation_reads import grasp
+from validation_reads import outcome
 
 from ges_core.dataset import software_versions
 from ges_core.objects.library import LibraryConfig
@@ -107,10 +106,6 @@ def pipeline(ids: list[str], folder: Path) -> dict:
         runs[variant], cpu[variant] = {r.key: r for r in records}, spent["cpu"]
         print(f"pipeline {variant}: {len(records)} records, {spent['cpu']:.1f} CPU s")
     keys = sorted(runs["once"])
-
-    def outcome(record) -> tuple:
-        return verdicts(record), history(record), grasp(record)
-
     setup = {v: [sum(runs[v][k].setup_seconds.values()) for k in keys] for v in runs}
     return {
         "records": len(keys),

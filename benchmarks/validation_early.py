@@ -130,20 +130,27 @@ def _short(record) -> dict:
     }
 
 
+def run_variants(sets: dict[str, list[str]], hands: list[str], config, tmp: Path, variants, run) -> tuple[dict, dict]:
+    """Every object set run once per variant, in order, with ``run(ids, hands, config, folder, variant)`` (which
+    returns ``({key: record}, CPU s)``): ``({set: {variant: {key: record}}}, {"set/variant": CPU s})``, a line
+    printed per run."""
+    runs, cpu = {}, {}
+    for name, ids in sets.items():
+        runs[name] = {}
+        for variant in variants:
+            label = f"{name}/{variant}"
+            runs[name][variant], cpu[label] = run(ids, hands, config, tmp / name / variant, variant)
+            print(f"{name} {variant}: {len(runs[name][variant])} records, {cpu[label]:.1f} CPU s")
+    return runs, cpu
+
+
 def main() -> None:
     args = options(__doc__.splitlines()[0])
     sets, config = object_sets_and_config(args)
-    rows, cpu = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         warm_up(sets, args.hands, config, Path(tmp))
-        for name, ids in sets.items():
-            runs = {}
-            for variant in VARIANTS:
-                runs[variant], cpu[f"{name}/{variant}"] = run(
-                    ids, args.hands, config, Path(tmp) / name / variant, variant
-                )
-                print(f"{name} {variant}: {len(runs[variant])} records, {cpu[f'{name}/{variant}']:.1f} CPU s")
-            rows[name] = compare(runs)
+        runs, cpu = run_variants(sets, args.hands, config, Path(tmp), VARIANTS, run)
+    rows = {name: compare(by_variant) for name, by_variant in runs.items()}
     print(
         "\n| objects | records | same verdicts: full again / early | same placement histories: full again / early "
         "| validation + robust s, median full / early | median ratio early/full | run CPU s full / early |"

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 from stage1_speed import run_pipeline
-from validation_early import history, object_sets_and_config, options, seconds, verdicts
+from validation_early import history, object_sets_and_config, options, run_variants, seconds, verdicts
 
 from ges_core.dataset import software_versions
 from ges_core.synthesis.physics import validate
@@ -59,7 +59,8 @@ def grasp(record) -> tuple:
     return np.asarray(record.grasp.q).tobytes(), np.asarray(record.grasp.wrist_pose).tobytes()
 
 
-def _outcome(record) -> tuple:
+def outcome(record) -> tuple:
+    """What a record decides, its placement history and its grasp: equal means the same record but for timings."""
     return verdicts(record), history(record), grasp(record)
 
 
@@ -90,17 +91,10 @@ def compare(runs: dict[str, dict]) -> dict:
 def main() -> None:
     args = options(__doc__.splitlines()[0])
     sets, config = object_sets_and_config(args)
-    rows, cpu = {}, {}
     with tempfile.TemporaryDirectory() as tmp:
         run([sets["procedural"][0]], args.hands[:1], config, Path(tmp) / "warm", "as_needed")  # imports, caches
-        for name, ids in sets.items():
-            runs = {}
-            for variant in VARIANTS:
-                runs[variant], cpu[f"{name}/{variant}"] = run(
-                    ids, args.hands, config, Path(tmp) / name / variant, variant
-                )
-                print(f"{name} {variant}: {len(runs[variant])} records, {cpu[f'{name}/{variant}']:.1f} CPU s")
-            rows[name] = compare(runs)
+        runs, cpu = run_variants(sets, args.hands, config, Path(tmp), VARIANTS, run)
+    rows = {name: compare(by_variant) for name, by_variant in runs.items()}
     print(
         "\n| objects | records | same verdicts / placement histories / grasps | validation + robust CPU s per record, "
         "median: every step / as needed | median ratio | whole run CPU s: every step / as needed |"
