@@ -17,6 +17,7 @@ from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 
 from conftest import REPO
+from helpers_hands import write_l_palm_hand
 
 pytestmark = pytest.mark.sim
 
@@ -96,29 +97,11 @@ def test_sapien_own_mimic_tendons_explode_which_is_why_they_are_not_built(abilit
     assert result["first_step_over_100_rad_s"] is not None and result["first_step_over_100_rad_s"] < 60
 
 
-def _l_palm_hand(tmp_path: Path) -> Path:
-    """The example gripper whose palm is a concave L mesh whose hull swallows both distal links (open pose)."""
-    import trimesh
-
-    from conftest import EXAMPLE_HAND_PKG
-
-    src = EXAMPLE_HAND_PKG / "ges_example_hand"
-    parts = [([0.08, 0.08, 0.02], [0.04, 0, 0]), ([0.09, 0.08, 0.005], [0.125, 0, -0.0075]),
-             ([0.01, 0.08, 0.045], [0.165, 0, 0.0125])]  # fmt: skip
-    palm = trimesh.util.concatenate([trimesh.creation.box(extents=e).apply_translation(c) for e, c in parts])
-    palm.export(tmp_path / "palm_l.glb")  # a glb: PyBullet needs the conversion too
-    box = '<collision><origin xyz="0.04 0 0" rpy="0 0 0"/><geometry><box size="0.08 0.08 0.02"/></geometry></collision>'
-    mesh = '<collision><geometry><mesh filename="palm_l.glb"/></geometry></collision>'
-    (tmp_path / "hand.urdf").write_text((src / "gripper.urdf").read_text().replace(box, mesh))
-    (tmp_path / "hand.yaml").write_text((src / "gripper.yaml").read_text())
-    return tmp_path / "hand.yaml"
-
-
 @pytest.mark.slow
 def test_prepared_parts_are_what_both_engines_collide(capsys, tmp_path):
     """Before `ges hand prepare` both engines see the L palm's hull overlap the fingers at the open pose
     (self-collision); after it, they load the CoACD parts and the overlap is gone in both."""
-    path = _l_palm_hand(tmp_path)
+    path = write_l_palm_hand(tmp_path, ".glb")  # a glb: PyBullet needs the conversion too
     for sim in SIMS:
         assert main(["hand", "lint", str(path), "--sim", sim, "--skip", "fk", "--skip", "hull-overlap"]) == 1
         out = capsys.readouterr().out

@@ -19,6 +19,7 @@ from ges_core.lint.checks_assets import check_tip_collision
 from ges_core.lint.urdf_tree import UrdfTree
 
 from conftest import EXAMPLE_HAND_PKG, REPO
+from helpers_hands import PALM_BOX, write_l_palm_hand
 
 SRC = EXAMPLE_HAND_PKG / "ges_example_hand"
 URDF, YAML = (SRC / "gripper.urdf").read_text(), (SRC / "gripper.yaml").read_text()
@@ -26,9 +27,6 @@ MANI = Path(list(importlib.util.find_spec("mani_skill").submodule_search_locatio
 ABILITY_GLB = MANI / "ability_hand" / "ability_hand_right_glb.urdf"
 ABILITY_YAML = REPO / "tests" / "data" / "ability_raw" / "ability_right.yaml"
 INDEX_TIP = "tip_link: index_distal, tip_offset: [0.031, 0.0, 0.0], keypoint_links: [index_distal]"
-PALM_BOX = (
-    '<collision><origin xyz="0.04 0 0" rpy="0 0 0"/><geometry><box size="0.08 0.08 0.02"/></geometry></collision>'
-)
 INDEX_J2 = '<joint name="index_j2" type="revolute">'
 NO_SIMS = ("--skip", "self-collision", "--skip", "fk")
 
@@ -135,23 +133,15 @@ def test_missing_mesh_is_named_missing(capsys, tmp_path):
     )
 
 
-def _l_palm(tmp_path: Path) -> str:
-    """A concave palm: the gripper's slab, a thin floor under the fingers and a post beyond their tips.
-
-    The convex hull of the L spans over both fingers' distal links, which stay 6-7 mm off the real mesh."""
-    parts = [([0.08, 0.08, 0.02], [0.04, 0, 0]), ([0.09, 0.08, 0.005], [0.125, 0, -0.0075]),
-             ([0.01, 0.08, 0.045], [0.165, 0, 0.0125])]  # fmt: skip
-    palm = trimesh.util.concatenate([trimesh.creation.box(extents=e).apply_translation(c) for e, c in parts])
-    palm.export(tmp_path / "palm_l.obj")
-    return '<collision><origin xyz="0 0 0" rpy="0 0 0"/><geometry><mesh filename="palm_l.obj"/></geometry></collision>'
-
-
 @pytest.mark.slow
 def test_hull_overlap_is_caught_and_prepare_removes_it(capsys, tmp_path):
-    path = write_hand(tmp_path, urdf=[(PALM_BOX, _l_palm(tmp_path))])
+    path = write_l_palm_hand(tmp_path)
     code, lines = lint(capsys, path, *NO_SIMS)
     found = [ln for ln in lines if ln.startswith("[hull-overlap]")]
     assert code == 1 and found, lines
+    (gap,) = [ln for ln in lines if ln.startswith("[hull-gap]")]  # the palm is the one mesh; boxes are hulls
+    match = re.search(r"palm_l\.obj \(link\(s\) palm\): its surface lies ([0-9.]+) mm below its convex hull", gap)
+    assert match and float(match.group(1)) > 3 and f"ges hand prepare {path}" in gap, gap
     pattern = r"links '(index|thumb)_distal' and 'palm' .*hulls overlap by ([0-9.]+) mm "
     pattern += r"where the meshes are ([0-9.]+) mm apart"
     match = re.search(pattern, found[0])
@@ -161,7 +151,7 @@ def test_hull_overlap_is_caught_and_prepare_removes_it(capsys, tmp_path):
     out = capsys.readouterr().out
     assert re.search(r"palm_l\.obj\s+palm\s+[0-9.]+ mm\s+[2-9]", out), out  # decomposed into 2+ parts
     code, lines = lint(capsys, path, *NO_SIMS)
-    assert not [ln for ln in lines if ln.startswith("[hull-overlap]")], lines
+    assert not [ln for ln in lines if ln.startswith(("[hull-overlap]", "[hull-gap]"))], lines
 
 
 def test_parallel_fingers_cannot_oppose(capsys, tmp_path):

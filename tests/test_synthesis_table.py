@@ -63,3 +63,16 @@ def test_the_run_table_says_which_pairs_went_on_to_the_other_strategy():
     text = format_table(table_rows(records))
     assert "shadow              tried 1 of 2, kept 0; not kept: contacts: no_graspable_width x1" in text
     assert "other grasp strategy" not in format_table(table_rows(records[:1]))  # no pair went on: no block
+
+
+def test_the_per_simulator_lines_keep_their_columns_for_a_long_hand_name():
+    """A hand name longer than the column (``ability_src``, 11 letters) ran into the simulator's name."""
+    from ges_core.dataset.summary import SimStats, format_sim_stats
+
+    def stats(hand: str) -> SimStats:
+        return SimStats(hand, "sapien", 2, 1, None, 0, None, None, {})
+
+    lines = format_sim_stats([stats("allegro"), stats("a_hand_with_a_long_name")], {}).splitlines()[1:]
+    for line in lines:  # the header, then one row per hand: each splits into hand, simulator, validated, ...
+        assert len(line.split()) >= 3 and line.split()[1] in ("simulator", "sapien"), lines
+    assert len({line.index("sapien") for line in lines[1:]}) == 1  # the engine's column lines up

@@ -96,7 +96,7 @@ def run_demo_cmd(args: argparse.Namespace) -> int:
     _check_objects(config.synthesis, config.object_ids())
     if args.fresh:
         _move_aside(Path(config.out))
-    _prepare(config.synthesis, config.object_ids(), config.workers, args)
+    _prepare(config.synthesis, config.object_ids(), config.hands, config.workers, args)
     print(run_demo(config, registry=_registry(args), progress=not args.no_progress, **where))
     return 0
 
@@ -113,7 +113,7 @@ def run_synth_cmd(args: argparse.Namespace) -> int:
     ids = [user_id(i, args) for i in args.objects] if args.objects else _all_ids(config)
     ids = ids if args.limit is None else ids[: args.limit]
     _check_objects(config, ids)
-    _prepare(config, ids, args.workers or 1, args)
+    _prepare(config, ids, args.hands, args.workers or 1, args)
     report = run_synthesis(
         ids, args.hands, config, args.out, workers=args.workers or 1, progress=not args.no_progress,
         registry=_registry(args), pictures=args.pictures, allow_config_change=args.allow_config_change, **where,
@@ -157,10 +157,17 @@ def _all_ids(config) -> list[str]:
     return [o.object_id for o in config.library.build().list()]
 
 
-def _prepare(config, ids: list[str], workers: int, args: argparse.Namespace) -> None:
-    """Process the run's file meshes and decompose the concave ones missing a decomposition, with a bar."""
+def _prepare(config, ids: list[str], hands, workers: int, args: argparse.Namespace) -> None:
+    """Decompose the hands' collision meshes whose hulls stand far off them (an unknown hand fails here, before any
+    CoACD), then process the run's file meshes and decompose the concave ones missing a decomposition, with bars."""
+    from ges_core.hand_prep.prepare import decompose_deep_hulls, format_decomposed
     from ges_core.objects.prepare import prepare_before_run
 
+    registry = _registry(args).load()
+    for name in hands:
+        done = decompose_deep_hulls(registry.build_hand(name), progress=not args.no_progress)
+        if line := format_decomposed(name, done):
+            print(line)
     results = prepare_before_run(config.library.build(), ids, workers=workers, progress=not args.no_progress)
     done = [r for r in results if r.status == "decomposed"]
     if done:

@@ -300,10 +300,12 @@ def agreement(records: Iterable[GraspRecord]) -> dict[str, dict]:
 
 def format_sim_stats(stats: Iterable[SimStats], agreements: dict[str, dict]) -> str:
     """The validation per simulator as text: single trial, robust, mean robustness, trial time, failed trials."""
+    stats = list(stats)
+    width = max([9, *(len(s.hand) for s in stats)]) + 1  # a long hand name still leaves a space before the engine
     lines = [
         "validation per simulator (validated = the paper's single nominal trial; robust = it and every perturbation "
         "trial held):",
-        f"  {'hand':<10}{'simulator':<11}{'validated':>19}{'robust':>19}{'robustness':>12}{'trials (median)':>17}"
+        f"  {'hand':<{width}}{'simulator':<11}{'validated':>19}{'robust':>19}{'robustness':>12}{'trials (median)':>17}"
         "  failed trials",
     ]
     for s in stats:
@@ -311,8 +313,8 @@ def format_sim_stats(stats: Iterable[SimStats], agreements: dict[str, dict]) -> 
         time = "-" if s.robust_median is None else f"{s.robust_median:.2f} s"
         failed = ", ".join(f"{k} x{n}" for k, n in s.trial_failures.items()) or "-"
         lines.append(
-            f"  {s.hand:<10}{s.simulator:<11} {_share(s.validated, s.records):>18} {_share(s.robust, s.records):>18}"
-            f"{score:>12}{time:>17}  {failed}"
+            f"  {s.hand:<{width}}{s.simulator:<11} {_share(s.validated, s.records):>18} "
+            f"{_share(s.robust, s.records):>18}{score:>12}{time:>17}  {failed}"
         )
     for hand, row in sorted(agreements.items()):
         lines.append(

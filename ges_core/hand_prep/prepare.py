@@ -9,12 +9,20 @@
    both simulators use them from then on (:func:`.engine_urdf.engine_urdf`).
 
 Nothing is written beside the hand's files; a second run finds everything in the cache.
+
+Before a run, ``ges synth`` and ``ges demo`` decompose the meshes of step 3's first rule themselves
+(:func:`decompose_deep_hulls`: hull gaps only, a fraction of a second to measure), and :func:`run_synthesis
+<ges_core.synthesis.run.pipeline.run_synthesis>` warns (:class:`UnpreparedHandWarning`) when a hand it runs still has
+such a mesh; ``ges hand lint`` names them (check ``hull-gap``). The overlap rule takes seconds of pairwise tests at
+two poses, so it is left to this command and to the lint's ``hull-overlap`` check.
 """
 
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass, field
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ges_core.hand import HandModel
@@ -28,11 +36,27 @@ from ges_core.hand_prep.geometry import (
     link_shapes,
     pair_overlaps,
 )
-from ges_core.hand_prep.meshes import NATIVE_FORMATS, converted_mesh, engine_mesh, resolve_mesh_path
+from ges_core.hand_prep.meshes import (
+    NATIVE_FORMATS,
+    converted_mesh,
+    converted_mesh_if_cached,
+    engine_mesh,
+    resolve_mesh_path,
+)
 from ges_core.hand_prep.mimic import strip_mimic
 from ges_core.urdf import parse_urdf
 
-__all__ = ["HULL_GAP_TOL", "MeshPlan", "PrepareReport", "prepare_hand"]
+__all__ = [
+    "HULL_GAP_TOL",
+    "MeshPlan",
+    "PrepareReport",
+    "UnpreparedHandWarning",
+    "decompose_deep_hulls",
+    "format_decomposed",
+    "prepare_hand",
+    "undecomposed_deep_hulls",
+    "warn_undecomposed_hulls",
+]
 
 HULL_GAP_TOL = 3e-3
 """m: a collision mesh whose surface lies deeper than this below its hull is decomposed. A fingertip pad is
@@ -117,6 +141,71 @@ def prepare_hand(hand: HandModel, *, progress: bool = True) -> PrepareReport:
     _decompose(plans, progress)
     after = pair_overlaps(engine_link_shapes(text, base_dir), poses, bare, HULL_OVERLAP_TOL)
     return PrepareReport(hand.name, converted, plans, before, after, time.perf_counter() - start)
+
+
+class UnpreparedHandWarning(UserWarning):
+    """A run is about to collide a hand's collision mesh as one convex hull standing more than
+    :data:`HULL_GAP_TOL` off the mesh (:func:`warn_undecomposed_hulls`)."""
+
+
+def undecomposed_deep_hulls(hand: HandModel) -> list[MeshPlan]:
+    """The hand's collision meshes whose hull stands more than :data:`HULL_GAP_TOL` off the mesh and whose CoACD
+    parts are not in the cache: both engines would collide each as that one hull.
+
+    Only the hull-gap rule (module docs); writes nothing (a mesh whose OBJ copy is not cached has no parts yet).
+    Each plan's ``path`` is the mesh file the URDF names.
+    """
+    plans: dict[Path, MeshPlan] = {}
+    for link, group in link_shapes(hand.urdf_text(), hand.urdf_path().parent).items():
+        for shape in group:
+            if shape.source is None:
+                continue
+            if shape.source not in plans:
+                plans[shape.source] = MeshPlan(shape.source, [], hull_gap(shape.mesh))
+            plans[shape.source].links.append(link)
+    return [p for p in plans.values() if p.hull_gap > HULL_GAP_TOL and not _decomposed(p.path)]
+
+
+def decompose_deep_hulls(hand: HandModel, *, progress: bool = True) -> list[MeshPlan]:
+    """Decompose what :func:`undecomposed_deep_hulls` finds, with a progress bar (what ``ges synth`` and ``ges demo``
+    do before a run); the plans done, their ``path`` the file the engines load, with parts and seconds."""
+    todo = [replace(p, path=engine_mesh(p.path)) for p in undecomposed_deep_hulls(hand)]
+    _decompose(todo, progress)
+    return todo
+
+
+def format_decomposed(hand: str, plans: list[MeshPlan]) -> str:
+    """One line saying what :func:`decompose_deep_hulls` did for ``hand`` ('' when nothing)."""
+    if not plans:
+        return ""
+    listed = ", ".join(f"{p.path.name} ({p.hull_gap * 1000:.1f} mm, {p.parts} parts)" for p in plans)
+    seconds = sum(p.seconds for p in plans)
+    return (
+        f"hand '{hand}': {len(plans)} collision mesh(es) stood more than {HULL_GAP_TOL * 1000:.0f} mm inside their "
+        f"convex hulls: {listed}; decomposed with CoACD ({seconds:.1f} s; cached for later runs). `ges hand prepare "
+        f"{hand}` also checks where link hulls overlap"
+    )
+
+
+def warn_undecomposed_hulls(hands: Mapping[str, HandModel]) -> None:
+    """:class:`UnpreparedHandWarning` for each hand of ``hands`` (registry name -> hand) with a mesh
+    :func:`undecomposed_deep_hulls` finds."""
+    for name, hand in hands.items():
+        if found := undecomposed_deep_hulls(hand):
+            listed = ", ".join(f"{p.path.name} ({p.hull_gap * 1000:.1f} mm)" for p in found)
+            warnings.warn(
+                f"hand '{name}': collision mesh(es) {listed} stand more than {HULL_GAP_TOL * 1000:.0f} mm inside "
+                f"their convex hulls, and both engines collide each as its hull; run `ges hand prepare {name}` "
+                "first (decomposes them with CoACD, cached; `ges synth` and `ges demo` do it themselves)",
+                UnpreparedHandWarning,
+                stacklevel=3,
+            )
+
+
+def _decomposed(source: Path) -> bool:
+    """``source`` (a URDF's mesh file) has CoACD parts in the cache."""
+    engine = source if source.suffix in NATIVE_FORMATS else converted_mesh_if_cached(source)
+    return engine is not None and cached_link_parts(engine) is not None
 
 
 def _convert_all(text: str, base_dir: Path) -> list[Path]:

@@ -1,4 +1,5 @@
-"""Lint checks on the hand's shapes and reach: hull overlaps the meshes do not have, thumb opposition."""
+"""Lint checks on the hand's shapes and reach: hulls far off their meshes, hull overlaps the meshes do not have,
+thumb opposition."""
 
 from __future__ import annotations
 
@@ -7,13 +8,32 @@ import numpy as np
 from ges_core.hand import HandModel
 from ges_core.lint.problems import LintProblem
 
-__all__ = ["check_hull_overlaps", "check_thumb_opposition"]
+__all__ = ["check_hull_gaps", "check_hull_overlaps", "check_thumb_opposition"]
 
 OPPOSITION_TOL_DEG = 45.0
 """deg: the thumb pad must come within this of facing some finger pad (normals anti-parallel). A pinch with
 the pads 45 deg off still has both contact normals inside a friction cone of mu = 1 (45 deg)."""
 OPPOSITION_SAMPLES = 2048
 """Configurations sampled (seeded, uniform within the joint limits, couplings applied): one batched FK."""
+
+
+def check_hull_gaps(hand: HandModel, ref: str) -> list[LintProblem]:
+    """Collision meshes whose convex hull stands more than ``HULL_GAP_TOL`` off the mesh and that are not decomposed
+    yet (:func:`ges_core.hand_prep.prepare.undecomposed_deep_hulls`): a contact there lands on the hull, not on
+    the mesh."""
+    from ges_core.hand_prep.prepare import HULL_GAP_TOL, undecomposed_deep_hulls
+
+    return [
+        LintProblem(
+            "hull-gap",
+            f"collision mesh {p.path.name} (link(s) {', '.join(p.links)}): its surface lies {p.hull_gap * 1000:.1f} mm "
+            f"below its convex hull (over {HULL_GAP_TOL * 1000:.0f} mm), and both engines collide it as that hull "
+            "(no CoACD parts in the cache)",
+            f"run `ges hand prepare {ref}` (decomposes it with CoACD, cached; `ges synth` and `ges demo` also do it "
+            "before a run)",
+        )
+        for p in undecomposed_deep_hulls(hand)
+    ]
 
 
 def check_hull_overlaps(hand: HandModel, ref: str) -> list[LintProblem]:

@@ -25,6 +25,7 @@ CHECKS: tuple[str, ...] = (
     "inertia",
     "wrist-frame",
     "opposition",
+    "hull-gap",
     "hull-overlap",
     "self-collision",
     "fk",
@@ -84,10 +85,12 @@ def _kinematic_checks(hand: HandModel, found: list[LintProblem], skip: Sequence[
     runs = {
         "wrist-frame": lambda: checks_physics.check_wrist_convention(hand),
         "opposition": lambda: checks_geometry.check_thumb_opposition(hand),
+        "hull-gap": lambda: checks_geometry.check_hull_gaps(hand, ref),
         "hull-overlap": lambda: checks_geometry.check_hull_overlaps(hand, ref),
     }
     if any(p.check == "meshes" and "does not exist" in p.what for p in found):
-        runs.pop("hull-overlap")  # it loads the meshes
+        runs.pop("hull-gap")  # both load the meshes
+        runs.pop("hull-overlap")
     return [p for name, run in runs.items() if name not in skip for p in _guarded(name, run)]
 
 

@@ -41,6 +41,7 @@ from ges_core.synthesis.run.tasks import (
     RegistrySpec,
     RunContext,
     Task,
+    built_hands,
     check_plugin_names,
     hand_entries,
     plan_tasks,
@@ -103,7 +104,11 @@ def run_synthesis(
     threads = resolve_threads(config.threads)
     registry = registry or RegistrySpec()
     check_plugin_names(hands, config, registry)  # before the dataset folder exists
-    entries = hand_entries(hands, registry)  # a resumed dataset refuses hands that changed (docs/dataset.md)
+    from ges_core.hand_prep.prepare import warn_undecomposed_hulls  # trimesh: imported when a run starts
+
+    built = built_hands(hands, registry)
+    warn_undecomposed_hulls(built)  # `ges synth` / `ges demo` decomposed them before calling this
+    entries = hand_entries(built)  # a resumed dataset refuses hands that changed (docs/dataset.md)
     with DatasetWriter(out, config.dump(), hands=entries, allow_config_change=allow_config_change) as writer:
         report = RunReport(Path(out))
         report.redone = set_aside_misfits(writer, object_ids, hands, config.library.build())

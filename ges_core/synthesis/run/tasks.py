@@ -7,7 +7,7 @@ other's module for these, so the import graph stays acyclic).
 from __future__ import annotations
 
 import hashlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -15,9 +15,19 @@ from ges_core.errors import UnknownNameError
 from ges_core.synthesis.run.config import SynthesisConfig
 
 if TYPE_CHECKING:
+    from ges_core.hand import HandModel
     from ges_core.registry import Registry
 
-__all__ = ["RegistrySpec", "RunContext", "Task", "check_plugin_names", "hand_entries", "object_seed", "plan_tasks"]
+__all__ = [
+    "RegistrySpec",
+    "RunContext",
+    "Task",
+    "built_hands",
+    "check_plugin_names",
+    "hand_entries",
+    "object_seed",
+    "plan_tasks",
+]
 
 
 def object_seed(seed: int, object_id: str) -> int:
@@ -91,13 +101,18 @@ def check_plugin_names(hands: Sequence[str], config: SynthesisConfig, registry: 
                 raise UnknownNameError("sim", sim, loaded.names("sim"), where=f" ({field})")
 
 
-def hand_entries(hands: Sequence[str], registry: RegistrySpec) -> dict[str, dict]:
+def built_hands(hands: Sequence[str], registry: RegistrySpec) -> dict[str, HandModel]:
+    """The run's hands, built here in the main process (for :func:`hand_entries` and the checks before a run)."""
+    loaded = registry.load()
+    return {hand: loaded.build_hand(hand) for hand in hands}
+
+
+def hand_entries(hands: Mapping[str, HandModel]) -> dict[str, dict]:
     """Per hand, what the dataset keeps of it (:func:`ges_core.dataset.hands.hand_entry`: the hash of its description,
     settings, URDF and meshes as this run builds them, and the description field by field)."""
     from ges_core.dataset.hands import hand_entry
 
-    loaded = registry.load()
-    return {hand: hand_entry(loaded.build_hand(hand)) for hand in hands}
+    return {name: hand_entry(hand) for name, hand in hands.items()}
 
 
 @dataclass(frozen=True)

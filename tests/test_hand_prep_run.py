@@ -1,0 +1,128 @@
+"""A hand whose collision mesh stands far inside its convex hull, before any `ges hand prepare`: the run-side half of
+docs/hands/assets.md. :func:`undecomposed_deep_hulls` finds it without writing anything, ``ges synth`` decomposes it
+before the run and says so (the dataset then keeps the prepared hand), and :func:`run_synthesis` called directly warns.
+The built-in hands have no such mesh; the Ability hand has the two that ``ges hand prepare`` decomposes."""
+
+from __future__ import annotations
+
+import json
+import re
+import warnings
+from pathlib import Path
+
+import pytest
+
+from ges_core.cli import main
+from ges_core.dataset.hands import hand_entry
+from ges_core.hand_files import FileHand
+from ges_core.hand_prep.prepare import (
+    HULL_GAP_TOL,
+    UnpreparedHandWarning,
+    decompose_deep_hulls,
+    prepare_hand,
+    undecomposed_deep_hulls,
+    warn_undecomposed_hulls,
+)
+from ges_core.registry import load_registry
+
+from conftest import ABILITY_PKG, ability_hand
+from helpers_hands import write_l_palm_hand
+
+
+@pytest.fixture
+def empty_cache(monkeypatch, tmp_path) -> Path:
+    """A cache folder of the test's own: no OBJ copies, no CoACD parts."""
+    cache = tmp_path / "cache"
+    monkeypatch.setenv("GES_CACHE_DIR", str(cache))
+    return cache
+
+
+def _files(folder: Path) -> list[Path]:
+    return [p for p in folder.rglob("*") if p.is_file()] if folder.exists() else []
+
+
+@pytest.mark.slow
+def test_a_deep_hull_is_found_without_writing_and_gone_once_decomposed(empty_cache, tmp_path):
+    yaml = write_l_palm_hand(tmp_path, ".glb")  # a glb: its OBJ copy is not made yet
+    hand = FileHand(yaml, yaml.with_suffix(".urdf"), strict=False)
+    (found,) = undecomposed_deep_hulls(hand)  # the palm; every other link is a box (its own hull)
+    assert found.path.name == "palm_l.glb" and found.links == ["palm"] and found.hull_gap > HULL_GAP_TOL
+    assert _files(empty_cache) == []  # measuring converts nothing and decomposes nothing
+    with pytest.warns(UnpreparedHandWarning, match=r"'mine'.*palm_l\.glb \([0-9.]+ mm\).*`ges hand prepare mine`"):
+        warn_undecomposed_hulls({"mine": hand})
+
+    (done,) = decompose_deep_hulls(hand, progress=False)
+    assert done.path.suffix == ".obj" and done.parts >= 2 and done.hull_gap == found.hull_gap
+    assert undecomposed_deep_hulls(hand) == []
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        warn_undecomposed_hulls({"mine": hand})
+    # `ges hand prepare` (its own measuring and plan) finds the same mesh, gap and parts, already in the cache
+    (plan,) = [m for m in prepare_hand(hand, progress=False).meshes if m.path == done.path]
+    assert plan.cached and plan.parts == done.parts and plan.hull_gap == pytest.approx(found.hull_gap, abs=1e-9)
+
+
+def test_builtin_hands_have_none_and_the_ability_hand_has_what_prepare_decomposes(empty_cache):
+    registry = load_registry()
+    assert [undecomposed_deep_hulls(registry.build_hand(name)) for name in ("allegro", "shadow")] == [[], []]
+    found = {p.path.name: p.hull_gap for p in undecomposed_deep_hulls(ability_hand())}
+    # docs/hands/ability.md: the palm 17.7 mm and the distal phalanx 7.3 mm are decomposed; the wrist plate's
+    # 2.0 mm and the thumb links' 0 mm are kept
+    assert set(found) == {"FB_palm_ref_MIR.obj", "idx-F2_C.obj"}
+    assert found["FB_palm_ref_MIR.obj"] == pytest.approx(0.0177, abs=5e-4)
+    assert found["idx-F2_C.obj"] == pytest.approx(0.0073, abs=5e-4)
+
+
+PLUGIN = """
+import importlib.util
+from ges_core import hookimpl
+from ges_core.specs import HandSpec
+
+def build(**settings):
+    spec = importlib.util.spec_from_file_location("_ability_source", {source!r})
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.build_hand(**settings)
+
+@hookimpl
+def ges_register_hands(register):
+    register(HandSpec(name="ability_src", entry_point="ability_src_plugin:build", description="the Ability hand"))
+"""
+"""A local plugin registering the Ability hand from the repository's source under its own name (the suite does not
+install the package)."""
+
+
+@pytest.mark.sim
+@pytest.mark.slow
+def test_synth_decomposes_the_hand_before_the_run_and_the_api_warns(empty_cache, tmp_path, capsys, monkeypatch):
+    pytest.importorskip("mani_skill")  # the Ability's URDF
+    (tmp_path / "ability_src_plugin.py").write_text(PLUGIN.format(source=str(ABILITY_PKG / "__init__.py")))
+    (tmp_path / "registry.yaml").write_text("plugins: [ability_src_plugin.py]\n")
+    monkeypatch.syspath_prepend(str(tmp_path))  # the entry point's module
+    registry = load_registry(tmp_path / "registry.yaml")
+    unprepared = hand_entry(registry.build_hand("ability_src"))["hash"]
+
+    from ges_core.synthesis import SynthesisConfig, run_synthesis
+    from ges_core.synthesis.run.tasks import RegistrySpec
+
+    config = SynthesisConfig.model_validate({"validate_sims": ["sapien"], "robust": {"enabled": False}})
+    api_out, objects = tmp_path / "api", ["procedural/sphere/000"]
+    spec = RegistrySpec(str(tmp_path / "registry.yaml"))
+    with pytest.warns(UnpreparedHandWarning, match=r"'ability_src'.*FB_palm_ref_MIR\.obj.*idx-F2_C\.obj"):
+        run_synthesis(objects, ["ability_src"], config, api_out, registry=spec)
+    assert json.loads((api_out / "manifest.json").read_text())["hands"]["ability_src"]["hash"] == unprepared
+
+    out = tmp_path / "cli"
+    args = ["--registry", str(tmp_path / "registry.yaml"), "synth", "--hands", "ability_src", "--objects", *objects]
+    args += ["--out", str(out), "-o", "validate_sims=[sapien]", "-o", "robust.enabled=false", "--no-progress"]
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", UnpreparedHandWarning)
+        assert main(args) == 0
+    printed = capsys.readouterr().out
+    line = re.search(r"hand 'ability_src': 2 collision mesh\(es\) .*", printed)
+    meshes = ("FB_palm_ref_MIR", "idx-F2_C")
+    assert line and all(re.search(rf"{m}\.obj \([0-9.]+ mm, [0-9]+ parts\)", line[0]) for m in meshes), printed
+    prepared = hand_entry(registry.build_hand("ability_src"))["hash"]
+    assert prepared != unprepared  # the engines now collide the parts
+    assert json.loads((out / "manifest.json").read_text())["hands"]["ability_src"]["hash"] == prepared
+    assert main(args) == 0 and "collision mesh(es)" not in capsys.readouterr().out  # nothing left to decompose
