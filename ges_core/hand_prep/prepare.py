@@ -14,7 +14,7 @@ Before a run, ``ges synth`` and ``ges demo`` decompose the meshes of step 3's fi
 (:func:`decompose_deep_hulls`: hull gaps only, a fraction of a second to measure), and :func:`run_synthesis
 <ges_core.synthesis.run.pipeline.run_synthesis>` warns (:class:`UnpreparedHandWarning`) when a hand it runs still has
 such a mesh; ``ges hand lint`` names them (check ``hull-gap``). The overlap rule takes seconds of pairwise tests at
-two poses, so it is left to this command and to the lint's ``hull-overlap`` check.
+four poses, so it is left to this command and to the lint's ``hull-overlap`` check.
 """
 
 from __future__ import annotations
