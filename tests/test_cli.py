@@ -50,7 +50,7 @@ def test_info_shows_requirements_and_settings(capsys):
     "setting, says",
     [
         ("solver_iterations=abc", "setting solver_iterations='abc' is not int | None"),
-        ("friction_anchors=3", "setting friction_anchors=3 is not bool"),
+        ("friction_anchors=3", "setting friction_anchors=3 is not bool | Literal['on_touch']"),
         ("bogus=1", "unexpected keyword argument 'bogus'"),
     ],
 )

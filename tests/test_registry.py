@@ -90,7 +90,7 @@ def test_builtin_sims_carry_their_tuned_settings(write_registry, registry_yaml):
     """The tuned values come with the plugins, so a wheel without this checkout's registry.yaml gets them."""
     path = REPO / "registry.yaml" if registry_yaml == "shipped" else write_registry("")
     registry = load_registry(path, autoload=False)
-    assert registry.settings("sim", "pybullet") == {"solver_iterations": 100, "friction_anchors": True}
+    assert registry.settings("sim", "pybullet") == {"solver_iterations": 100, "friction_anchors": "on_touch"}
     assert registry.settings("sim", "sapien") == {"contact_offset": 0.002}
 
 

@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from typing import Literal
 
 import numpy as np
 
@@ -50,7 +51,17 @@ from .drive import product_friction
 from .engine import p
 from .hand_urdf import WORLD_LINK
 from .poses import from_pybullet, to_pybullet
-from .scene import HandLayout, Scene, create_object, hand_layout, load_hand_body, new_scene, set_hand_friction
+from .scene import (
+    HandLayout,
+    Scene,
+    anchor_on_touch,
+    create_object,
+    hand_layout,
+    load_hand_body,
+    new_scene,
+    set_hand_friction,
+    set_object_anchor,
+)
 from .shapes import lowest_point
 
 __all__ = ["MAX_JOINT_SPEED", "PybulletBackend"]
@@ -70,7 +81,11 @@ class PybulletBackend(SimBackend):
     blowup_hint = BLOWUP_HINT
 
     def __init__(
-        self, config: SceneConfig, *, solver_iterations: int | None = None, friction_anchors: bool = True
+        self,
+        config: SceneConfig,
+        *,
+        solver_iterations: int | None = None,
+        friction_anchors: bool | Literal["on_touch"] = "on_touch",
     ) -> None:
         """solver_iterations: PyBullet's ``numSolverIterations`` (registry setting), overriding
         ``config.solver_iterations`` for this backend only; None keeps the config's value.
@@ -78,8 +93,10 @@ class PybulletBackend(SimBackend):
         PyBullet's PGS needs about 100 where SAPIEN's TGS is fine at 20 (module docs), so
         ``registry.yaml`` can raise it here without changing SAPIEN's.
 
-        friction_anchors: Bullet's friction anchor on the object (registry setting, on by default;
-        :func:`.scene.new_scene`): without it a squeezed object creeps out of the fingers.
+        friction_anchors: Bullet's friction anchor on the object (registry setting; :func:`.scene.new_scene`):
+        without it a squeezed object creeps out of the fingers. ``"on_touch"`` (the default): from the hand's first
+        touch on (:func:`.scene.anchor_on_touch`), the object resting on plain contacts before; True: from the
+        object's load on, so a rocking object pivots about its first table contact.
         """
         super().__init__(config)
         self.solver_iterations = (
@@ -184,6 +201,8 @@ class PybulletBackend(SimBackend):
             base = p.multiplyTransforms(*to_pybullet(row), *scene.base_in_obj)
             p.resetBasePositionAndOrientation(scene.obj, *base, physicsClientId=scene.cid)
             p.resetBaseVelocity(scene.obj, [0.0] * 3, [0.0] * 3, physicsClientId=scene.cid)
+            if scene.friction_anchors == "on_touch" and scene.anchored:
+                set_object_anchor(scene, False)  # placed again: untouched until the hand comes
 
     def _step(self, n: int) -> dict[int, str]:
         """Every scene ``n`` physics steps; problems of every env that blew up.
@@ -203,6 +222,7 @@ class PybulletBackend(SimBackend):
                     self._send_drives(scene, *(c[e] for c in commands))
                 if weight and scene.obj >= 0:
                     _apply_weight(scene, weight)
+                anchor_on_touch(scene)
                 p.stepSimulation(physicsClientId=scene.cid)
             self._state = None
         if self._layout is not None:

@@ -68,8 +68,10 @@ class Scene:
     """The object's asset (kept to rebuild the scene of an env that blew up)."""
     obj_fixed: bool = False
     """The object is static (``load_object(fixed=True)``)."""
-    friction_anchors: bool = True
-    """Bullet's friction anchor on the object (:func:`new_scene`)."""
+    friction_anchors: bool | str = "on_touch"
+    """Bullet's friction anchor on the object (:func:`new_scene`): True, False or ``"on_touch"``."""
+    anchored: bool = False
+    """The object's links carry the friction anchor now (``"on_touch"``: from the hand's first touch on)."""
     obj_links: tuple[int, ...] = (-1,)
     """The object body's links: -1 (the base) and one fixed link per further :data:`MAX_SHAPES_PER_LINK` shapes
     (:func:`create_object`); per-link settings (friction, anchors) go to each."""
@@ -103,7 +105,9 @@ class HandLayout:
         return len(WRIST_JOINTS) if self.floating else 0
 
 
-def new_scene(config: SceneConfig, solver_iterations: int | None = None, *, friction_anchors: bool = True) -> Scene:
+def new_scene(
+    config: SceneConfig, solver_iterations: int | None = None, *, friction_anchors: bool | str = "on_touch"
+) -> Scene:
     """A DIRECT client with the config's physics settings and a static table whose top is z = 0.
 
     solver_iterations: overrides ``config.solver_iterations`` (None keeps it). friction_anchors: the object
@@ -111,7 +115,9 @@ def new_scene(config: SceneConfig, solver_iterations: int | None = None, *, fric
     every contact it makes (Bullet anchors a contact when either body asks; the flag on the hand's links made no
     measured difference): a contact in static friction keeps its first contact point, as PhysX's patch friction
     does, instead of the friction rows being rebuilt at each step's new point, which let a squeezed object creep
-    out of the fingers (docs/simulators.md, "Friction anchors").
+    out of the fingers (docs/simulators.md, "Friction anchors"). ``"on_touch"``: the object is loaded without
+    it and gets it at the first step the hand touches it (:func:`anchor_on_touch`), so an object alone on the table
+    rocks and settles on un-anchored contacts.
     """
     client = connect_direct()
     client.setPhysicsEngineParameter(
@@ -306,11 +312,27 @@ def create_object(scene: Scene, obj: ObjectAsset, *, fixed: bool = False) -> Mas
         activationState=p.ACTIVATION_STATE_DISABLE_SLEEPING,  # the object's weight is an external force
         physicsClientId=scene.cid,
     )
-    for link in scene.obj_links:
-        p.changeDynamics(scene.obj, link, frictionAnchor=int(scene.friction_anchors), physicsClientId=scene.cid)
+    set_object_anchor(scene, scene.friction_anchors is True)
     if fixed:
         p.changeDynamics(scene.obj, -1, mass=0.0, physicsClientId=scene.cid)
     scene.obj_mass, scene.asset, scene.obj_fixed = (0.0 if fixed else props.mass), obj, fixed
     scene.base_in_obj = (tuple(props.inertial_pose[:3]), tuple(wxyz_to_xyzw(props.inertial_pose[3:])))
     scene.obj_in_base = p.invertTransform(*scene.base_in_obj)
     return props
+
+
+def set_object_anchor(scene: Scene, on: bool) -> None:
+    """Give every link of the scene's object Bullet's friction anchor (``on``) or take it away."""
+    for link in scene.obj_links:
+        p.changeDynamics(scene.obj, link, frictionAnchor=int(on), physicsClientId=scene.cid)
+    scene.anchored = on
+
+
+def anchor_on_touch(scene: Scene) -> None:
+    """``friction_anchors="on_touch"``: anchor the object once any hand link touches it (checked before each
+    physics step; contacts the step then makes carry the anchor). Anchored, it stays so until the object is
+    placed again (:meth:`PybulletBackend._set_object_pose`)."""
+    if scene.friction_anchors != "on_touch" or scene.anchored or scene.obj < 0 or scene.hand < 0:
+        return
+    if p.getContactPoints(bodyA=scene.obj, bodyB=scene.hand, physicsClientId=scene.cid):
+        set_object_anchor(scene, True)
