@@ -3,6 +3,8 @@ the processing cache, preparing before a run, and the CLI's --user-dir / --with-
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 import trimesh
@@ -90,6 +92,41 @@ def test_processing_is_cached_on_disk(folder):
     assert (second.kind, second.volume, second.hull_depth) == (first.kind, first.volume, first.hull_depth)
     _extrude_star_polygon(ELL * 1.2, 0.04).export(folder / "bracket" / "ell.obj")  # a new file: a new key
     assert process_entry(entry).volume == pytest.approx(first.volume * 1.44, rel=1e-6)
+
+
+def test_the_processing_key_follows_the_code_not_its_layout():
+    """The key's code part (``processed_cache.code_hash``): the processing modules reformatted at another line
+    length (ruff), with a comment or with a docstring changed keep every processed mesh cached; a changed constant
+    does not. (Before, the key hashed the modules' text, so ``placement.py`` was left unformatted.)"""
+    import subprocess
+    import sys
+
+    from ges_core.objects import processed_cache
+
+    here = Path(processed_cache.__file__).parent
+    sources = [(here / name).read_text() for name in processed_cache._MODULES]
+    base = processed_cache.code_hash(sources)
+    pytest.importorskip("ruff")
+    narrow = [
+        subprocess.run(
+            [sys.executable, "-m", "ruff", "format", "--line-length", "60", "-"],
+            input=text, capture_output=True, text=True, check=True,
+        ).stdout
+        for text in sources
+    ]  # fmt: skip
+    assert sum(a != b for a, b in zip(sources, narrow, strict=True)) >= 3  # the layout did change
+    placement = sources[processed_cache._MODULES.index("placement.py")]
+    first_def = placement.index("\ndef ") + 1
+    noted = placement[:first_def] + "# a comment\n" + placement[first_def:]
+    docstring = placement.replace('"""', '"""Reworded. ', 1)
+    for variant in (
+        narrow,
+        [noted if t is placement else t for t in sources],
+        [docstring if t is placement else t for t in sources],
+    ):
+        assert processed_cache.code_hash(variant) == base
+    changed = placement + "\nEXTRA_CONSTANT = 1\n"
+    assert processed_cache.code_hash([changed if t is placement else t for t in sources]) != base
 
 
 def test_a_damaged_processing_cache_entry_is_processed_again(folder):

@@ -49,9 +49,7 @@ def stable_rotation(mesh: trimesh.Trimesh) -> np.ndarray:
         mesh = hull = reduce_hull(hull)  # trimesh takes the hull of what it is given: the same hull
     if not np.all(np.einsum("ij,ij->i", com - hull.triangles_center, hull.face_normals) < 0):
         return np.eye(4)
-    transforms, probs = trimesh.poses.compute_stable_poses(
-        mesh, center_mass=com, n_samples=1, sigma=0.0, threshold=0.0
-    )
+    transforms, probs = trimesh.poses.compute_stable_poses(mesh, center_mass=com, n_samples=1, sigma=0.0, threshold=0.0)
     if len(transforms) == 0:
         return np.eye(4)
     out = np.eye(4)

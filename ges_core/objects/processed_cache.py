@@ -3,12 +3,14 @@
 Processing a 16k-face scan (repair, resting pose, hull test) takes 0.5-3 s; ``ges objects list --sizes``,
 ``prepare`` and every Stage 1 worker used to repeat it. Layout: ``<cache_dir>/objects/processed/<key>.npz``
 (the placed mesh's exact float64 vertices and faces, plus its kind, volume, hull depth and min width). The
-key covers the source file's bytes, the processing options and the source text of the modules that process
-(so a code change never serves a stale result). Procedural shapes are built in milliseconds: not cached.
+key covers the source file's bytes, the processing options and the code of the modules that process (so a code
+change never serves a stale result): their syntax trees without docstrings (:func:`code_hash`), so reformatting,
+comments and docstrings keep the cache. Procedural shapes are built in milliseconds: not cached.
 """
 
 from __future__ import annotations
 
+import ast
 import functools
 import hashlib
 import io
@@ -22,16 +24,37 @@ import trimesh
 from ges_core.objects.sources import ObjectEntry
 from ges_core.paths import atomic_write_bytes, cache_dir, file_sha256
 
-__all__ = ["cache_key", "load_processed", "store_processed"]
+__all__ = ["cache_key", "code_hash", "load_processed", "store_processed"]
 
 _MODULES = ("processing.py", "placement.py", "validate.py", "bounds.py", "decompose.py", "processed_cache.py")
-"""Modules (in this folder) whose source text is part of every key: the code that produces a processed object."""
+"""Modules (in this folder) whose code is part of every key: the code that produces a processed object."""
+
+
+def code_hash(sources: list[str]) -> str:
+    """16 hex digits of the modules' code: each source's syntax tree (``ast.dump``, no line numbers) without its
+    bare string statements (docstrings, attribute notes), so layout, comments and docstrings do not count and every
+    other change does."""
+    trees = []
+    for text in sources:
+        tree = ast.parse(text)
+        for node in ast.walk(tree):
+            for name in ("body", "orelse", "finalbody"):
+                block = getattr(node, name, None)
+                if isinstance(block, list) and block and isinstance(block[0], ast.stmt):
+                    kept = [s for s in block if not (isinstance(s, ast.Expr) and _is_text(s.value))]
+                    setattr(node, name, kept or [ast.Pass()])
+        trees.append(ast.dump(tree))
+    return hashlib.sha256("\n".join(trees).encode()).hexdigest()[:16]
+
+
+def _is_text(value: ast.expr) -> bool:
+    return isinstance(value, ast.Constant) and isinstance(value.value, str)
 
 
 @functools.cache  # the sources do not change while a process runs: read them once, not per object
 def _code_hash() -> str:
     here = Path(__file__).parent
-    return hashlib.sha256(b"".join((here / name).read_bytes() for name in _MODULES)).hexdigest()[:16]
+    return code_hash([(here / name).read_text() for name in _MODULES])
 
 
 def cache_key(entry: ObjectEntry, *, normalize_size: float | None, max_faces: int) -> str | None:
