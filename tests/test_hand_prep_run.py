@@ -24,8 +24,9 @@ from ges_core.hand_prep.prepare import (
     warn_undecomposed_hulls,
 )
 from ges_core.registry import load_registry
+from ges_core.synthesis.retarget.wrist import check_handedness_fingers
 
-from conftest import ABILITY_PKG, ability_hand
+from conftest import ABILITY_PKG, EXAMPLE_HAND_PKG, ability_hand
 from helpers_hands import write_l_palm_hand
 
 
@@ -126,3 +127,20 @@ def test_synth_decomposes_the_hand_before_the_run_and_the_api_warns(empty_cache,
     assert prepared != unprepared  # the engines now collide the parts
     assert json.loads((out / "manifest.json").read_text())["hands"]["ability_src"]["hash"] == prepared
     assert main(args) == 0 and "collision mesh(es)" not in capsys.readouterr().out  # nothing left to decompose
+
+
+def test_a_two_finger_hand_is_refused_before_the_dataset_exists(tmp_path, monkeypatch, capsys):
+    """The example gripper's index finger serves the middle, ring and little slots (slot_fill), so Stage 1 cannot
+    tell the palm's left from its right. Before, the run stopped inside a worker, after the dataset folder and its
+    manifest were written, with a message about the wrist convention."""
+    monkeypatch.syspath_prepend(str(EXAMPLE_HAND_PKG))
+    (tmp_path / "registry.yaml").write_text("plugins: [ges_example_hand]\n")
+    registry = load_registry(tmp_path / "registry.yaml")
+    for name in ("allegro", "shadow"):  # the ring finger serves the Allegro's little slot
+        check_handedness_fingers(registry.build_hand(name).description)
+    out = tmp_path / "dataset"
+    args = ["--registry", str(tmp_path / "registry.yaml"), "synth", "--hands", "example_gripper"]
+    code = main([*args, "--objects", "procedural/box/000", "--out", str(out), "--no-progress"])
+    err = capsys.readouterr().err
+    assert code != 0 and "one finger ('index') serves both the middle and the little slot" in err, err
+    assert not out.exists()

@@ -32,6 +32,7 @@ __all__ = [
     "HandFrame",
     "TopologyDescriptors",
     "check_contact_array",
+    "check_handedness_fingers",
     "contact_problems",
     "coupling_rotation",
     "hand_frame",
@@ -179,11 +180,25 @@ def wrist_poses(
     return out
 
 
+def check_handedness_fingers(description: HandDescription) -> None:
+    """AssetError when one finger serves both the middle and the little slot (a two-finger gripper's
+    ``slot_fill``): the hand frame's left and right come from those two fingertips (:func:`hand_frame`), so Stage 1
+    cannot place such a hand. Pure (no kinematics): run before a Stage 1 run creates its dataset."""
+    middle, little = description.finger_for_slot("middle"), description.finger_for_slot("little")
+    if middle is little:
+        raise AssetError(
+            f"hand '{description.name}': one finger ('{middle.name}') serves both the middle and the little slot, "
+            "and Stage 1 tells the palm's left from its right by those two fingertips, so it cannot place this "
+            "hand; it needs two different fingers there (slot_fill), i.e. at least three fingers with the thumb"
+        )
+
+
 def hand_frame(description: HandDescription, wrist_points: dict[str, np.ndarray]) -> HandFrame:
     """A HandFrame from the hand's description and open-pose points in its wrist frame.
 
     wrist_points: "knuckles" (N, 3) non-thumb finger bases, "middle_tip" (3,), "little_tip" (3,).
     """
+    check_handedness_fingers(description)
     w = description.wrist
     f = np.asarray(w.finger_direction, dtype=np.float64)
     f /= np.linalg.norm(f)

@@ -35,6 +35,7 @@ from pathlib import Path
 from ges_core.dataset import DatasetWriter
 from ges_core.errors import ConfigError
 from ges_core.executors import DEFAULT_MAX_RETRIES, TaskLostError, make_executor
+from ges_core.synthesis.retarget.wrist import check_handedness_fingers
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.resume import set_aside_misfits
 from ges_core.synthesis.run.tasks import (
@@ -107,6 +108,8 @@ def run_synthesis(
     from ges_core.hand_prep.prepare import warn_undecomposed_hulls  # trimesh: imported when a run starts
 
     built = built_hands(hands, registry)
+    for hand in built.values():  # a hand Stage 1 cannot place fails here, not in a worker after the folder exists
+        check_handedness_fingers(hand.description)
     warn_undecomposed_hulls(built)  # `ges synth` / `ges demo` decomposed them before calling this
     entries = hand_entries(built)  # a resumed dataset refuses hands that changed (docs/dataset.md)
     with DatasetWriter(out, config.dump(), hands=entries, allow_config_change=allow_config_change) as writer:
