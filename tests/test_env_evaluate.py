@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 from collections import Counter
 
 import pytest
@@ -304,3 +305,26 @@ def test_scripted_expert_refuses_nogoal(dataset, tmp_path):
     config = short_config(env={**SHORT, "goal_prior": False})
     with pytest.raises(ConfigError, match=r"reads the goal blocks .* cannot run with env.goal_prior=false"):
         evaluate_baseline(dataset, config, tmp_path, registry=CountingRegistry())
+
+
+def test_grasps_made_for_another_description_of_the_hand_are_warned_about(dataset, tmp_path):
+    """Stage 2 reads the hand the dataset's manifest describes (its hash and fields) and warns, naming each changed
+    field, when the hand it builds differs; the same dataset as made gives no warning. (With the cells refused by
+    the registry, no simulator runs: the warning comes before the cells.)"""
+    import shutil
+    import warnings
+
+    from ges_core.dataset.hands import HandChangedWarning
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", HandChangedWarning)
+        evaluate_baseline(dataset, short_config(), tmp_path / "same", registry=CountingRegistry(refuse=True))
+    copy = tmp_path / "ds"
+    shutil.copytree(dataset, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    stored = manifest["hands"]["allegro"]
+    joint = next(k for k in stored["description"] if k.startswith("pd_stiffness["))
+    stored["description"][joint], stored["hash"] = 123.0, "0" * 16  # as if Stage 1 had run with other gains
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    with pytest.warns(HandChangedWarning, match=rf"hand 'allegro'.*{re.escape(joint)}: 123.0 -> 400.0.*ges synth"):
+        evaluate_baseline(copy, short_config(), tmp_path / "changed", registry=CountingRegistry(refuse=True))

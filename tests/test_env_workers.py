@@ -241,3 +241,24 @@ def test_each_env_draws_from_its_own_streams_whatever_the_split() -> None:
         again.set_state(whole.state()[:2])
     with pytest.warns(UserWarning, match="restart from the seed"):  # a checkpoint from before per-env streams
         again.set_state([{}, {}, {}, {}])
+
+
+def test_training_on_grasps_made_for_another_description_of_the_hand_is_warned_about(tmp_path):
+    """``ges train-expert`` (build_setup) compares the hand it builds with the one the dataset's manifest describes,
+    as evaluation does (tests/test_env_evaluate.py). The test dataset predates hand descriptions: it is given one
+    with other gains."""
+    import shutil
+
+    from ges_core.dataset.hands import HandChangedWarning, hand_entry
+
+    copy = tmp_path / "ds"
+    shutil.copytree(DATASET, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    entry = hand_entry(load_registry().build_hand("allegro"))
+    joint = next(k for k in entry["description"] if k.startswith("pd_stiffness["))
+    entry["description"][joint], entry["hash"] = 123.0, "0" * 16
+    manifest["hands"] = {"allegro": entry}
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+    cfg = load_train_config("tiny", overrides=[*FAST, "num_envs=2", "workers=1"])
+    with pytest.warns(HandChangedWarning, match=rf"{joint.replace('[', '.').replace(']', '.')}: 123.0 -> 400.0"):
+        build_setup(copy, cfg, load_registry()).venv.close()

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
@@ -31,7 +32,15 @@ from ges_core.hand_settings import TRAIN
 from ges_core.paths import file_sha256
 from ges_core.urdf import parse_urdf
 
-__all__ = ["check_hands", "describe_hand", "hand_differences", "hand_entry", "urdf_fields"]
+__all__ = [
+    "HandChangedWarning",
+    "check_hands",
+    "describe_hand",
+    "hand_differences",
+    "hand_entry",
+    "urdf_fields",
+    "warn_if_hand_changed",
+]
 
 MAX_NAMED = 12
 """Changed fields named in a refusal before '... and N more'."""
@@ -43,6 +52,36 @@ def hand_entry(hand: HandModel) -> dict:
     fields = describe_hand(hand.description) | urdf_fields(urdf_path.read_text(), urdf_path.parent)
     text = json.dumps(fields, sort_keys=True, separators=(",", ":"))
     return {"hash": hashlib.sha256(text.encode()).hexdigest()[:16], "description": fields}
+
+
+class HandChangedWarning(UserWarning):
+    """Stage 2 is about to use a dataset's grasps with a hand other than the one Stage 1 made them with
+    (:func:`warn_if_hand_changed`)."""
+
+
+def warn_if_hand_changed(manifest: dict, root: Path, name: str, hand: HandModel) -> None:
+    """:class:`HandChangedWarning` naming the changed fields when the dataset at ``root`` (its ``manifest``) keeps
+    another description of hand ``name`` than ``hand`` as built now: its grasps were made, refined and validated
+    for that one. Nothing for a dataset that keeps no description (written before datasets recorded them) or none
+    of this hand. A warning, not an error: Stage 2 may run grasps on a changed hand on purpose (e.g. gains)."""
+    stored = manifest.get("hands")
+    stored = stored.get(name) if isinstance(stored, dict) else None
+    if not isinstance(stored, dict):
+        return
+    entry = hand_entry(hand)
+    if stored.get("hash") == entry["hash"]:
+        return
+    lines = hand_differences(stored.get("description", {}), entry["description"])
+    more = f"; ... and {len(lines) - MAX_NAMED} more" if len(lines) > MAX_NAMED else ""
+    shown = "; ".join(lines[:MAX_NAMED]) + more
+    meshes = any(line.startswith(("mesh[", "urdf:")) for line in lines)
+    fix = f"`ges hand prepare {name}` if the collision meshes are not decomposed here, " if meshes else ""
+    warnings.warn(
+        f"dataset {root}: its grasps of hand '{name}' were made with another description of the hand than this run "
+        f"builds ({shown}); they may not fit it. Run {fix}or make the grasps again with `ges synth`",
+        HandChangedWarning,
+        stacklevel=2,
+    )
 
 
 def describe_hand(d: HandDescription) -> dict[str, object]:

@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from functools import partial
 from pathlib import Path
 
+from ges_core.dataset.hands import warn_if_hand_changed
 from ges_core.env.grasp_env import EnvConfig, GraspEnv
 from ges_core.env.grasp_pool import GraspPool
 from ges_core.env.grasp_source import dataset_hand, library_for, open_grasp_dataset, select_records
@@ -70,6 +71,8 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
     unset (``TrainingSetup.config``)."""
     hand_name, sim_name = dataset_hand(dataset_path, registry, cfg.hand), cfg.sim or registry.default("sim")
     hand = registry.build_hand(hand_name)
+    data = open_grasp_dataset(dataset_path)
+    warn_if_hand_changed(data.manifest, data.root, hand_name, hand)
     cfg = hand_train_config(hand.description, cfg)
     pool, rejected = training_pool(dataset_path, hand, cfg)
     curriculum = _curriculum(cfg, clusters, pool)

@@ -16,6 +16,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from ges_core.dataset import GraspRecord
+from ges_core.dataset.hands import warn_if_hand_changed
 from ges_core.env.evaluate.config import BaselineConfig
 from ges_core.env.evaluate.runner import dataset_scene, evaluate_object
 from ges_core.env.grasp_source import library_for, open_grasp_dataset
@@ -57,7 +58,10 @@ def evaluate_cells(
     from its folder.
     records: object id -> record (this process's selection). A cell whose worker died on every attempt is left
     out and, after every other row, raised as one TaskLostError naming its objects (a rerun resumes them).
+    A hand other than the dataset's (:func:`~ges_core.dataset.hands.warn_if_hand_changed`) is warned about first.
     """
+    for name in sorted({c.config.hand for c in cells}):
+        warn_if_hand_changed(data.manifest, data.root, name, registry.build_hand(name))
     if fanout.here:
         sources = _Sources(data, registry)
         for i, cell in enumerate(cells):
