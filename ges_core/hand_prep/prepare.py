@@ -155,15 +155,8 @@ def undecomposed_deep_hulls(hand: HandModel) -> list[MeshPlan]:
     Only the hull-gap rule (module docs); writes nothing (a mesh whose OBJ copy is not cached has no parts yet).
     Each plan's ``path`` is the mesh file the URDF names.
     """
-    plans: dict[Path, MeshPlan] = {}
-    for link, group in link_shapes(hand.urdf_text(), hand.urdf_path().parent).items():
-        for shape in group:
-            if shape.source is None:
-                continue
-            if shape.source not in plans:
-                plans[shape.source] = MeshPlan(shape.source, [], hull_gap(shape.mesh))
-            plans[shape.source].links.append(link)
-    return [p for p in plans.values() if p.hull_gap > HULL_GAP_TOL and not _decomposed(p.path)]
+    plans = _plan(link_shapes(hand.urdf_text(), hand.urdf_path().parent), [], path=lambda source: source)
+    return [p for p in plans if p.hull_gap > HULL_GAP_TOL and not _decomposed(p.path)]
 
 
 def decompose_deep_hulls(hand: HandModel, *, progress: bool = True) -> list[MeshPlan]:
@@ -219,8 +212,9 @@ def _convert_all(text: str, base_dir: Path) -> list[Path]:
     return out
 
 
-def _plan(shapes, overlaps: list[PairOverlap]) -> list[MeshPlan]:
-    """One plan per collision mesh file (a file several links use is measured and decomposed once)."""
+def _plan(shapes, overlaps: list[PairOverlap], path=engine_mesh) -> list[MeshPlan]:
+    """One plan per collision mesh file (a file several links use is measured and decomposed once). path: the
+    plan's file from the URDF's (default: the one the engines load, converting a ``.glb`` to OBJ)."""
     plans: dict[Path, MeshPlan] = {}
     partner = {}
     for o in overlaps:
@@ -230,12 +224,12 @@ def _plan(shapes, overlaps: list[PairOverlap]) -> list[MeshPlan]:
         for shape in group:
             if shape.source is None:
                 continue
-            path = engine_mesh(shape.source)
-            if path not in plans:
-                plans[path] = MeshPlan(path, [], hull_gap(shape.mesh))
-            plans[path].links.append(link)
-            if plans[path].hull_gap > HULL_OVERLAP_TOL:  # a convex mesh's hull is the mesh: parts would not help
-                plans[path].overlaps += partner.get(link, [])
+            file = path(shape.source)
+            if file not in plans:
+                plans[file] = MeshPlan(file, [], hull_gap(shape.mesh))
+            plans[file].links.append(link)
+            if plans[file].hull_gap > HULL_OVERLAP_TOL:  # a convex mesh's hull is the mesh: parts would not help
+                plans[file].overlaps += partner.get(link, [])
     return list(plans.values())
 
 
