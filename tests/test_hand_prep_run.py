@@ -64,14 +64,32 @@ def test_a_deep_hull_is_found_without_writing_and_gone_once_decomposed(empty_cac
 
 
 def test_builtin_hands_have_none_and_the_ability_hand_has_what_prepare_decomposes(empty_cache):
+    """The meshes found are those whose surface lies deeper than 3 mm inside their hull by an independent measure:
+    trimesh's exact signed distance to the hull (closest points) at the vertices and 2,000 surface samples, where
+    ``hull_gap`` uses face-plane distances at its own samples. Ability: the palm and the distal phalanx (17 and
+    7 mm), not the wrist plate (2 mm) or the thumb links (convex)."""
+    import numpy as np
+    import trimesh
+
+    from ges_core.hand_prep.geometry import link_shapes
+
     registry = load_registry()
     assert [undecomposed_deep_hulls(registry.build_hand(name)) for name in ("allegro", "shadow")] == [[], []]
-    found = {p.path.name: p.hull_gap for p in undecomposed_deep_hulls(ability_hand())}
-    # docs/hands/ability.md: the palm 17.7 mm and the distal phalanx 7.3 mm are decomposed; the wrist plate's
-    # 2.0 mm and the thumb links' 0 mm are kept
-    assert set(found) == {"FB_palm_ref_MIR.obj", "idx-F2_C.obj"}
-    assert found["FB_palm_ref_MIR.obj"] == pytest.approx(0.0177, abs=5e-4)
-    assert found["idx-F2_C.obj"] == pytest.approx(0.0073, abs=5e-4)
+    hand = ability_hand()
+    depth = {}
+    for group in link_shapes(hand.urdf_text(), hand.urdf_path().parent).values():
+        for shape in group:
+            if shape.source is None:  # a box, sphere or cylinder: its own hull
+                continue
+            mesh = shape.mesh
+            points = np.concatenate([mesh.vertices, trimesh.sample.sample_surface(mesh, 2000, seed=1)[0]])
+            depth[shape.source.name] = float(trimesh.proximity.signed_distance(mesh.convex_hull, points).max())
+    found = {p.path.name: p.hull_gap for p in undecomposed_deep_hulls(hand)}
+    assert (
+        set(found) == {name for name, d in depth.items() if d > HULL_GAP_TOL} == {"FB_palm_ref_MIR.obj", "idx-F2_C.obj"}
+    )
+    assert all(abs(found[name] - depth[name]) < 1e-3 for name in found), (found, depth)
+    assert all(abs(d - HULL_GAP_TOL) > 5e-4 for d in depth.values())  # no mesh near the threshold: not a float call
 
 
 PLUGIN = """
