@@ -162,10 +162,27 @@ def test_hand_alone_is_drawn_where_its_links_are(hands, renderer, box):
 @pytest.mark.parametrize("hand_name", ["shadow", "allegro"])
 def test_hand_links_sit_where_the_kinematics_put_them(hands, renderer, box, hand_name):
     """PyBullet's drawn hand against pytorch-kinematics FK composed with the wrist pose."""
+    _check_drawn_links(renderer, box, hands[hand_name])
+
+
+def test_a_hand_with_glb_meshes_is_drawn(renderer, box, tmp_path):
+    """A hand whose URDF names a ``.glb`` mesh (PyBullet's loader refuses the file: "invalid mesh filename
+    extension") is drawn from the URDF the PyBullet backend loads (the OBJ copy), where FK puts its links."""
+    from ges_core.hand_files import FileHand
+
+    from helpers_hands import write_l_palm_hand
+
+    yaml = write_l_palm_hand(tmp_path, ".glb")
+    hand = FileHand(yaml, yaml.with_suffix(".urdf"), strict=False)
+    assert ".glb" in hand.urdf_text()
+    _check_drawn_links(renderer, box, hand)
+
+
+def _check_drawn_links(renderer, box, hand) -> None:
     from ges_core.kinematics import HandKinematics
     from ges_core.transforms import pose_to_matrix
 
-    hand = hands[hand_name]
+    hand_name = hand.name
     d = hand.description
     grasp = top_grasp(hand)
     renderer.render(box, contacts(), hand, grasp.wrist_pose, dict(zip(d.joint_names, grasp.q, strict=True)))
@@ -307,3 +324,33 @@ def test_contact_sheet_and_png_errors(tmp_path):
         ValueError, match=r"write_png needs an \(H, W, 3\) uint8 array, got shape \(4, 4\) dtype float64"
     ):
         write_png(tmp_path / "x.png", np.zeros((4, 4)))
+
+
+def test_a_picture_that_cannot_be_drawn_costs_the_picture_not_the_record(tmp_path, hands, box, caplog):
+    """The Stage 1 worker: a renderer plugin's own error (not only a storage error) leaves the record without its
+    picture, says why in ``errors["picture"]`` and warns once per process; the run goes on."""
+    from types import SimpleNamespace
+
+    from test_dataset import make_record
+
+    from ges_core.synthesis.run import worker
+
+    class RefusingRenderer:
+        def render(self, *args, **kwargs):
+            raise RuntimeError("Cannot load URDF file.")
+
+    library = SimpleNamespace(get=lambda object_id: box)
+    state = worker._State(
+        context=SimpleNamespace(pictures=tmp_path), registry=REGISTRY, library=library, renderer=RefusingRenderer()
+    )
+    state.hands["shadow"] = hands["shadow"]
+    records = [make_record(f"procedural/box/00{i}", picture=None) for i in range(2)]
+    with caplog.at_level("WARNING"):
+        out = [worker._with_picture(state, r) for r in records]
+    assert [r.picture for r in out] == [None, None]
+    assert [r.errors["picture"] for r in out] == ["drawing failed: RuntimeError: Cannot load URDF file."] * 2
+    assert [m for m in caplog.messages if "without their pictures" in m] == [
+        "ges: warning: drawing failed: RuntimeError: Cannot load URDF file. (the records are saved without their "
+        "pictures)"
+    ]
+    assert not list(tmp_path.rglob("*.png"))

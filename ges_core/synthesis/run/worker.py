@@ -723,9 +723,10 @@ class _Sims:
 def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
     """``record`` with ``picture`` set after drawing it (no picture folder: unchanged).
 
-    A picture that cannot be written (full disk, read-only folder) costs the picture, never the record: the
-    record keeps ``picture`` None and says why in ``errors["picture"]``; the first such failure of a process is
-    logged (once: the next pictures likely fail alike).
+    A picture that cannot be written (full disk, read-only folder) or drawn (a renderer plugin's own error, e.g. a
+    hand asset its engine cannot load) costs the picture, never the record: the record keeps ``picture`` None and
+    says why in ``errors["picture"]``; the first such failure of a process is logged (once: the next pictures
+    likely fail alike).
     """
     root = state.context.pictures
     if root is None:
@@ -741,11 +742,12 @@ def _with_picture(state: _State, record: GraspRecord) -> GraspRecord:
         asset = None  # no collision model: the picture shows the contacts and the hand only
     try:
         render_record(record, state.hand(record.hand), asset, path, renderer=state.renderer)
-    except StorageError as error:
+    except Exception as error:  # noqa: BLE001 - a picture is never worth the record (docstring)
+        why = str(error) if isinstance(error, StorageError) else f"drawing failed: {type(error).__name__}: {error}"
         if not state.picture_failed:
             state.picture_failed = True
-            _LOG.warning("ges: warning: %s (the records are saved without their pictures)", error)
-        return replace(record, errors={**record.errors, "picture": str(error)})
+            _LOG.warning("ges: warning: %s (the records are saved without their pictures)", why)
+        return replace(record, errors={**record.errors, "picture": why})
     return replace(record, picture=path.as_posix())
 
 

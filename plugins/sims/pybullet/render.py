@@ -28,6 +28,7 @@ from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.render.base import HAND_COLOR, OBJECT_COLOR, SLOT_COLORS, TABLE_COLOR, RenderConfig, Renderer
 from ges_core.transforms import quat_from_z_axis, wxyz_to_xyzw
+from ges_plugins.sims.pybullet.hand_urdf import pybullet_hand_urdf
 
 __all__ = ["MIN_RADIUS", "PybulletRenderer"]
 
@@ -196,7 +197,10 @@ class PybulletRenderer(Renderer):
     def _load_hand(self, hand: HandModel) -> tuple[int, dict[str, int]]:
         if hand.name not in self._hands:
             p = self._p
-            body = p.loadURDF(str(hand.urdf_path()), useFixedBase=True, physicsClientId=self._cid)
+            # The URDF the PyBullet backend loads (meshes it can read: a .glb hand's OBJ copies), hung from a
+            # massless link at the hand's root frame; the hand's own file would fail on .glb meshes.
+            urdf = pybullet_hand_urdf(hand.urdf_text(), hand.name, floating=False, base_dir=hand.urdf_path().parent)
+            body = p.loadURDF(str(urdf), useFixedBase=True, physicsClientId=self._cid)
             n = p.getNumJoints(body, physicsClientId=self._cid)
             joints = {p.getJointInfo(body, j, physicsClientId=self._cid)[1].decode(): j for j in range(n)}
             for link in range(-1, n):
