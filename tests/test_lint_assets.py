@@ -206,3 +206,29 @@ def test_tip_force_probe_flags_a_weak_hand(capsys, tmp_path, sim):
     found = [ln for ln in lines if ln.startswith("[tip-force]")]
     assert code == 1 and len(found) == 2 and all(f"in {sim} under validation's squeeze (asks 5 N" in ln for ln in found)
     assert all(re.search(r"(pressed only [0-9.]+ N|did not touch)", ln) for ln in found)
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim", ["pybullet", "sapien"])
+def test_tip_force_of_a_heavily_damped_hand_says_lower_the_damping(capsys, tmp_path, sim):
+    """The same stiffness with ten times the damping presses far less on the probe cube (a blocked drive's force
+    falls with Kd in both engines: 0.3 / 1.6 N at Kd/Kp 0.1 s, 5.3 / 2.9 N at 0.0025 s, SAPIEN / PyBullet); the
+    lint tells the damped hand to lower pd_damping first and names its Kd/Kp, and the light one passes."""
+    from ges_core.lint.checks_probe import probe_tip_forces
+    from ges_core.registry import load_registry
+
+    registry = load_registry(autoload=False)
+    forces = {}
+    for kd in (2.0, 0.05):  # Kp 20: Kd/Kp 0.1 s and 0.0025 s
+        folder = tmp_path / f"kd{kd}"
+        folder.mkdir()
+        forces[kd] = write_hand(folder, yaml=[("pd_damping: {default: 0.5}", f"pd_damping: {{default: {kd}}}")])
+    damped, _ = probe_tip_forces(FileHand(forces[2.0], forces[2.0].with_suffix(".urdf")), registry.build_sim, sim)
+    light, _ = probe_tip_forces(FileHand(forces[0.05], forces[0.05].with_suffix(".urdf")), registry.build_sim, sim)
+    assert np.all(light > 2.5) and np.all(damped < light / 1.5), (damped, light)
+    code, lines = lint(capsys, forces[2.0], "--sim", sim, "--probe", "--skip", "fk", "--skip", "self-collision")
+    found = [ln for ln in lines if ln.startswith("[tip-force]")]
+    assert code == 1 and len(found) == 2
+    assert all("fix: lower pd_damping of its joints first: their Kd/Kp is 0.1 s" in ln for ln in found)
+    code, lines = lint(capsys, forces[0.05], "--sim", sim, "--probe", "--skip", "fk", "--skip", "self-collision")
+    assert not [ln for ln in lines if ln.startswith("[tip-force]")]

@@ -13,15 +13,15 @@ that nothing touches through. Run by ``ges hand lint --probe`` (1-3 s per simula
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import numpy as np
 
-from ges_core.hand import HandModel
+from ges_core.hand import HandDescription, HandModel
 from ges_core.lint.problems import LintProblem
 from ges_core.sim import SceneConfig, SimBackend
 
-__all__ = ["PROBE_SHARE", "SQUEEZE_STEPS", "check_tip_forces", "probe_tip_forces"]
+__all__ = ["DAMPED", "PROBE_SHARE", "SQUEEZE_STEPS", "check_tip_forces", "drive_time_constant", "probe_tip_forces"]
 
 PROBE_SHARE = 0.5
 """A fingertip pressing less than this share of the squeeze force is reported: with two tips at mu = 1, half
@@ -90,8 +90,9 @@ def check_tip_forces(
 ) -> list[LintProblem]:
     """Each fingertip presses at least :data:`PROBE_SHARE` of the squeeze force on the probe box in ``sim_name``."""
     forces, asked = probe_tip_forces(hand, make_sim, sim_name)
+    d = hand.description
     out = []
-    for finger, force in zip(hand.description.fingers, forces, strict=True):
+    for finger, force in zip(d.fingers, forces, strict=True):
         if force >= PROBE_SHARE * asked:
             continue
         how = "did not touch its probe cube" if force < 0.05 else f"pressed only {force:.2f} N on its probe cube"
@@ -100,9 +101,36 @@ def check_tip_forces(
                 "tip-force",
                 f"finger '{finger.name}' {how} in {sim_name} under validation's squeeze (asks {asked:g} N per tip; "
                 f"below {PROBE_SHARE * asked:g} N two tips do not hold the heavier demo objects)",
-                "raise pd_stiffness of its joints (a drive presses Kp x the angle its target lies past contact, and "
-                "the squeeze goes at most 0.6 rad past), check effort limits, and make its tip link collide "
-                "(see tip-collision)",
+                _tip_force_fix(drive_time_constant(d, finger.joints)),
             )
         )
     return out
+
+
+DAMPED = 0.02
+"""s: a finger whose drives' Kd/Kp is longer than this is told to lower its damping first. Measured with this probe
+(2026-12-04): the blocked tip's force falls about as 1/Kd at a fixed Kp in both engines, e.g. the Inspire hand
+(Kp 1000) 0.46 / 2.0 N at Kd/Kp 0.1 s and 5.8 / 8.4 N at 0.01 s (SAPIEN / PyBullet index finger), the example
+gripper (Kp 20) 0.30 / 1.6 N at 0.1 s and 5.3 / 2.9 N at 0.0025 s."""
+
+
+def drive_time_constant(d: HandDescription, joints: Sequence[str]) -> float:
+    """s: the longest ``Kd / Kp`` among ``joints`` with a positive stiffness (0 when none has one)."""
+    k = d.joint_index(list(joints))
+    kp, kd = np.asarray(d.pd_stiffness)[k], np.asarray(d.pd_damping)[k]
+    taus = kd[kp > 0] / kp[kp > 0]
+    return float(taus.max()) if taus.size else 0.0
+
+
+def _tip_force_fix(tau: float) -> str:
+    stiffness = (
+        "raise pd_stiffness of its joints (a drive presses Kp x the angle its target lies past contact, and the "
+        "squeeze goes at most 0.6 rad past), check effort limits, and make its tip link collide (see tip-collision)"
+    )
+    if tau <= DAMPED:
+        return stiffness
+    return (
+        f"lower pd_damping of its joints first: their Kd/Kp is {tau:.3g} s, and a heavily damped drive presses far "
+        f"less than Kp x the angle within the squeeze's 0.5 s (the probe force falls about as 1/Kd; Kd/Kp of about "
+        f"0.01 s or less presses); then {stiffness}"
+    )
