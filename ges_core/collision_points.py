@@ -4,7 +4,12 @@ Used where a link *origin* is too coarse, e.g. keeping a candidate grasp's palm 
 Allegro palm's origin sat 15 mm above the table while its 45 mm-deep collision box pressed it with 480 N.
 Each ``<collision>`` gives a few points on its surface, in the link frame: a box its 8 corners, a sphere
 its 6 poles, a cylinder or capsule 8 points around each end (a capsule's hemispheres add its two end
-points), a mesh the vertices of its convex hull (at most ``max_mesh_points``, evenly subsampled).
+points), a mesh the vertices of its convex hull (at most ``max_mesh_points``, evenly subsampled). A link with many
+``<collision>`` elements (a mesh ``ges hand prepare`` decomposed into convex parts) keeps at most ``max_link_points``
+of them (:func:`spread_subset`): half from the vertices of their joint convex hull (in any orientation the point
+that meets the table first is one of them), then the farthest of the rest, so the points also cover a concave link's
+inner faces: the Inspire hand's prepared wrist base has 140 parts, and 24 points per part gave the wrist search 13,383
+points for the hand (the Allegro 248), so its retargeting took 2.8 s per object instead of 0.1 s.
 """
 
 from __future__ import annotations
@@ -16,20 +21,52 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from ges_core.errors import AssetError
+from ges_core.objects.pointcloud import farthest_point_indices
 from ges_core.urdf import parse_urdf
 
-__all__ = ["collision_points"]
+__all__ = ["MAX_LINK_POINTS", "collision_points", "spread_subset"]
 
 
-def collision_points(urdf_text: str, *, max_mesh_points: int = 24) -> dict[str, np.ndarray]:
-    """``{link: (P, 3) points}`` on each link's collision geometry, link frame, metres (links without any left out)."""
+MAX_LINK_POINTS = 96
+"""Points kept per link at most: four meshes' worth; a link of the built-in hands has at most 24, the prepared
+Ability hand's distal links 174 (7 parts), the prepared Inspire hand's wrist base 3,167 (140 parts)."""
+
+
+def collision_points(
+    urdf_text: str, *, max_mesh_points: int = 24, max_link_points: int = MAX_LINK_POINTS
+) -> dict[str, np.ndarray]:
+    """``{link: (P, 3) points}`` on each link's collision geometry, link frame, metres (links without any left out);
+    ``P <= max_link_points`` (module docs)."""
     out: dict[str, np.ndarray] = {}
     for link in parse_urdf(urdf_text).iter("link"):
         points = [_shape_points(c, max_mesh_points) for c in link.findall("collision")]
         points = [p for p in points if len(p)]
         if points:
-            out[link.get("name")] = np.concatenate(points)
+            joined = np.concatenate(points)
+            if len(joined) > max_link_points:
+                joined = joined[spread_subset(joined, max_link_points)]
+            out[link.get("name")] = joined
     return out
+
+
+def spread_subset(points: np.ndarray, n: int) -> np.ndarray:
+    """Sorted indices of ``n`` of ``points`` (m, 3), m > n: up to ``n // 2`` vertices of their convex hull (all of
+    them, or a farthest-point spread of them), then greedily the point farthest from every one chosen."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    try:
+        hull = np.unique(ConvexHull(points).vertices)
+    except QhullError:  # flat or degenerate: no volume to take the hull of
+        hull = np.zeros(1, dtype=np.int64)
+    if len(hull) > n // 2:
+        hull = hull[farthest_point_indices(points[hull], max(n // 2, 1))]
+    chosen = list(hull)
+    dist = np.min(np.linalg.norm(points[:, None] - points[chosen][None], axis=-1), axis=1)
+    while len(chosen) < n:
+        i = int(np.argmax(dist))
+        chosen.append(i)
+        dist = np.minimum(dist, np.linalg.norm(points - points[i], axis=1))
+    return np.sort(np.asarray(chosen, dtype=np.int64))
 
 
 def _shape_points(collision, max_mesh_points: int) -> np.ndarray:

@@ -52,3 +52,27 @@ def test_every_finger_link_of_the_built_in_hands_has_points(name):
         # the fingertip point (tip_offset) lies on the tip geometry's extent: within its points' bounding box
         lo, hi = pts[f.tip_link].min(axis=0), pts[f.tip_link].max(axis=0)
         assert np.all(np.asarray(f.tip_offset) >= lo - 2e-3) and np.all(np.asarray(f.tip_offset) <= hi + 2e-3)
+
+
+def test_a_link_of_many_parts_keeps_its_hull_and_a_spread_of_the_rest(tmp_path):
+    """A link made of 30 small cube meshes (as `ges hand prepare` writes a decomposed mesh) keeps at most
+    max_link_points of the 30 x 8 corners: every kept point is one of them; for twenty random directions the lowest
+    kept point is within one part's size (1 cm) of the lowest corner (what meets a table first, checked against all
+    corners); every cube keeps a point within 1 cm of its centre, the inner ones too; and the choice repeats."""
+    rng = np.random.default_rng(3)
+    parts, centres = [], rng.uniform(-0.05, 0.05, size=(30, 3))
+    for i, c in enumerate(centres):
+        path = tmp_path / f"part{i}.obj"
+        trimesh.creation.box(extents=(0.01, 0.01, 0.01)).apply_translation(c).export(path)
+        parts.append(f'<collision><geometry><mesh filename="{path}"/></geometry></collision>')
+    urdf = f'<robot name="r"><link name="palm">{"".join(parts)}</link></robot>'
+    every = collision_points(urdf, max_link_points=10_000)["palm"]
+    kept = collision_points(urdf, max_link_points=60)["palm"]
+    assert len(every) == 240 and len(kept) == 60
+    assert all(np.isclose(every, p, atol=1e-9).all(axis=1).any() for p in kept)
+    for direction in rng.normal(size=(20, 3)):
+        direction /= np.linalg.norm(direction)
+        assert (kept @ direction).min() - (every @ direction).min() < 0.01  # a part's size
+    gaps = np.linalg.norm(centres[:, None] - kept[None], axis=-1).min(axis=1)
+    assert gaps.max() < 0.01, gaps.max()
+    np.testing.assert_array_equal(kept, collision_points(urdf, max_link_points=60)["palm"])
