@@ -26,6 +26,22 @@ def ability_hand():
     return module.build_hand()
 
 
+INSPIRE_PKG = REPO / "examples" / "ges-inspire-hand" / "ges_inspire_hand"
+"""Source of the Inspire hand package (docs/hands/inspire.md)."""
+
+
+def inspire_module():
+    """``examples/ges-inspire-hand``'s module, from that source whether or not the package is installed; skips where
+    mani-skill (its URDF) is missing."""
+    import importlib.util
+
+    pytest.importorskip("mani_skill")
+    spec = importlib.util.spec_from_file_location("_ges_inspire_hand_source", INSPIRE_PKG / "__init__.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
 @pytest.fixture(scope="module")
 def unprepared_hands(tmp_path_factory: pytest.TempPathFactory):
     """A cache folder of the module's own, empty: hands load their URDF's own collision shapes, so a
