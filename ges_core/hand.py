@@ -126,6 +126,10 @@ class HandDescription:
     """Slot -> finger name for slots no physical finger fills (e.g. Allegro's little finger)."""
     couplings: tuple[JointCoupling, ...] = ()
     """Joints that follow another joint (tendons)."""
+    self_collision_exclude: tuple[tuple[str, str], ...] = ()
+    """Link pairs that never collide with each other, besides :func:`ges_core.urdf.neighbour_link_pairs` (e.g. a
+    palm and a thumb link whose collision meshes overlap at every pose); each pair's names sorted. Every engine
+    applies them through :meth:`HandModel.excluded_link_pairs`."""
     base_link: str = ""
     """URDF root link; filled by the plugin from its URDF."""
     settings: dict = field(default_factory=dict, hash=False)
@@ -225,3 +229,11 @@ class HandModel(ABC):
     def urdf_text(self) -> str:
         """The URDF as text."""
         return self.urdf_path().read_text()
+
+    def excluded_link_pairs(self) -> set[frozenset[str]]:
+        """Link pairs no engine collides with each other (self-collision on): the URDF's neighbours
+        (:func:`ges_core.urdf.neighbour_link_pairs`) and the description's ``self_collision_exclude``."""
+        from ges_core.urdf import neighbour_link_pairs
+
+        own = {frozenset(pair) for pair in self.description.self_collision_exclude}
+        return neighbour_link_pairs(self.urdf_text()) | own

@@ -23,6 +23,7 @@ The format, field by field with units and frames and the built-in hands as examp
     pd_damping: {default: 10.0}
     effort_limit: {default: 0.5}     # optional: the real actuators' torque limits, N·m
     couplings: []                    # optional: {follower, leader, ratio, offset}
+    self_collision_exclude: []       # optional: [[link_a, link_b], ...] pairs that never collide
     settings: {}                     # optional: the hand's own Stage 1 settings (ges_core.hand_settings)
 """
 
@@ -92,6 +93,7 @@ class _HandFile(ConfigModel):
     pd_damping: PerJoint
     effort_limit: PerJoint | None = None
     couplings: list[_Coupling] = Field(default_factory=list)
+    self_collision_exclude: list[tuple[str, str]] = Field(default_factory=list)
     settings: dict[str, Any] = Field(default_factory=dict)
 
 
@@ -166,6 +168,27 @@ def _check_references(data: _HandFile, names: list[str]) -> None:
         )
 
 
+def _check_exclusions(data: _HandFile, urdf_text: str) -> None:
+    """self_collision_exclude may only pair two different links of the URDF that both have collision geometry."""
+    root = ET.fromstring(urdf_text)
+    links = [link.get("name") for link in root.iter("link")]
+    solid = {link.get("name") for link in root.iter("link") if link.find("collision") is not None}
+    problems = []
+    for a, b in data.self_collision_exclude:
+        unknown = [n for n in (a, b) if n not in links]
+        if unknown:
+            problems.append(f"[{a}, {b}] names unknown link(s) {unknown}")
+        elif a == b:
+            problems.append(f"[{a}, {b}] pairs a link with itself")
+        elif not {a, b} <= solid:
+            problems.append(f"[{a}, {b}]: {sorted({a, b} - solid)} has no collision geometry (nothing to exclude)")
+    if problems:
+        raise AssetError(
+            f"hand '{data.name}': self_collision_exclude " + "; ".join(problems) + f" (links with collision geometry: "
+            f"{sorted(solid)})"
+        )
+
+
 def _effort_limits(data: _HandFile, names: list[str]) -> tuple[float, ...]:
     """(K,) ``effort_limit`` per joint, N·m (N), or () when the file gives none; AssetError unless each is > 0."""
     if data.effort_limit is None:
@@ -206,6 +229,7 @@ def description_from_yaml(
     _check_joint_names(data.name, names, list(limits))
     if strict:
         _check_references(data, names)
+        _check_exclusions(data, urdf_text)
     unlimited = [n for n in names if limits[n] is None]
     joint_limits = tuple(limits[n] or (0.0, 0.0) for n in names)
     fingers = tuple(
@@ -228,6 +252,7 @@ def description_from_yaml(
         effort_limits=_effort_limits(data, names),
         slot_fill=dict(data.slot_fill),
         couplings=tuple(JointCoupling(**c.model_dump()) for c in data.couplings),
+        self_collision_exclude=tuple(tuple(sorted(pair)) for pair in data.self_collision_exclude),
         base_link=root_link(urdf_text),
         settings=_settings(data, source),
     )

@@ -64,9 +64,11 @@ class SceneConfig(ConfigModel):
     """Physics settings shared by every backend.
 
     ``self_collision=True`` collides every pair of hand links except the pairs of
-    :func:`ges_core.urdf.neighbour_link_pairs`: parent-child pairs and pairs joined through
-    zero-length links (the Shadow hand's palm and ffproximal, through ``ffknuckle``). Every backend
-    excludes exactly those, so a hand touches itself in the same places in every engine.
+    :meth:`ges_core.hand.HandModel.excluded_link_pairs`: parent-child pairs and pairs joined through
+    zero-length links (the Shadow hand's palm and ffproximal, through ``ffknuckle``;
+    :func:`ges_core.urdf.neighbour_link_pairs`), and the pairs the hand's description lists in
+    ``self_collision_exclude``. Every backend excludes exactly those, so a hand touches itself in the same
+    places in every engine.
     """
 
     num_envs: int = Field(1, ge=1, description="independent scenes stepped together")
@@ -76,7 +78,7 @@ class SceneConfig(ConfigModel):
     hand_friction: float = Field(1.0, ge=0, description="Coulomb friction of the hand links")
     solver_iterations: int = Field(20, ge=1, description="position iterations of the contact solver")
     self_collision: bool = Field(
-        True, description="collide hand links, except the pairs of ges_core.urdf.neighbour_link_pairs"
+        True, description="collide hand links, except the pairs of HandModel.excluded_link_pairs"
     )
     hand_gravity: bool = Field(False, description="apply gravity to the hand (off: the wrist drive holds it)")
     wrist_stiffness: float = Field(2.0e4, gt=0, description="PD stiffness of the floating wrist, N/m and N·m/rad")

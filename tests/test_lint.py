@@ -119,6 +119,43 @@ def test_self_collision_at_open_pose_is_caught(capsys, tmp_path, sim):
     )
 
 
+@pytest.mark.sim
+@pytest.mark.parametrize("sim", ["sapien", "pybullet"])
+def test_a_pair_listed_in_self_collision_exclude_is_not_collided(capsys, tmp_path, sim):
+    """The overlapping thumb and index above, one of their two pairs listed in ``self_collision_exclude``: the engine
+    no longer collides that pair (the check reads the engine's own contact pairs) and still collides the other."""
+    moved = ('origin xyz="0.082 -0.03 0.01"', 'origin xyz="0.082 0.025 0.01"')
+    path = broken_hand(tmp_path, urdf=moved)
+    assert "self_collision_exclude" not in path.read_text()
+    path.write_text(path.read_text() + "\nself_collision_exclude: [[thumb_distal, index_distal]]\n")
+    code, lines = lint_lines(capsys, path, "--sim", sim, "--skip", "fk")
+    found = [ln for ln in lines if ln.startswith("[self-collision]")]
+    assert code == 1 and len(found) == 1
+    assert re.search(r"'(thumb|index)_proximal' and '(thumb|index)_proximal'", found[0])
+
+
+def test_self_collision_exclude_names_only_links_with_collision_geometry(tmp_path):
+    """Unknown links, a link paired with itself and a link without collision geometry are refused, naming the links
+    that can be listed; a good pair is stored with its names sorted."""
+    from ges_core.errors import AssetError
+    from ges_core.hand_files import FileHand
+
+    path = broken_hand(tmp_path)
+    text = path.read_text()
+    for pair, message in (
+        ("[thumb_distal, nope]", r"\[thumb_distal, nope\] names unknown link\(s\) \['nope'\]"),
+        ("[thumb_distal, thumb_distal]", r"pairs a link with itself"),
+        ("[thumb_distal, index_tip]", r"\['index_tip'\] has no collision geometry"),
+    ):
+        path.write_text(text + f"\nself_collision_exclude: [{pair}]\n")
+        with pytest.raises(AssetError, match=message + r".*links with collision geometry: \[.*'palm'"):
+            _ = FileHand(path, tmp_path / "hand.urdf").description
+    path.write_text(text + "\nself_collision_exclude: [[thumb_distal, index_distal]]\n")
+    hand = FileHand(path, tmp_path / "hand.urdf")
+    assert hand.description.self_collision_exclude == (("index_distal", "thumb_distal"),)
+    assert frozenset(("index_distal", "thumb_distal")) in hand.excluded_link_pairs()
+
+
 class _ShiftedSim:
     """Test double: a real backend whose link poses are shifted 5 mm, as a wrongly parsed URDF would be."""
 

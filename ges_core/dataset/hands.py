@@ -5,7 +5,8 @@ description is flat so that a change is named in one line (``pd_stiffness[FFJ1]:
 
 * every :class:`~ges_core.hand.HandDescription` field, per-joint values keyed by joint name
   (``joint_limits[J]``, ``open_pose[J]``, ``pd_stiffness[J]``, ``pd_damping[J]``, ``effort_limit[J]``), fingers by
-  finger name (``fingers[ff].tip_offset``), couplings by follower, ``slot_fill[slot]``, the YAML's settings by
+  finger name (``fingers[ff].tip_offset``), couplings by follower, ``slot_fill[slot]``, each excluded link pair
+  (``self_collision_exclude[a, b]``; a hand without any has no such key), the YAML's settings by
   dotted path (``settings.validate.min_squeeze``) but its ``train`` section (Stage 2 training values: they change
   no record, so setting one does not make a dataset refuse the hand);
 * ``urdf``: the SHA-256 of the URDF the simulators load (converted meshes, prepared collision parts), with each
@@ -112,6 +113,7 @@ def describe_hand(d: HandDescription) -> dict[str, object]:
         out |= {f"fingers[{f.name}].{k}": v for k, v in (spec | {"keypoint_links": list(f.keypoint_links)}).items()}
     out |= {f"slot_fill[{slot}]": finger for slot, finger in sorted(d.slot_fill.items())}
     out |= {f"couplings[{c.follower}]": [c.leader, c.ratio, c.offset] for c in d.couplings}
+    out |= {f"self_collision_exclude[{a}, {b}]": True for a, b in d.self_collision_exclude}  # none: no key
     out |= _flat({k: v for k, v in d.settings.items() if k != TRAIN}, "settings")
     return json.loads(json.dumps(out))  # tuples -> lists, as read back from the manifest
 

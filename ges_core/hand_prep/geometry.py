@@ -4,8 +4,8 @@ Both engines collide a URDF ``<collision>`` mesh as its convex hull (PyBullet 3.
 3.0.3 alike), one hull per ``<collision>`` element. Two measurements say where that is wrong:
 
 * :func:`hull_gap`: how deep the mesh's surface lies below its hull (a palm's finger sockets);
-* :func:`pair_overlaps`: links that may touch (not a neighbour pair, see
-  :func:`ges_core.urdf.neighbour_link_pairs`) whose hulls overlap at a pose where the meshes do not.
+* :func:`pair_overlaps`: links that may touch (not an excluded pair, see
+  :meth:`ges_core.hand.HandModel.excluded_link_pairs`) whose hulls overlap at a pose where the meshes do not.
 
 Shapes are in link frames (metres); poses come from :class:`~ges_core.kinematics.HandKinematics`.
 """
@@ -19,7 +19,7 @@ import numpy as np
 
 from ges_core.errors import AssetError
 from ges_core.hand_prep.meshes import resolve_mesh_path
-from ges_core.urdf import neighbour_link_pairs, origin_matrix, parse_urdf
+from ges_core.urdf import origin_matrix, parse_urdf
 
 __all__ = [
     "CLOSURES",
@@ -217,13 +217,16 @@ def _one_way_gap(a, b) -> float:
 
 
 def pair_overlaps(
-    shapes: dict[str, list[LinkShape]], poses: dict[str, dict[str, np.ndarray]], urdf_text: str, tol: float
+    shapes: dict[str, list[LinkShape]],
+    poses: dict[str, dict[str, np.ndarray]],
+    excluded: set[frozenset[str]],
+    tol: float,
 ) -> list[PairOverlap]:
     """Link pairs that may collide whose hulls overlap by more than ``tol`` beyond the meshes' own overlap.
 
-    poses: pose name -> link -> (4, 4) link pose in the base frame.
+    poses: pose name -> link -> (4, 4) link pose in the base frame. excluded: pairs that never collide
+    (:meth:`ges_core.hand.HandModel.excluded_link_pairs`).
     """
-    excluded = neighbour_link_pairs(urdf_text)
     names = sorted(shapes)
     out = []
     for i, a in enumerate(names):

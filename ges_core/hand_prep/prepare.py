@@ -43,7 +43,6 @@ from ges_core.hand_prep.meshes import (
     engine_mesh,
     resolve_mesh_path,
 )
-from ges_core.hand_prep.mimic import strip_mimic
 from ges_core.urdf import parse_urdf
 
 __all__ = [
@@ -135,11 +134,11 @@ def prepare_hand(hand: HandModel, *, progress: bool = True) -> PrepareReport:
     shapes = link_shapes(text, base_dir)
     links = sorted(shapes)
     poses = hand_link_poses(hand, links)
-    bare = strip_mimic(text)
-    before = pair_overlaps(shapes, poses, bare, HULL_OVERLAP_TOL)
+    excluded = hand.excluded_link_pairs()
+    before = pair_overlaps(shapes, poses, excluded, HULL_OVERLAP_TOL)
     plans = _plan(shapes, before)
     _decompose(plans, progress)
-    after = pair_overlaps(engine_link_shapes(text, base_dir), poses, bare, HULL_OVERLAP_TOL)
+    after = pair_overlaps(engine_link_shapes(text, base_dir), poses, excluded, HULL_OVERLAP_TOL)
     return PrepareReport(hand.name, converted, plans, before, after, time.perf_counter() - start)
 
 

@@ -39,13 +39,12 @@ def check_hull_gaps(hand: HandModel, ref: str) -> list[LintProblem]:
 def check_hull_overlaps(hand: HandModel, ref: str) -> list[LintProblem]:
     """Links that may touch whose convex hulls overlap more than their meshes (:mod:`ges_core.hand_prep.geometry`)."""
     from ges_core.hand_prep.geometry import HULL_OVERLAP_TOL, engine_link_shapes, hand_link_poses, pair_overlaps
-    from ges_core.hand_prep.mimic import strip_mimic
 
     text = hand.urdf_text()
     shapes = engine_link_shapes(text, hand.urdf_path().parent)
     if all(s.primitive for group in shapes.values() for s in group):
         return []  # primitives only: every hull is the shape itself
-    found = pair_overlaps(shapes, hand_link_poses(hand, sorted(shapes)), strip_mimic(text), HULL_OVERLAP_TOL)
+    found = pair_overlaps(shapes, hand_link_poses(hand, sorted(shapes)), hand.excluded_link_pairs(), HULL_OVERLAP_TOL)
     return [_overlap_problem(o, ref) for o in found]
 
 

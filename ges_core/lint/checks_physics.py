@@ -83,7 +83,7 @@ def check_wrist_convention(hand: HandModel) -> list[LintProblem]:
 
 
 def check_self_collision(hand: HandModel, sim_name: str, make_sim: SimFactory) -> list[LintProblem]:
-    """The open pose has no overlapping hand links in ``sim_name`` (neighbour_link_pairs excepted)."""
+    """The open pose has no overlapping hand links in ``sim_name`` (``HandModel.excluded_link_pairs`` excepted)."""
     config = SceneConfig(self_collision=True, gravity=0.0)
     try:
         with make_sim(sim_name, config) as sim:
@@ -97,7 +97,8 @@ def check_self_collision(hand: HandModel, sim_name: str, make_sim: SimFactory) -
         LintProblem(
             "self-collision",
             f"open pose: links '{p.link_a}' and '{p.link_b}' overlap by {-p.separation * 1000:.1f} mm in {sim_name}",
-            "change open_pose or the collision geometry",
+            "change open_pose or the collision geometry, or (where the two links overlap at every pose, as meshes "
+            "that meet at a joint) list the pair in the hand's self_collision_exclude",
         )
         for p in pairs
     ]

@@ -25,7 +25,7 @@ from ges_core.errors import ConfigError, UnknownNameError
 from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import ContactPair, SceneConfig, SimBackend
-from ges_core.urdf import absolutize_mesh_paths, add_floating_base, neighbour_link_pairs, root_link, strip_render_data
+from ges_core.urdf import absolutize_mesh_paths, add_floating_base, root_link, strip_render_data
 
 from .contacts import add_substep_forces, contact_pairs, link_forces
 from .model import HandSetup, SceneModel, build_scene
@@ -117,7 +117,7 @@ class MujocoBackend(SimBackend):
         d = hand.description
         source = hand.urdf_path()
         text = absolutize_mesh_paths(engine_urdf(strip_render_data(source.read_text()), source.parent), source.parent)
-        pairs = sorted(tuple(sorted(p)) for p in neighbour_link_pairs(text))
+        pairs = sorted(tuple(sorted(p)) for p in hand.excluded_link_pairs())
         self._setup = HandSetup(
             name=hand.name,
             urdf_text=add_floating_base(text) if floating else text,

@@ -73,7 +73,7 @@ class HandSetup:
     damping: tuple[float, ...]
     base_link: str
     excluded: tuple[tuple[str, str], ...]
-    """Link pairs that never collide (``neighbour_link_pairs``), used when self-collision is on."""
+    """Link pairs that never collide (``HandModel.excluded_link_pairs``), used when self-collision is on."""
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ from ges_core.hand import HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SceneConfig
 from ges_core.transforms import wxyz_to_xyzw
-from ges_core.urdf import WRIST_JOINTS, neighbour_link_pairs, root_link
+from ges_core.urdf import WRIST_JOINTS, root_link
 
 from .drive import ImplicitPD
 from .engine import BulletClient, connect_direct, p
@@ -154,7 +154,7 @@ def load_hand_body(scene: Scene, hand: HandModel, config: SceneConfig, floating:
         ) from exc
     n = p.getNumJoints(scene.hand, physicsClientId=scene.cid)
     if config.self_collision:
-        exclude_neighbour_pairs(scene, neighbour_link_pairs(hand.urdf_text()))
+        exclude_neighbour_pairs(scene, hand.excluded_link_pairs())
     movable = [j for j in range(n) if p.getJointInfo(scene.hand, j, physicsClientId=scene.cid)[2] in _MOVABLE]
     # PyBullet gives every movable joint a velocity motor with a small force: switch them off.
     p.setJointMotorControlArray(

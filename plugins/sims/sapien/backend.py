@@ -3,7 +3,7 @@
 Frames and units follow :mod:`ges_core.sim`: world frame, metres, quaternions w, x, y, z (SAPIEN's
 own convention, so poses pass through unchanged). Joint vectors are in the hand's
 ``joint_names`` order; SAPIEN's breadth-first order is mapped once in :meth:`SapienBackend.load_hand`.
-With self-collision on, hand links collide except the pairs of :func:`ges_core.urdf.neighbour_link_pairs`
+With self-collision on, hand links collide except the pairs of :meth:`ges_core.hand.HandModel.excluded_link_pairs`
 (PhysX skips parent-child pairs itself; the others get collision-group bits, :func:`.loading.pair_exclusion_bits`).
 
 Argument checks, per-env bookkeeping and wrist unwrapping live in :class:`ges_core.sim.SimBackend`; this
@@ -88,7 +88,11 @@ class SapienBackend(SimBackend):
     # -- building -------------------------------------------------------------------------
     def _load_hand(self, hand: HandModel, floating: bool) -> None:
         urdf = loading.prepare_urdf(hand, floating=floating)
-        pair_bits = loading.pair_exclusion_bits(hand.name, hand.urdf_text()) if self.config.self_collision else None
+        pair_bits = (
+            loading.pair_exclusion_bits(hand.name, hand.urdf_text(), hand.description.self_collision_exclude)
+            if self.config.self_collision
+            else None
+        )
         description = hand.description
         for env in self._envs:
             env.hand = loading.build_hand(env.scene, urdf, self.config, pair_bits)

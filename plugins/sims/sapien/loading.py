@@ -137,16 +137,20 @@ def _parsed_hand(
     return builder
 
 
-def pair_exclusion_bits(hand_name: str, urdf_text: str) -> dict[str, int]:
-    """:func:`_pair_exclusion_bits`, worked out once per process for each hand and text (a fresh dict each call)."""
-    return dict(_pair_exclusion_bits(hand_name, urdf_text))
+def pair_exclusion_bits(hand_name: str, urdf_text: str, own: tuple[tuple[str, str], ...] = ()) -> dict[str, int]:
+    """:func:`_pair_exclusion_bits`, worked out once per process for each hand, text and own pairs (a fresh dict
+    each call)."""
+    return dict(_pair_exclusion_bits(hand_name, urdf_text, tuple(own)))
 
 
 @functools.lru_cache(maxsize=16)
-def _pair_exclusion_bits(hand_name: str, urdf_text: str) -> tuple[tuple[str, int], ...]:
-    """Group-2 bits that keep apart exactly the neighbour pairs that PhysX does not already skip.
+def _pair_exclusion_bits(
+    hand_name: str, urdf_text: str, own: tuple[tuple[str, str], ...]
+) -> tuple[tuple[str, int], ...]:
+    """Group-2 bits that keep apart exactly the excluded pairs that PhysX does not already skip.
 
-    :func:`ges_core.urdf.neighbour_link_pairs` lists the pairs that must not collide. A PhysX
+    :func:`ges_core.urdf.neighbour_link_pairs` and the hand's own ``self_collision_exclude`` (``own``; together
+    :meth:`ges_core.hand.HandModel.excluded_link_pairs`) list the pairs that must not collide. A PhysX
     articulation never collides a link with its parent; every other neighbour pair whose two links
     both have collision geometry gets its own bit, set on both links. Two links then share a bit
     exactly when they form such a pair, so every other pair keeps colliding.
@@ -155,12 +159,14 @@ def _pair_exclusion_bits(hand_name: str, urdf_text: str) -> tuple[tuple[str, int
     root = parse_urdf(urdf_text)
     solid = {link.get("name") for link in root.findall("link") if link.find("collision") is not None}
     parent_child = {frozenset((j.find("parent").get("link"), j.find("child").get("link"))) for j in root.iter("joint")}
-    extra = sorted(sorted(pair) for pair in neighbour_link_pairs(urdf_text) - parent_child if pair <= solid)
+    excluded = neighbour_link_pairs(urdf_text) | {frozenset(pair) for pair in own}
+    extra = sorted(sorted(pair) for pair in excluded - parent_child if pair <= solid)
     if len(extra) > PAIR_BITS:
         raise AssetError(
-            f"hand '{hand_name}': {len(extra)} link pairs joined through zero-length links must not collide, but "
-            f"SAPIEN has {PAIR_BITS} collision-group bits to exclude them with; merge zero-length links into "
-            "their parents in the URDF, or run with self_collision=False"
+            f"hand '{hand_name}': {len(extra)} link pairs (joined through zero-length links, or listed in "
+            f"self_collision_exclude) must not collide, but SAPIEN has {PAIR_BITS} collision-group bits to exclude "
+            "them with; merge zero-length links into their parents in the URDF, list fewer pairs, or run with "
+            "self_collision=False"
         )
     bits: dict[str, int] = {}
     for bit, pair in enumerate(extra):
