@@ -99,3 +99,25 @@ def test_the_package_damping_presses_where_mani_skills_does_not(tmp_path, sim):
     assert package[thumb] >= PROBE_SHARE * asked and np.sum(package >= PROBE_SHARE * asked) >= 4, package
     fixes = [p.fix for p in check_tip_forces(damped_hand, sim, registry.build_sim)]
     assert fixes and all(f.startswith("lower pd_damping of its joints first: their Kd/Kp is 0.1 s") for f in fixes)
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim", ["sapien", "pybullet"])
+def test_the_palm_and_thumb_metacarpal_pair_is_left_out_of_self_collision(inspire, tmp_path, sim):
+    """With the package's ``self_collision_exclude`` the open hand touches itself nowhere in the engine; without it
+    the palm and the thumb's metacarpal push each other (their hulls overlap where the meshes nearly touch)."""
+    from ges_core.lint.checks_physics import check_self_collision
+    from ges_core.registry import load_registry
+
+    registry = load_registry(autoload=False)
+    assert check_self_collision(inspire, sim, registry.build_sim) == []
+    text = (INSPIRE_PKG / "inspire.yaml").read_text()
+    line = "self_collision_exclude: [[right_hand_hand_base_link, right_hand_thumb_metacarpal]]\n"
+    assert line in text
+    (tmp_path / "inspire.yaml").write_text(text.replace(line, ""))
+    without = FileHand(tmp_path / "inspire.yaml", inspire_module().inspire_urdf())
+    pairs = {
+        frozenset(re.findall(r"'(right_hand_\w+)'", p.what))
+        for p in check_self_collision(without, sim, registry.build_sim)
+    }
+    assert frozenset(("right_hand_hand_base_link", "right_hand_thumb_metacarpal")) in pairs, pairs

@@ -6,8 +6,9 @@ inspire_hand_right.urdf``, CC BY-NC-SA 4.0), read where mani-skill installed the
 framework converts the ``.glb`` meshes to OBJ, turns the six ``<mimic>`` tags into couplings with offset and
 decomposes the meshes whose convex hulls are too far off (``ges hand prepare inspire``, or ``ges synth`` before its
 first run). This package only adds the description YAML (``inspire.yaml``). Unlike the Ability package, nothing in
-it was tuned on grasp results: every number is read off the URDF or its meshes, or is mani-skill's own setting
-(docs/hands/inspire.md has what Stage 1 does with it).
+it was tuned on grasp results: every number is read off the URDF or its meshes, or is mani-skill's own setting,
+except the two the new-hand tutorial names for one-actuator fingers (docs/hands/inspire.md has what Stage 1 does with
+it, and why each).
 """
 
 from __future__ import annotations
