@@ -89,7 +89,7 @@ class SapienBackend(SimBackend):
     def _load_hand(self, hand: HandModel, floating: bool) -> None:
         urdf = loading.prepare_urdf(hand, floating=floating)
         pair_bits = (
-            loading.pair_exclusion_bits(hand.name, hand.urdf_text(), hand.description.self_collision_exclude)
+            loading.pair_exclusion_bits(hand.name, hand.urdf_text(), hand.excluded_link_pairs())
             if self.config.self_collision
             else None
         )

@@ -22,7 +22,6 @@ from ges_core.urdf import (
     WRIST_JOINTS,
     absolutize_mesh_paths,
     add_floating_base,
-    neighbour_link_pairs,
     parse_urdf,
     strip_render_data,
 )
@@ -137,20 +136,20 @@ def _parsed_hand(
     return builder
 
 
-def pair_exclusion_bits(hand_name: str, urdf_text: str, own: tuple[tuple[str, str], ...] = ()) -> dict[str, int]:
-    """:func:`_pair_exclusion_bits`, worked out once per process for each hand, text and own pairs (a fresh dict
+def pair_exclusion_bits(hand_name: str, urdf_text: str, excluded: set[frozenset[str]]) -> dict[str, int]:
+    """:func:`_pair_exclusion_bits`, worked out once per process for each hand, text and pair set (a fresh dict
     each call)."""
-    return dict(_pair_exclusion_bits(hand_name, urdf_text, tuple(own)))
+    return dict(_pair_exclusion_bits(hand_name, urdf_text, frozenset(excluded)))
 
 
 @functools.lru_cache(maxsize=16)
 def _pair_exclusion_bits(
-    hand_name: str, urdf_text: str, own: tuple[tuple[str, str], ...]
+    hand_name: str, urdf_text: str, excluded: frozenset[frozenset[str]]
 ) -> tuple[tuple[str, int], ...]:
     """Group-2 bits that keep apart exactly the excluded pairs that PhysX does not already skip.
 
-    :func:`ges_core.urdf.neighbour_link_pairs` and the hand's own ``self_collision_exclude`` (``own``; together
-    :meth:`ges_core.hand.HandModel.excluded_link_pairs`) list the pairs that must not collide. A PhysX
+    ``excluded`` (:meth:`ges_core.hand.HandModel.excluded_link_pairs`: the URDF's neighbours and the hand's own
+    ``self_collision_exclude``) lists the pairs that must not collide. A PhysX
     articulation never collides a link with its parent; every other neighbour pair whose two links
     both have collision geometry gets its own bit, set on both links. Two links then share a bit
     exactly when they form such a pair, so every other pair keeps colliding.
@@ -159,7 +158,6 @@ def _pair_exclusion_bits(
     root = parse_urdf(urdf_text)
     solid = {link.get("name") for link in root.findall("link") if link.find("collision") is not None}
     parent_child = {frozenset((j.find("parent").get("link"), j.find("child").get("link"))) for j in root.iter("joint")}
-    excluded = neighbour_link_pairs(urdf_text) | {frozenset(pair) for pair in own}
     extra = sorted(sorted(pair) for pair in excluded - parent_child if pair <= solid)
     if len(extra) > PAIR_BITS:
         raise AssetError(
