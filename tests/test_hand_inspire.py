@@ -174,3 +174,18 @@ def test_stage1_runs_end_to_end_with_glb_meshes_chained_mimics_and_an_excluded_p
     assert "picture" not in record.errors and len(drawn) == 1 and drawn[0].stat().st_size > 1000
     described = (out / "manifest.json").read_text()
     assert "self_collision_exclude[right_hand_hand_base_link, right_hand_thumb_metacarpal]" in described
+
+
+def test_ges_info_lists_the_excluded_pair_and_keeps_long_joint_names_in_columns(inspire):
+    """`ges info hand`'s table: each row's numbers start in the same column however long the joint name (the
+    Inspire's reach 32 characters), and the excluded pair has its own line."""
+    from ges_core.cli.cmd_info import format_hand
+
+    d = inspire.description
+    lines = format_hand(d).splitlines()
+    rows = [ln for ln in lines if ln.strip().split(" ")[0] in d.joint_names]
+    assert len(rows) == d.num_joints
+    header = next(ln for ln in lines if ln.strip().startswith("joint "))
+    ends = {ln.index(f"{lo:.3f}") + len(f"{lo:.3f}") for ln, (lo, _) in zip(rows, d.joint_limits, strict=True)}
+    assert ends == {header.index("lower") + len("lower")}  # the lower limits right-aligned under their header
+    assert "  self-collision left out: right_hand_hand_base_link / right_hand_thumb_metacarpal" in lines

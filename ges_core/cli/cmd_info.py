@@ -48,10 +48,12 @@ def format_hand(d: HandDescription) -> str:
         finger = d.finger_for_slot(slot)
         via = "" if finger.slot == slot else f"  (filled by rule: {slot} -> {finger.name})"
         lines.append(f"    {slot:<7} {finger.name:<8} tip {finger.tip_link}{via}")
-    lines.append(f"  {'joint':<14}{'lower':>9}{'upper':>9}{'open':>9}{'kp':>10}{'kd':>9}")
+    width = max(14, *(len(name) + 1 for name in d.joint_names))  # long names (the Inspire's) keep the columns
+    lines.append(f"  {'joint':<{width}}{'lower':>9}{'upper':>9}{'open':>9}{'kp':>10}{'kd':>9}")
     rows = zip(d.joint_names, d.joint_limits, d.open_pose, d.pd_stiffness, d.pd_damping, strict=True)
     for name, (lo, hi), q0, kp, kd in rows:
-        lines.append(f"  {name:<14}{lo:>9.3f}{hi:>9.3f}{q0:>9.3f}{kp:>10.3g}{kd:>9.3g}")
+        lines.append(f"  {name:<{width}}{lo:>9.3f}{hi:>9.3f}{q0:>9.3f}{kp:>10.3g}{kd:>9.3g}")
     lines.extend(f"  coupling: {c.follower} = {c.ratio:g} x {c.leader} + {c.offset:g} rad" for c in d.couplings)
+    lines.extend(f"  self-collision left out: {a} / {b}" for a, b in d.self_collision_exclude)
     lines.append(f"  settings (over the run config's, docs/hands/format.md): {d.settings or 'none'}")
     return "\n".join(lines)
