@@ -13,7 +13,6 @@ Gravity acts on the hand (-9.81 m/s^2): the drives hold the fingers against it.
 from __future__ import annotations
 
 import argparse
-import importlib.util
 import time
 from pathlib import Path
 
@@ -35,8 +34,12 @@ STEPS = 240
 
 def ability_urdf() -> Path:
     """mani-skill's right Ability hand URDF (OBJ visuals; the _glb variant differs only in visuals)."""
-    base = Path(list(importlib.util.find_spec("mani_skill").submodule_search_locations)[0])
-    return base / "assets" / "robots" / "ability_hand" / "ability_hand_right.urdf"
+    from ges_core.hand_files import installed_file
+
+    return installed_file(
+        "mani_skill", "assets/robots/ability_hand/ability_hand_right.urdf", what="benchmarks/hand_mimic.py",
+        distribution="mani-skill", install="pip install mani-skill",
+    )  # fmt: skip
 
 
 def follower_links(hand: FileHand) -> list[str]:

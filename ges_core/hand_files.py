@@ -12,15 +12,35 @@ Use it from a local plugin::
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 from typing import Any
 
-from ges_core.errors import AssetError
+from ges_core.errors import AssetError, BackendUnavailable
 from ges_core.hand import HandDescription, HandModel
 from ges_core.hand_prep.mimic import add_mimic_couplings
 from ges_core.hand_yaml import description_from_yaml
 
-__all__ = ["FileHand"]
+__all__ = ["FileHand", "installed_file"]
+
+
+def installed_file(
+    package: str, relpath: str, *, what: str, distribution: str, install: str, version: str = ""
+) -> Path:
+    """A file shipped inside the installed import package ``package`` (e.g. a hand URDF inside ``mani_skill``), found
+    without importing it: importing mani-skill takes 2-3 s and pulls in SAPIEN, in every process that builds the hand.
+
+    what: who needs it, for messages ("the 'allegro' hand"); distribution, version: the pip name and pinned version;
+    install: the command that installs it. BackendUnavailable when the package is missing, AssetError when the file is.
+    """
+    spec = importlib.util.find_spec(package)
+    if spec is None or not spec.submodule_search_locations:
+        pinned = f" ({version})" if version else ""
+        raise BackendUnavailable(f"{what} needs the {distribution} package{pinned}: {install}")
+    path = Path(list(spec.submodule_search_locations)[0]) / relpath
+    if not path.is_file():
+        raise AssetError(f"{what}: {path} is missing; reinstall {distribution}{'==' + version if version else ''}")
+    return path
 
 
 class FileHand(HandModel):

@@ -7,7 +7,6 @@ absolute) with an inline YAML, so simulator tests do not depend on the Allegro h
 from __future__ import annotations
 
 import dataclasses
-import importlib.util
 import os
 import subprocess
 import sys
@@ -17,7 +16,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.hand_yaml import description_from_yaml
 from ges_core.objects.asset import ObjectAsset
@@ -77,13 +75,9 @@ def run_python(*args: str) -> subprocess.CompletedProcess[str]:
 
 def allegro_urdf_source() -> Path:
     """The mani-skill right Allegro URDF (found without importing mani_skill, which is slow)."""
-    spec = importlib.util.find_spec("mani_skill")
-    if spec is None or not spec.submodule_search_locations:
-        raise AssetError("package 'mani_skill' is not installed; `pip install mani-skill==3.0.1`")
-    path = Path(spec.submodule_search_locations[0]) / "assets/robots/allegro/allegro_hand_right.urdf"
-    if not path.is_file():
-        raise AssetError(f"Allegro URDF missing at {path}; reinstall mani-skill")
-    return path
+    from ges_plugins.hands.allegro.hand import source_urdf_path
+
+    return source_urdf_path()
 
 
 class TestHand(HandModel):

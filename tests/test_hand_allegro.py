@@ -78,7 +78,7 @@ def test_unknown_setting_is_rejected():
 
 
 def test_missing_mani_skill_says_what_to_install(monkeypatch):
-    monkeypatch.setattr(allegro.importlib.util, "find_spec", lambda name: None)
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name: None)
     with pytest.raises(BackendUnavailable, match=r"mani-skill package \(3.0.1\): pip install 'ges-unigrasp\[allegro\]"):
         allegro.AllegroHand()
 

@@ -17,15 +17,15 @@ hash under :func:`ges_core.paths.cache_dir`):
 from __future__ import annotations
 
 import hashlib
-import importlib.util
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from ges_core.errors import AssetError, BackendUnavailable
+from ges_core.errors import AssetError
 from ges_core.hand import HandDescription, HandModel
+from ges_core.hand_files import installed_file
 from ges_core.hand_yaml import description_from_yaml
 from ges_core.paths import atomic_write_text, cache_dir
 from ges_core.urdf import absolutize_mesh_paths, inertia_tensor, parse_urdf, reach_bound, strip_render_data
@@ -58,15 +58,10 @@ _REL_TOL = 1e-9
 
 def source_urdf_path() -> Path:
     """mani-skill's right Allegro URDF, found without importing ``mani_skill`` (slow, pulls in SAPIEN)."""
-    spec = importlib.util.find_spec("mani_skill")
-    if spec is None or not spec.submodule_search_locations:
-        raise BackendUnavailable(
-            "the 'allegro' hand needs the mani-skill package (3.0.1): pip install 'ges-unigrasp[allegro]'"
-        )
-    path = Path(list(spec.submodule_search_locations)[0]) / SOURCE_RELPATH
-    if not path.is_file():
-        raise AssetError(f"the 'allegro' hand: {path} is missing; reinstall mani-skill==3.0.1")
-    return path
+    return installed_file(
+        "mani_skill", SOURCE_RELPATH, what="the 'allegro' hand", distribution="mani-skill", version="3.0.1",
+        install="pip install 'ges-unigrasp[allegro]'",
+    )  # fmt: skip
 
 
 def build_hand(**settings: Any) -> AllegroHand:
