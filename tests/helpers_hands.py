@@ -1,5 +1,6 @@
-"""The example gripper (tests/data/ges_example_hand) with a concave L-shaped palm mesh: a hand whose collision
-mesh stands far inside its convex hull, for the hull checks and ``ges hand prepare``."""
+"""Hands for tests: the example gripper (tests/data/ges_example_hand) with a concave L-shaped palm mesh (a hand whose
+collision mesh stands far inside its convex hull, for the hull checks and ``ges hand prepare``), and a local plugin
+registering a hand package from the repository's source (the suite installs none of ``examples/``)."""
 
 from __future__ import annotations
 
@@ -36,3 +37,31 @@ def write_l_palm_hand(folder: Path, suffix: str = ".obj") -> Path:
     (folder / "hand.urdf").write_text(urdf.replace(PALM_BOX, write_l_palm(folder, suffix), 1))
     (folder / "hand.yaml").write_text((SRC / "gripper.yaml").read_text())
     return folder / "hand.yaml"
+
+
+SOURCE_PLUGIN = """
+import importlib.util
+from ges_core import hookimpl
+from ges_core.specs import HandSpec
+
+def build(**settings):
+    spec = importlib.util.spec_from_file_location("_{name}_source", {source!r})
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module.build_hand(**settings)
+
+@hookimpl
+def ges_register_hands(register):
+    register(HandSpec(name={name!r}, entry_point="{name}_plugin:build", description="{name} from source"))
+"""
+
+
+def write_source_plugin(folder: Path, name: str, package_init: Path) -> Path:
+    """A local plugin ``<name>_plugin.py`` registering hand ``name`` built by the package whose ``__init__.py`` is
+    ``package_init`` (its ``build_hand``), and a ``registry.yaml`` loading it, both in ``folder``; returns the registry
+    path. The caller puts ``folder`` on ``sys.path`` (the entry point's module). ``name`` should differ from the
+    package's own registered name, which an installed copy would also claim."""
+    (folder / f"{name}_plugin.py").write_text(SOURCE_PLUGIN.format(name=name, source=str(package_init)))
+    registry = folder / "registry.yaml"
+    registry.write_text(f"plugins: [{name}_plugin.py]\n")
+    return registry

@@ -13,6 +13,7 @@ import pytest
 from ges_core.hand_files import FileHand
 
 from conftest import INSPIRE_PKG, inspire_module
+from helpers_hands import write_source_plugin
 
 
 @pytest.fixture(scope="module")
@@ -123,24 +124,6 @@ def test_the_palm_and_thumb_metacarpal_pair_is_left_out_of_self_collision(inspir
     assert frozenset(("right_hand_hand_base_link", "right_hand_thumb_metacarpal")) in pairs, pairs
 
 
-INSPIRE_PLUGIN = """
-import importlib.util
-from ges_core import hookimpl
-from ges_core.specs import HandSpec
-
-def build(**settings):
-    spec = importlib.util.spec_from_file_location("_inspire_source", {source!r})
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.build_hand(**settings)
-
-@hookimpl
-def ges_register_hands(register):
-    register(HandSpec(name="inspire_src", entry_point="inspire_src_plugin:build", description="the Inspire hand"))
-"""
-"""A local plugin registering the Inspire hand from the repository's source (the suite does not install the package)."""
-
-
 @pytest.mark.sim
 @pytest.mark.slow
 def test_stage1_runs_end_to_end_with_glb_meshes_chained_mimics_and_an_excluded_pair(tmp_path, monkeypatch):
@@ -153,13 +136,12 @@ def test_stage1_runs_end_to_end_with_glb_meshes_chained_mimics_and_an_excluded_p
     from ges_core.synthesis import SynthesisConfig, run_synthesis
     from ges_core.synthesis.run.tasks import RegistrySpec
 
-    (tmp_path / "inspire_src_plugin.py").write_text(INSPIRE_PLUGIN.format(source=str(INSPIRE_PKG / "__init__.py")))
-    (tmp_path / "registry.yaml").write_text("plugins: [inspire_src_plugin.py]\n")
+    registry_file = write_source_plugin(tmp_path, "inspire_src", INSPIRE_PKG / "__init__.py")
     monkeypatch.syspath_prepend(str(tmp_path))
     config = SynthesisConfig.model_validate({"validate_sims": ["sapien", "pybullet"], "robust": {"enabled": False}})
     out, pictures = tmp_path / "run", tmp_path / "pictures"
     with pytest.warns(UnpreparedHandWarning, match=r"'inspire_src'.*\.glb"):
-        registry = RegistrySpec(str(tmp_path / "registry.yaml"))
+        registry = RegistrySpec(str(registry_file))
         run_synthesis(["procedural/sphere/000"], ["inspire_src"], config, out, registry=registry, pictures=pictures)
     (record,) = list(open_dataset(out).records(hand="inspire_src"))
     assert record.steps["refinement"].ok and record.grasp is not None, record.steps

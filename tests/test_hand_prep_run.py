@@ -27,7 +27,7 @@ from ges_core.registry import load_registry
 from ges_core.synthesis.retarget.wrist import check_handedness_fingers
 
 from conftest import ABILITY_PKG, EXAMPLE_HAND_PKG, ability_hand
-from helpers_hands import write_l_palm_hand
+from helpers_hands import write_l_palm_hand, write_source_plugin
 
 
 @pytest.fixture
@@ -92,31 +92,11 @@ def test_builtin_hands_have_none_and_the_ability_hand_has_what_prepare_decompose
     assert all(abs(d - HULL_GAP_TOL) > 5e-4 for d in depth.values())  # no mesh near the threshold: not a float call
 
 
-PLUGIN = """
-import importlib.util
-from ges_core import hookimpl
-from ges_core.specs import HandSpec
-
-def build(**settings):
-    spec = importlib.util.spec_from_file_location("_ability_source", {source!r})
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module.build_hand(**settings)
-
-@hookimpl
-def ges_register_hands(register):
-    register(HandSpec(name="ability_src", entry_point="ability_src_plugin:build", description="the Ability hand"))
-"""
-"""A local plugin registering the Ability hand from the repository's source under its own name (the suite does not
-install the package)."""
-
-
 @pytest.mark.sim
 @pytest.mark.slow
 def test_synth_decomposes_the_hand_before_the_run_and_the_api_warns(empty_cache, tmp_path, capsys, monkeypatch):
     pytest.importorskip("mani_skill")  # the Ability's URDF
-    (tmp_path / "ability_src_plugin.py").write_text(PLUGIN.format(source=str(ABILITY_PKG / "__init__.py")))
-    (tmp_path / "registry.yaml").write_text("plugins: [ability_src_plugin.py]\n")
+    write_source_plugin(tmp_path, "ability_src", ABILITY_PKG / "__init__.py")
     monkeypatch.syspath_prepend(str(tmp_path))  # the entry point's module
     registry = load_registry(tmp_path / "registry.yaml")
     unprepared = hand_entry(registry.build_hand("ability_src"))["hash"]
