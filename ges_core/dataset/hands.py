@@ -73,8 +73,7 @@ def warn_if_hand_changed(manifest: dict, root: Path, name: str, hand: HandModel)
     if stored.get("hash") == entry["hash"]:
         return
     lines = hand_differences(stored.get("description", {}), entry["description"])
-    more = f"; ... and {len(lines) - MAX_NAMED} more" if len(lines) > MAX_NAMED else ""
-    shown = "; ".join(lines[:MAX_NAMED]) + more
+    shown = _named(lines)
     meshes = any(line.startswith(("mesh[", "urdf:")) for line in lines)
     fix = f"`ges hand prepare {name}` if the collision meshes are not decomposed here, " if meshes else ""
     warnings.warn(
@@ -205,6 +204,12 @@ def check_hands(
     return out, []
 
 
+def _named(lines: list[str]) -> str:
+    """The first :data:`MAX_NAMED` changed fields, joined, and how many more there are."""
+    more = f"; ... and {len(lines) - MAX_NAMED} more" if len(lines) > MAX_NAMED else ""
+    return "; ".join(lines[:MAX_NAMED]) + more
+
+
 def _problems(changed: dict[str, list[str]]) -> list[str]:
     return [f"{name}: {line}" for name, lines in changed.items() for line in lines]
 
@@ -212,8 +217,7 @@ def _problems(changed: dict[str, list[str]]) -> list[str]:
 def _refusal(root: Path, changed: dict[str, list[str]], recorded: list[str], stored: dict, hands: dict) -> str:
     parts = []
     for name, lines in changed.items():
-        more = f"; ... and {len(lines) - MAX_NAMED} more" if len(lines) > MAX_NAMED else ""
-        shown = "; ".join(lines[:MAX_NAMED]) + more
+        shown = _named(lines)
         hashes = f"{stored[name].get('hash')} -> {hands[name]['hash']}"
         parts.append(f"hand '{name}' ({recorded.count(name)} record(s), description {hashes}): {shown or 'unnamed'}")
     return (

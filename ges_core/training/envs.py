@@ -53,10 +53,10 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
     return cfg.env.model_copy(update=update)
 
 
-def training_pool(dataset_path: str | Path, hand, cfg: TrainConfig) -> tuple[GraspPool, dict[str, str]]:
-    """The pool of the dataset's training objects with a usable grasp for ``hand`` (the first ``max_objects`` by
-    id) and the rejected ones. AssetError when none is usable."""
-    dataset = open_grasp_dataset(dataset_path)
+def training_pool(dataset, hand, cfg: TrainConfig) -> tuple[GraspPool, dict[str, str]]:
+    """The pool of the opened ``dataset``'s (:func:`~ges_core.env.grasp_source.open_grasp_dataset`) training objects
+    with a usable grasp for ``hand`` (the first ``max_objects`` by id) and the rejected ones. AssetError when none
+    is usable."""
     chosen = select_records(dataset, hand.name, split="train", selection=cfg.selection)
     if cfg.max_objects is not None:
         keep = sorted(r.object_id for r in chosen.records)[: cfg.max_objects]
@@ -74,7 +74,7 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
     data = open_grasp_dataset(dataset_path)
     warn_if_hand_changed(data.manifest, data.root, hand_name, hand)
     cfg = hand_train_config(hand.description, cfg)
-    pool, rejected = training_pool(dataset_path, hand, cfg)
+    pool, rejected = training_pool(data, hand, cfg)
     curriculum = _curriculum(cfg, clusters, pool)
     pool.set_weights(curriculum.weights())
     venv = _vec_env(cfg, registry, hand, sim_name, pool)
