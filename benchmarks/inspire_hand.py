@@ -13,25 +13,16 @@ from __future__ import annotations
 
 import argparse
 import statistics
-import subprocess
 import sys
-import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from ability_hand import SIMS, summarize  # noqa: E402
+from ability_hand import SIMS, ges, summarize  # noqa: E402
 
 from _results import code_state, write_results  # noqa: E402
 
 RESULTS = Path(__file__).resolve().parent / "results" / "inspire_hand.json"
 HAND = "inspire"
-
-
-def ges(*args: str) -> float:
-    """Run ``ges ARGS`` (checked); seconds it took."""
-    start = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "ges_core.cli", *args], check=True)
-    return time.perf_counter() - start
 
 
 def main() -> None:
