@@ -175,6 +175,24 @@ class Registry:
         check_expert_fits(expert, context, who=f"expert '{spec.name}'")
         return expert
 
+    def expert_scope(self, name: str, **settings: Any) -> Any:
+        """What expert ``name`` with ``settings`` (over the spec's and registry.yaml's, as :meth:`build_expert`) is
+        made for, read without building it (``ExpertSpec.made_for``): a :class:`ges_core.policy.ExpertScope`, or
+        None when the expert fits any hand. Its errors (a missing checkpoint) are the build's own."""
+        from ges_core.policy import ExpertScope
+
+        spec = self.spec("expert", name)
+        if not spec.made_for:
+            return None
+        reader = replace(spec, entry_point=spec.made_for).load()
+        scope = self._call(spec, reader, {**self.settings("expert", spec.name), **settings})
+        if scope is not None and not isinstance(scope, ExpertScope):
+            raise PluginError(
+                f"expert plugin '{spec.name}' ({spec.source}): made_for returned {type(scope).__name__}, not an "
+                "ExpertScope or None"
+            )
+        return scope
+
     def build_renderer(self, name: str | None = None, config: Any = None) -> Any:
         """A grasp-picture renderer (:class:`ges_core.render.Renderer`) from simulator ``name``'s plugin, or
         from the first simulator, by name, that offers one (``SimSpec.renderer``); config: a RenderConfig or None."""

@@ -113,6 +113,11 @@ class ExpertSpec(PluginSpec):
     """An expert plugin; the factory returns a :class:`ges_core.policy.Expert`."""
 
     kind: ClassVar[str] = "expert"
+    made_for: str = ""
+    """``"module:Attr"`` of a function ``f(settings) -> ExpertScope | None`` saying what an expert built with
+    ``settings`` (the merged factory keyword arguments) is made for, read without building it (a trained
+    checkpoint's hand and layouts); empty or None: it fits any hand (:meth:`ges_core.registry.Registry.expert_scope`).
+    """
 
 
 @dataclass(frozen=True, kw_only=True)

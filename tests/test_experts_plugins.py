@@ -13,6 +13,7 @@ from ges_core.cli import main
 from ges_core.env.layout import ActionLayout, ObservationLayout
 from ges_core.errors import ConfigError, PluginError, UnknownNameError
 from ges_core.experts import parse_expert
+from ges_core.experts.choice import ExpertChoice
 from ges_core.policy import Expert, ExpertContext, ExpertScope, check_expert_fits
 from ges_core.registry import load_registry
 from ges_plugins.experts.scripted.config import ScriptedConfig
@@ -111,7 +112,8 @@ from ges_core.specs import ExpertSpec
 
 @hookimpl
 def ges_register_experts(register):
-    register(ExpertSpec(name="fixed", entry_point="reg_experts_impl:fixed", settings={"scope": None}))
+    register(ExpertSpec(name="fixed", entry_point="reg_experts_impl:fixed", settings={"scope": None},
+                        made_for="reg_experts_impl:made_for"))
     register(ExpertSpec(name="wrong", entry_point="reg_experts_impl:wrong"))
 """
 IMPL = """
@@ -130,6 +132,9 @@ def fixed(context, scope=None):
 
 def wrong(context):
     return "not an expert"
+
+def made_for(settings):
+    return ExpertScope.from_dict(settings["scope"]) if settings["scope"] else None
 """
 
 
@@ -151,6 +156,28 @@ def test_the_registry_refuses_an_expert_made_for_another_hand(registry_with, all
         registry.build_expert("fixed", context("shadow", registry=registry), scope=scope)
     with pytest.raises(PluginError, match=r"expert plugin 'wrong' .* returned str, not an Expert"):
         registry.build_expert("wrong", allegro)
+
+
+def test_the_hand_an_evaluation_runs_comes_from_the_experts_made_for_one(registry_with, allegro):
+    """``experts_hand``: read from each expert's ``made_for`` without building it (a checkpoint's scope; here the
+    test expert's setting): their one hand, --hand checked against it, experts of two hands refused, and None where
+    no expert is made for a hand (the scripted one: any hand)."""
+    from ges_core.experts.made_for import experts_hand
+
+    registry = registry_with()
+    made = {h: ExpertScope.of(c).to_dict() for h, c in (("allegro", allegro), ("shadow", context("shadow")))}
+    mine = ExpertChoice("mine", "fixed", {"scope": made["allegro"]})
+    theirs = ExpertChoice("theirs", "fixed", {"scope": made["shadow"]})
+    script = ExpertChoice("scripted", "scripted")
+    assert registry.expert_scope("scripted") is None and registry.expert_scope("fixed") is None
+    assert registry.expert_scope("fixed", scope=made["shadow"]).hand == "shadow"
+    assert experts_hand(registry, [script, mine], None) == "allegro"
+    assert experts_hand(registry, [script, mine], "allegro") == "allegro"
+    assert experts_hand(registry, [script], None) is None and experts_hand(registry, [script], "shadow") == "shadow"
+    with pytest.raises(ConfigError, match=r"--hand shadow: expert\(s\) made for another hand: 'mine' for 'allegro'"):
+        experts_hand(registry, [script, mine], "shadow")
+    with pytest.raises(ConfigError, match=r"different hands \('mine' for 'allegro', 'theirs' for 'shadow'\)"):
+        experts_hand(registry, [mine, theirs], None)
 
 
 # -- choosing experts on the command line -----------------------------------------------------------------------

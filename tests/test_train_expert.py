@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 
 import numpy as np
 import pytest
@@ -116,6 +117,28 @@ def test_checkpoint_is_an_expert_and_refuses_another_hand(tmp_path, clusters) ->
     with pytest.raises(ConfigError, match=r"made for hand 'allegro'.*this environment has hand 'shadow'"):
         reg.build_expert("ppo", ExpertContext.of_env(env), checkpoint=run.checkpoint)
     env.close()
+
+
+def test_evaluation_takes_the_hand_from_the_checkpoint_and_refuses_another(tmp_path, clusters, capsys) -> None:
+    """The test dataset holds both hands and registry.yaml's default hand is the Shadow: without --hand, `ges
+    eval-experts` and `ges env baseline` run the Allegro the checkpoint was made for; --hand shadow is refused,
+    naming both hands, before any result file is written."""
+    run = _train(tmp_path / "run", clusters, "iterations=1")
+    assert load_registry().default("hand") == "shadow"
+    expert = f"ppo:checkpoint={run.checkpoint}"
+    quick = ["--split", "train", "--select", "any", "-o", "env.episode_length=2", "-o", "env.reach_steps=2",
+             "--no-progress"]  # fmt: skip
+    out = tmp_path / "eval"
+    assert main(["eval-experts", DATASET, "--expert", expert, "--episodes", "1", "--out", str(out), *quick]) == 0
+    assert "| hand allegro |" in capsys.readouterr().out
+    assert [p.name for p in out.iterdir()] == ["matrix-allegro-sapien.json"]
+    refused = tmp_path / "refused"
+    for command in (["eval-experts", "--episodes", "1"], ["env", "baseline", "--envs", "1"]):
+        args = [*command[:-2], DATASET, "--hand", "shadow", "--expert", expert, *command[-2:], "--out", str(refused)]
+        assert main([*args, *quick]) == 1
+        err = capsys.readouterr().err
+        assert re.search(r"--hand shadow: expert\(s\) made for another hand: 'ppo:checkpoint=.*' for 'allegro'", err)
+    assert not refused.exists()
 
 
 def test_nan_actions_end_episodes_and_training_goes_on(tmp_path, clusters, monkeypatch) -> None:

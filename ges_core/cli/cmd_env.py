@@ -47,15 +47,17 @@ def run_baseline_cmd(args: argparse.Namespace) -> int:
     from ges_core.env.evaluate import BaselineConfig, evaluate_baseline
     from ges_core.env.grasp_source import dataset_hand
     from ges_core.experts.choice import parse_expert
+    from ges_core.experts.made_for import experts_hand
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
 
     registry = registry_from_args(args)
-    hand = dataset_hand(args.dataset, registry, args.hand)
-    sim = args.sim or registry.default("sim")
     expert = parse_expert(args.expert)
-    registry.spec("hand", hand), registry.spec("sim", sim), registry.spec("expert", expert.name)  # known names
+    registry.spec("expert", expert.name)  # a known name before its checkpoint is read
+    hand = dataset_hand(args.dataset, registry, experts_hand(registry, [expert], args.hand))
+    sim = args.sim or registry.default("sim")
+    registry.spec("hand", hand), registry.spec("sim", sim)  # known names
     data = {"hand": hand, "sim": sim, "envs": args.envs, "selection": args.select, "expert": expert.name}
     data |= {"expert_settings": expert.settings} | ({"splits": tuple(args.split)} if args.split else {})
     config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where="ges env baseline")

@@ -45,7 +45,10 @@ def add_episode_options(p: argparse.ArgumentParser) -> None:
     """The options saying which episodes an evaluation runs (``ges env baseline``, ``ges eval-experts``): hand,
     simulator, which records give grasps, which splits."""
     p.add_argument(
-        "--hand", metavar="NAME", help="hand (default: the dataset's only hand, else registry.yaml defaults.hand)"
+        "--hand",
+        metavar="NAME",
+        help="hand (default: the hand the given experts were made for, e.g. a PPO checkpoint's; else the dataset's "
+        "only hand, else registry.yaml defaults.hand)",
     )
     p.add_argument("--sim", metavar="NAME", help="simulator of the episodes (default: registry.yaml defaults.sim)")
     p.add_argument(
@@ -82,13 +85,14 @@ def run_from_args(args: argparse.Namespace, registry, where: str) -> tuple[list[
     from ges_core.env.grasp_source import dataset_hand
     from ges_core.experts.choice import parse_expert
     from ges_core.experts.evaluate import RANDOMIZED
+    from ges_core.experts.made_for import experts_hand
 
-    hand = dataset_hand(args.dataset, registry, args.hand)
-    sim = args.sim or registry.default("sim")
     experts = [parse_expert(text) for text in args.expert]
-    registry.spec("hand", hand), registry.spec("sim", sim)
     for choice in experts:
         registry.spec("expert", choice.name)
+    hand = dataset_hand(args.dataset, registry, experts_hand(registry, experts, args.hand))
+    sim = args.sim or registry.default("sim")
+    registry.spec("hand", hand), registry.spec("sim", sim)
     data = {"hand": hand, "sim": sim, "envs": args.episodes, "selection": args.select}
     data |= {"splits": tuple(args.split)} if args.split else {}
     data["env"] = {"randomization": {"enabled": False} if args.no_randomization else RANDOMIZED}

@@ -21,5 +21,6 @@ def ges_register_experts(register: Callable[[ExpertSpec], None]) -> None:
             entry_point="ges_plugins.experts.ppo.expert:build_expert",
             description="a PPO policy trained by 'ges train-expert' (setting checkpoint=PATH to its .pt file)",
             settings={"checkpoint": None, "deterministic": True},
+            made_for="ges_plugins.experts.ppo.scope:checkpoint_scope",
         )
     )
