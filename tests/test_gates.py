@@ -8,6 +8,7 @@ their real sizes (expert "small" wins below the 1/3 quantile of the longest side
 from __future__ import annotations
 
 import json
+import re
 from pathlib import Path
 
 import numpy as np
@@ -355,7 +356,8 @@ def test_ges_train_gate_end_to_end_on_a_matrix_file(tmp_path, capsys, registry):
     (tmp_path / "gate.yaml").write_text(CLI_CONFIG)
     out = tmp_path / "gate"
     assert main(["train-gate", str(matrix), "--config", str(tmp_path / "gate.yaml"), "--out", str(out)]) == 0
-    table = capsys.readouterr().out
+    table, bar = capsys.readouterr()
+    assert re.search(r"gate pointnet2: 100%.* 3/3 .*loss train=[0-9.]+, loss val=[0-9.]+", bar), bar  # the epochs
     assert "gate pointnet2 (128 points) over experts small, medium, large" in table
     for split in ("train", "val", "unseen_object", "unseen_category"):
         assert f"| {split} |" in table
@@ -538,7 +540,8 @@ def test_ges_train_gate_resume_after_a_kill_ends_as_an_unbroken_run(tmp_path, ca
     matrix, _ = _matrix_file(tmp_path)
     (tmp_path / "gate.yaml").write_text(CLI_CONFIG)
     args = ["train-gate", str(matrix), "--config", str(tmp_path / "gate.yaml"), "--out"]
-    assert main([*args, str(tmp_path / "straight")]) == 0
+    assert main([*args, str(tmp_path / "straight"), "--no-progress"]) == 0
+    assert "gate pointnet2:" not in capsys.readouterr().err  # no bar
     real_log = train_module._log
 
     def dying_log(writer, row):

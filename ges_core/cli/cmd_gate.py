@@ -39,6 +39,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
         help="override a TrainGateConfig value, e.g. train.lr=5e-4 or settings.k=20 (the gate plugin's settings)",
     )  # fmt: skip
+    p.add_argument("--no-progress", action="store_true", help="no progress bar")
     p.set_defaults(func=run_gate_cmd)
 
 
@@ -50,6 +51,6 @@ def run_gate_cmd(args: argparse.Namespace) -> int:
 
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
     config = config_from_args(args)
-    summary = train_gate_run(config, registry_from_args(args), resume=args.resume)
+    summary = train_gate_run(config, registry_from_args(args), resume=args.resume, progress=not args.no_progress)
     print(summary.table())
     return 0

@@ -118,9 +118,14 @@ def _pct(v: float) -> str:
     return "-" if v != v else f"{100 * v:.1f} %"
 
 
-def train_gate_run(config: TrainGateConfig, registry=None, *, resume: bool = False) -> GateRunSummary:
+def train_gate_run(
+    config: TrainGateConfig, registry=None, *, resume: bool = False, progress: bool = False
+) -> GateRunSummary:
     """Train the gate ``config`` describes; write OUT/gate.pt, train_state.pt, tb/, history.json, summary.json.
-    ``resume``: continue from OUT/train_state.pt (a state of other data or settings is a ConfigError)."""
+    ``resume``: continue from OUT/train_state.pt (a state of other data or settings is a ConfigError).
+    ``progress``: a bar over the epochs with the last epoch's losses."""
+    from tqdm import tqdm
+
     start = time.perf_counter()
     if registry is None:
         from ges_core.registry import load_registry
@@ -134,19 +139,25 @@ def train_gate_run(config: TrainGateConfig, registry=None, *, resume: bool = Fal
     data = _split_data(matrix, config.split, library, n, config.cloud_seed, out)
     checkpoint = out / "gate.pt"
 
+    bar = tqdm(total=config.train.epochs, desc=f"gate {config.gate}", unit="epoch", disable=not progress)
+
     def on_epoch(epoch: int, result: TrainResult) -> None:
         if epoch % config.checkpoint_every == 0:
             gate.save(checkpoint)
+        row = result.history[-1]
+        bar.n = epoch  # a resumed run's first call starts the bar where the state left off
+        bar.set_postfix({k.replace("loss/", "loss "): f"{row[k]:.4g}" for k in ("loss/train", "loss/val") if k in row})
 
-    result = gate.fit(
-        data,
-        config.train,
-        log_dir=out / "tb",
-        on_epoch=on_epoch,
-        state_file=out / "train_state.pt",
-        state_every=config.checkpoint_every,
-        resume=resume,
-    )
+    with bar:
+        result = gate.fit(
+            data,
+            config.train,
+            log_dir=out / "tb",
+            on_epoch=on_epoch,
+            state_file=out / "train_state.pt",
+            state_every=config.checkpoint_every,
+            resume=resume,
+        )
     gate.save(checkpoint)
     atomic_write_text(out / "history.json", json.dumps(result.history, indent=1) + "\n")
     accuracy, counts = _accuracies(result, gate, matrix, library, n, config, out)
