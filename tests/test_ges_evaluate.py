@@ -254,3 +254,27 @@ def test_cli(run, dataset, gate, tmp_path, capsys):
     assert "none.pt: no such file" in capsys.readouterr().err
     assert main([*base, "--expert", "scripted", "--expert", "lower=scripted:lift=0.05", "--gate", str(gate)]) == 1
     assert "trained for experts ['scripted', 'low'] but is used with ['scripted', 'lower']" in capsys.readouterr().err
+
+
+def test_cli_takes_the_experts_from_the_gate(run, dataset, gate, tmp_path, capsys):
+    """Without --expert, `ges evaluate` runs the experts the gate was trained for: the columns of the matrix that
+    `ges train-gate` names in summary.json beside the checkpoint. The matrix's cells are then reused as with the
+    same --expert options given by hand (reuse needs identical settings). A gate alone whose label is not an expert
+    text ('low') is refused, naming its experts."""
+    import shutil
+
+    _, _, mfile, _ = run
+    root, _ = dataset
+    base = ["evaluate", str(root), "--hand", "allegro", "--sim", "sapien", "--episodes", "1", "--select", "any",
+            "--matrix", str(mfile), "--no-progress", "--reuse-matrix"]  # fmt: skip
+    alone = tmp_path / "alone" / "gate.pt"
+    alone.parent.mkdir()
+    shutil.copy(gate, alone)
+    assert main([*base, "--out", str(tmp_path / "a"), "--gate", str(alone)]) == 1
+    err = capsys.readouterr().err
+    assert "trained for the experts ['scripted', 'low']; 'low' is not an expert text" in err and "--expert" in err
+    (alone.parent / "summary.json").write_text(json.dumps({"config": {"matrix": str(mfile)}}))
+    assert main([*base, "--out", str(tmp_path / "b"), "--gate", str(alone)]) == 0
+    out = capsys.readouterr().out
+    assert f"experts from gate {alone}: scripted, low" in out
+    assert "| oracle (best of scripted, low per object) |" in out and "2 taken from the matrix" in out

@@ -31,7 +31,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument(
         "--expert", action="append", default=[], metavar="[LABEL=]NAME[:KEY=VALUE,...]",
         help="an expert GES chooses among, labelled as in the matrix and the gate (repeatable), e.g. "
-        "abs=ppo:checkpoint=runs/tiny/experts/expert1/checkpoints/last.pt",
+        "abs=ppo:checkpoint=runs/tiny/experts/expert1/checkpoints/last.pt; default: the experts the first --gate "
+        "was trained for (from its training matrix)",
     )  # fmt: skip
     p.add_argument(
         "--gate", action="append", default=[], metavar="[LABEL=]PATH",
@@ -63,16 +64,22 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from ges_core.errors import ConfigError
     from ges_core.ges_eval import evaluate_ges, parse_gate
     from ges_core.ges_eval.against_best import ges_against_best_table
+    from ges_core.ges_eval.gates import gate_experts
     from ges_core.ges_eval.outputs import write_outputs
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()
     registry = registry_from_args(args)
-    if len(args.expert) < 2:
+    gates = [parse_gate(g) for g in args.gate]
+    given = None
+    if not args.expert and gates:
+        given = gate_experts(gates[0], registry)  # the first gate's experts; every gate is checked against them
+        print(f"experts from gate {gates[0].path}: {', '.join(c.label for c in given)}")
+    if len(given or args.expert) < 2:
         raise ConfigError("ges evaluate needs the experts GES chooses among: --expert LABEL=NAME:... twice or more")
-    experts, config = run_from_args(args, registry, "ges evaluate")
+    experts, config = run_from_args(args, registry, "ges evaluate", experts=given)
     report = evaluate_ges(
-        args.dataset, config, experts, [parse_gate(g) for g in args.gate], args.out or args.dataset.parent / "ges",
+        args.dataset, config, experts, gates, args.out or args.dataset.parent / "ges",
         matrix_file=args.matrix, registry=registry, progress=not args.no_progress, fanout=fanout_from_args(args),
         reuse_matrix=args.reuse_matrix, cloud_seed=args.cloud_seed,
     )  # fmt: skip

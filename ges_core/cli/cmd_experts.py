@@ -76,10 +76,12 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
     )
 
 
-def run_from_args(args: argparse.Namespace, registry, where: str) -> tuple[list[ExpertChoice], BaselineConfig]:
-    """(the ``--expert`` choices, the run's BaselineConfig) of an evaluation command's options
-    (:func:`add_episode_options`, :func:`add_run_options`); unknown hand, simulator or expert names fail here,
-    listing the known ones."""
+def run_from_args(
+    args: argparse.Namespace, registry, where: str, *, experts: list[ExpertChoice] | None = None
+) -> tuple[list[ExpertChoice], BaselineConfig]:
+    """(the ``--expert`` choices, or ``experts`` when given; the run's BaselineConfig) of an evaluation command's
+    options (:func:`add_episode_options`, :func:`add_run_options`); unknown hand, simulator or expert names fail
+    here, listing the known ones."""
     from ges_core.config import apply_overrides, parse_model
     from ges_core.env.evaluate import BaselineConfig
     from ges_core.env.grasp_source import dataset_hand
@@ -87,7 +89,7 @@ def run_from_args(args: argparse.Namespace, registry, where: str) -> tuple[list[
     from ges_core.experts.evaluate import RANDOMIZED
     from ges_core.experts.made_for import experts_hand
 
-    experts = [parse_expert(text) for text in args.expert]
+    experts = [parse_expert(text) for text in args.expert] if experts is None else list(experts)
     for choice in experts:
         registry.spec("expert", choice.name)
     hand = dataset_hand(args.dataset, registry, experts_hand(registry, experts, args.hand))

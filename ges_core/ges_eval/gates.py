@@ -23,7 +23,16 @@ from ges_core.gating.checkpoint import load_gate, read_checkpoint
 from ges_core.gating.clouds import library_clouds
 from ges_core.paths import file_sha256
 
-__all__ = ["GateChoice", "LoadedGate", "Picks", "clouds_for", "load_gates", "parse_gate", "pick_experts"]
+__all__ = [
+    "GateChoice",
+    "LoadedGate",
+    "Picks",
+    "clouds_for",
+    "gate_experts",
+    "load_gates",
+    "parse_gate",
+    "pick_experts",
+]
 
 _LABEL = re.compile(r"^[A-Za-z0-9_.+-]+$")
 """What a gate label may hold: it is a JSON key and a table row name."""
@@ -63,6 +72,45 @@ class LoadedGate:
         """JSON-ready identity (stored with the results)."""
         return {"gate": self.plugin, "path": str(self.path.resolve()), "sha": self.sha, "n_points": self.n_points,
                 "experts": list(self.gate.experts)}  # fmt: skip
+
+
+def gate_experts(choice: GateChoice, registry) -> list:
+    """The experts ``choice``'s gate was trained for, as :class:`~ges_core.experts.choice.ExpertChoice` under the
+    gate's labels, so that ``ges evaluate DATASET --gate PATH`` needs no ``--expert``.
+
+    Each label's expert comes from the success matrix the gate was trained on (``ges train-gate`` names it in the
+    ``summary.json`` beside the checkpoint): the matrix's column identity, every setting. Without that file, a label
+    that is itself an expert text (the default label, e.g. ``ppo:checkpoint=...``) is read as one. A label neither
+    explains is a ConfigError saying to give ``--expert``."""
+    import json
+
+    from ges_core.experts.choice import ExpertChoice, parse_expert
+    from ges_core.experts.matrix import read_matrix_json
+
+    labels = list(read_checkpoint(choice.path)["experts"])
+    columns: dict = {}
+    summary = choice.path.parent / "summary.json"
+    if summary.is_file():
+        matrix = Path(json.loads(summary.read_text()).get("config", {}).get("matrix") or "")
+        if matrix.is_file():
+            columns = read_matrix_json(matrix).get("experts", {})
+    out = []
+    for label in labels:
+        if label in columns:
+            out.append(ExpertChoice(label, columns[label]["name"], dict(columns[label].get("settings", {}))))
+            continue
+        try:
+            parsed = parse_expert(label)
+        except ConfigError:
+            parsed = None
+        if parsed is None or parsed.name not in registry.names("expert"):
+            raise ConfigError(
+                f"gate {choice.path} was trained for the experts {labels}; '{label}' is not an expert text and no "
+                "success matrix named beside the gate (summary.json) gives it: name every expert with --expert "
+                "LABEL=NAME:settings"
+            )
+        out.append(parsed)
+    return out
 
 
 def load_gates(choices: Sequence[GateChoice], registry, experts: Sequence[str]) -> list[LoadedGate]:
