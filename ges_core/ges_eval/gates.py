@@ -19,6 +19,7 @@ import numpy as np
 import torch
 
 from ges_core.errors import ConfigError, StorageError
+from ges_core.experts.choice import ExpertChoice, parse_expert
 from ges_core.gating.checkpoint import load_gate, read_checkpoint
 from ges_core.gating.clouds import library_clouds
 from ges_core.paths import file_sha256
@@ -74,7 +75,7 @@ class LoadedGate:
                 "experts": list(self.gate.experts)}  # fmt: skip
 
 
-def gate_experts(choice: GateChoice, registry) -> list:
+def gate_experts(choice: GateChoice, registry) -> list[ExpertChoice]:
     """The experts ``choice``'s gate was trained for, as :class:`~ges_core.experts.choice.ExpertChoice` under the
     gate's labels, so that ``ges evaluate DATASET --gate PATH`` needs no ``--expert``.
 
@@ -84,7 +85,6 @@ def gate_experts(choice: GateChoice, registry) -> list:
     explains is a ConfigError saying to give ``--expert``."""
     import json
 
-    from ges_core.experts.choice import ExpertChoice, parse_expert
     from ges_core.experts.matrix import read_matrix_json
 
     labels = list(read_checkpoint(choice.path)["experts"])
