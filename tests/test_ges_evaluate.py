@@ -258,9 +258,9 @@ def test_cli(run, dataset, gate, tmp_path, capsys):
 
 def test_cli_takes_the_experts_from_the_gate(run, dataset, gate, tmp_path, capsys):
     """Without --expert, `ges evaluate` runs the experts the gate was trained for: the columns of the matrix that
-    `ges train-gate` names in summary.json beside the checkpoint. The matrix's cells are then reused as with the
-    same --expert options given by hand (reuse needs identical settings). A gate alone whose label is not an expert
-    text ('low') is refused, naming its experts."""
+    `ges train-gate` names in summary.json beside the checkpoint, on that matrix's hand, simulator and episodes per
+    cell. The matrix's cells are then reused as with the same options given by hand (reuse needs identical settings
+    and run header). A gate alone whose label is not an expert text ('low') is refused, naming its experts."""
     import shutil
 
     _, _, mfile, _ = run
@@ -274,7 +274,10 @@ def test_cli_takes_the_experts_from_the_gate(run, dataset, gate, tmp_path, capsy
     err = capsys.readouterr().err
     assert "trained for the experts ['scripted', 'low']; 'low' is not an expert text" in err and "--expert" in err
     (alone.parent / "summary.json").write_text(json.dumps({"config": {"matrix": str(mfile)}}))
-    assert main([*base, "--out", str(tmp_path / "b"), "--gate", str(alone)]) == 0
+    # no --hand, --sim, --episodes or --matrix either: the training matrix's
+    bare = ["evaluate", str(root), "--select", "any", "--no-progress", "--reuse-matrix", "--out", str(tmp_path / "b")]
+    assert main([*bare, "--gate", str(alone)]) == 0
     out = capsys.readouterr().out
     assert f"experts from gate {alone}: scripted, low" in out
+    assert f"from the gate's training matrix: --matrix {mfile}, --hand allegro, --sim sapien, --episodes 1" in out
     assert "| oracle (best of scripted, low per object) |" in out and "2 taken from the matrix" in out

@@ -64,7 +64,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from ges_core.errors import ConfigError
     from ges_core.ges_eval import evaluate_ges, parse_gate
     from ges_core.ges_eval.against_best import ges_against_best_table
-    from ges_core.ges_eval.gates import gate_experts
+    from ges_core.ges_eval.gates import gate_experts, training_matrix
     from ges_core.ges_eval.outputs import write_outputs
     from ges_core.threads import set_torch_threads
 
@@ -75,6 +75,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     if not args.expert and gates:
         given = gate_experts(gates[0], registry)  # the first gate's experts; every gate is checked against them
         print(f"experts from gate {gates[0].path}: {', '.join(c.label for c in given)}")
+        _defaults_from_training_matrix(args, training_matrix(gates[0]))
     if len(given or args.expert) < 2:
         raise ConfigError("ges evaluate needs the experts GES chooses among: --expert LABEL=NAME:... twice or more")
     experts, config = run_from_args(args, registry, "ges evaluate", experts=given)
@@ -84,7 +85,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
         reuse_matrix=args.reuse_matrix, cloud_seed=args.cloud_seed,
     )  # fmt: skip
     paths = write_outputs(report, config.model_dump(mode="json"))
-    print(f"GES | hand {config.hand} | sim {config.sim} | {args.episodes} episode(s) per object | "
+    print(f"GES | hand {config.hand} | sim {config.sim} | {config.envs} episode(s) per object | "
           f"{randomization_text(args)}\n")  # fmt: skip
     print(report.table.markdown("paper") + "\n\n" + report.table.markdown("peers") + "\n")
     print(report.table.accuracy_markdown("paper") + "\n")
@@ -98,3 +99,22 @@ def run_evaluate(args: argparse.Namespace) -> int:
     print(report.summary())
     print(f"Table 2: {paths['json']}, {paths['markdown']}; figure: {paths['figure']}")
     return 0
+
+
+def _defaults_from_training_matrix(args: argparse.Namespace, matrix: Path | None) -> None:
+    """With the experts taken from a gate: the matrix it was trained on, its hand, simulator and episodes per cell,
+    where ``--matrix``, ``--hand``, ``--sim`` and ``--episodes`` are not given (what the gate was trained for, not
+    registry.yaml's defaults); each default taken is printed."""
+    if matrix is None:
+        return
+    from ges_core.experts.matrix import read_matrix_json
+
+    run = read_matrix_json(matrix).get("run", {})
+    taken = []
+    defaults = {"matrix": matrix, "hand": run.get("hand"), "sim": run.get("sim"), "episodes": run.get("envs")}
+    for option, value in defaults.items():
+        if getattr(args, option) is None and value:
+            setattr(args, option, value)
+            taken.append(f"--{option} {value}")
+    if taken:
+        print(f"from the gate's training matrix: {', '.join(taken)}")

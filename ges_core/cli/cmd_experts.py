@@ -13,6 +13,10 @@ if TYPE_CHECKING:
     from ges_core.experts.choice import ExpertChoice
 
 
+EPISODES = 4
+"""Episodes per object and expert when ``--episodes`` is not given."""
+
+
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ges eval-experts``."""
     p = sub.add_parser(
@@ -63,7 +67,10 @@ def add_episode_options(p: argparse.ArgumentParser) -> None:
 def add_run_options(p: argparse.ArgumentParser) -> None:
     """The options of an evaluation run's settings (``ges eval-experts``, ``ges evaluate``): episodes per cell,
     ``-o`` overrides of :class:`~ges_core.env.evaluate.BaselineConfig`, randomization off."""
-    p.add_argument("--episodes", type=positive_int, default=4, metavar="E", help="episodes per object and expert (4)")
+    p.add_argument(
+        "--episodes", type=positive_int, default=None, metavar="E",
+        help=f"episodes per object and expert ({EPISODES}; ges evaluate without --expert: its gate's matrix's)",
+    )  # fmt: skip
     p.add_argument(
         "-o", action="append", default=[], metavar="KEY=VALUE", dest="overrides",
         help="override a run setting (BaselineConfig), e.g. env.episode_length=150 or seed=1",
@@ -95,7 +102,8 @@ def run_from_args(
     hand = dataset_hand(args.dataset, registry, experts_hand(registry, experts, args.hand))
     sim = args.sim or registry.default("sim")
     registry.spec("hand", hand), registry.spec("sim", sim)
-    data = {"hand": hand, "sim": sim, "envs": args.episodes, "selection": args.select}
+    episodes = EPISODES if args.episodes is None else args.episodes
+    data = {"hand": hand, "sim": sim, "envs": episodes, "selection": args.select}
     data |= {"splits": tuple(args.split)} if args.split else {}
     data["env"] = {"randomization": {"enabled": False} if args.no_randomization else RANDOMIZED}
     return experts, parse_model(BaselineConfig, apply_overrides(data, args.overrides), where=where)
@@ -143,7 +151,7 @@ def run_eval_experts(args: argparse.Namespace) -> int:
         args.dataset, config, experts, out, clusters=args.clusters, registry=registry,
         progress=not args.no_progress, fanout=fanout,
     )  # fmt: skip
-    print(f"{len(report.matrix.experts)} expert(s) | hand {config.hand} | sim {config.sim} | {args.episodes} "
+    print(f"{len(report.matrix.experts)} expert(s) | hand {config.hand} | sim {config.sim} | {config.envs} "
           f"episode(s) per cell | {randomization_text(args)}\n")  # fmt: skip
     print(report.table("paper") + "\n\n" + report.table("peers"))
     for line in report.late:

@@ -33,6 +33,7 @@ __all__ = [
     "load_gates",
     "parse_gate",
     "pick_experts",
+    "training_matrix",
 ]
 
 _LABEL = re.compile(r"^[A-Za-z0-9_.+-]+$")
@@ -75,25 +76,30 @@ class LoadedGate:
                 "experts": list(self.gate.experts)}  # fmt: skip
 
 
+def training_matrix(choice: GateChoice) -> Path | None:
+    """The success matrix ``choice``'s gate was trained on, as ``ges train-gate`` names it in the ``summary.json``
+    beside the checkpoint; None when that file or the matrix is not there."""
+    import json
+
+    summary = choice.path.parent / "summary.json"
+    if not summary.is_file():
+        return None
+    matrix = Path(json.loads(summary.read_text()).get("config", {}).get("matrix") or "")
+    return matrix if matrix.is_file() else None
+
+
 def gate_experts(choice: GateChoice, registry) -> list[ExpertChoice]:
     """The experts ``choice``'s gate was trained for, as :class:`~ges_core.experts.choice.ExpertChoice` under the
     gate's labels, so that ``ges evaluate DATASET --gate PATH`` needs no ``--expert``.
 
-    Each label's expert comes from the success matrix the gate was trained on (``ges train-gate`` names it in the
-    ``summary.json`` beside the checkpoint): the matrix's column identity, every setting. Without that file, a label
-    that is itself an expert text (the default label, e.g. ``ppo:checkpoint=...``) is read as one. A label neither
-    explains is a ConfigError saying to give ``--expert``."""
-    import json
-
+    Each label's expert comes from the gate's :func:`training_matrix`: the matrix's column identity, every setting.
+    Without it, a label that is itself an expert text (the default label, e.g. ``ppo:checkpoint=...``) is read as
+    one. A label neither explains is a ConfigError saying to give ``--expert``."""
     from ges_core.experts.matrix import read_matrix_json
 
     labels = list(read_checkpoint(choice.path)["experts"])
-    columns: dict = {}
-    summary = choice.path.parent / "summary.json"
-    if summary.is_file():
-        matrix = Path(json.loads(summary.read_text()).get("config", {}).get("matrix") or "")
-        if matrix.is_file():
-            columns = read_matrix_json(matrix).get("experts", {})
+    matrix = training_matrix(choice)
+    columns = read_matrix_json(matrix).get("experts", {}) if matrix is not None else {}
     out = []
     for label in labels:
         if label in columns:
