@@ -82,7 +82,9 @@ def _row(hand, rounds: int) -> dict:
         seed = object_seed(base.seed, object_id)
         points, normals = library.point_cloud(object_id, base.points, seed=seed)
         try:
-            result = generate_contacts(points, normals, cfg.contacts, object_id=object_id, seed=seed)
+            result = generate_contacts(
+                points, normals, cfg.contacts, object_id=object_id, seed=seed, center_of_mass=(0.0, 0.0, 0.0)
+            )
         except SynthesisError:
             continue
         contacts.append(result.contacts)

@@ -155,7 +155,9 @@ def threads_under_load(library, ids: list[str], hands: list[str], load: int, rep
         seed = object_seed(0, oid)
         points, normals = library.point_cloud(oid, 1024, seed=seed)
         try:
-            result = generate_contacts(points, normals, ContactConfig(), object_id=oid, seed=seed)
+            result = generate_contacts(
+                points, normals, ContactConfig(), object_id=oid, seed=seed, center_of_mass=(0.0, 0.0, 0.0)
+            )
         except SynthesisError:
             continue  # no contacts, nothing to retarget
         contacts.append(result.contacts)

@@ -138,14 +138,16 @@ def vertical_layouts(
     z_pref: float,
     cfg,
     rows: RowWidths | None = None,
+    s_pref: float | None = None,
 ):
     """Grasps from above, best first (at most ``cfg.layouts_per_axis``): all contacts in one slice in
     ``z_range``, fingers spread along s. Slices that leave the fingers the widest spacing (within 1 mm) come
     first, nearest ``z_pref`` first among those.
 
-    A graspable slice (``ok``) puts the row at its middle. Another slice may still hold a row where the part
-    under it fits the hand (``rows``: a 3 cm handle beside a 13 cm hammer head): the row is moved along s in
-    half spacings from the middle, nearest the middle first, until the points under it span a graspable width
+    A graspable slice (``ok``) puts the row at its middle, or with ``s_pref`` (the centre of mass) as near it as
+    the slice allows with its edge margins. Another slice may still hold a row where the part under it fits the
+    hand (``rows``: a 3 cm handle beside a 13 cm hammer head): the row is moved along s in half spacings from the
+    middle, nearest the middle (``s_pref``) first, until the points under it span a graspable width
     (:meth:`RowWidths.width`). Such rows come after every whole-slice layout."""
     inside = np.flatnonzero(
         (profile.counts >= MIN_SLICE_POINTS) & (profile.centers >= z_range[0]) & (profile.centers <= z_range[1])
@@ -154,13 +156,28 @@ def vertical_layouts(
     room = np.clip(extent, cfg.min_spacing, cfg.finger_spacing)
     order = np.lexsort((np.abs(profile.centers[inside] - z_pref), -np.round(room / SPACING_TIE)))
     ranked = [(int(inside[i]), float(room[i])) for i in order]
-    out = [_vertical(profile, k, spacing) for k, spacing in ranked if ok[k]][: cfg.layouts_per_axis]
+    whole = [(k, spacing) for k, spacing in ranked if ok[k]][: cfg.layouts_per_axis]
+    out = [_vertical(profile, k, spacing, shift=_toward(profile, k, spacing, cfg, s_pref)) for k, spacing in whole]
     for k, spacing in ranked:  # the whole-slice layouts first: they are what fitted before rows were measured
         if len(out) == cfg.layouts_per_axis or rows is None:
             break
         if not ok[k]:
-            out += [layout for layout in [_shifted_row(profile, k, spacing, cfg, rows)] if layout is not None]
+            out += [layout for layout in [_shifted_row(profile, k, spacing, cfg, rows, s_pref)] if layout is not None]
     return out
+
+
+def _toward(profile: SliceProfile, k: int, spacing: float, cfg, s_pref: float | None) -> float:
+    """Shift along s from slice ``k``'s middle that centres the finger row as near ``s_pref`` as the slice allows,
+    its ``edge_margin`` kept free at each end; 0 without ``s_pref`` or when ``s_pref`` is within half a spacing of
+    the middle (the row already straddles it; a few millimetres would only reshuffle the picks)."""
+    if s_pref is None:
+        return 0.0
+    lo, hi = profile.lo[k, 1], profile.hi[k, 1]
+    margin = cfg.edge_margin * (hi - lo) + 1.5 * spacing
+    middle = 0.5 * (lo + hi)
+    if hi - lo <= 2 * margin or abs(s_pref - middle) <= 0.5 * spacing:
+        return 0.0
+    return float(np.clip(s_pref, lo + margin, hi - margin) - middle)
 
 
 def _vertical(profile: SliceProfile, k: int, spacing: float, shift: float = 0.0, width: float | None = None):
@@ -179,9 +196,11 @@ def _row_s(profile: SliceProfile, k: int, spacing: float) -> np.ndarray:
     return np.concatenate([[s_f[0]], s_f])
 
 
-def _shifted_row(profile: SliceProfile, k: int, spacing: float, cfg, rows: RowWidths) -> Layout | None:
-    """The layout of slice ``k`` whose row lies nearest the middle of the slice and over a graspable width,
-    or None. Every contact's band (+-spacing/4 along s) stays within the slice's s-extent."""
+def _shifted_row(
+    profile: SliceProfile, k: int, spacing: float, cfg, rows: RowWidths, s_pref: float | None = None
+) -> Layout | None:
+    """The layout of slice ``k`` whose row lies nearest the middle of the slice (``s_pref`` when given) and over a
+    graspable width, or None. Every contact's band (+-spacing/4 along s) stays within the slice's s-extent."""
     s_row = _row_s(profile, k, spacing)
     half = BAND_SCALE * 0.5 * spacing
     lo_shift = profile.lo[k, 1] + half - s_row.min()
@@ -190,7 +209,9 @@ def _shifted_row(profile: SliceProfile, k: int, spacing: float, cfg, rows: RowWi
         return None
     step = 0.5 * spacing
     shifts = np.arange(np.ceil(lo_shift / step), np.floor(hi_shift / step) + 1) * step
-    for shift in shifts[np.argsort(np.abs(shifts), kind="stable")]:
+    target = 0.0 if s_pref is None else s_pref - 0.5 * (profile.lo[k, 1] + profile.hi[k, 1])
+    target = 0.0 if abs(target) <= 0.5 * spacing else target  # as _toward: only an offset past half a spacing
+    for shift in shifts[np.argsort(np.abs(shifts - target), kind="stable")]:
         s = s_row + shift
         width = rows.width(k, s.min() - half, s.max() + half)
         if cfg.min_width <= width <= cfg.max_width:

@@ -181,7 +181,10 @@ def _contacts(
             points, normals = lib.point_cloud(object_id, cfg.points, seed=seed)
         else:
             points, normals = cloud.points, cloud.normals
-        result = generate_contacts(points, normals, contacts, object_id=object_id, seed=seed, strategy=strategy)
+        # the library's resting frame puts every object's centre of mass above the origin (objects/placement.py)
+        result = generate_contacts(
+            points, normals, contacts, object_id=object_id, seed=seed, strategy=strategy, center_of_mass=(0.0, 0.0, 0.0)
+        )
     except SynthesisError as error:
         return work.failed_contacts(error.reason, str(error), time.perf_counter() - start)
     except AssetError as error:
