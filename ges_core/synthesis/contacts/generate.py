@@ -140,8 +140,9 @@ class ContactConfig(ConfigModel):
     # row_centre: 'mass' since 5 December 2026 (stored with every run config: a dataset written before, with the
     # slice's middle, is refused on resume rather than mixed). Measured, both engines, validated / robust: real YCB
     # scans Allegro SAPIEN 16/12 -> 17/13, PyBullet 17/12 -> 18/13, Shadow 16/13 -> 17/13 and 17/15 -> 17/16;
-    # procedural hammers (SAPIEN) Allegro robust 3/10 -> 10/10; the 20 demo objects unchanged record for record
-    # (docs/synthesis/contacts.md, "Where the finger row sits").
+    # procedural (SAPIEN) Allegro 225 -> 232 robust of 280 (hammers 3/10 -> 10/10), Shadow 225 -> 226; the demo
+    # set's verdicts unchanged; mixed on the untuned Ability and Inspire (docs/synthesis/contacts.md, "Where the
+    # finger row sits").
     row_centre: Literal["slice", "mass"] = Field(
         "mass",
         description="grasp from above: where along the slice the finger row is centred: 'mass' as near the centre "
