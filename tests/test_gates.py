@@ -363,6 +363,7 @@ def test_ges_train_gate_end_to_end_on_a_matrix_file(tmp_path, capsys, registry):
         assert f"| {split} |" in table
     assert {"gate.pt", "tb", "history.json", "summary.json", "clouds-128-0.pt"} <= {p.name for p in out.iterdir()}
     summary = json.loads((out / "summary.json").read_text())
+    assert summary["matrix"] == str(matrix.resolve())  # absolute: `ges evaluate --gate` finds it from any folder
     n_train = sum(o.split == "train" for o in infos)
     assert summary["counts"]["train"] + summary["counts"]["val"] == n_train
     assert len(json.loads((out / "history.json").read_text())) == 3

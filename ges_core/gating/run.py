@@ -164,10 +164,9 @@ def train_gate_run(
     summary = GateRunSummary(
         config.gate, gate.experts, n, accuracy, counts, result.kept_epoch, time.perf_counter() - start, checkpoint
     )
-    atomic_write_text(
-        out / "summary.json",
-        json.dumps({**summary.to_json(), "config": config.model_dump(mode="json")}, indent=1) + "\n",
-    )
+    written = {**summary.to_json(), "config": config.model_dump(mode="json")}
+    written["matrix"] = str(Path(config.matrix).resolve())  # where `ges evaluate --gate` finds it from any folder
+    atomic_write_text(out / "summary.json", json.dumps(written, indent=1) + "\n")
     return summary
 
 

@@ -78,14 +78,18 @@ class LoadedGate:
 
 def training_matrix(choice: GateChoice) -> Path | None:
     """The success matrix ``choice``'s gate was trained on, as ``ges train-gate`` names it in the ``summary.json``
-    beside the checkpoint; None when that file or the matrix is not there."""
+    beside the checkpoint (``matrix``: the absolute path; older files only the path as given, ``config.matrix``);
+    None when that file or the matrix is not there."""
     import json
 
     summary = choice.path.parent / "summary.json"
     if not summary.is_file():
         return None
-    matrix = Path(json.loads(summary.read_text()).get("config", {}).get("matrix") or "")
-    return matrix if matrix.is_file() else None
+    data = json.loads(summary.read_text())
+    for given in (data.get("matrix"), data.get("config", {}).get("matrix")):
+        if given and Path(given).is_file():
+            return Path(given)
+    return None
 
 
 def gate_experts(choice: GateChoice, registry) -> list[ExpertChoice]:
