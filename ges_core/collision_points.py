@@ -60,13 +60,7 @@ def spread_subset(points: np.ndarray, n: int) -> np.ndarray:
         hull = np.zeros(1, dtype=np.int64)
     if len(hull) > n // 2:
         hull = hull[farthest_point_indices(points[hull], max(n // 2, 1))]
-    chosen = list(hull)
-    dist = np.min(np.linalg.norm(points[:, None] - points[chosen][None], axis=-1), axis=1)
-    while len(chosen) < n:
-        i = int(np.argmax(dist))
-        chosen.append(i)
-        dist = np.minimum(dist, np.linalg.norm(points - points[i], axis=1))
-    return np.sort(np.asarray(chosen, dtype=np.int64))
+    return np.sort(farthest_point_indices(points, n, start=hull))
 
 
 def _shape_points(collision, max_mesh_points: int) -> np.ndarray:

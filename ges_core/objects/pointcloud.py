@@ -122,15 +122,17 @@ def _inside_test(body: trimesh.Trimesh) -> Callable[[np.ndarray], np.ndarray]:
     return lambda points: np.all(points @ normals.T < offsets, axis=1)
 
 
-def farthest_point_indices(points: np.ndarray, n: int) -> np.ndarray:
-    """Indices (n,) of a greedy farthest-point subset of ``points`` (m, 3), starting at index 0."""
+def farthest_point_indices(points: np.ndarray, n: int, start: np.ndarray | None = None) -> np.ndarray:
+    """Indices (n,) of a greedy farthest-point subset of ``points`` (m, 3): ``start`` (indices, default ``[0]``)
+    first, then each time the point farthest from every one chosen."""
     m = len(points)
     if n >= m:
         return np.arange(m)
+    seeds = np.zeros(1, dtype=np.int64) if start is None else np.asarray(start, dtype=np.int64)
     chosen = np.empty(n, dtype=np.int64)
-    chosen[0] = 0
-    dist = np.linalg.norm(points - points[0], axis=1)
-    for i in range(1, n):
+    chosen[: len(seeds)] = seeds
+    dist = np.min(np.linalg.norm(points[:, None] - points[seeds][None], axis=-1), axis=1)
+    for i in range(len(seeds), n):
         chosen[i] = int(np.argmax(dist))
         dist = np.minimum(dist, np.linalg.norm(points - points[chosen[i]], axis=1))
     return chosen
