@@ -166,18 +166,25 @@ def vertical_layouts(
     return out
 
 
-def _toward(profile: SliceProfile, k: int, spacing: float, cfg, s_pref: float | None) -> float:
-    """Shift along s from slice ``k``'s middle that centres the finger row as near ``s_pref`` as the slice allows,
-    its ``edge_margin`` kept free at each end; 0 without ``s_pref`` or when ``s_pref`` is within half a spacing of
-    the middle (the row already straddles it; a few millimetres would only reshuffle the picks)."""
+def _offset(profile: SliceProfile, k: int, spacing: float, s_pref: float | None) -> float:
+    """``s_pref`` (the centre of mass) less slice ``k``'s middle along s; 0 without ``s_pref`` or within half a
+    spacing of the middle (the row already straddles it; a few millimetres would only reshuffle the picks)."""
     if s_pref is None:
+        return 0.0
+    offset = s_pref - 0.5 * (profile.lo[k, 1] + profile.hi[k, 1])
+    return float(offset) if abs(offset) > 0.5 * spacing else 0.0
+
+
+def _toward(profile: SliceProfile, k: int, spacing: float, cfg, s_pref: float | None) -> float:
+    """Shift along s from slice ``k``'s middle that centres the finger row as near :func:`_offset` asks as the
+    slice allows, its ``edge_margin`` kept free at each end."""
+    if not _offset(profile, k, spacing, s_pref):
         return 0.0
     lo, hi = profile.lo[k, 1], profile.hi[k, 1]
     margin = cfg.edge_margin * (hi - lo) + 1.5 * spacing
-    middle = 0.5 * (lo + hi)
-    if hi - lo <= 2 * margin or abs(s_pref - middle) <= 0.5 * spacing:
+    if hi - lo <= 2 * margin:
         return 0.0
-    return float(np.clip(s_pref, lo + margin, hi - margin) - middle)
+    return float(np.clip(s_pref, lo + margin, hi - margin) - 0.5 * (lo + hi))
 
 
 def _vertical(profile: SliceProfile, k: int, spacing: float, shift: float = 0.0, width: float | None = None):
@@ -209,8 +216,7 @@ def _shifted_row(
         return None
     step = 0.5 * spacing
     shifts = np.arange(np.ceil(lo_shift / step), np.floor(hi_shift / step) + 1) * step
-    target = 0.0 if s_pref is None else s_pref - 0.5 * (profile.lo[k, 1] + profile.hi[k, 1])
-    target = 0.0 if abs(target) <= 0.5 * spacing else target  # as _toward: only an offset past half a spacing
+    target = _offset(profile, k, spacing, s_pref)
     for shift in shifts[np.argsort(np.abs(shifts - target), kind="stable")]:
         s = s_row + shift
         width = rows.width(k, s.min() - half, s.max() + half)
