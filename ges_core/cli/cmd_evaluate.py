@@ -62,6 +62,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     """Evaluate, write Table 2 and the figure, print both tables and the summary."""
     from ges_core.cli import registry_from_args
     from ges_core.errors import ConfigError
+    from ges_core.experts.matrix import read_matrix_json
     from ges_core.ges_eval import evaluate_ges, parse_gate
     from ges_core.ges_eval.against_best import ges_against_best_table
     from ges_core.ges_eval.gates import gate_experts, training_matrix
@@ -73,9 +74,12 @@ def run_evaluate(args: argparse.Namespace) -> int:
     gates = [parse_gate(g) for g in args.gate]
     given = None
     if not args.expert and gates:
-        given = gate_experts(gates[0], registry)  # the first gate's experts; every gate is checked against them
+        path = training_matrix(gates[0])
+        matrix = read_matrix_json(path) if path is not None else None
+        given = gate_experts(gates[0], registry, matrix)  # the first gate's experts; every gate is checked against them
         print(f"experts from gate {gates[0].path}: {', '.join(c.label for c in given)}")
-        _defaults_from_training_matrix(args, training_matrix(gates[0]))
+        if matrix is not None:
+            _defaults_from_training_matrix(args, path, matrix.get("run", {}))
     if len(given or args.expert) < 2:
         raise ConfigError("ges evaluate needs the experts GES chooses among: --expert LABEL=NAME:... twice or more")
     experts, config = run_from_args(args, registry, "ges evaluate", experts=given)
@@ -101,15 +105,10 @@ def run_evaluate(args: argparse.Namespace) -> int:
     return 0
 
 
-def _defaults_from_training_matrix(args: argparse.Namespace, matrix: Path | None) -> None:
-    """With the experts taken from a gate: the matrix it was trained on, its hand, simulator and episodes per cell,
-    where ``--matrix``, ``--hand``, ``--sim`` and ``--episodes`` are not given (what the gate was trained for, not
-    registry.yaml's defaults); each default taken is printed."""
-    if matrix is None:
-        return
-    from ges_core.experts.matrix import read_matrix_json
-
-    run = read_matrix_json(matrix).get("run", {})
+def _defaults_from_training_matrix(args: argparse.Namespace, matrix: Path, run: dict) -> None:
+    """With the experts taken from a gate: ``matrix``, the one it was trained on, and its ``run`` header's hand,
+    simulator and episodes per cell, where ``--matrix``, ``--hand``, ``--sim`` and ``--episodes`` are not given (what
+    the gate was trained for, not registry.yaml's defaults); each default taken is printed."""
     taken = []
     defaults = {"matrix": matrix, "hand": run.get("hand"), "sim": run.get("sim"), "episodes": run.get("envs")}
     for option, value in defaults.items():

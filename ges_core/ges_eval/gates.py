@@ -92,18 +92,16 @@ def training_matrix(choice: GateChoice) -> Path | None:
     return None
 
 
-def gate_experts(choice: GateChoice, registry) -> list[ExpertChoice]:
+def gate_experts(choice: GateChoice, registry, matrix: dict | None) -> list[ExpertChoice]:
     """The experts ``choice``'s gate was trained for, as :class:`~ges_core.experts.choice.ExpertChoice` under the
     gate's labels, so that ``ges evaluate DATASET --gate PATH`` needs no ``--expert``.
 
-    Each label's expert comes from the gate's :func:`training_matrix`: the matrix's column identity, every setting.
-    Without it, a label that is itself an expert text (the default label, e.g. ``ppo:checkpoint=...``) is read as
-    one. A label neither explains is a ConfigError saying to give ``--expert``."""
-    from ges_core.experts.matrix import read_matrix_json
-
+    Each label's expert comes from ``matrix``, the gate's :func:`training_matrix` as read
+    (:func:`~ges_core.experts.matrix.read_matrix_json`; None when there is none): its column identity, every
+    setting. Otherwise a label that is itself an expert text (the default label, e.g. ``ppo:checkpoint=...``) is read
+    as one. A label neither explains is a ConfigError saying to give ``--expert``."""
     labels = list(read_checkpoint(choice.path)["experts"])
-    matrix = training_matrix(choice)
-    columns = read_matrix_json(matrix).get("experts", {}) if matrix is not None else {}
+    columns = (matrix or {}).get("experts", {})
     out = []
     for label in labels:
         if label in columns:
