@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+import importlib.util
 from pathlib import Path
 
 import pytest
@@ -14,16 +16,21 @@ ABILITY_PKG = REPO / "examples" / "ges-ability-hand" / "ges_ability_hand"
 """Source of the Ability hand package (docs/tutorials/new-hand.md)."""
 
 
-def ability_hand():
-    """The Ability hand as ``examples/ges-ability-hand`` builds it, from that source whether or not the package is
-    installed (a fresh clone's suite does not install it); skips where mani-skill (its URDF) is missing."""
-    import importlib.util
-
-    pytest.importorskip("mani_skill")
-    spec = importlib.util.spec_from_file_location("_ges_ability_hand_source", ABILITY_PKG / "__init__.py")
+@functools.cache
+def _source_module(package_init: Path):
+    """The module of a hand package's ``__init__.py``, executed from the repository's source whether or not the
+    package is installed (a fresh clone's suite installs none of ``examples/``); once per process."""
+    spec = importlib.util.spec_from_file_location(f"_{package_init.parent.name}_source", package_init)
     module = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(module)
-    return module.build_hand()
+    return module
+
+
+def ability_hand():
+    """The Ability hand as ``examples/ges-ability-hand`` builds it, from that source; skips where mani-skill (its
+    URDF) is missing."""
+    pytest.importorskip("mani_skill")
+    return _source_module(ABILITY_PKG / "__init__.py").build_hand()
 
 
 INSPIRE_PKG = REPO / "examples" / "ges-inspire-hand" / "ges_inspire_hand"
@@ -31,15 +38,9 @@ INSPIRE_PKG = REPO / "examples" / "ges-inspire-hand" / "ges_inspire_hand"
 
 
 def inspire_module():
-    """``examples/ges-inspire-hand``'s module, from that source whether or not the package is installed; skips where
-    mani-skill (its URDF) is missing."""
-    import importlib.util
-
+    """``examples/ges-inspire-hand``'s module, from that source; skips where mani-skill (its URDF) is missing."""
     pytest.importorskip("mani_skill")
-    spec = importlib.util.spec_from_file_location("_ges_inspire_hand_source", INSPIRE_PKG / "__init__.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return _source_module(INSPIRE_PKG / "__init__.py")
 
 
 @pytest.fixture(scope="module")

@@ -149,7 +149,11 @@ def test_stage1_runs_end_to_end_with_glb_meshes_chained_mimics_and_an_excluded_p
     d = inspire_module().build_hand().description
     q = dict(zip(record.joint_names, record.grasp.q, strict=True))
     lo, hi = d.limits_array[d.joint_index(["right_hand_thumb_IP_joint"])[0]]
-    chained = np.clip(2 / 3 * q["right_hand_thumb_CMC_pitch_joint"] - 0.0814487 / 2, lo, hi)  # IP = 0.5 MCP
+    tags = _mimic_tags(inspire_module().inspire_urdf())  # the chain read straight from the URDF: IP <- MCP <- pitch
+    mcp, ip_ratio, ip_offset = tags["right_hand_thumb_IP_joint"]
+    pitch, mcp_ratio, mcp_offset = tags[mcp]
+    assert pitch == "right_hand_thumb_CMC_pitch_joint"
+    chained = np.clip(ip_ratio * (mcp_ratio * q[pitch] + mcp_offset) + ip_offset, lo, hi)
     # the refined grasp is the settled joint state: the follower's PD drive tracks its coupled target to a few mrad
     assert q["right_hand_thumb_IP_joint"] == pytest.approx(chained, abs=0.01)
     drawn = list(pictures.rglob("*.png"))

@@ -218,17 +218,17 @@ def test_tip_force_of_a_heavily_damped_hand_says_lower_the_damping(capsys, tmp_p
     from ges_core.registry import load_registry
 
     registry = load_registry(autoload=False)
-    forces = {}
+    yamls = {}
     for kd in (2.0, 0.05):  # Kp 20: Kd/Kp 0.1 s and 0.0025 s
         folder = tmp_path / f"kd{kd}"
         folder.mkdir()
-        forces[kd] = write_hand(folder, yaml=[("pd_damping: {default: 0.5}", f"pd_damping: {{default: {kd}}}")])
-    damped, _ = probe_tip_forces(FileHand(forces[2.0], forces[2.0].with_suffix(".urdf")), registry.build_sim, sim)
-    light, _ = probe_tip_forces(FileHand(forces[0.05], forces[0.05].with_suffix(".urdf")), registry.build_sim, sim)
+        yamls[kd] = write_hand(folder, yaml=[("pd_damping: {default: 0.5}", f"pd_damping: {{default: {kd}}}")])
+    damped, _ = probe_tip_forces(FileHand(yamls[2.0], yamls[2.0].with_suffix(".urdf")), registry.build_sim, sim)
+    light, _ = probe_tip_forces(FileHand(yamls[0.05], yamls[0.05].with_suffix(".urdf")), registry.build_sim, sim)
     assert np.all(light > 2.5) and np.all(damped < light / 1.5), (damped, light)
-    code, lines = lint(capsys, forces[2.0], "--sim", sim, "--probe", "--skip", "fk", "--skip", "self-collision")
+    code, lines = lint(capsys, yamls[2.0], "--sim", sim, "--probe", "--skip", "fk", "--skip", "self-collision")
     found = [ln for ln in lines if ln.startswith("[tip-force]")]
     assert code == 1 and len(found) == 2
     assert all("fix: lower pd_damping of its joints first: their Kd/Kp is 0.1 s" in ln for ln in found)
-    code, lines = lint(capsys, forces[0.05], "--sim", sim, "--probe", "--skip", "fk", "--skip", "self-collision")
+    code, lines = lint(capsys, yamls[0.05], "--sim", sim, "--probe", "--skip", "fk", "--skip", "self-collision")
     assert not [ln for ln in lines if ln.startswith("[tip-force]")]
