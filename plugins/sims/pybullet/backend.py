@@ -12,7 +12,7 @@ Choices that make it behave like the SAPIEN backend (details in the helper modul
   centre of mass every step (PyBullet has no per-body gravity switch);
 * the table is a static box whose top is z = 0 (a ``GEOM_PLANE`` let dropped boxes skid);
 * self-collision: ``URDF_USE_SELF_COLLISION`` with every pair of
-  :meth:`ges_core.hand.HandModel.excluded_link_pairs` switched off (:func:`.scene.exclude_neighbour_pairs`),
+  :meth:`ges_core.hand.HandModel.excluded_link_pairs` switched off (:func:`.scene.exclude_link_pairs`),
   the SAPIEN backend's rule.
 
 ``SceneConfig.solver_iterations`` goes to PyBullet's ``numSolverIterations`` unchanged unless the

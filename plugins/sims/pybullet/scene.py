@@ -27,7 +27,7 @@ __all__ = [
     "HandLayout",
     "Scene",
     "create_object",
-    "exclude_neighbour_pairs",
+    "exclude_link_pairs",
     "hand_layout",
     "load_hand_body",
     "new_scene",
@@ -154,7 +154,7 @@ def load_hand_body(scene: Scene, hand: HandModel, config: SceneConfig, floating:
         ) from exc
     n = p.getNumJoints(scene.hand, physicsClientId=scene.cid)
     if config.self_collision:
-        exclude_neighbour_pairs(scene, hand.excluded_link_pairs())
+        exclude_link_pairs(scene, hand.excluded_link_pairs())
     movable = [j for j in range(n) if p.getJointInfo(scene.hand, j, physicsClientId=scene.cid)[2] in _MOVABLE]
     # PyBullet gives every movable joint a velocity motor with a small force: switch them off.
     p.setJointMotorControlArray(
@@ -172,11 +172,12 @@ def load_hand_body(scene: Scene, hand: HandModel, config: SceneConfig, floating:
         )
 
 
-def exclude_neighbour_pairs(scene: Scene, pairs: set[frozenset[str]]) -> None:
+def exclude_link_pairs(scene: Scene, pairs: set[frozenset[str]]) -> None:
     """Switch off collisions between the named link pairs of the scene's hand (both directions).
 
     ``URDF_USE_SELF_COLLISION_EXCLUDE_PARENT`` already drops parent-child pairs; the pairs joined
-    through a zero-length link (Shadow: palm-ffproximal through ``ffknuckle``) need this call.
+    through a zero-length link (Shadow: palm-ffproximal through ``ffknuckle``) and those the hand lists in
+    ``self_collision_exclude`` (:meth:`ges_core.hand.HandModel.excluded_link_pairs`) need this call.
     Every pair of ``pairs`` is switched off, parent-child ones included, so the rule does not rest
     on the flag alone.
     """
