@@ -170,7 +170,7 @@ def _check_references(data: _HandFile, names: list[str]) -> None:
 
 def _check_exclusions(data: _HandFile, urdf_text: str) -> None:
     """self_collision_exclude may only pair two different links of the URDF that both have collision geometry."""
-    root = ET.fromstring(urdf_text)
+    root = parse_urdf(urdf_text)
     links = [link.get("name") for link in root.iter("link")]
     solid = {link.get("name") for link in root.iter("link") if link.find("collision") is not None}
     problems = []
