@@ -279,5 +279,33 @@ def test_cli_takes_the_experts_from_the_gate(run, dataset, gate, tmp_path, capsy
     assert main([*bare, "--gate", str(alone)]) == 0
     out = capsys.readouterr().out
     assert f"experts from gate {alone}: scripted, low" in out
-    assert f"from the gate's training matrix: --matrix {mfile}, --hand allegro, --sim sapien, --episodes 1" in out
+    assert f"from the gate's training matrix {mfile}: --hand allegro, --sim sapien, --episodes 1, its seed 0" in out
+    assert f"--matrix {mfile} (the gate's training matrix, same run settings)" in out
     assert "| oracle (best of scripted, low per object) |" in out and "2 taken from the matrix" in out
+    assert "randomized start pose" in out
+
+    # a matrix run with another seed and without randomization: those settings are the run's too (before, the run
+    # took the defaults and refused to complete the matrix, naming seed). The header is edited rather than rerun:
+    # what is tested is which settings the command takes, and the matrix's cells are reused only under equal headers
+    data = json.loads(mfile.read_text())
+    data["run"]["seed"] = 7
+    data["run"]["env"]["randomization"]["enabled"] = False
+    other = tmp_path / "seed7" / "matrix.json"
+    other.parent.mkdir()
+    other.write_text(json.dumps(data))
+    (alone.parent / "summary.json").write_text(json.dumps({"config": {"matrix": str(other)}}))
+    assert main([*bare[:-1], str(tmp_path / "c"), "--gate", str(alone)]) == 0
+    out = capsys.readouterr().out
+    assert "its seed 7" in out and f"--matrix {other} (the gate's training matrix, same run settings)" in out
+    assert "randomization off" in out and "2 taken from the matrix" in out
+    assert json.loads(results_path(tmp_path / "c", "allegro", "sapien", False).read_text())["run"]["seed"] == 7
+    # asking for other settings (here -o seed=8) keeps the default matrix file and names what differs
+    import argparse
+
+    from ges_core.cli.cmd_evaluate import _matrix_from_training
+
+    args = argparse.Namespace(matrix=None)
+    _matrix_from_training(args, run_config(seed=8, env=data["run"]["env"]), other, data["run"])
+    assert args.matrix is None and "(its run differs: seed: 7 -> 8)" in capsys.readouterr().out
+    _matrix_from_training(args, run_config(seed=7, env=data["run"]["env"]), other, data["run"])
+    assert args.matrix == other

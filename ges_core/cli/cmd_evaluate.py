@@ -72,17 +72,21 @@ def run_evaluate(args: argparse.Namespace) -> int:
     set_torch_threads()
     registry = registry_from_args(args)
     gates = [parse_gate(g) for g in args.gate]
-    given = None
+    given, trained_on = None, None
     if not args.expert and gates:
         path = training_matrix(gates[0])
         matrix = read_matrix_json(path) if path is not None else None
         given = gate_experts(gates[0], registry, matrix)  # the first gate's experts; every gate is checked against them
         print(f"experts from gate {gates[0].path}: {', '.join(c.label for c in given)}")
         if matrix is not None:
-            _defaults_from_training_matrix(args, path, matrix.get("run", {}))
+            trained_on = (path, matrix.get("run", {}))
+            _defaults_from_training_matrix(args, *trained_on)
     if len(given or args.expert) < 2:
         raise ConfigError("ges evaluate needs the experts GES chooses among: --expert LABEL=NAME:... twice or more")
-    experts, config = run_from_args(args, registry, "ges evaluate", experts=given)
+    base = trained_on[1] if trained_on else None
+    experts, config = run_from_args(args, registry, "ges evaluate", experts=given, base=base)
+    if trained_on and args.matrix is None:
+        _matrix_from_training(args, config, *trained_on)
     report = evaluate_ges(
         args.dataset, config, experts, gates, args.out or args.dataset.parent / "ges",
         matrix_file=args.matrix, registry=registry, progress=not args.no_progress, fanout=fanout_from_args(args),
@@ -90,7 +94,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     )  # fmt: skip
     paths = write_outputs(report, config.model_dump(mode="json"))
     print(f"GES | hand {config.hand} | sim {config.sim} | {config.envs} episode(s) per object | "
-          f"{randomization_text(args)}\n")  # fmt: skip
+          f"{randomization_text(config)}\n")  # fmt: skip
     print(report.table.markdown("paper") + "\n\n" + report.table.markdown("peers") + "\n")
     print(report.table.accuracy_markdown("paper") + "\n")
     for line in report.late:
@@ -106,14 +110,35 @@ def run_evaluate(args: argparse.Namespace) -> int:
 
 
 def _defaults_from_training_matrix(args: argparse.Namespace, matrix: Path, run: dict) -> None:
-    """With the experts taken from a gate: ``matrix``, the one it was trained on, and its ``run`` header's hand,
-    simulator and episodes per cell, where ``--matrix``, ``--hand``, ``--sim`` and ``--episodes`` are not given (what
-    the gate was trained for, not registry.yaml's defaults); each default taken is printed."""
+    """With the experts taken from a gate: the hand, simulator and episodes per cell of ``run``, the header of
+    ``matrix``, the one the gate was trained on, where ``--hand``, ``--sim`` and ``--episodes`` are not given (what
+    the gate was trained for, not registry.yaml's defaults); each default taken is printed. The header's seed,
+    environment (randomization included) and scene settings become the run's base in ``run_from_args``."""
     taken = []
-    defaults = {"matrix": matrix, "hand": run.get("hand"), "sim": run.get("sim"), "episodes": run.get("envs")}
+    defaults = {"hand": run.get("hand"), "sim": run.get("sim"), "episodes": run.get("envs")}
     for option, value in defaults.items():
         if getattr(args, option) is None and value:
             setattr(args, option, value)
             taken.append(f"--{option} {value}")
+    seeds = f"seed {run['seed']}" if "seed" in run else ""
+    if "env" in run:
+        seeds += f", env.randomization.seed {run['env'].get('randomization', {}).get('seed')}"
+    taken += [f"its {seeds} and environment settings"] if seeds else []
     if taken:
-        print(f"from the gate's training matrix: {', '.join(taken)}")
+        print(f"from the gate's training matrix {matrix}: {', '.join(taken)}")
+
+
+def _matrix_from_training(args: argparse.Namespace, config, matrix: Path, run: dict) -> None:
+    """``--matrix`` defaults to the gate's training matrix when the run's settings are that matrix's (so its cells are
+    completed and reused); with other settings (``-o``, ``--no-randomization``) the default matrix file stays, and
+    the settings that differ are printed."""
+    from ges_core.dataset.layout import config_differences
+    from ges_core.experts.evaluate import run_header
+
+    diffs = config_differences(run, run_header(config))
+    if diffs:
+        print(f"not completing the gate's training matrix (its run differs: {'; '.join(diffs)}); using the default "
+              "--matrix")  # fmt: skip
+    else:
+        args.matrix = matrix
+        print(f"--matrix {matrix} (the gate's training matrix, same run settings)")

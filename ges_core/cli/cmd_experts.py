@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import copy
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -84,11 +85,17 @@ def add_run_options(p: argparse.ArgumentParser) -> None:
 
 
 def run_from_args(
-    args: argparse.Namespace, registry, where: str, *, experts: list[ExpertChoice] | None = None
+    args: argparse.Namespace,
+    registry,
+    where: str,
+    *,
+    experts: list[ExpertChoice] | None = None,
+    base: dict | None = None,
 ) -> tuple[list[ExpertChoice], BaselineConfig]:
     """(the ``--expert`` choices, or ``experts`` when given; the run's BaselineConfig) of an evaluation command's
     options (:func:`add_episode_options`, :func:`add_run_options`); unknown hand, simulator or expert names fail
-    here, listing the known ones."""
+    here, listing the known ones. ``base``: a success matrix's ``run`` header whose ``seed``, ``env`` and ``scene``
+    the run takes instead of the defaults (``--no-randomization`` and ``-o`` still apply on top)."""
     from ges_core.config import apply_overrides, parse_model
     from ges_core.env.evaluate import BaselineConfig
     from ges_core.env.grasp_source import dataset_hand
@@ -105,13 +112,20 @@ def run_from_args(
     episodes = EPISODES if args.episodes is None else args.episodes
     data = {"hand": hand, "sim": sim, "envs": episodes, "selection": args.select}
     data |= {"splits": tuple(args.split)} if args.split else {}
-    data["env"] = {"randomization": {"enabled": False} if args.no_randomization else RANDOMIZED}
+    if base is None:
+        data["env"] = {"randomization": {"enabled": False} if args.no_randomization else RANDOMIZED}
+    else:
+        data |= copy.deepcopy({key: base[key] for key in ("seed", "env", "scene") if key in base})
+        if args.no_randomization:
+            data.setdefault("env", {}).setdefault("randomization", {})["enabled"] = False
     return experts, parse_model(BaselineConfig, apply_overrides(data, args.overrides), where=where)
 
 
-def randomization_text(args: argparse.Namespace) -> str:
+def randomization_text(config: BaselineConfig) -> str:
     """How the run's episodes are randomized, for the header line a command prints."""
-    return "randomization off" if args.no_randomization else "randomized start pose, mass, friction, obs noise"
+    from ges_core.experts.evaluate import is_randomized
+
+    return "randomized start pose, mass, friction, obs noise" if is_randomized(config) else "randomization off"
 
 
 def add_fanout_options(parser: argparse.ArgumentParser) -> None:
@@ -152,7 +166,7 @@ def run_eval_experts(args: argparse.Namespace) -> int:
         progress=not args.no_progress, fanout=fanout,
     )  # fmt: skip
     print(f"{len(report.matrix.experts)} expert(s) | hand {config.hand} | sim {config.sim} | {config.envs} "
-          f"episode(s) per cell | {randomization_text(args)}\n")  # fmt: skip
+          f"episode(s) per cell | {randomization_text(config)}\n")  # fmt: skip
     print(report.table("paper") + "\n\n" + report.table("peers"))
     for line in report.late:
         print(f"note: {line}")
