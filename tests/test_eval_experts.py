@@ -174,6 +174,25 @@ def test_other_settings_under_a_stored_label_or_run_are_refused(full, dataset):
         evaluate_experts(dataset, run_config(), [parse_expert("scriptd")], out, registry=refuse)
 
 
+def test_a_matrix_left_without_cells_is_started_over(dataset, tmp_path):
+    """A run that fails before its first cell (here: every simulator build raises) leaves the matrix with its
+    objects and no cell; a rerun with other settings (envs 3, another column) then starts it over instead of
+    refusing settings nothing was evaluated with. A matrix holding one cell is still refused."""
+    experts = [parse_expert("low=scripted:lift=0.1")]
+    with pytest.raises(AssertionError, match="should not build a simulator"):
+        evaluate_experts(dataset, run_config(), experts, tmp_path, registry=InterruptingRegistry(refuse=True))
+    path = matrix_path(tmp_path, "allegro", "sapien")
+    left = json.loads(path.read_text())
+    assert left["objects"] and not any(left["cells"].values()) and left["run"]["envs"] == 2
+    with pytest.raises(KeyboardInterrupt):  # one cell (the rest pose's build, the episodes'), killed at the next
+        evaluate_experts(dataset, run_config(envs=3), [], tmp_path, registry=InterruptingRegistry(stop_at=3))
+    kept = json.loads(path.read_text())
+    assert kept["run"]["envs"] == 3 and list(kept["experts"]) == ["scripted"]
+    assert sum(len(cells) for cells in kept["cells"].values()) == 1
+    with pytest.raises(ConfigError, match=r"written with other settings \(envs: 3 -> 2\)"):
+        evaluate_experts(dataset, run_config(), [], tmp_path, registry=InterruptingRegistry(refuse=True))
+
+
 def test_a_column_stored_before_its_expert_gained_a_setting_is_the_same_column(full, dataset, tmp_path):
     """A matrix written before the scripted expert had palm_shift lacks it: its columns ran the default (0), so they
     are reused and pool with new ones; a stored column that ran another value is still refused."""

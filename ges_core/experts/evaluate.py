@@ -195,10 +195,13 @@ class _MatrixFile:
     def open(cls, path: Path, header: dict, columns: dict[str, dict], dataset: Path, registry) -> _MatrixFile:
         """The file at ``path`` (empty if there is none), checked against this run's header and columns (stored
         columns completed by :func:`stored_columns`), with the run's columns added (stored columns first, in their
-        order)."""
+        order). A stored file without a single cell (left by a run that failed before its first cell finished, e.g.
+        with a mistaken setting) holds nothing to keep: it is started over under this run's settings instead of
+        refusing them."""
         data = {"run": header, "experts": {}, "baseline": None, "clusters": None, "objects": {}, "cells": {}}
-        if path.is_file():
-            data |= read_matrix_json(path)
+        stored = read_matrix_json(path) if path.is_file() else None
+        if stored is not None and any(stored.get("cells", {}).values()):
+            data |= stored
             data["experts"] = stored_columns(data.get("experts", {}), registry)
             check_stored_run(path, "success matrix", data, header, columns)
         data["experts"] |= columns
