@@ -275,6 +275,17 @@ def test_late_columns_names_the_columns_that_run_out_of_steps(tmp_path):
     assert late_columns(data["cells"], m, episode_length=150, share=1.0) == []
     other = late_columns({"o2": data["cells"]["o"]}, m, episode_length=150)  # cells of objects not in the view
     assert other == []
+    # the late episodes' highest rise tells a plan that needs more steps (held about the lift height) from a policy
+    # that throws the object: the median of the late episodes only (the successes' rises do not count)
+    cells = data["cells"]["o"]
+    cells["edge"]["max_rise"] = [0.45] * k + [0.22] * (n - k)
+    thrown = late_columns(data["cells"], m, episode_length=150, lift_height=0.2)
+    assert len(thrown) == 1 and "median 0.45 m up against the 0.2 m lift" in thrown[0]
+    assert "longer episode will not help" in thrown[0] and "-o env.episode_length" not in thrown[0]
+    cells["edge"]["max_rise"] = [0.29] * k + [0.9] * (n - k)  # under OVERSHOOT lift heights: the plan may not fit
+    held = late_columns(data["cells"], m, episode_length=150, lift_height=0.2)
+    assert len(held) == 1 and "-o env.episode_length=N" in held[0]
+    assert late_columns(data["cells"], m, episode_length=150) == lines  # no lift height: the first advice
 
 
 def test_the_reader_refuses_other_files(tmp_path):

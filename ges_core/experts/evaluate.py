@@ -163,7 +163,9 @@ def evaluate_experts(
     if todo:
         _run_cells(data, registry, config, todo, matrix, report, progress, fanout or Fanout())
     report.matrix = matrix.view(records, choices)
-    report.late = late_columns(matrix.data["cells"], report.matrix, config.env.episode_length)
+    report.late = late_columns(
+        matrix.data["cells"], report.matrix, config.env.episode_length, lift_height=config.env.success.lift_height
+    )
     report.seconds = time.perf_counter() - start
     return report
 

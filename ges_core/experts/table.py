@@ -14,6 +14,11 @@ LATE_SHARE = 0.05
 :func:`late_columns` names it. Measured on the procedural library (265 objects, 4 episodes): the scripted expert and
 the PPO experts 0.4-0.5 %; the script with a 15-step pause 28 % (300 of 1,060), 299 of them with the object 0.2 m up."""
 
+OVERSHOOT = 1.5
+"""A late column whose late episodes' median highest rise is above this many lift heights does not run out of steps
+while holding: the object was thrown or swung (an untrained PPO expert on the demo set sent a box 0.43 m up against
+the 0.2 m lift), and :func:`late_columns` says so instead of suggesting a longer episode."""
+
 
 def split_rates(matrix: SuccessMatrix, protocol: str = "paper", split: str | None = None) -> dict[str, float | None]:
     """Column label -> success rate over every episode of the objects of ``split`` (all for None); None: no episodes.
@@ -60,19 +65,41 @@ def _cell(matrix: SuccessMatrix, protocol: str, split: str | None, column: int) 
     return f"{100 * k / n:.1f} % ({k}/{n})" if n else "-"
 
 
-def late_columns(cells: dict, matrix: SuccessMatrix, episode_length: int, share: float = LATE_SHARE) -> list[str]:
+def late_columns(
+    cells: dict,
+    matrix: SuccessMatrix,
+    episode_length: int,
+    share: float = LATE_SHARE,
+    lift_height: float | None = None,
+) -> list[str]:
     """One line per expert column of ``matrix`` whose episodes ran out of control steps with the object lifted (end
     reason ``timeout``) in at least ``share`` of its episodes on ``matrix``'s objects: its plan may not fit
     ``episode_length`` steps, which the paper protocol's hold needs at the end. ``cells``: the matrix file's cells
-    (``read_matrix_json(path)["cells"]``, where each episode's end reason is kept). Empty when no column does."""
+    (``read_matrix_json(path)["cells"]``, where each episode's end reason and highest rise are kept). With
+    ``lift_height`` (m), a column whose late episodes went a median of more than :data:`OVERSHOOT` lift heights up is
+    named as throwing or swinging the object instead (a longer episode would not help). Empty when no column is late."""
     lines = []
     for label in matrix.experts:
-        reasons = [r for oid in matrix.object_ids for r in cells.get(oid, {}).get(label, {}).get("end_reasons", ())]
+        reasons, rises = [], []
+        for oid in matrix.object_ids:
+            cell = cells.get(oid, {}).get(label, {})
+            reasons += cell.get("end_reasons", ())
+            pairs = zip(cell.get("end_reasons", ()), cell.get("max_rise", ()), strict=False)  # old cells: no rises
+            rises += [h for r, h in pairs if r == "timeout"]
         n, late = len(reasons), reasons.count("timeout")
-        if n and late / n >= share:
+        if not (n and late / n >= share):
+            continue
+        head = f"expert '{label}': {late} of {n} episodes ({100 * late / n:.0f} %) ran out of the episode's "
+        rise = float(np.median(rises)) if rises else None
+        if lift_height is not None and rise is not None and rise > OVERSHOOT * lift_height:
             lines.append(
-                f"expert '{label}': {late} of {n} episodes ({100 * late / n:.0f} %) ran out of the episode's "
-                f"{episode_length} control steps with the object lifted but not yet held: its plan may not fit the "
-                "episode (a longer one for every column: -o env.episode_length=N, into another --out)"
+                head + f"{episode_length} control steps with the object lifted but not held, after going a median "
+                f"{rise:.2f} m up against the {lift_height:g} m lift: it throws or swings the object rather than "
+                "holding it (a longer episode will not help; train the expert further)"
+            )
+        else:
+            lines.append(
+                head + f"{episode_length} control steps with the object lifted but not yet held: its plan may not "
+                "fit the episode (a longer one for every column: -o env.episode_length=N, into another --out)"
             )
     return lines
