@@ -99,3 +99,20 @@ def test_cache_keys_and_stored_configs(folder):
     chosen = stored_dump(SynthesisConfig.model_validate(data))
     assert chosen["library"]["rest"] == "as_authored"
     assert chosen["library"]["object_properties"]["a/b/c"]["rest"] == "stable"
+
+
+def test_cli_rest_option(folder, capsys):
+    """``--rest ID=MODE`` (ges objects list/prepare, synth, demo) over objects.yaml; a bad mode or a missing ``=``
+    is a clear error."""
+    from ges_core.cli import main
+
+    base = ["objects", "list", "--user-dir", str(folder), "--sizes"]
+    assert main(base) == 0
+    lying = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("user/box/tall"))
+    assert main([*base, "--rest", "box/tall=as_authored"]) == 0
+    standing = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("user/box/tall"))
+    assert " 5.0 cm  min width" in lying and " 16.0 cm  min width" in standing
+    assert main([*base, "--rest", "box/tall=upright"]) == 1
+    assert "object_properties.user/box/tall.rest: Input should be 'stable' or 'as_authored'" in capsys.readouterr().err
+    assert main([*base, "--rest", "box/tall"]) == 1
+    assert "--rest 'box/tall': write OBJECT_ID=VALUE" in capsys.readouterr().err

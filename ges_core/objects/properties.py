@@ -107,16 +107,20 @@ def read_objects_file(folder: Path, object_ids: Iterable[str]) -> dict[str, Obje
     return {oid: merge_properties(parsed.defaults, found.get(oid)) for oid in known}
 
 
-def parse_assignments(items: Iterable[str], field: str, *, option: str) -> dict[str, dict[str, float]]:
-    """``["ID=VALUE", ...]`` (command line) -> ``{ID: {field: VALUE}}``; ConfigError naming ``option``."""
-    out: dict[str, dict[str, float]] = {}
+def parse_assignments(
+    items: Iterable[str], field: str, *, option: str, convert=float, example: str = "user/mug/blue=0.35"
+) -> dict[str, dict]:
+    """``["ID=VALUE", ...]`` (command line) -> ``{ID: {field: convert(VALUE)}}``; ConfigError naming ``option``
+    (``convert`` raising ValueError: a bad value; its range is checked where the properties are parsed)."""
+    out: dict[str, dict] = {}
     for item in items:
         oid, sep, raw = item.partition("=")
         try:
-            value = float(raw)
+            value = convert(raw)
         except ValueError:
             value = None
-        if not sep or not oid.strip() or value is None:
-            raise ConfigError(f"{option} '{item}': write OBJECT_ID=NUMBER, e.g. {option} user/mug/blue=0.35")
+        if not sep or not oid.strip() or value is None or value == "":
+            what = "NUMBER" if convert is float else "VALUE"
+            raise ConfigError(f"{option} '{item}': write OBJECT_ID={what}, e.g. {option} {example}")
         out.setdefault(oid.strip(), {})[field] = value
     return out
