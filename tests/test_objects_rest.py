@@ -116,3 +116,22 @@ def test_cli_rest_option(folder, capsys):
     assert "object_properties.user/box/tall.rest: Input should be 'stable' or 'as_authored'" in capsys.readouterr().err
     assert main([*base, "--rest", "box/tall"]) == 1
     assert "--rest 'box/tall': write OBJECT_ID=VALUE" in capsys.readouterr().err
+
+
+def test_prepare_decomposes_the_placement_the_run_uses(folder):
+    """A concave mesh is decomposed before a run in the placement the run will use: after preparing an
+    ``as_authored`` library, its asset loads without computing anything (before, preparing decomposed the stable
+    placement and the run found no collision model for the authored one)."""
+    from ges_core.objects.prepare import prepare_before_run
+    from ges_core.objects.procedural import _extrude_star_polygon
+
+    ell = np.array([[0, 0], [0.08, 0], [0.08, 0.025], [0.025, 0.025], [0.025, 0.08], [0, 0.08]])
+    (folder / "bracket").mkdir()
+    _extrude_star_polygon(ell, 0.03).export(folder / "bracket" / "ell.obj")  # lying flat in its file
+    library = ObjectLibrary(sources=("user",), user_dir=folder, rest="as_authored")
+    stable = ObjectLibrary(sources=("user",), user_dir=folder)
+    assert library.processed("user/bracket/ell").mesh_hash != stable.processed("user/bracket/ell").mesh_hash
+    results = prepare_before_run(library, ["user/bracket/ell"], progress=False)
+    assert [r.status for r in results] == ["decomposed"]
+    asset = library.get("user/bracket/ell", decompose=False)  # an AssetError if the authored placement lacked one
+    assert len(asset.collision) >= 2

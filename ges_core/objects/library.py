@@ -159,6 +159,9 @@ class ObjectLibrary:
         unknown = sorted(set(cfg.object_properties) - set(entries))
         if unknown:
             raise ConfigError(f"object_properties: {', '.join(unknown)} not in the library (sources {cfg.sources})")
+        for oid, e in entries.items():  # how each rests: the run's object_properties, the source's own, the library's
+            rest = getattr(cfg.object_properties.get(oid), "rest", None) or e.rest or cfg.rest
+            entries[oid] = replace(e, rest=rest) if rest != e.rest else e
         _check_held_out(cfg, {e.category for e in entries.values()})
         return entries
 
@@ -198,10 +201,6 @@ class ObjectLibrary:
         if object_id not in self._processed:
             cfg = self.config
             entry = self.entry(object_id)
-            own = getattr(cfg.object_properties.get(object_id), "rest", None)
-            rest = own or entry.rest or cfg.rest  # the run's object_properties, the source's own, the library's
-            if rest != (entry.rest or "stable"):
-                entry = replace(entry, rest=rest)
             self._processed[object_id] = process_entry(
                 entry, normalize_size=cfg.normalize_size, max_faces=cfg.max_faces
             )
