@@ -49,6 +49,11 @@ def add_user_options(p: argparse.ArgumentParser) -> None:
             f"--{option}", action="append", default=[], metavar="ID=VALUE",
             help=f"{option} ({unit}) of one object, over objects.yaml (repeatable)",
         )  # fmt: skip
+    p.add_argument(
+        "--rest", action="append", default=[], metavar="ID=MODE",
+        help="how one object rests on the table, over objects.yaml (repeatable): stable (its most probable pose, the "
+        "default) or as_authored (its file's +z up, e.g. a scan that stands); every object: -o library.rest=MODE",
+    )  # fmt: skip
 
 
 def user_sources(args: argparse.Namespace, default: tuple[str, ...]) -> tuple[str, ...]:
@@ -61,13 +66,18 @@ def user_sources(args: argparse.Namespace, default: tuple[str, ...]) -> tuple[st
 
 
 def property_overrides(args: argparse.Namespace) -> dict[str, dict[str, float]]:
-    """``{object id: {mass|density|friction: value}}`` from ``--mass``, ``--density`` and ``--friction``."""
+    """``{object id: {mass|density|friction|rest: value}}`` from ``--mass``, ``--density``, ``--friction`` and
+    ``--rest``."""
     from ges_core.objects.properties import parse_assignments
 
-    merged: dict[str, dict[str, float]] = {}
+    merged: dict[str, dict] = {}
     for field in ("mass", "density", "friction"):
         for oid, values in parse_assignments(getattr(args, field), field, option=f"--{field}").items():
             merged.setdefault(user_id(oid, args), {}).update(values)
+    example = "real/box/cracker_box=as_authored"
+    rests = parse_assignments(getattr(args, "rest", []), "rest", option="--rest", convert=str.strip, example=example)
+    for oid, values in rests.items():
+        merged.setdefault(user_id(oid, args), {}).update(values)
     return merged
 
 

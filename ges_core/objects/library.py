@@ -9,14 +9,14 @@
 from __future__ import annotations
 
 import difflib
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import cached_property
 from pathlib import Path
 
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from ges_core.config import ConfigModel, parse_model
+from ges_core.config import STORED_WHEN_SET, ConfigModel, parse_model
 from ges_core.errors import ConfigError, UnknownNameError
 from ges_core.objects.asset import ObjectAsset
 from ges_core.objects.bounds import DEFAULT_MAX_FACES
@@ -24,7 +24,7 @@ from ges_core.objects.decompose import FAST, CoacdSettings
 from ges_core.objects.pointcloud import sample_surface
 from ges_core.objects.procedural import HELD_OUT_CATEGORIES
 from ges_core.objects.processing import ProcessedObject, collision_shapes, collision_volume, min_width, process_entry
-from ges_core.objects.properties import ObjectProperties, merge_properties
+from ges_core.objects.properties import ObjectProperties, Rest, merge_properties
 from ges_core.objects.real import list_real
 from ges_core.objects.sources import SOURCES, ObjectEntry, list_procedural, list_pybullet, list_user
 from ges_core.objects.splits import SPLITS, assign_splits
@@ -67,9 +67,16 @@ class LibraryConfig(ConfigModel):
     )
     density: float = Field(_ASSET_DEFAULTS.density, gt=0, description="kg/m^3 of every object")
     friction: float = Field(_ASSET_DEFAULTS.friction, description="friction coefficient of every object")
+    rest: Rest = Field(
+        "stable",
+        description="how every object rests on the table unless its own rest says otherwise: stable (its most "
+        "probable resting pose) or as_authored (its file's +z up; procedural shapes are built upright either way)",
+        json_schema_extra=STORED_WHEN_SET,  # added after datasets were written: stored only when set
+    )
     object_properties: dict[str, ObjectProperties] = Field(
         default_factory=dict,
-        description="per object id: mass (kg) or density (kg/m^3), friction; over the source's and objects.yaml's",
+        description="per object id: mass (kg) or density (kg/m^3), friction, rest (stable or as_authored); over the "
+        "source's and objects.yaml's",
     )
 
     @field_validator("sources")
@@ -152,6 +159,9 @@ class ObjectLibrary:
         unknown = sorted(set(cfg.object_properties) - set(entries))
         if unknown:
             raise ConfigError(f"object_properties: {', '.join(unknown)} not in the library (sources {cfg.sources})")
+        for oid, e in entries.items():  # how each rests: the run's object_properties, the source's own, the library's
+            rest = getattr(cfg.object_properties.get(oid), "rest", None) or e.rest or cfg.rest
+            entries[oid] = replace(e, rest=rest) if rest != e.rest else e
         _check_held_out(cfg, {e.category for e in entries.values()})
         return entries
 

@@ -68,6 +68,7 @@ def cache_key(entry: ObjectEntry, *, normalize_size: float | None, max_faces: in
         "source": entry.source,
         "normalize_size": normalize_size,
         "max_faces": max_faces,
+        "rest": entry.rest or "stable",
         "code": _code_hash(),
     }
     return hashlib.sha256(json.dumps(spec, sort_keys=True).encode()).hexdigest()[:24]

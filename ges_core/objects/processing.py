@@ -106,7 +106,8 @@ def process_entry(
 
 def _process(entry: ObjectEntry, *, normalize_size: float | None, max_faces: int) -> ProcessedObject:
     mesh, kind, primitives = _raw_geometry(entry, max_faces=max_faces, check_size=normalize_size is None)
-    placed, transform = place_on_table(mesh, rotate=entry.source != "procedural")
+    # procedural shapes are built upright; a file mesh takes its most probable resting pose unless told otherwise
+    placed, transform = place_on_table(mesh, rotate=entry.source != "procedural" and entry.rest != "as_authored")
     primitives = tuple(transform_primitive(p, transform) for p in primitives)
     if normalize_size is not None:  # after placement: scaling about the origin keeps the rest pose
         factor = normalize_size / float(np.max(placed.extents))

@@ -1,4 +1,4 @@
-"""Per-object physical properties: mass or density, and friction.
+"""Per-object properties: mass or density, friction, and how the object rests on the table.
 
 Three places give them, the later winning: the source (the real set's published masses), an
 ``objects.yaml`` beside a user's meshes, and ``LibraryConfig.object_properties`` (what ``--mass``,
@@ -13,20 +13,28 @@ that every simulator (which computes mass from density and collision shapes) get
     objects:                  # keyed <category>/<instance> (or the full id user/<category>/<instance>)
       mug/blue:   {mass: 0.35}          # kg
       fruit/pear: {density: 900, friction: 0.5}
+      box/cereal: {rest: as_authored}   # stands as the file has it (z up), not in its most probable pose
+
+``rest``: ``stable`` (the default: the most probable resting pose of :func:`.placement.stable_rotation`) or
+``as_authored`` (the file's own orientation, its +z up; only moved so its lowest point is on the table and its
+centre of mass above the origin). Scans are usually authored standing (the YCB boxes and bottles are), while their
+most probable pose lies them flat. Stage 1 checks in both engines that the pose is stable before grasping.
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterable
 from pathlib import Path
+from typing import Literal
 
 from pydantic import Field, model_validator
 
-from ges_core.config import ConfigModel, parse_model, read_yaml
+from ges_core.config import STORED_WHEN_SET, ConfigModel, parse_model, read_yaml
 from ges_core.errors import ConfigError
 
 __all__ = [
     "OBJECTS_FILE",
+    "Rest",
     "ObjectProperties",
     "ObjectsFile",
     "merge_properties",
@@ -36,13 +44,21 @@ __all__ = [
 
 OBJECTS_FILE = "objects.yaml"
 
+Rest = Literal["stable", "as_authored"]
+"""How an object is set on the table (module docs)."""
+
 
 class ObjectProperties(ConfigModel):
-    """Physical properties of one object; each one unset (None) falls back to the next source."""
+    """Physical properties and resting pose of one object; each one unset (None) falls back to the next source."""
 
     mass: float | None = Field(None, gt=0, description="kg; the density becomes mass / collision volume")
     density: float | None = Field(None, gt=0, description="kg/m^3")
     friction: float | None = Field(None, ge=0, description="Coulomb friction coefficient of the object's surface")
+    rest: Rest | None = Field(
+        None,
+        description="stable (most probable resting pose, the default) or as_authored (the file's +z up)",
+        json_schema_extra=STORED_WHEN_SET,  # added after datasets were written: stored only when set
+    )
 
     @model_validator(mode="after")
     def _mass_or_density(self) -> ObjectProperties:
@@ -61,12 +77,14 @@ class ObjectsFile(ConfigModel):
 
 
 def merge_properties(base: ObjectProperties | None, top: ObjectProperties | None) -> ObjectProperties | None:
-    """``top`` over ``base``: a mass or density in ``top`` replaces both of ``base``'s; friction field by field."""
+    """``top`` over ``base``: a mass or density in ``top`` replaces both of ``base``'s; friction and rest field by
+    field."""
     if base is None or top is None:
         return top if base is None else base
     weight = top if (top.mass is not None or top.density is not None) else base
     friction = top.friction if top.friction is not None else base.friction
-    return ObjectProperties(mass=weight.mass, density=weight.density, friction=friction)
+    rest = top.rest if top.rest is not None else base.rest
+    return ObjectProperties(mass=weight.mass, density=weight.density, friction=friction, rest=rest)
 
 
 def read_objects_file(folder: Path, object_ids: Iterable[str]) -> dict[str, ObjectProperties]:
@@ -89,16 +107,20 @@ def read_objects_file(folder: Path, object_ids: Iterable[str]) -> dict[str, Obje
     return {oid: merge_properties(parsed.defaults, found.get(oid)) for oid in known}
 
 
-def parse_assignments(items: Iterable[str], field: str, *, option: str) -> dict[str, dict[str, float]]:
-    """``["ID=VALUE", ...]`` (command line) -> ``{ID: {field: VALUE}}``; ConfigError naming ``option``."""
-    out: dict[str, dict[str, float]] = {}
+def parse_assignments(
+    items: Iterable[str], field: str, *, option: str, convert=float, example: str = "user/mug/blue=0.35"
+) -> dict[str, dict]:
+    """``["ID=VALUE", ...]`` (command line) -> ``{ID: {field: convert(VALUE)}}``; ConfigError naming ``option``
+    (``convert`` raising ValueError: a bad value; its range is checked where the properties are parsed)."""
+    out: dict[str, dict] = {}
     for item in items:
         oid, sep, raw = item.partition("=")
         try:
-            value = float(raw)
+            value = convert(raw)
         except ValueError:
             value = None
-        if not sep or not oid.strip() or value is None:
-            raise ConfigError(f"{option} '{item}': write OBJECT_ID=NUMBER, e.g. {option} user/mug/blue=0.35")
+        if not sep or not oid.strip() or value is None or value == "":
+            what = "NUMBER" if convert is float else "VALUE"
+            raise ConfigError(f"{option} '{item}': write OBJECT_ID={what}, e.g. {option} {example}")
         out.setdefault(oid.strip(), {})[field] = value
     return out

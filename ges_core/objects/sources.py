@@ -56,6 +56,9 @@ class ObjectEntry:
     """kg/m^3 of this object (a user's ``objects.yaml``); None: the library's."""
     friction: float | None = None
     """Friction coefficient of this object (a user's ``objects.yaml``); None: the library's."""
+    rest: str | None = None
+    """How it rests on the table (:data:`.properties.Rest`; a user's ``objects.yaml``, or the library's
+    ``object_properties``); None: ``stable``."""
     problem: str | None = None
     """Why this object cannot be used, found while listing (two files give its id); processing it raises an
     AssetError with this reason. Listed rather than dropped, so that the rest of its folder stays usable and
@@ -148,7 +151,7 @@ def list_user(folder: str | Path, *, scale: float = 1.0) -> list[ObjectEntry]:
     """Meshes laid out ``folder/<category>/<instance>.{obj,stl,ply,glb}``, ids ``user/<category>/<instance>``.
 
     scale: factor taking the files' units to metres (e.g. 0.001 for millimetre STL files).
-    An ``objects.yaml`` in ``folder`` gives masses, densities and frictions (:mod:`.properties`).
+    An ``objects.yaml`` in ``folder`` gives masses, densities, frictions and resting poses (:mod:`.properties`).
     Two files giving one id (``mug.obj`` and ``mug.stl``) make that one entry unusable (its ``problem``
     names both files); the rest of the folder is listed as usual.
     """
@@ -171,5 +174,5 @@ def _user_entry(object_id: str, paths: list[Path], scale: float, props: ObjectPr
     props = props or ObjectProperties()
     return ObjectEntry(
         object_id=object_id, category=category, source="user", path=paths[0], scale=(scale,) * 3, problem=problem,
-        mass=props.mass, density=props.density, friction=props.friction,
+        mass=props.mass, density=props.density, friction=props.friction, rest=props.rest,
     )  # fmt: skip
