@@ -142,3 +142,7 @@ def test_a_two_finger_hand_is_refused_before_the_dataset_exists(tmp_path, monkey
     err = capsys.readouterr().err
     assert code != 0 and "one finger ('index') serves both the middle and the little slot" in err, err
     assert not out.exists()
+    # ges hand lint says it too, as a note of the slots check (before, it said nothing)
+    code = main(["--registry", str(tmp_path / "registry.yaml"), "hand", "lint", "example_gripper", "--sim", "sapien"])
+    note = "[slots] note: hand 'example_gripper': one finger ('index') serves both"
+    assert code == 0 and note in capsys.readouterr().out

@@ -45,8 +45,11 @@ def lint_lines(capsys, path: Path, *extra: str) -> tuple[int, list[str]]:
 
 
 def test_example_gripper_is_clean(capsys, tmp_path):
+    """Clean but for one note: its index finger serves the middle and little slots, so Stage 1 (which tells the
+    palm's left from its right by those two fingertips) refuses it; the lint says so before any run."""
     code, lines = lint_lines(capsys, broken_hand(tmp_path))
-    assert (code, lines) == (0, [])
+    assert code == 0 and len(lines) == 1, lines
+    assert lines[0].startswith("[slots] note: hand 'example_gripper': one finger ('index') serves both the middle")
 
 
 INDEX_J2_LIMIT = '<limit lower="0" upper="1.2" effort="10" velocity="3"/></joint>\n  <link name="index_tip"/>'

@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 
 from ges_core.contact import FINGER_SLOTS
+from ges_core.errors import AssetError
 from ges_core.hand import HandDescription
 from ges_core.lint.problems import LintProblem
 from ges_core.lint.urdf_tree import UrdfTree
@@ -82,6 +83,14 @@ def check_slots(d: HandDescription, tree: UrdfTree) -> list[LintProblem]:
                     "fix the finger's joints list",
                 )
             )
+    if not out:  # every slot resolves: the rule Stage 1 refuses a hand by, said here before any run
+        from ges_core.synthesis.retarget.wrist import check_handedness_fingers
+
+        try:
+            check_handedness_fingers(d)
+        except AssetError as exc:  # a note: the model itself is sound (it loads and simulates), Stage 1 cannot use it
+            fix = "map the middle and little slots to two different fingers to synthesize grasps with it"
+            out.append(LintProblem("slots", str(exc), fix, note=True))
     return out
 
 
