@@ -14,6 +14,7 @@ from ges_core.env.reward import reward_preset
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.env.workers import SubprocVecEnv
 from ges_core.errors import AssetError, ConfigError
+from ges_core.hand_prep.prepare import built_prepared
 from ges_core.hand_settings import hand_train_config
 from ges_core.sim import SceneConfig
 from ges_core.training.config import TrainConfig
@@ -70,7 +71,7 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
     and no ``objects``) and the vectorized env of a run; the hand's ``settings.train`` fills what ``cfg`` leaves
     unset (``TrainingSetup.config``)."""
     hand_name, sim_name = dataset_hand(dataset_path, registry, cfg.hand), cfg.sim or registry.default("sim")
-    hand = registry.build_hand(hand_name)
+    hand = built_prepared(registry, hand_name)  # decomposed as ges synth does, so the hand is Stage 1's
     data = open_grasp_dataset(dataset_path)
     warn_if_hand_changed(data.manifest, data.root, hand_name, hand)
     cfg = hand_train_config(hand.description, cfg)

@@ -21,6 +21,7 @@ from ges_core.env.evaluate.config import BaselineConfig
 from ges_core.env.evaluate.runner import dataset_scene, evaluate_object
 from ges_core.env.grasp_source import library_for, open_grasp_dataset
 from ges_core.executors.base import TaskLostError
+from ges_core.hand_prep.prepare import built_prepared
 
 __all__ = ["Cell", "Fanout", "evaluate_cells"]
 
@@ -58,10 +59,12 @@ def evaluate_cells(
     from its folder.
     records: object id -> record (this process's selection). A cell whose worker died on every attempt is left
     out and, after every other row, raised as one TaskLostError naming its objects (a rerun resumes them).
-    A hand other than the dataset's (:func:`~ges_core.dataset.hands.warn_if_hand_changed`) is warned about first.
+    Each hand's deep hulls are decomposed first as ``ges synth`` does (:func:`~ges_core.hand_prep.prepare.
+    built_prepared`), then a hand other than the dataset's (:func:`~ges_core.dataset.hands.warn_if_hand_changed`) is
+    warned about.
     """
     for name in sorted({c.config.hand for c in cells}):
-        warn_if_hand_changed(data.manifest, data.root, name, registry.build_hand(name))
+        warn_if_hand_changed(data.manifest, data.root, name, built_prepared(registry, name))
     if fanout.here:
         sources = _Sources(data, registry)
         for i, cell in enumerate(cells):
