@@ -57,14 +57,14 @@ def _drop_unset_late_fields(model: BaseModel, data: dict) -> None:
             continue
         if isinstance(value, BaseModel):
             _drop_unset_late_fields(value, data[key])
-        elif isinstance(value, dict):  # models keyed by name (LibraryConfig.object_properties)
-            for item, sub in value.items():
-                if isinstance(sub, BaseModel) and isinstance(data[key].get(item), dict):
-                    _drop_unset_late_fields(sub, data[key][item])
         elif (info.json_schema_extra or {}).get("stored_when_set") and value == info.get_default(
             call_default_factory=True
         ):
             del data[key]
+        elif isinstance(value, dict):  # models keyed by name (LibraryConfig.object_properties)
+            for item, sub in value.items():
+                if isinstance(sub, BaseModel) and isinstance(data[key].get(item), dict):
+                    _drop_unset_late_fields(sub, data[key][item])
 
 
 class Defaults(ConfigModel):

@@ -126,12 +126,16 @@ class _Outer(ConfigModel):
     inner: _Inner = Field(default_factory=_Inner)
     extras: dict[str, int] = Field(default_factory=dict, json_schema_extra=STORED_WHEN_SET)
     named: float = Field(2.0, alias="renamed")
+    by_name: dict[str, _Inner] = Field(default_factory=dict)
 
 
 def test_stored_dump_leaves_out_late_fields_at_their_defaults_at_any_depth():
     """A field added after configs were stored is absent while at its default (the stored JSON and its hash as
     before), present once set; every other field, defaults included, is stored as model_dump gives it."""
-    assert stored_dump(_Outer()) == {"inner": {"kept": 1}, "renamed": 2.0}
+    assert stored_dump(_Outer()) == {"inner": {"kept": 1}, "renamed": 2.0, "by_name": {}}
     changed = _Outer.model_validate({"inner": {"late": 3}, "extras": {"a": 1}})
-    assert stored_dump(changed) == {"inner": {"kept": 1, "late": 3}, "extras": {"a": 1}, "renamed": 2.0}
+    assert stored_dump(changed) == {"inner": {"kept": 1, "late": 3}, "extras": {"a": 1}, "renamed": 2.0, "by_name": {}}
+    # models keyed by name (LibraryConfig.object_properties): their late fields too
+    named = _Outer.model_validate({"by_name": {"x": {}, "y": {"late": 4}}})
+    assert stored_dump(named)["by_name"] == {"x": {"kept": 1}, "y": {"kept": 1, "late": 4}}
     assert _Outer.model_validate(stored_dump(_Outer())) == _Outer()  # what is left out reads back as the default

@@ -182,9 +182,9 @@ def format_decomposed(hand: str, plans: list[MeshPlan]) -> str:
 
 def built_prepared(registry, name: str) -> HandModel:
     """Hand ``name`` built by ``registry`` after :func:`decompose_deep_hulls` (its bar shown and its line printed
-    only when there is something to decompose): what ``ges synth`` and ``ges demo`` do before a run, for a run that meets a dataset's
-    grasps (Stage 2), so that it collides the hand as Stage 1 did instead of warning that the hand differs. Measuring
-    costs a fraction of a second when nothing is left to decompose."""
+    only when there is something to decompose): what ``ges synth`` and ``ges demo`` do before a run, for a run that
+    meets a dataset's grasps (Stage 2), so that it collides the hand as Stage 1 did instead of warning that the hand
+    differs. Measuring costs a fraction of a second when nothing is left to decompose."""
     hand = registry.build_hand(name)
     done = decompose_deep_hulls(hand, progress=True)
     if not done:
