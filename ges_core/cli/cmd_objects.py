@@ -65,7 +65,7 @@ def user_sources(args: argparse.Namespace, default: tuple[str, ...]) -> tuple[st
     return ("user",) + (tuple(s for s in default if s != "user") if args.with_library else ())
 
 
-def property_overrides(args: argparse.Namespace) -> dict[str, dict[str, float]]:
+def property_overrides(args: argparse.Namespace) -> dict[str, dict]:
     """``{object id: {mass|density|friction|rest: value}}`` from ``--mass``, ``--density``, ``--friction`` and
     ``--rest``."""
     from ges_core.objects.properties import parse_assignments
