@@ -63,10 +63,11 @@ def evaluate_cells(
     built_prepared`), then a hand other than the dataset's (:func:`~ges_core.dataset.hands.warn_if_hand_changed`) is
     warned about.
     """
-    for name in sorted({c.config.hand for c in cells}):
-        warn_if_hand_changed(data.manifest, data.root, name, built_prepared(registry, name))
+    hands = {name: built_prepared(registry, name) for name in sorted({c.config.hand for c in cells})}
+    for name, hand in hands.items():
+        warn_if_hand_changed(data.manifest, data.root, name, hand)
     if fanout.here:
-        sources = _Sources(data, registry)
+        sources = _Sources(data, registry, hands)
         for i, cell in enumerate(cells):
             yield i, sources.evaluate(records[cell.object_id], cell.config)
         return
@@ -95,10 +96,11 @@ def evaluate_cells(
 class _Sources:
     """What every cell of one dataset needs, built once: the dataset, its object library, hands and scenes."""
 
-    def __init__(self, data, registry) -> None:
+    def __init__(self, data, registry, hands: dict[str, Any] | None = None) -> None:
+        """hands: hands already built (name -> HandModel; the caller's), the rest built on first use."""
         self.data, self.registry = data, registry
         self.library = library_for(self.data)
-        self._hands: dict[str, Any] = {}
+        self._hands: dict[str, Any] = dict(hands or {})
         self._scenes: dict[tuple, Any] = {}
 
     def evaluate(self, record: GraspRecord, c: BaselineConfig) -> dict:
