@@ -307,14 +307,20 @@ def test_scripted_expert_refuses_nogoal(dataset, tmp_path):
         evaluate_baseline(dataset, config, tmp_path, registry=CountingRegistry())
 
 
-def test_grasps_made_for_another_description_of_the_hand_are_warned_about(dataset, tmp_path):
+def test_grasps_made_for_another_description_of_the_hand_are_warned_about(dataset, tmp_path, monkeypatch):
     """Stage 2 reads the hand the dataset's manifest describes (its hash and fields) and warns, naming each changed
-    field, when the hand it builds differs; the same dataset as made gives no warning. (With the cells refused by
-    the registry, no simulator runs: the warning comes before the cells.)"""
+    field, when the hand it builds (prepared, ``built_prepared``, as ges synth does) differs; the same dataset as
+    made gives no warning. (With the cells refused by the registry, no simulator runs: the warning comes before the
+    cells.)"""
     import shutil
     import warnings
 
     from ges_core.dataset.hands import HandChangedWarning
+    from ges_core.env.evaluate import fanout
+
+    built = []
+    real = fanout.built_prepared
+    monkeypatch.setattr(fanout, "built_prepared", lambda registry, name: built.append(name) or real(registry, name))
 
     with warnings.catch_warnings():
         warnings.simplefilter("error", HandChangedWarning)
@@ -328,3 +334,4 @@ def test_grasps_made_for_another_description_of_the_hand_are_warned_about(datase
     (copy / "manifest.json").write_text(json.dumps(manifest))
     with pytest.warns(HandChangedWarning, match=rf"hand 'allegro'.*{re.escape(joint)}: 123.0 -> 400.0.*ges synth"):
         evaluate_baseline(copy, short_config(), tmp_path / "changed", registry=CountingRegistry(refuse=True))
+    assert built == ["allegro", "allegro"]  # once per evaluation

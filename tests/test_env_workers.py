@@ -243,11 +243,17 @@ def test_each_env_draws_from_its_own_streams_whatever_the_split() -> None:
         again.set_state([{}, {}, {}, {}])
 
 
-def test_training_on_grasps_made_for_another_description_of_the_hand_is_warned_about(tmp_path):
+def test_training_on_grasps_made_for_another_description_of_the_hand_is_warned_about(tmp_path, monkeypatch):
     """``ges train-expert`` (build_setup) compares the hand it builds with the one the dataset's manifest describes,
-    as evaluation does (tests/test_env_evaluate.py). The test dataset predates hand descriptions: it is given one
-    with other gains."""
+    as evaluation does (tests/test_env_evaluate.py), after building it prepared (``built_prepared``, as ges synth
+    does). The test dataset predates hand descriptions: it is given one with other gains."""
     import shutil
+
+    from ges_core.training import envs
+
+    built = []
+    real = envs.built_prepared
+    monkeypatch.setattr(envs, "built_prepared", lambda registry, name: built.append(name) or real(registry, name))
 
     from ges_core.dataset.hands import HandChangedWarning, hand_entry
 
@@ -262,3 +268,4 @@ def test_training_on_grasps_made_for_another_description_of_the_hand_is_warned_a
     cfg = load_train_config("tiny", overrides=[*FAST, "num_envs=2", "workers=1"])
     with pytest.warns(HandChangedWarning, match=rf"{joint.replace('[', '.').replace(']', '.')}: 123.0 -> 400.0"):
         build_setup(copy, cfg, load_registry()).venv.close()
+    assert built == ["allegro"]

@@ -150,13 +150,11 @@ def test_a_two_finger_hand_is_refused_before_the_dataset_exists(tmp_path, monkey
 
 @pytest.mark.slow
 def test_stage2_builds_the_hand_decomposed_as_synth_does(empty_cache, tmp_path, capsys):
-    """Stage 2's entry points (``training.envs.build_setup``, ``env.evaluate.fanout.evaluate_cells``) build their hand
-    with :func:`built_prepared`: on a fresh cache it decomposes the deep hull first and says so, so the hand is the
-    prepared one Stage 1 ran (the dataset's stored description) instead of a hull that warns ``HandChangedWarning``;
-    with the parts cached it builds the same hand and prints nothing."""
-    from ges_core.env.evaluate import fanout
+    """Stage 2's entry points (``training.envs.build_setup``, ``env.evaluate.fanout.evaluate_cells``: their tests
+    check they call it) build their hand with :func:`built_prepared`: on a fresh cache it decomposes the deep hull
+    first and says so, so the hand is the prepared one Stage 1 ran (the dataset's stored description) instead of a
+    hull that warns ``HandChangedWarning``; with the parts cached it builds the same hand and prints nothing."""
     from ges_core.hand_prep.prepare import built_prepared
-    from ges_core.training import envs
 
     yaml = write_l_palm_hand(tmp_path, ".glb")
 
@@ -170,4 +168,3 @@ def test_stage2_builds_the_hand_decomposed_as_synth_does(empty_cache, tmp_path, 
     prepared = hand_entry(hand)["hash"]
     assert prepared != unprepared  # the engine URDF names the parts: the hand synth would have stored
     assert hand_entry(built_prepared(Files(), "mine"))["hash"] == prepared and capsys.readouterr().out == ""
-    assert envs.built_prepared is built_prepared and fanout.built_prepared is built_prepared  # both entry points
