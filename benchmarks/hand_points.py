@@ -68,7 +68,7 @@ def _row(hand, rounds: int) -> dict:
     from ges_core.collision_points import collision_points
     from ges_core.errors import SynthesisError
     from ges_core.synthesis import SynthesisConfig
-    from ges_core.synthesis.contacts.generate import generate_contacts
+    from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS, generate_contacts
     from ges_core.synthesis.retarget.retargeter import GraspRetargeter
     from ges_core.synthesis.retarget.search import ObjectCloud
     from ges_core.synthesis.run.demo import DEMO_OBJECTS
@@ -83,7 +83,7 @@ def _row(hand, rounds: int) -> dict:
         points, normals = library.point_cloud(object_id, base.points, seed=seed)
         try:
             result = generate_contacts(
-                points, normals, cfg.contacts, object_id=object_id, seed=seed, center_of_mass=(0.0, 0.0, 0.0)
+                points, normals, cfg.contacts, object_id=object_id, seed=seed, center_of_mass=LIBRARY_CENTER_OF_MASS
             )
         except SynthesisError:
             continue

@@ -145,7 +145,7 @@ def threads_under_load(library, ids: list[str], hands: list[str], load: int, rep
     """Retargeting of one chunk (the first CHUNK of ``ids`` that get contacts, both hands) with 1 thread and with
     torch's default."""
     from ges_core.registry import load_registry
-    from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
+    from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS, ContactConfig, generate_contacts
     from ges_core.synthesis.retarget.retargeter import GraspRetargeter
     from ges_core.synthesis.retarget.search import ObjectCloud
     from ges_core.synthesis.run.tasks import object_seed
@@ -156,7 +156,7 @@ def threads_under_load(library, ids: list[str], hands: list[str], load: int, rep
         points, normals = library.point_cloud(oid, 1024, seed=seed)
         try:
             result = generate_contacts(
-                points, normals, ContactConfig(), object_id=oid, seed=seed, center_of_mass=(0.0, 0.0, 0.0)
+                points, normals, ContactConfig(), object_id=oid, seed=seed, center_of_mass=LIBRARY_CENTER_OF_MASS
             )
         except SynthesisError:
             continue  # no contacts, nothing to retarget

@@ -8,6 +8,6 @@ object's principal frame and symmetry), ``slicing`` (the slices and their candid
 from __future__ import annotations
 
 from ges_core.synthesis.contacts.force_closure import ForceClosureConfig, ferrari_canny
-from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
+from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS, ContactConfig, generate_contacts
 
-__all__ = ["ContactConfig", "ForceClosureConfig", "ferrari_canny", "generate_contacts"]
+__all__ = ["LIBRARY_CENTER_OF_MASS", "ContactConfig", "ForceClosureConfig", "ferrari_canny", "generate_contacts"]

@@ -45,7 +45,7 @@ from ges_core.synthesis.contacts.lift_friction import lift_capacity
 from ges_core.synthesis.contacts.optimize import SLOT_WEIGHTS, optimize_contacts
 from ges_core.synthesis.types import STRATEGIES, ContactResult, Strategy, other_strategy
 
-__all__ = ["ContactConfig", "generate_contacts", "squeeze_imbalance"]
+__all__ = ["LIBRARY_CENTER_OF_MASS", "ContactConfig", "generate_contacts", "squeeze_imbalance"]
 
 SCREEN_EDGES = 4
 """Cone edges of the coarse epsilon that ranks candidate contact sets: a 20-wrench hull costs ~2 ms
@@ -53,6 +53,9 @@ against ~9 ms for 8 edges; the reported quality always uses ``force_closure.cone
 VISIBILITY_TUBE = 2.5
 """Visibility tube radius in median nearest-neighbour distances: a ray through a wall of uniform
 samples then passes within the tube of about 5 of them (1.5 left ~17 % of walls unseen)."""
+LIBRARY_CENTER_OF_MASS = (0.0, 0.0, 0.0)
+"""``center_of_mass`` of a library object's cloud (its resting frame, ``objects/placement.py``): the centre of mass
+lies above the origin, and the finger row reads only its horizontal part."""
 
 
 class ContactConfig(ConfigModel):

@@ -35,7 +35,7 @@ from ges_core.dataset import (
     software_versions,
 )
 from ges_core.errors import ArrayError, AssetError, SimulationError, StorageError, SynthesisError
-from ges_core.synthesis.contacts.generate import ContactConfig, generate_contacts
+from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS, ContactConfig, generate_contacts
 from ges_core.synthesis.contacts.lift_friction import lift_friction_bound
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import UNSTABLE_REST, check_rest, refine_grasp, refine_verdict
@@ -181,10 +181,10 @@ def _contacts(
             points, normals = lib.point_cloud(object_id, cfg.points, seed=seed)
         else:
             points, normals = cloud.points, cloud.normals
-        # the library's resting frame puts every object's centre of mass above the origin (objects/placement.py)
         result = generate_contacts(
-            points, normals, contacts, object_id=object_id, seed=seed, strategy=strategy, center_of_mass=(0.0, 0.0, 0.0)
-        )
+            points, normals, contacts, object_id=object_id, seed=seed, strategy=strategy,
+            center_of_mass=LIBRARY_CENTER_OF_MASS,
+        )  # fmt: skip
     except SynthesisError as error:
         return work.failed_contacts(error.reason, str(error), time.perf_counter() - start)
     except AssetError as error:
