@@ -145,7 +145,7 @@ def train_gate_run(
         if epoch % config.checkpoint_every == 0:
             gate.save(checkpoint)
         row = result.history[-1]
-        bar.n = epoch  # a resumed run's first call starts the bar where the state left off
+        bar.update(epoch - bar.n)  # a resumed run's first call moves the bar to where the state left off
         bar.set_postfix({k.replace("loss/", "loss "): f"{row[k]:.4g}" for k in ("loss/train", "loss/val") if k in row})
 
     with bar:
