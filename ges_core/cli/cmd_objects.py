@@ -75,7 +75,7 @@ def property_overrides(args: argparse.Namespace) -> dict[str, dict]:
         for oid, values in parse_assignments(getattr(args, field), field, option=f"--{field}").items():
             merged.setdefault(user_id(oid, args), {}).update(values)
     example = "real/box/cracker_box=as_authored"
-    rests = parse_assignments(getattr(args, "rest", []), "rest", option="--rest", convert=str.strip, example=example)
+    rests = parse_assignments(args.rest, "rest", option="--rest", convert=str.strip, example=example)
     for oid, values in rests.items():
         merged.setdefault(user_id(oid, args), {}).update(values)
     return merged
