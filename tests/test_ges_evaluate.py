@@ -282,6 +282,7 @@ def test_cli_takes_the_experts_from_the_gate(run, dataset, gate, tmp_path, capsy
     assert f"from the gate's training matrix {mfile}: --hand allegro, --sim sapien, --episodes 1, its seed 0" in out
     assert f"--matrix {mfile} (the gate's training matrix, same run settings)" in out
     assert "| oracle (best of scripted, low per object) |" in out and "2 taken from the matrix" in out
+    assert "was trained on the success rates of" not in out  # the run is the gate's own hand and simulator
     assert "randomized start pose" in out
 
     # a matrix run with another seed and without randomization: those settings are the run's too (before, the run
@@ -309,3 +310,28 @@ def test_cli_takes_the_experts_from_the_gate(run, dataset, gate, tmp_path, capsy
     assert args.matrix is None and "(its run differs: seed: 7 -> 8)" in capsys.readouterr().out
     _matrix_from_training(args, run_config(seed=7, env=data["run"]["env"]), other, data["run"])
     assert args.matrix == other
+
+
+def test_a_gate_used_for_another_hand_or_simulator_is_noted(run, gate, tmp_path):
+    """A gate's picks come from its training matrix's hand and simulator: used for another one, `ges evaluate` says
+    so (it runs: carrying a gate over may be meant). The hand and simulator are read from the matrix file that
+    summary.json names, not assumed; a gate without one gets no note."""
+    import shutil
+
+    from ges_core.ges_eval.gates import transfer_notes
+
+    _, _, mfile, _ = run
+    moved = tmp_path / "g" / "gate.pt"
+    moved.parent.mkdir()
+    shutil.copy(gate, moved)
+    choice = GateChoice(moved)
+    assert transfer_notes([choice], "shadow", "sapien") == []  # no summary.json: nothing known
+    (moved.parent / "summary.json").write_text(json.dumps({"matrix": str(mfile)}))
+    header = json.loads(mfile.read_text())["run"]
+    assert (header["hand"], header["sim"]) == ("allegro", "sapien")
+    assert transfer_notes([choice], "allegro", "sapien") == []
+    [hand] = transfer_notes([choice], "shadow", "sapien")
+    assert "trained on the success rates of allegro in sapien" in hand and "this run is shadow in sapien" in hand
+    assert hand.endswith("another hand") and str(mfile) in hand
+    [both] = transfer_notes([choice, GateChoice(gate)], "shadow", "pybullet")
+    assert both.endswith("another hand and simulator")

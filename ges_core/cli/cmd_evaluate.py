@@ -65,7 +65,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     from ges_core.experts.matrix import read_matrix_json
     from ges_core.ges_eval import evaluate_ges, parse_gate
     from ges_core.ges_eval.against_best import ges_against_best_table
-    from ges_core.ges_eval.gates import gate_experts, training_matrix
+    from ges_core.ges_eval.gates import gate_experts, training_matrix, transfer_notes
     from ges_core.ges_eval.outputs import write_outputs
     from ges_core.threads import set_torch_threads
 
@@ -87,6 +87,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     experts, config = run_from_args(args, registry, "ges evaluate", experts=given, base=base)
     if trained_on and args.matrix is None:
         _matrix_from_training(args, config, *trained_on)
+    for line in transfer_notes(gates, config.hand, config.sim):
+        print(f"note: {line}")
     report = evaluate_ges(
         args.dataset, config, experts, gates, args.out or args.dataset.parent / "ges",
         matrix_file=args.matrix, registry=registry, progress=not args.no_progress, fanout=fanout_from_args(args),

@@ -18,8 +18,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ges_core.errors import ConfigError, StorageError
+from ges_core.errors import AssetError, ConfigError, StorageError
 from ges_core.experts.choice import ExpertChoice, parse_expert
+from ges_core.experts.matrix import read_matrix_json
 from ges_core.gating.checkpoint import load_gate, read_checkpoint
 from ges_core.gating.clouds import library_clouds
 from ges_core.paths import file_sha256
@@ -34,6 +35,7 @@ __all__ = [
     "parse_gate",
     "pick_experts",
     "training_matrix",
+    "transfer_notes",
 ]
 
 _LABEL = re.compile(r"^[A-Za-z0-9_.+-]+$")
@@ -90,6 +92,29 @@ def training_matrix(choice: GateChoice) -> Path | None:
         if given and Path(given).is_file():
             return Path(given)
     return None
+
+
+def transfer_notes(choices: Sequence[GateChoice], hand: str, sim: str) -> list[str]:
+    """One line per gate whose :func:`training_matrix` was measured with another hand or simulator than ``hand`` and
+    ``sim`` (the run's): its picks are then carried over from success rates of another hand or engine, which a user
+    may mean (a gate trained once, used on a second hand) or not. Gates without a readable training matrix: none."""
+    notes = []
+    for choice in choices:
+        path = training_matrix(choice)
+        if path is None:
+            continue
+        try:
+            run = read_matrix_json(path).get("run", {})
+        except AssetError:
+            continue
+        trained = (run.get("hand", hand), run.get("sim", sim))
+        other = [what for what, was, now in zip(("hand", "simulator"), trained, (hand, sim), strict=True) if was != now]
+        if other:
+            notes.append(
+                f"gate {choice.path} was trained on the success rates of {trained[0]} in {trained[1]} (its matrix "
+                f"{path}); this run is {hand} in {sim}: its picks come from another {' and '.join(other)}"
+            )
+    return notes
 
 
 def gate_experts(choice: GateChoice, registry, matrix: dict | None) -> list[ExpertChoice]:
