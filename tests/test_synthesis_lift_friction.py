@@ -1,4 +1,5 @@
-"""lift_friction_bound: checked against the cone's slope and against a linear program over the contact forces."""
+"""lift_friction_bound: checked against the cone's slope and against a linear program over the contact forces;
+lift_capacity and held_weight against closed forms of simple pinches."""
 
 from __future__ import annotations
 
@@ -10,7 +11,7 @@ import trimesh
 from scipy.optimize import linprog
 
 from ges_core.errors import ArrayError
-from ges_core.synthesis.contacts.lift_friction import lift_capacity, lift_friction_bound
+from ges_core.synthesis.contacts.lift_friction import held_weight, lift_capacity, lift_friction_bound
 
 MIN_HEIGHT = 0.01
 
@@ -113,3 +114,64 @@ def test_weight_off_the_contacts_needs_torque_and_costs_capacity():
     near = lift_capacity(*_pair(0.0), 0.5, CENTER, radius=0.05)
     far = lift_capacity(*_pair(0.0, dy=0.04), 0.5, CENTER, radius=0.05)
     assert 0.0 <= far < near
+
+
+# --- held_weight: the weight held with every joint's torque within its limit ---------------------------------------
+
+
+def _pinch(lever: float, rise: float = 0.0):
+    """A thumb at +x and two fingers at -x (y = +-1 cm), horizontal outward normals, at the centre's height. Each
+    contact moves with its own joint 0 / 1 / 2: pushing it inward by 1 m costs ``lever`` rad, lifting it ``rise``
+    (the Jacobian column (-lever, 0, rise) at +x, mirrored at -x), so a contact pushing N inward and T up loads its
+    joint with ``lever N + rise T``."""
+    positions = np.array([[0.03, 0.0, 0.05], [-0.03, -0.01, 0.05], [-0.03, 0.01, 0.05]])
+    normals = np.array([[1.0, 0.0, 0.0], [-1.0, 0.0, 0.0], [-1.0, 0.0, 0.0]])
+    jac = np.zeros((3, 3, 3))
+    jac[0, :, 0] = [-lever, 0.0, rise]
+    jac[1, :, 1] = [lever, 0.0, rise]
+    jac[2, :, 2] = [lever, 0.0, rise]
+    return positions, normals, jac
+
+
+@pytest.mark.parametrize("rise", [0.0, 0.05])
+def test_a_pinch_holds_what_its_weakest_side_can_squeeze(rise):
+    # thumb limited to tau: N_thumb (lever + rise mu) <= tau at full friction; the fingers (2 joints) are stronger
+    # than the thumb together, so the thumb's side binds: W = 2 mu N_thumb = 2 mu tau / (lever + rise mu)
+    positions, normals, jac = _pinch(0.1, rise)
+    tau, mu = 0.5, 0.5
+    got = held_weight(positions, normals, mu, CENTER, jac, [[0], [1], [2]], np.full(3, tau), cone_edges=64)
+    assert got == pytest.approx(2 * mu * tau / (0.1 + rise * mu), rel=3e-3)
+
+
+def test_fingers_on_one_joint_share_its_torque():
+    # a thumb twice as strong: with a joint per finger each finger gives tau/lever, the pair matches the thumb and the
+    # grasp holds twice a single finger's share; on one shared joint the pair gives tau/lever in all: half that
+    positions, normals, jac = _pinch(0.1)
+    strong_thumb = np.array([1.0, 0.5, 0.5])
+    apart = held_weight(positions, normals, 0.5, CENTER, jac, [[0], [1], [2]], strong_thumb, cone_edges=64)
+    jac_shared = jac.copy()
+    jac_shared[2, :, 1], jac_shared[2, :, 2] = jac[2, :, 2], 0.0
+    shared = held_weight(positions, normals, 0.5, CENTER, jac_shared, [[0], [1], [1]], strong_thumb, cone_edges=64)
+    assert apart == pytest.approx(2 * 0.5 * 1.0 / 0.1, rel=3e-3)
+    assert shared == pytest.approx(apart / 2, rel=3e-3)
+
+
+def test_held_weight_scales_with_the_limits_and_needs_both_sides():
+    positions, normals, jac = _pinch(0.1)
+    joints = [[0], [1], [2]]
+    one = held_weight(positions, normals, 0.5, CENTER, jac, joints, np.full(3, 0.5))
+    assert held_weight(positions, normals, 0.5, CENTER, jac, joints, np.full(3, 1.5)) == pytest.approx(3 * one)
+    assert held_weight(positions[1:], normals[1:], 0.5, CENTER, jac[1:], joints[1:], np.full(3, 0.5)) == 0.0
+    # weight off the contacts costs capacity, as for lift_capacity
+    assert held_weight(positions, normals, 0.5, CENTER + [0.0, 0.03, 0.0], jac, joints, np.full(3, 0.5)) < one
+
+
+def test_contacts_no_joint_moves_are_unbounded_and_bad_input_is_named():
+    positions, normals, jac = _pinch(0.1)
+    assert held_weight(positions, normals, 0.5, CENTER, jac, [[], [], []], np.full(3, 0.5)) == math.inf
+    with pytest.raises(ArrayError, match="2 joint lists for 3 contacts"):
+        held_weight(positions, normals, 0.5, CENTER, jac, [[0], [1]], np.full(3, 0.5))
+    with pytest.raises(ArrayError, match="jacobians"):
+        held_weight(positions, normals, 0.5, CENTER, jac[:2], [[0], [1], [2]], np.full(3, 0.5))
+    with pytest.raises(ArrayError, match="effort"):
+        held_weight(positions, normals, 0.5, CENTER, jac, [[0], [1], [2]], np.full(3, np.nan))

@@ -19,6 +19,8 @@ placement that passes the friction trial (:mod:`ges_core.synthesis.run.worker`).
 
 :func:`lift_capacity` asks the same of one contact set with torques balanced: the weight it holds per unit of squeeze
 (``ContactConfig.lift_candidates`` ranks candidate grasps by it; measured in docs/synthesis/contacts.md).
+:func:`held_weight` bounds the squeeze by the hand instead: the weight the contacts hold with every joint's torque
+within its actuator's limit (``ges_core.synthesis.physics.capacity`` applies it to a grasp).
 """
 
 from __future__ import annotations
@@ -28,9 +30,10 @@ import math
 import numpy as np
 
 from ges_core.arrays import checked_array
+from ges_core.errors import ArrayError
 from ges_core.synthesis.contacts.force_closure import cone_forces
 
-__all__ = ["lift_capacity", "lift_friction_bound"]
+__all__ = ["held_weight", "lift_capacity", "lift_friction_bound"]
 
 
 def lift_friction_bound(points: np.ndarray, normals: np.ndarray, min_height: float) -> float:
@@ -77,4 +80,62 @@ def lift_capacity(
     cost = np.zeros(k + 1)
     cost[k] = -1.0
     res = linprog(cost, A_ub=a_ub, b_ub=[1.0], A_eq=a_eq, b_eq=np.zeros(6), bounds=(0, None), method="highs")
+    if res.status == 3:  # unbounded: some contact pushes without loading any joint
+        return math.inf
+    return float(max(res.x[k], 0.0)) if res.status == 0 else 0.0
+
+
+def held_weight(
+    positions: np.ndarray,
+    normals: np.ndarray,
+    mu: float,
+    center: np.ndarray,
+    jacobians: np.ndarray,
+    joints: list[np.ndarray],
+    effort: np.ndarray,
+    *,
+    cone_edges: int = 8,
+) -> float:
+    """The largest weight (N) point contacts can hold quasi-statically with every joint's torque within its limit.
+
+    positions, normals: (n, 3) contacts and outward unit normals, resting frame (z up), metres. jacobians: (n, 3, K)
+    d(contact point)/d(joint) for the hand's K joints, same frame; joints: per contact, the indices of the joints
+    that move it (its finger's; a joint listed for several contacts sums their torques); effort: (K,) torque limits,
+    N·m. Each contact pushes the object with ``f_i`` inside its linearized friction cone (``mu``, ``cone_edges``;
+    :func:`.force_closure.cone_forces`), which costs the joints ``tau = sum_i J_i^T f_i`` (restricted to ``joints[i]``,
+    ``|tau_k| <= effort_k``); the forces lift ``(0, 0, W)`` with no net torque about ``center`` (the centre of mass).
+    Returns the largest such ``W`` by a linear program (scipy's HiGHS), 0 when none holds, ``inf`` when no torque
+    limit binds (no listed joint moves the contacts). Gravity on the fingers,
+    contacts off the fingertips (phalanges, palm) and the drives' own control law are not in it: it bounds what these
+    fingertips can do within the actuators, not what a given closing achieves.
+    """
+    from scipy.optimize import linprog  # lazily, as lift_capacity
+
+    pos = checked_array(positions, (None, 3), "held_weight: positions", layout="resting frame, metres")
+    nrm = checked_array(normals, (len(pos), 3), "held_weight: normals", layout="outward, one per contact")
+    jac = checked_array(jacobians, (len(pos), 3, None), "held_weight: jacobians", layout="(n, 3, K) per contact")
+    limits = checked_array(effort, (jac.shape[2],), "held_weight: effort", layout="(K,) torque limits, N·m")
+    if len(joints) != len(pos):
+        raise ArrayError(f"held_weight: {len(joints)} joint lists for {len(pos)} contacts; give one per contact")
+    n, edges = len(pos), cone_edges
+    forces = cone_forces(nrm, mu, edges)  # (n, e, 3)
+    k = n * edges
+    a_eq = np.zeros((6, k + 1))
+    a_eq[:3, :k] = forces.reshape(k, 3).T
+    a_eq[2, k] = -1.0  # sum of forces - W e_z = 0
+    a_eq[3:, :k] = np.cross((pos - np.asarray(center, dtype=np.float64))[:, None, :], forces).reshape(k, 3).T
+    torque = np.zeros((jac.shape[2], k))  # joint torque per unit weight of each cone edge
+    for i, idx in enumerate(joints):
+        idx = np.asarray(idx, dtype=int)
+        torque[idx, i * edges : (i + 1) * edges] += jac[i][:, idx].T @ forces[i].T
+    used = np.flatnonzero(np.abs(torque).sum(axis=1) > 0)
+    a_ub = np.zeros((2 * len(used), k + 1))
+    a_ub[: len(used), :k] = torque[used]
+    a_ub[len(used) :, :k] = -torque[used]
+    b_ub = np.concatenate([limits[used], limits[used]])
+    cost = np.zeros(k + 1)
+    cost[k] = -1.0
+    res = linprog(cost, A_ub=a_ub, b_ub=b_ub, A_eq=a_eq, b_eq=np.zeros(6), bounds=(0, None), method="highs")
+    if res.status == 3:  # unbounded: some contact pushes without loading any joint
+        return math.inf
     return float(max(res.x[k], 0.0)) if res.status == 0 else 0.0

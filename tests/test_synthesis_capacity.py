@@ -1,0 +1,99 @@
+"""fingertip_capacity on the real Allegro model: frames (the same grasp moved about the vertical holds the same), the
+touching test, friction, and two opposed fingertips against a bound computed from their Jacobians directly."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+
+from ges_core.errors import ConfigError
+from ges_core.registry import load_registry
+from ges_core.synthesis.physics.capacity import _pads_in_object_frame, fingertip_capacity
+from ges_core.synthesis.types import Grasp
+from ges_core.transforms import compose, euler_xyz_to_quat
+
+
+@pytest.fixture(scope="module")
+def allegro():
+    return load_registry().build_hand("allegro")
+
+
+def _curled(hand) -> np.ndarray:
+    """Joints halfway between the open pose and the upper limits: the fingertips curl toward the thumb."""
+    d = hand.description
+    return d.apply_couplings(0.5 * (np.asarray(d.open_pose) + d.limits_array[:, 1]))
+
+
+def _object_through_pads(hand, grasp: Grasp) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """An 'object' whose surface passes through the pads (one sample each) with normals from their centroid: points,
+    normals, the centroid."""
+    pads, _ = _pads_in_object_frame(hand, grasp)
+    centre = pads.mean(axis=0)
+    normals = (pads - centre) / np.linalg.norm(pads - centre, axis=1, keepdims=True)
+    return pads, normals, centre
+
+
+def test_the_same_grasp_turned_about_the_vertical_holds_the_same(allegro):
+    grasp = Grasp("allegro", np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0]), _curled(allegro))
+    points, normals, centre = _object_through_pads(allegro, grasp)
+    base = fingertip_capacity(allegro, grasp, points, normals, 1.0, center=centre)
+    assert len(base.fingers) == 4 and 0.0 < base.weight < math.inf
+    turn = np.concatenate([[0.1, -0.06, 0.0], euler_xyz_to_quat(np.array([0.0, 0.0, 0.7]))])
+    moved = Grasp("allegro", compose(turn, grasp.wrist_pose), grasp.q)
+    points2, normals2, centre2 = _object_through_pads(allegro, moved)
+    again = fingertip_capacity(allegro, moved, points2, normals2, 1.0, center=centre2)
+    assert again.weight == pytest.approx(base.weight, rel=0.01)  # 1 %: the 8-edge cones turn with the normals
+    # the pads moved with the wrist: the first object's samples are now off them, so nothing touches
+    assert fingertip_capacity(allegro, moved, points, normals, 1.0, center=centre).fingers == ()
+
+
+def test_less_friction_holds_less_and_a_surface_off_the_pads_holds_nothing(allegro):
+    grasp = Grasp("allegro", np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0]), _curled(allegro))
+    points, normals, centre = _object_through_pads(allegro, grasp)
+    one = fingertip_capacity(allegro, grasp, points, normals, 1.0, center=centre).weight
+    assert 0.0 < fingertip_capacity(allegro, grasp, points, normals, 0.5, center=centre).weight < one
+    far = fingertip_capacity(allegro, grasp, points + [0.0, 0.0, 0.05], normals, 1.0, center=centre)
+    assert far.fingers == () and far.weight == 0.0
+
+
+def test_two_opposed_fingertips_hold_what_the_lp_closed_form_says(allegro):
+    """Only the thumb and the index touch, on a vertical pair of faces through their pads facing each other: the
+    weight held is 2 mu N with N the largest squeeze both fingers' joints allow along the line between the pads,
+    computed here from the Jacobians directly (max N with |J^T (N u)| <= effort per joint, friction's share apart);
+    the LP must not exceed it and must reach it when friction loads no joint more than the squeeze's headroom."""
+    grasp = Grasp("allegro", np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0]), _curled(allegro))
+    d = allegro.description
+    pads, jac = _pads_in_object_frame(allegro, grasp)
+    names = [f.name for f in d.fingers]
+    thumb, index = names.index(d.finger_for_slot("thumb").name), names.index(d.finger_for_slot("index").name)
+    u = pads[index] - pads[thumb]
+    u[2] = 0.0  # horizontal faces: the squeeze line's level part
+    u /= np.linalg.norm(u)
+    points = pads[[thumb, index]]
+    normals = np.stack([-u, u])  # outward: the thumb's face looks away from the index
+    center = points.mean(axis=0)
+    effort = d.effort_limits_array
+    squeeze = []
+    for f, push in ((thumb, u), (index, -u)):  # each fingertip pushes the object toward the other
+        idx = d.joint_index(d.fingers[f].joints)
+        tau = np.abs(jac[f][:, idx].T @ push)
+        squeeze.append(float(np.min(effort[idx][tau > 1e-12] / tau[tau > 1e-12])))
+    bound = 2 * 1.0 * min(squeeze)  # mu = 1, both sides squeeze equally
+    got = fingertip_capacity(allegro, grasp, points, normals, 1.0, center=center, near=1e-6).weight
+    assert set(fingertip_capacity(allegro, grasp, points, normals, 1.0, center=center, near=1e-6).fingers) == {
+        names[thumb],
+        names[index],
+    }
+    assert 0.0 < got <= bound * (1 + 1e-6)
+
+
+def test_a_hand_without_effort_limits_has_no_bound(allegro):
+    d = allegro.description
+    bare = SimpleNamespace(description=replace(d, effort_limits=()))
+    grasp = Grasp("allegro", np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0]), _curled(allegro))
+    with pytest.raises(ConfigError, match="declares no effort_limits"):
+        fingertip_capacity(bare, grasp, np.zeros((4, 3)), np.ones((4, 3)), 1.0)
