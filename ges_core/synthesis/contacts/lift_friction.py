@@ -80,8 +80,6 @@ def lift_capacity(
     cost = np.zeros(k + 1)
     cost[k] = -1.0
     res = linprog(cost, A_ub=a_ub, b_ub=[1.0], A_eq=a_eq, b_eq=np.zeros(6), bounds=(0, None), method="highs")
-    if res.status == 3:  # unbounded: some contact pushes without loading any joint
-        return math.inf
     return float(max(res.x[k], 0.0)) if res.status == 0 else 0.0
 
 
@@ -105,9 +103,9 @@ def held_weight(
     :func:`.force_closure.cone_forces`), which costs the joints ``tau = sum_i J_i^T f_i`` (restricted to ``joints[i]``,
     ``|tau_k| <= effort_k``); the forces lift ``(0, 0, W)`` with no net torque about ``center`` (the centre of mass).
     Returns the largest such ``W`` by a linear program (scipy's HiGHS), 0 when none holds, ``inf`` when no torque
-    limit binds (no listed joint moves the contacts). Gravity on the fingers,
-    contacts off the fingertips (phalanges, palm) and the drives' own control law are not in it: it bounds what these
-    fingertips can do within the actuators, not what a given closing achieves.
+    limit binds (no listed joint moves the contacts). Gravity on the fingers, contacts off the fingertips (phalanges,
+    palm) and the drives' own control law are not in it: it bounds what these fingertips can do within the
+    actuators, not what a given closing achieves.
     """
     from scipy.optimize import linprog  # lazily, as lift_capacity
 
