@@ -12,6 +12,7 @@ import math
 import numpy as np
 import pytest
 
+from ges_core import cli
 from ges_core.config import parse_model
 from ges_core.dataset import open_dataset
 from ges_core.errors import ConfigError, SimulationError
@@ -127,7 +128,8 @@ def test_switched_off_needs_no_trial():
 
 @pytest.fixture(scope="module")
 def weak_box_run(tmp_path_factory):
-    """The Allegro box record of one pipeline run with a deliberately weak perturbation, validated in both engines."""
+    """The Allegro box record of one pipeline run with a deliberately weak perturbation, validated in both engines;
+    its config and dataset folder."""
     config = parse_model(
         SynthesisConfig,
         {
@@ -140,13 +142,13 @@ def weak_box_run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("weak") / "ds"
     run_synthesis(["procedural/box/000"], ["allegro"], config, folder, progress=False)
     (record,) = list(open_dataset(folder))
-    return record, config
+    return record, config, folder
 
 
 @pytest.mark.sim
 def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(weak_box_run):
     """Allegro on the box, SAPIEN and PyBullet: nominal and drive-limits trials hold, 30 times the mass does not."""
-    record, _ = weak_box_run
+    record, _, _ = weak_box_run
     assert record.steps["validation"].ok and not record.robust
     assert record.steps["robust"].reason == "mass_x30" and record.robustness <= 2 / 3
     for sim in ("sapien", "pybullet"):
@@ -166,7 +168,7 @@ def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(weak_box_run):
 def test_a_stored_verdict_replays_exactly_outside_the_pipeline(weak_box_run, sim_name):
     """Every trial runs in a backend of its own, so the record's verdicts are the grasp's own: replaying the stored
     grasp alone (the nominal trial in a new backend, then robust_validate) gives every stored reason and flag."""
-    record, config = weak_box_run
+    record, config, _ = weak_box_run
     registry = load_registry()
     hand = registry.build_hand("allegro")
     cfg = config.for_hand("allegro", hand.description.settings)
@@ -182,6 +184,29 @@ def test_a_stored_verdict_replays_exactly_outside_the_pipeline(weak_box_run, sim
     replay = robust_validate(scenes, obj, grasp, pre, cfg.validate_, cfg.robust, seed=record.seed)
     assert [(t.name, t.reason) for t in replay.trials] == [(t.name, t.reason) for t in stored.trials]
     assert len(built) == 1 + len(replay.trials) and scenes.seconds > 0  # a backend per trial
+
+
+@pytest.mark.sim
+def test_the_fingertips_bound_lies_between_the_trial_that_held_and_the_one_that_did_not(weak_box_run, capsys):
+    """The box grasp held the drive-limits trial and dropped 30 times the mass in both engines, so what its fingertips
+    can hold within the Allegro's 0.5 N·m (ges_core.synthesis.physics.capacity, a linear program on forward
+    kinematics, no simulator) must lie between 1 and 30 weights; ``ges dataset capacity`` sets both trials beside
+    that bound (limits within it, mass_x30 beyond), per simulator."""
+    from ges_core.synthesis.physics.capacity import fingertip_capacity
+
+    record, config, folder = weak_box_run
+    hand = load_registry().build_hand("allegro")
+    library = config.library.build()
+    obj = library.get(record.object_id)
+    points, normals = library.point_cloud(record.object_id, 4096, seed=0)
+    grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
+    tip = fingertip_capacity(hand, grasp, points, normals, 0.5 * (config.scene.hand_friction + obj.friction))
+    assert len(tip.fingers) >= 2 and 1.0 <= tip.ratio(obj.mass) < 30.0, (tip, obj.mass)
+    assert cli.main(["dataset", "capacity", str(folder)]) == 0
+    out = capsys.readouterr().out
+    row = next(line for line in out.splitlines() if line.startswith("| allegro | procedural/box/000 |"))
+    assert row.endswith("| py+ sa+ | py-! sa-! |"), row  # limits, mass_x30 (pose trials are not bounded)
+    assert "| allegro | 2 | 0 | 2 | 0 |" in out  # failed beyond, failed within, passed within, passed beyond
 
 
 @pytest.mark.sim

@@ -1,4 +1,4 @@
-"""``ges dataset info`` and ``ges dataset validate``: look into a grasp dataset folder."""
+"""``ges dataset info``, ``ges dataset validate`` and ``ges dataset capacity``: look into a grasp dataset folder."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ from pathlib import Path
 
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
-    """Register ``ges dataset {info,validate}``."""
+    """Register ``ges dataset {info,validate,capacity}``."""
     p = sub.add_parser("dataset", help="summarize or validate a grasp dataset folder")
     dsub = p.add_subparsers(dest="dataset_command", metavar="ACTION", required=True)
     ip = dsub.add_parser(
@@ -26,6 +26,19 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "still lie on its surface (a library change since Stage 1 would make Stage 2 refuse the record)",
     )
     vp.set_defaults(func=run_validate)
+    cp = dsub.add_parser(
+        "capacity",
+        help="each kept grasp's drive-limited perturbation trials (limits, mass, friction) against the weight its "
+        "fingertips can hold within the hand's actuator limits (a quasi-static bound): which failures no closing "
+        "of those fingertips could pass",
+    )
+    cp.add_argument("path", type=Path, metavar="PATH", help="dataset folder (holds manifest.json)")
+    cp.add_argument("--hand", action="append", metavar="NAME", help="only this hand's records (repeatable)")
+    cp.add_argument(
+        "--near", type=float, default=None, metavar="M", help="a fingertip pad this close to the surface touches, m "
+        "(default 0.02)",
+    )  # fmt: skip
+    cp.set_defaults(func=run_capacity)
 
 
 def run_info(args: argparse.Namespace) -> int:
@@ -52,4 +65,23 @@ def run_validate(args: argparse.Namespace) -> int:
         return 1
     checked = ", each record's contacts on its object's surface" if args.objects else ""
     print(f"{args.path}: {len(open_dataset(args.path))} records, no problems{checked}")
+    return 0
+
+
+def run_capacity(args: argparse.Namespace) -> int:
+    """Print the per-record table and the per-hand counts (ges_core.synthesis.run.capacity)."""
+    from ges_core.cli import registry_from_args
+    from ges_core.dataset import open_dataset
+    from ges_core.synthesis.physics.capacity import NEAR
+    from ges_core.synthesis.run.capacity import bound_counts, bounds_table, counts_table, trial_bounds
+    from ges_core.threads import set_torch_threads
+
+    set_torch_threads()
+    open_dataset(args.path)  # a missing or foreign folder fails here, naming it
+    rows = trial_bounds(args.path, registry_from_args(args), near=args.near or NEAR, hands=args.hand)
+    if not rows:
+        print(f"{args.path}: no record with a grasp and perturbation trials (robust validation off, or none passed "
+              "its nominal trial)")  # fmt: skip
+        return 0
+    print(bounds_table(rows) + "\n\n" + counts_table(bound_counts(rows)))
     return 0

@@ -136,4 +136,5 @@ def held_weight(
     res = linprog(cost, A_ub=a_ub, b_ub=b_ub, A_eq=a_eq, b_eq=np.zeros(6), bounds=(0, None), method="highs")
     if res.status == 3:  # unbounded: some contact pushes without loading any joint
         return math.inf
-    return float(max(res.x[k], 0.0)) if res.status == 0 else 0.0
+    weight = float(res.x[k]) if res.status == 0 else 0.0
+    return weight if weight > 0.0 else 0.0  # never -0.0

@@ -1,0 +1,134 @@
+"""A Stage 1 dataset's drive-limited perturbation trials against what the kept grasps' fingertips can hold.
+
+For every record with a grasp and perturbation trials: the quasi-static fingertip capacity of its grasp
+(:func:`ges_core.synthesis.physics.capacity.fingertip_capacity`) at the nominal effective friction and at each friction
+trial's, as a multiple of the object's weight; each drive-limited trial's ask follows (``limits``: 1x at the nominal
+friction, ``mass_xS``: S x, ``friction_F``: 1x at F; pose trials carry the nominal weight and fail by geometry, so
+they are left out). A failed trial beyond its bound is one no closing of those fingertips could pass.
+``ges dataset capacity`` prints it, ``benchmarks/stage1_capacity.py`` stores it; docs/synthesis/refine_validate.md
+("What the fingertips can hold") has the figures.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import Counter
+from pathlib import Path
+
+from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS
+from ges_core.synthesis.physics.capacity import NEAR, fingertip_capacity
+from ges_core.synthesis.run.config import SynthesisConfig
+from ges_core.synthesis.types import Grasp
+
+__all__ = ["CLOUD_POINTS", "bound_counts", "bounds_table", "counts_table", "trial_bounds"]
+
+CLOUD_POINTS = 4096
+"""Surface samples per object for the touching test and the normals (about 2 mm apart on a 10 cm object)."""
+_MASS = re.compile(r"^mass_x([0-9.]+)$")
+_FRICTION = re.compile(r"^friction_([0-9.]+)$")
+
+
+def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str] | None = None) -> list[dict]:
+    """One row per record of the dataset at ``folder`` with a grasp and perturbation trials (``hands``: only theirs):
+    hand, object, mass (kg), fingers touching, the capacity over the weight per friction coefficient, and per
+    drive-limited trial and simulator whether it passed and whether its ask is within the bound."""
+    from ges_core.dataset import open_dataset
+    from ges_core.env.grasp_source import library_for
+
+    dataset = open_dataset(folder)
+    config = SynthesisConfig.of_dataset(dataset)
+    library = library_for(dataset)
+    models, clouds, rows = {}, {}, []
+    for record in sorted(dataset.records(), key=lambda r: (r.hand, r.object_id)):
+        trials = {sim: v.trials for sim, v in record.validations.items() if v.trials}
+        if record.grasp is None or not trials or (hands and record.hand not in hands):
+            continue
+        if record.hand not in models:
+            models[record.hand] = registry.build_hand(record.hand)
+        if record.object_id not in clouds:
+            clouds[record.object_id] = library.point_cloud(record.object_id, CLOUD_POINTS, seed=0)
+        asset = library.get(record.object_id)
+        nominal = 0.5 * (config.scene.hand_friction + asset.friction)  # the engines average the two coefficients
+        grasp = Grasp(record.hand, record.grasp.wrist_pose, record.grasp.q)
+        coefficients = {nominal} | {_friction(t.name, nominal) for ts in trials.values() for t in ts}
+        ratio, fingers = {}, 0
+        for mu in sorted(coefficients - {None}):
+            tip = fingertip_capacity(
+                models[record.hand], grasp, *clouds[record.object_id], mu, center=LIBRARY_CENTER_OF_MASS, near=near
+            )
+            ratio[mu], fingers = tip.ratio(asset.mass), len(tip.fingers)
+        outcomes: dict[str, dict[str, dict[str, bool]]] = {}
+        for sim, ts in sorted(trials.items()):
+            for t in ts:
+                need = _need(t.name, nominal)
+                if need is not None:
+                    scale, mu = need
+                    outcomes.setdefault(t.name, {})[sim] = {"passed": t.success, "bound_ok": ratio[mu] >= scale}
+        rows.append({
+            "hand": record.hand, "object": record.object_id, "mass": asset.mass, "fingers_touching": fingers,
+            "ratio_by_mu": {f"{mu:g}": r for mu, r in ratio.items()}, "trials": outcomes,
+        })  # fmt: skip
+    return rows
+
+
+def bound_counts(rows: list[dict]) -> dict[str, dict[str, int]]:
+    """Per hand, over every simulator: trials ``failed_beyond``, ``failed_within``, ``passed_within``,
+    ``passed_beyond`` the bound."""
+    out: dict[str, Counter] = {}
+    for row in rows:
+        tally = out.setdefault(row["hand"], Counter())
+        for by_sim in row["trials"].values():
+            for o in by_sim.values():
+                tally[("passed" if o["passed"] else "failed") + ("_within" if o["bound_ok"] else "_beyond")] += 1
+    return {hand: dict(tally) for hand, tally in out.items()}
+
+
+def bounds_table(rows: list[dict]) -> str:
+    """Markdown: one line per record, each trial's outcome per simulator, ``!`` beyond the bound."""
+    trials = sorted({name for row in rows for name in row["trials"]})
+    lines = [
+        "| hand | object | kg | tips | capacity / weight | " + " | ".join(trials) + " |",
+        "|" + "---|" * (5 + len(trials)),
+    ]
+    for row in rows:
+        caps = ", ".join(f"{r:.2f} at mu {mu}" for mu, r in row["ratio_by_mu"].items())
+        cells = [
+            " ".join(
+                f"{sim[:2]}{'+' if o['passed'] else '-'}{'' if o['bound_ok'] else '!'}"
+                for sim, o in row["trials"].get(name, {}).items()
+            )
+            for name in trials
+        ]
+        lines.append(
+            f"| {row['hand']} | {row['object']} | {row['mass']:.3f} | {row['fingers_touching']} | {caps} | "
+            + " | ".join(cells) + " |"
+        )  # fmt: skip
+    return "\n".join(lines) + "\n(+ held, - failed; ! beyond the fingertips' bound: no closing of them could pass)"
+
+
+def counts_table(counts: dict[str, dict[str, int]]) -> str:
+    """Markdown: :func:`bound_counts` per hand."""
+    lines = [
+        "| hand | failed, beyond the bound | failed, within it | passed, within it | passed, beyond it |",
+        "|---|---|---|---|---|",
+    ]
+    for hand, c in sorted(counts.items()):
+        cells = [c.get(k, 0) for k in ("failed_beyond", "failed_within", "passed_within", "passed_beyond")]
+        lines.append(f"| {hand} | " + " | ".join(str(v) for v in cells) + " |")
+    return "\n".join(lines) + "\n(drive-limited trials in every validating simulator; pose trials left out)"
+
+
+def _friction(name: str, nominal: float) -> float | None:
+    match = _FRICTION.match(name)
+    return min(float(match.group(1)), nominal) if match else None
+
+
+def _need(name: str, nominal: float) -> tuple[float, float] | None:
+    """(weight multiple, friction) a drive-limited trial asks of the fingertips; None for a pose trial."""
+    if name == "limits":
+        return 1.0, nominal
+    if match := _MASS.match(name):
+        return float(match.group(1)), nominal
+    if (mu := _friction(name, nominal)) is not None:
+        return 1.0, mu
+    return None
