@@ -6,10 +6,11 @@ every joint within its effort limit) at the nominal effective friction and at th
 the object's weight. Each drive-limited trial's bound follows: ``limits`` needs 1x at the nominal friction,
 ``mass_xS`` S x, ``friction_F`` 1x at F. The table sets each trial's bound beside its outcome in every validating
 simulator, and counts per hand how many failed trials were beyond the bound (no closing of those fingertips could
-pass them), how many failed within it, and how many passed beyond it (contacts the model leaves out: phalanges, the
-palm). Pose trials are not bounded (their weight is the nominal's; they fail by geometry) and are left out.
+pass them), how many failed within it, and how many passed beyond it (contacts the model leaves out or misreads:
+phalanges, the palm, a pad's nearest sample on the wrong face of a thin part). Pose trials are not bounded (their
+weight is the nominal's; they fail by geometry) and are left out.
 
-    python benchmarks/stage1_capacity.py --dataset /work/runs/real_s41 runs/demo/dataset [--near 0.01]
+    python benchmarks/stage1_capacity.py --dataset runs/real_s41 runs/demo/dataset [--near 0.02]
 
 Prints the tables and writes ``benchmarks/results/stage1_capacity.json`` (``--results`` another name). The rows and
 counts are ``ges_core.synthesis.run.capacity``'s, as ``ges dataset capacity`` prints them.

@@ -8,7 +8,7 @@ from pathlib import Path
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ges dataset {info,validate,capacity}``."""
-    p = sub.add_parser("dataset", help="summarize or validate a grasp dataset folder")
+    p = sub.add_parser("dataset", help="summarize or validate a grasp dataset folder, or bound its trials")
     dsub = p.add_subparsers(dest="dataset_command", metavar="ACTION", required=True)
     ip = dsub.add_parser(
         "info",
@@ -80,8 +80,9 @@ def run_capacity(args: argparse.Namespace) -> int:
     open_dataset(args.path)  # a missing or foreign folder fails here, naming it
     rows = trial_bounds(args.path, registry_from_args(args), near=args.near or NEAR, hands=args.hand)
     if not rows:
-        print(f"{args.path}: no record with a grasp and perturbation trials (robust validation off, or none passed "
-              "its nominal trial)")  # fmt: skip
+        whose = f" of hand {', '.join(args.hand)}" if args.hand else ""
+        print(f"{args.path}: no record{whose} with a grasp and perturbation trials (robust validation off, or none "
+              "passed its nominal trial)")  # fmt: skip
         return 0
     print(bounds_table(rows) + "\n\n" + counts_table(bound_counts(rows)))
     return 0
