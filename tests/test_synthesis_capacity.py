@@ -9,6 +9,7 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from ges_core.errors import ConfigError
 from ges_core.registry import load_registry
@@ -45,6 +46,8 @@ def test_the_same_grasp_turned_about_the_vertical_holds_the_same(allegro):
     turn = np.concatenate([[0.1, -0.06, 0.0], euler_xyz_to_quat(np.array([0.0, 0.0, 0.7]))])
     moved = Grasp("allegro", compose(turn, grasp.wrist_pose), grasp.q)
     points2, normals2, centre2 = _object_through_pads(allegro, moved)
+    turned = Rotation.from_euler("z", 0.7)  # scipy, not our quaternions: the pads moved with the wrist
+    np.testing.assert_allclose(points2, turned.apply(points) + [0.1, -0.06, 0.0], atol=1e-9)
     again = fingertip_capacity(allegro, moved, points2, normals2, 1.0, center=centre2)
     assert again.weight == pytest.approx(base.weight, rel=0.01)  # 1 %: the 8-edge cones turn with the normals
     # the pads moved with the wrist: the first object's samples are now off them, so nothing touches
