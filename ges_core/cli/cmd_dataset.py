@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from ges_core.cli.args import positive_float
+
 
 def add_parser(sub: argparse._SubParsersAction) -> None:
     """Register ``ges dataset {info,validate,capacity}``."""
@@ -35,8 +37,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     cp.add_argument("path", type=Path, metavar="PATH", help="dataset folder (holds manifest.json)")
     cp.add_argument("--hand", action="append", metavar="NAME", help="only this hand's records (repeatable)")
     cp.add_argument(
-        "--near", type=float, default=None, metavar="M", help="a fingertip pad this close to the surface touches, m "
-        "(default 0.02)",
+        "--near", type=positive_float, default=None, metavar="M",
+        help="a fingertip pad this close to the surface touches, m (default 0.02)",
     )  # fmt: skip
     cp.set_defaults(func=run_capacity)
 
