@@ -11,6 +11,7 @@ phalanges, the palm, a pad's nearest sample on the wrong face of a thin part). P
 weight is the nominal's; they fail by geometry) and are left out.
 
     python benchmarks/stage1_capacity.py --dataset runs/real_s41 runs/demo/dataset [--near 0.02]
+    python benchmarks/stage1_capacity.py --dataset runs/library --no-records --results stage1_capacity_library
 
 Prints the tables and writes ``benchmarks/results/stage1_capacity.json`` (``--results`` another name). The rows and
 counts are ``ges_core.synthesis.run.capacity``'s, as ``ges dataset capacity`` prints them.
@@ -36,6 +37,7 @@ def main() -> None:
     parser.add_argument("--dataset", nargs="+", type=Path, required=True, help="Stage 1 datasets with robust trials")
     parser.add_argument("--near", type=float, default=NEAR, help="a pad this close to the surface touches, m")
     parser.add_argument("--results", default="stage1_capacity", help="name of the JSON under benchmarks/results/")
+    parser.add_argument("--no-records", action="store_true", help="store the counts only (a whole-library run)")
     args = parser.parse_args()
     set_torch_threads(1)
     registry = load_registry()
@@ -43,8 +45,13 @@ def main() -> None:
     for folder in args.dataset:
         rows = trial_bounds(folder, registry, near=args.near)
         counts = bound_counts(rows)
-        out["datasets"][str(folder)] = {"records": rows, "counts": counts}
-        print(f"\n{folder}\n" + bounds_table(rows) + "\n\n" + counts_table(counts))
+        by_source = {}  # object ids' first two parts: procedural/cone, pybullet/random_urdfs, real/can, ...
+        for source in sorted({"/".join(r["object"].split("/")[:2]) for r in rows}):
+            by_source[source] = bound_counts([r for r in rows if r["object"].startswith(source + "/")])
+        entry = {"counts": counts, "counts_by_source": by_source}
+        out["datasets"][str(folder)] = entry if args.no_records else {"records": rows, **entry}
+        table = "" if args.no_records else bounds_table(rows) + "\n\n"
+        print(f"\n{folder}\n" + table + counts_table(counts))
     write_results(RESULTS / f"{args.results}.json", out)
 
 
