@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
+from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import ConfigError
 from ges_core.registry import load_registry
 from ges_core.synthesis.physics.capacity import _pads_in_object_frame, fingertip_capacity
@@ -92,6 +93,28 @@ def test_two_opposed_fingertips_hold_what_the_lp_closed_form_says(allegro):
         names[index],
     }
     assert 0.0 < got <= bound * (1 + 1e-6)
+
+
+def test_the_slots_contacts_give_the_normals_where_they_lie_at_the_pads(allegro):
+    """With a record's Stage 1 contacts, a finger whose slot's contact lies within ``near`` of its pad pushes along
+    that contact's normal instead of the nearest sample's: the same normals as the samples hold the same; turning the
+    index's normal straight up (no squeeze, no lift from it) holds less; contacts 5 cm off the pads are ignored."""
+    grasp = Grasp("allegro", np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0]), _curled(allegro))
+    points, normals, centre = _object_through_pads(allegro, grasp)
+    d = allegro.description
+    rows = [FINGER_SLOTS.index(f.slot) for f in d.fingers]
+    positions, slot_normals = np.zeros((5, 3)), np.tile([0.0, 0.0, 1.0], (5, 1))
+    positions[rows], slot_normals[rows] = points, normals
+    plain = fingertip_capacity(allegro, grasp, points, normals, 1.0, center=centre).weight
+    same = ContactSet(positions, slot_normals, "test")
+    assert fingertip_capacity(allegro, grasp, points, normals, 1.0, center=centre, contacts=same).weight == plain
+    index = FINGER_SLOTS.index("index")
+    up = slot_normals.copy()
+    up[index] = [0.0, 0.0, 1.0]
+    turned = ContactSet(positions, up, "test")
+    assert fingertip_capacity(allegro, grasp, points, normals, 1.0, center=centre, contacts=turned).weight < plain
+    away = ContactSet(positions + [0.0, 0.0, 0.05], up, "test")
+    assert fingertip_capacity(allegro, grasp, points, normals, 1.0, center=centre, contacts=away).weight == plain
 
 
 def test_a_hand_without_effort_limits_has_no_bound(allegro):

@@ -200,7 +200,8 @@ def test_the_fingertips_bound_lies_between_the_trial_that_held_and_the_one_that_
     obj = library.get(record.object_id)
     points, normals = library.point_cloud(record.object_id, 4096, seed=0)
     grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
-    tip = fingertip_capacity(hand, grasp, points, normals, 0.5 * (config.scene.hand_friction + obj.friction))
+    mu = 0.5 * (config.scene.hand_friction + obj.friction)
+    tip = fingertip_capacity(hand, grasp, points, normals, mu, contacts=record.contacts)  # as the command reads it
     assert len(tip.fingers) >= 2 and 1.0 <= tip.ratio(obj.mass) < 30.0, (tip, obj.mass)
     assert cli.main(["dataset", "capacity", str(folder)]) == 0
     out = capsys.readouterr().out

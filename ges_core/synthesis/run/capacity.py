@@ -1,12 +1,12 @@
 """A Stage 1 dataset's drive-limited perturbation trials against what the kept grasps' fingertips can hold.
 
 For every record with a grasp and perturbation trials: the quasi-static fingertip capacity of its grasp
-(:func:`ges_core.synthesis.physics.capacity.fingertip_capacity`) at the nominal effective friction and at each friction
-trial's, as a multiple of the object's weight; each drive-limited trial's ask follows (``limits``: 1x at the nominal
-friction, ``mass_xS``: S x, ``friction_F``: 1x at F; pose trials carry the nominal weight and fail by geometry, so
-they are left out). A failed trial beyond its bound is one no closing of those fingertips could pass.
-``ges dataset capacity`` prints it, ``benchmarks/stage1_capacity.py`` stores it; docs/synthesis/refine_validate.md
-("What the fingertips can hold") has the figures.
+(:func:`ges_core.synthesis.physics.capacity.fingertip_capacity`, with the record's Stage 1 contacts) at the nominal
+effective friction and at each friction trial's, as a multiple of the object's weight; each drive-limited trial's
+ask follows (``limits``: 1x at the nominal friction, ``mass_xS``: S x, ``friction_F``: 1x at F; pose trials carry the
+nominal weight and fail by geometry, so they are left out). A failed trial beyond its bound is one no closing of
+those fingertips could pass. ``ges dataset capacity`` prints it, ``benchmarks/stage1_capacity.py`` stores it;
+docs/synthesis/refine_validate.md ("What the fingertips can hold") has the figures.
 """
 
 from __future__ import annotations
@@ -54,8 +54,9 @@ def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str]
         ratio, fingers = {}, 0
         for mu in sorted(coefficients - {None}):
             tip = fingertip_capacity(
-                models[record.hand], grasp, *clouds[record.object_id], mu, center=LIBRARY_CENTER_OF_MASS, near=near
-            )
+                models[record.hand], grasp, *clouds[record.object_id], mu, center=LIBRARY_CENTER_OF_MASS, near=near,
+                contacts=record.contacts,
+            )  # fmt: skip
             ratio[mu], fingers = tip.ratio(asset.mass), len(tip.fingers)
         outcomes: dict[str, dict[str, dict[str, bool]]] = {}
         for sim, ts in sorted(trials.items()):
