@@ -28,14 +28,13 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import torch
 
 from ges_core.arrays import checked_array
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import ConfigError
 from ges_core.hand import HandModel
-from ges_core.kinematics import shared_kinematics
 from ges_core.synthesis.contacts.lift_friction import held_weight
+from ges_core.synthesis.physics.squeeze import tips_and_jacobians
 from ges_core.synthesis.types import Grasp
 from ges_core.transforms import pose_to_matrix
 
@@ -111,12 +110,8 @@ def fingertip_capacity(
 
 def _pads_in_object_frame(hand: HandModel, grasp: Grasp) -> tuple[np.ndarray, np.ndarray]:
     """Fingertip pads (F, 3) and their Jacobians (F, 3, K) at ``grasp``, object frame."""
-    d = hand.description
-    q = d.apply_couplings(np.asarray(grasp.q, dtype=np.float64))
-    offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
-    tips, jac = shared_kinematics(hand).points_and_jacobians(
-        torch.as_tensor(q, dtype=torch.float64)[None], list(d.tip_links), offsets
-    )
+    q = hand.description.apply_couplings(np.asarray(grasp.q, dtype=np.float64))
+    tips, jac = tips_and_jacobians(hand, q)  # hand base frame
     wrist = pose_to_matrix(np.asarray(grasp.wrist_pose, dtype=np.float64))
     rot, shift = wrist[:3, :3], wrist[:3, 3]
-    return tips[0].numpy() @ rot.T + shift, np.einsum("ij,fjk->fik", rot, jac[0].numpy())
+    return tips @ rot.T + shift, np.einsum("ij,fjk->fik", rot, jac)

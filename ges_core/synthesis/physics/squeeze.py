@@ -35,6 +35,7 @@ __all__ = [
     "press_torques",
     "retract_joints",
     "squeeze_targets",
+    "tips_and_jacobians",
 ]
 
 # Stage 1 validation's squeeze (ValidateConfig's defaults; the scripted expert of Stage 2 uses the same).
@@ -77,7 +78,7 @@ def press_torques(hand: HandModel, q: np.ndarray) -> np.ndarray:
     moves each fingertip toward what it opposes (``J J^T u`` has a positive component along ``u``).
     """
     d = hand.description
-    tips, jac = _tips_and_jacobians(hand, q)  # (F, 3), (F, 3, K)
+    tips, jac = tips_and_jacobians(hand, q)  # (F, 3), (F, 3, K)
     directions = press_directions(d, tips)
     torque = np.zeros(d.num_joints)
     for f, finger in enumerate(d.fingers):
@@ -112,7 +113,7 @@ def retract_joints(
     """
     d = hand.description
     q = d.apply_couplings(np.asarray(q_grasp, dtype=np.float64))
-    tips, jac = _tips_and_jacobians(hand, q)
+    tips, jac = tips_and_jacobians(hand, q)
     directions = press_directions(d, tips)
     limits = d.limits_array
     out = q.copy()
@@ -130,8 +131,8 @@ def retract_joints(
     return d.apply_couplings(out)
 
 
-def _tips_and_jacobians(hand: HandModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Fingertip pads (F, 3) and their Jacobians (F, 3, K) at joints ``q`` (K,), hand base frame.
+def tips_and_jacobians(hand: HandModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Fingertip pads (F, 3) and their Jacobians (F, 3, K) at joints ``q`` (K,; couplings applied), hand base frame.
 
     Each joint's own column, couplings ignored: a follower's part of the push is overwritten when
     :meth:`HandDescription.apply_couplings` sets it from its leader. Folding the follower's column into its
