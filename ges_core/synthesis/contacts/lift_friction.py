@@ -66,21 +66,9 @@ def lift_capacity(
     by a linear program (scipy's HiGHS). Where force closure at ``mu`` holds it is above the Ferrari-Canny epsilon;
     it ranks grasps by how hard the hand must squeeze to lift, which epsilon (the worst direction) does not.
     """
-    from scipy.optimize import linprog  # lazily: every Stage 1 worker imports this module, few call this
-
-    pos = np.asarray(positions, dtype=np.float64)
     forces = cone_forces(np.asarray(normals, dtype=np.float64), mu, cone_edges)  # (n, e, 3)
-    torques = np.cross((pos - np.asarray(center, dtype=np.float64))[:, None, :], forces) / radius
     k = forces.shape[0] * forces.shape[1]
-    a_eq = np.zeros((6, k + 1))
-    a_eq[:3, :k] = forces.reshape(k, 3).T
-    a_eq[2, k] = -1.0  # sum of forces - W e_z = 0
-    a_eq[3:, :k] = torques.reshape(k, 3).T
-    a_ub = np.concatenate([np.ones(k), [0.0]])[None]
-    cost = np.zeros(k + 1)
-    cost[k] = -1.0
-    res = linprog(cost, A_ub=a_ub, b_ub=[1.0], A_eq=a_eq, b_eq=np.zeros(6), bounds=(0, None), method="highs")
-    return float(max(res.x[k], 0.0)) if res.status == 0 else 0.0
+    return _largest_lift(positions, forces, center, np.ones((1, k)), np.ones(1), torque_divisor=radius)
 
 
 def held_weight(
@@ -107,34 +95,49 @@ def held_weight(
     palm) and the drives' own control law are not in it: it bounds what these fingertips can do within the
     actuators, not what a given closing achieves.
     """
-    from scipy.optimize import linprog  # lazily, as lift_capacity
-
     pos = checked_array(positions, (None, 3), "held_weight: positions", layout="resting frame, metres")
     nrm = checked_array(normals, (len(pos), 3), "held_weight: normals", layout="outward, one per contact")
     jac = checked_array(jacobians, (len(pos), 3, None), "held_weight: jacobians", layout="(n, 3, K) per contact")
     limits = checked_array(effort, (jac.shape[2],), "held_weight: effort", layout="(K,) torque limits, N·m")
     if len(joints) != len(pos):
         raise ArrayError(f"held_weight: {len(joints)} joint lists for {len(pos)} contacts; give one per contact")
-    n, edges = len(pos), cone_edges
+    edges = cone_edges
     forces = cone_forces(nrm, mu, edges)  # (n, e, 3)
-    k = n * edges
-    a_eq = np.zeros((6, k + 1))
-    a_eq[:3, :k] = forces.reshape(k, 3).T
-    a_eq[2, k] = -1.0  # sum of forces - W e_z = 0
-    a_eq[3:, :k] = np.cross((pos - np.asarray(center, dtype=np.float64))[:, None, :], forces).reshape(k, 3).T
-    torque = np.zeros((jac.shape[2], k))  # joint torque per unit weight of each cone edge
+    torque = np.zeros((jac.shape[2], len(pos) * edges))  # joint torque per unit weight of each cone edge
     for i, idx in enumerate(joints):
         idx = np.asarray(idx, dtype=int)
         torque[idx, i * edges : (i + 1) * edges] += jac[i][:, idx].T @ forces[i].T
     used = np.flatnonzero(np.abs(torque).sum(axis=1) > 0)
-    a_ub = np.zeros((2 * len(used), k + 1))
-    a_ub[: len(used), :k] = torque[used]
-    a_ub[len(used) :, :k] = -torque[used]
-    b_ub = np.concatenate([limits[used], limits[used]])
+    bound_rows = np.concatenate([torque[used], -torque[used]])  # |tau_k| <= effort_k
+    return _largest_lift(pos, forces, center, bound_rows, np.concatenate([limits[used], limits[used]]))
+
+
+def _largest_lift(
+    positions: np.ndarray,
+    forces: np.ndarray,
+    center: np.ndarray,
+    a_ub: np.ndarray,
+    b_ub: np.ndarray,
+    *,
+    torque_divisor: float = 1.0,
+) -> float:
+    """The linear program of :func:`lift_capacity` and :func:`held_weight`: the largest ``W`` such that non-negative
+    weights ``x`` of the cone edges ``forces`` (n, e, 3) at ``positions`` (n, 3) sum to the force ``(0, 0, W)`` with no
+    torque about ``center`` (torques divided by ``torque_divisor``), under ``a_ub x <= b_ub`` ((m, n e), (m,)). 0 when
+    infeasible, ``inf`` when unbounded."""
+    from scipy.optimize import linprog  # lazily: every Stage 1 worker imports this module, few call this
+
+    k = forces.shape[0] * forces.shape[1]
+    a_eq = np.zeros((6, k + 1))
+    a_eq[:3, :k] = forces.reshape(k, 3).T
+    a_eq[2, k] = -1.0  # sum of forces - W e_z = 0
+    lever = np.asarray(positions, dtype=np.float64) - np.asarray(center, dtype=np.float64)
+    a_eq[3:, :k] = (np.cross(lever[:, None, :], forces) / torque_divisor).reshape(k, 3).T
     cost = np.zeros(k + 1)
     cost[k] = -1.0
-    res = linprog(cost, A_ub=a_ub, b_ub=b_ub, A_eq=a_eq, b_eq=np.zeros(6), bounds=(0, None), method="highs")
-    if res.status == 3:  # unbounded: some contact pushes without loading any joint
+    bounds = np.concatenate([a_ub, np.zeros((len(a_ub), 1))], axis=1)  # W itself is not bounded by them
+    res = linprog(cost, A_ub=bounds, b_ub=b_ub, A_eq=a_eq, b_eq=np.zeros(6), bounds=(0, None), method="highs")
+    if res.status == 3:  # unbounded: some contacts push without loading any limit
         return math.inf
     weight = float(res.x[k]) if res.status == 0 else 0.0
     return weight if weight > 0.0 else 0.0  # never -0.0
