@@ -73,13 +73,11 @@ def run_validate(args: argparse.Namespace) -> int:
 def run_capacity(args: argparse.Namespace) -> int:
     """Print the per-record table and the per-hand counts (ges_core.synthesis.run.capacity)."""
     from ges_core.cli import registry_from_args
-    from ges_core.dataset import open_dataset
     from ges_core.synthesis.physics.capacity import NEAR
     from ges_core.synthesis.run.capacity import bound_counts, bounds_table, counts_table, trial_bounds
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()
-    open_dataset(args.path)  # a missing or foreign folder fails here, naming it
     rows = trial_bounds(args.path, registry_from_args(args), near=args.near or NEAR, hands=args.hand)
     if not rows:
         whose = f" of hand {', '.join(args.hand)}" if args.hand else ""
