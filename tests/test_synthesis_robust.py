@@ -202,7 +202,7 @@ def test_the_fingertips_bound_lies_between_the_trial_that_held_and_the_one_that_
     grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
     mu = 0.5 * (config.scene.hand_friction + obj.friction)
     tip = fingertip_capacity(hand, grasp, points, normals, mu, contacts=record.contacts)  # as the command reads it
-    assert len(tip.fingers) >= 2 and 1.0 <= tip.ratio(obj.mass) < 30.0, (tip, obj.mass)
+    assert len(tip.fingers) >= 2 and 1.0 <= tip.ratio(obj.mass, abs(config.scene.gravity)) < 30.0, (tip, obj.mass)
     assert cli.main(["dataset", "capacity", str(folder)]) == 0
     out = capsys.readouterr().out
     row = next(line for line in out.splitlines() if line.startswith("| allegro | procedural/box/000 |"))

@@ -56,8 +56,9 @@ class TipCapacity:
     fingers: tuple[str, ...]
     """The fingers whose pads touch the surface (``HandDescription.fingers`` order)."""
 
-    def ratio(self, mass: float, gravity: float = 9.81) -> float:
-        """:attr:`weight` over the weight of ``mass`` kg: 2 or more passes a ``mass_x2`` trial's bound."""
+    def ratio(self, mass: float, gravity: float) -> float:
+        """:attr:`weight` over the weight of ``mass`` kg under ``gravity`` m/s^2 (its magnitude; the scene's
+        ``SceneConfig.gravity``): 2 or more passes a ``mass_x2`` trial's bound."""
         return self.weight / (mass * gravity)
 
 

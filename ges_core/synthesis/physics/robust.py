@@ -47,6 +47,7 @@ __all__ = [
     "RobustConfig",
     "RobustResult",
     "TrialResult",
+    "effective_friction",
     "friction_trial_name",
     "object_friction_for",
     "perturbations",
@@ -171,6 +172,11 @@ class RobustResult:
         return float(sum(t.seconds for t in self.trials))
 
 
+def effective_friction(hand_friction: float, object_friction: float) -> float:
+    """The hand-object contact's coefficient in both backends: the average of the two (:func:`object_friction_for`)."""
+    return (hand_friction + object_friction) / 2
+
+
 def object_friction_for(floor: float, hand_friction: float, object_friction: float) -> float:
     """The object friction coefficient that makes the hand-object contact's effective coefficient ``floor``.
 
@@ -180,7 +186,7 @@ def object_friction_for(floor: float, hand_friction: float, object_friction: flo
     Never raises the object's own friction (a floor above the nominal keeps the nominal). ConfigError when the
     floor cannot be reached (``hand_friction / 2`` is the lowest effective value the average allows).
     """
-    if (hand_friction + object_friction) / 2 <= floor:
+    if effective_friction(hand_friction, object_friction) <= floor:
         return object_friction
     needed = 2.0 * floor - hand_friction
     if needed < -1e-12:

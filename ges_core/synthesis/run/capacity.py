@@ -11,12 +11,12 @@ docs/synthesis/refine_validate.md ("What the fingertips can hold") has the figur
 
 from __future__ import annotations
 
-import re
 from collections import Counter
 from pathlib import Path
 
 from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS
 from ges_core.synthesis.physics.capacity import NEAR, fingertip_capacity
+from ges_core.synthesis.physics.robust import effective_friction, perturbations
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.types import Grasp
 
@@ -24,52 +24,66 @@ __all__ = ["CLOUD_POINTS", "bound_counts", "bounds_table", "counts_table", "tria
 
 CLOUD_POINTS = 4096
 """Surface samples per object for the touching test and the normals (about 2 mm apart on a 10 cm object)."""
-_MASS = re.compile(r"^mass_x([0-9.]+)$")
-_FRICTION = re.compile(r"^friction_([0-9.]+)$")
 
 
 def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str] | None = None) -> list[dict]:
-    """One row per record of the dataset at ``folder`` with a grasp and perturbation trials (``hands``: only theirs):
-    hand, object, mass (kg), fingers touching, the capacity over the weight per friction coefficient, and per
-    drive-limited trial and simulator whether it passed and whether its ask is within the bound."""
+    """One row per record of the dataset at ``folder`` with a grasp and drive-limited perturbation trials (``hands``:
+    only theirs): hand, object, mass (kg), fingers touching, the capacity over the weight per friction coefficient,
+    and per drive-limited trial and simulator whether it passed and whether its ask is within the bound. Each trial's
+    ask comes from the trial itself as the run made it (:func:`~ges_core.synthesis.physics.robust.perturbations` under
+    the hand's settings of the dataset's config): its density factor at the friction it ran with."""
     from ges_core.dataset import open_dataset
     from ges_core.env.grasp_source import library_for
 
     dataset = open_dataset(folder)
     config = SynthesisConfig.of_dataset(dataset)
     library = library_for(dataset)
-    models, clouds, rows = {}, {}, []
+    models, configs, clouds, rows = {}, {}, {}, []
     for record in sorted(dataset.records(), key=lambda r: (r.hand, r.object_id)):
         trials = {sim: v.trials for sim, v in record.validations.items() if v.trials}
         if record.grasp is None or not trials or (hands and record.hand not in hands):
             continue
         if record.hand not in models:
             models[record.hand] = registry.build_hand(record.hand)
+            configs[record.hand] = config.for_hand(record.hand, models[record.hand].description.settings)
+        cfg = configs[record.hand]
+        if not cfg.robust.drive_limits:  # the trials ran uncapped: no actuator bound applies
+            continue
         if record.object_id not in clouds:
             clouds[record.object_id] = library.point_cloud(record.object_id, CLOUD_POINTS, seed=0)
         asset = library.get(record.object_id)
-        nominal = 0.5 * (config.scene.hand_friction + asset.friction)  # the engines average the two coefficients
+        nominal = effective_friction(cfg.scene.hand_friction, asset.friction)
+        asks = _asks(cfg, asset, record.seed)
         grasp = Grasp(record.hand, record.grasp.wrist_pose, record.grasp.q)
-        coefficients = {nominal} | {_friction(t.name, nominal) for ts in trials.values() for t in ts}
         ratio, fingers = {}, 0
-        for mu in sorted(coefficients - {None}):
+        for mu in sorted({nominal} | {mu for _, mu in asks.values()}):
             tip = fingertip_capacity(
                 models[record.hand], grasp, *clouds[record.object_id], mu, center=LIBRARY_CENTER_OF_MASS, near=near,
                 contacts=record.contacts,
             )  # fmt: skip
-            ratio[mu], fingers = tip.ratio(asset.mass), len(tip.fingers)
+            ratio[mu], fingers = tip.ratio(asset.mass, abs(cfg.scene.gravity)), len(tip.fingers)
         outcomes: dict[str, dict[str, dict[str, bool]]] = {}
         for sim, ts in sorted(trials.items()):
             for t in ts:
-                need = _need(t.name, nominal)
-                if need is not None:
-                    scale, mu = need
+                if t.name in asks:  # pose trials carry the nominal weight: not bounded
+                    scale, mu = asks[t.name]
                     outcomes.setdefault(t.name, {})[sim] = {"passed": t.success, "bound_ok": ratio[mu] >= scale}
         rows.append({
             "hand": record.hand, "object": record.object_id, "mass": asset.mass, "fingers_touching": fingers,
             "ratio_by_mu": {f"{mu:g}": r for mu, r in ratio.items()}, "trials": outcomes,
         })  # fmt: skip
     return rows
+
+
+def _asks(cfg: SynthesisConfig, asset, seed: int) -> dict[str, tuple[float, float]]:
+    """Trial name -> (weight multiple, effective friction) of each trial of ``cfg.robust`` that changes the load
+    (limits, mass, friction), as :func:`~ges_core.synthesis.physics.robust.perturbations` makes them."""
+    hand_mu = cfg.scene.hand_friction
+    return {
+        p.name: (p.density_scale, effective_friction(hand_mu, asset.friction if p.friction is None else p.friction))
+        for p in perturbations(cfg.robust, hand_mu, asset, seed)
+        if p.shift is None
+    }
 
 
 def bound_counts(rows: list[dict]) -> dict[str, dict[str, int]]:
@@ -117,19 +131,3 @@ def counts_table(counts: dict[str, dict[str, int]]) -> str:
         cells = [c.get(k, 0) for k in ("failed_beyond", "failed_within", "passed_within", "passed_beyond")]
         lines.append(f"| {hand} | " + " | ".join(str(v) for v in cells) + " |")
     return "\n".join(lines) + "\n(drive-limited trials in every validating simulator; pose trials left out)"
-
-
-def _friction(name: str, nominal: float) -> float | None:
-    match = _FRICTION.match(name)
-    return min(float(match.group(1)), nominal) if match else None
-
-
-def _need(name: str, nominal: float) -> tuple[float, float] | None:
-    """(weight multiple, friction) a drive-limited trial asks of the fingertips; None for a pose trial."""
-    if name == "limits":
-        return 1.0, nominal
-    if match := _MASS.match(name):
-        return float(match.group(1)), nominal
-    if (mu := _friction(name, nominal)) is not None:
-        return 1.0, mu
-    return None
