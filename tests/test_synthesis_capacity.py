@@ -1,5 +1,5 @@
 """fingertip_capacity on the real Allegro model: frames (the same grasp moved about the vertical holds the same), the
-touching test, friction, and two opposed fingertips against a bound computed from their Jacobians directly."""
+touching test, friction, the slots' contacts, and two opposed fingertips against finite-difference Jacobians."""
 
 from __future__ import annotations
 
@@ -9,11 +9,14 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 from scipy.spatial.transform import Rotation
 
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import ConfigError
+from ges_core.kinematics import shared_kinematics
 from ges_core.registry import load_registry
+from ges_core.synthesis.contacts.lift_friction import held_weight
 from ges_core.synthesis.physics.capacity import _pads_in_object_frame, fingertip_capacity
 from ges_core.synthesis.types import Grasp
 from ges_core.transforms import compose, euler_xyz_to_quat
@@ -64,35 +67,47 @@ def test_less_friction_holds_less_and_a_surface_off_the_pads_holds_nothing(alleg
     assert far.fingers == () and far.weight == 0.0
 
 
-def test_two_opposed_fingertips_hold_what_the_lp_closed_form_says(allegro):
-    """Only the thumb and the index touch, on a vertical pair of faces through their pads facing each other: the
-    weight held is 2 mu N with N the largest squeeze both fingers' joints allow along the line between the pads,
-    computed here from the Jacobians directly (max N with |J^T (N u)| <= effort per joint, friction's share apart);
-    the LP must not exceed it and must reach it when friction loads no joint more than the squeeze's headroom."""
-    grasp = Grasp("allegro", np.array([0.0, 0.0, 0.1, 1.0, 0.0, 0.0, 0.0]), _curled(allegro))
+def test_two_opposed_fingertips_are_held_with_their_own_joints_jacobians(allegro):
+    """Only the thumb and the index touch, on a vertical pair of faces through their pads facing each other. The
+    capacity must be the linear program fed with Jacobians taken by central finite differences of the pads' forward
+    kinematics (positions only, not the analytic Jacobians), each finger with its own joints: this checks which
+    columns, joints and limits reach the program (the program itself is checked against closed forms in
+    test_synthesis_lift_friction.py), with the hand's limits and with a thumb ten times weaker (so that the thumb's
+    joints, not the index's, bind)."""
+    q = _curled(allegro)
+    shift = np.array([0.0, 0.0, 0.1])
+    grasp = Grasp("allegro", np.concatenate([shift, [1.0, 0.0, 0.0, 0.0]]), q)
     d = allegro.description
-    pads, jac = _pads_in_object_frame(allegro, grasp)
+    kin = shared_kinematics(allegro)
+    offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
+
+    def pads(joints: np.ndarray) -> np.ndarray:  # (F, 3), hand base frame = object frame shifted by the wrist
+        points, _ = kin.points_and_jacobians(torch.as_tensor(joints)[None], list(d.tip_links), offsets)
+        return points[0].numpy() + shift
+
+    step = 1e-6
+    columns = [(pads(q + step * e) - pads(q - step * e)) / (2 * step) for e in np.eye(len(q))]
+    finite = np.stack(columns, axis=-1)  # (F, 3, K)
     names = [f.name for f in d.fingers]
     thumb, index = names.index(d.finger_for_slot("thumb").name), names.index(d.finger_for_slot("index").name)
-    u = pads[index] - pads[thumb]
-    u[2] = 0.0  # horizontal faces: the squeeze line's level part
+    at = pads(q)[[thumb, index]]
+    u = at[1] - at[0]
+    u[2] = 0.0  # horizontal faces
     u /= np.linalg.norm(u)
-    points = pads[[thumb, index]]
     normals = np.stack([-u, u])  # outward: the thumb's face looks away from the index
-    center = points.mean(axis=0)
-    effort = d.effort_limits_array
-    squeeze = []
-    for f, push in ((thumb, u), (index, -u)):  # each fingertip pushes the object toward the other
-        idx = d.joint_index(d.fingers[f].joints)
-        tau = np.abs(jac[f][:, idx].T @ push)
-        squeeze.append(float(np.min(effort[idx][tau > 1e-12] / tau[tau > 1e-12])))
-    bound = 2 * 1.0 * min(squeeze)  # mu = 1, both sides squeeze equally
-    got = fingertip_capacity(allegro, grasp, points, normals, 1.0, center=center, near=1e-6).weight
-    assert set(fingertip_capacity(allegro, grasp, points, normals, 1.0, center=center, near=1e-6).fingers) == {
-        names[thumb],
-        names[index],
-    }
-    assert 0.0 < got <= bound * (1 + 1e-6)
+    center = at.mean(axis=0)
+    joints = [np.asarray(d.joint_index(d.fingers[f].joints)) for f in (thumb, index)]
+    weak_thumb = d.effort_limits_array.copy()
+    weak_thumb[joints[0]] /= 10  # then the thumb's joints bind, not the index's
+    weights = []
+    for effort in (d.effort_limits_array, weak_thumb):
+        hand = SimpleNamespace(description=replace(d, effort_limits=tuple(effort)), urdf_text=allegro.urdf_text)
+        got = fingertip_capacity(hand, grasp, at, normals, 1.0, center=center, near=1e-6)
+        assert set(got.fingers) == {names[thumb], names[index]}
+        want = held_weight(at, normals, 1.0, center, finite[[thumb, index]], joints, effort)
+        assert 0.0 < got.weight == pytest.approx(want, rel=1e-5)
+        weights.append(got.weight)
+    assert weights[1] < weights[0]
 
 
 def test_the_slots_contacts_give_the_normals_where_they_lie_at_the_pads(allegro):
