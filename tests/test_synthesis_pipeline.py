@@ -10,6 +10,7 @@ import trimesh
 from pydantic import ValidationError
 
 from ges_core.dataset import open_dataset, validate_dataset
+from ges_core.dataset.reasons import reason_help
 from ges_core.errors import ConfigError
 from ges_core.objects.library import LibraryConfig
 from ges_core.registry import load_registry
@@ -210,7 +211,10 @@ def test_table_counts_attempted_steps(first_run):
     (row,) = table_rows(open_dataset(out))
     assert row.objects == 4 and row.steps["contacts"].attempted == 4 and row.steps["contacts"].ok == 2
     assert row.steps["retargeting"].attempted == 2  # the two bad objects never reached it
-    assert "| allegro | sapien | 4 | 50.0 % (2/4)" in format_table([row])
+    text = format_table([row])
+    assert "| allegro | sapien | 4 | 50.0 % (2/4)" in text
+    for reason in ("bad_mesh", "no_graspable_width"):  # the two bad objects' reasons, explained under the table
+        assert f"\n  {reason}: {reason_help(reason)}" in text
 
 
 @pytest.mark.sim

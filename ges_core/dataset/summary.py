@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ges_core.dataset.reasons import reason_lines
 from ges_core.dataset.record import HELD_NO_BETTER, NOT_RUN, STEPS, TOTAL_STEPS, GraspRecord, StepOutcome
 from ges_core.dataset.store import Dataset
 
@@ -29,6 +30,7 @@ __all__ = [
     "format_other_strategy",
     "format_sim_stats",
     "other_strategy_stats",
+    "reason_meanings",
     "sim_stats",
     "step_stats",
     "summarize",
@@ -118,6 +120,8 @@ class DatasetSummary:
         lines += format_other_strategy(self.other)
         if self.sims:
             lines += ["", format_sim_stats(self.sims, self.agreement)]
+        reasons = [r for g in self.groups for step in g.failures.values() for r in step]
+        lines += reason_meanings(reasons + [t for s in self.sims for t in s.trial_failures])
         return "\n".join(lines)
 
 
@@ -212,6 +216,13 @@ def failure_reasons(failed: Iterable[tuple[str, str]]) -> dict[str, dict[str, in
         if reasons:
             out[step] = dict(reasons)
     return out
+
+
+def reason_meanings(reasons: Iterable[str]) -> list[str]:
+    """A blank line, ``what the reasons mean:`` and a line per distinct known reason of ``reasons`` (first-seen
+    order; :mod:`ges_core.dataset.reasons`); [] when none is known."""
+    lines = reason_lines(reasons, indent="  ")
+    return ["", "what the reasons mean:", *lines] if lines else []
 
 
 def format_failures(failures: dict[str, dict[str, int]]) -> str:

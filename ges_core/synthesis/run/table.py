@@ -27,6 +27,7 @@ from ges_core.dataset.summary import (
     format_other_strategy,
     format_sim_stats,
     other_strategy_stats,
+    reason_meanings,
     sim_stats,
     step_stats,
 )
@@ -142,10 +143,14 @@ def format_table(rows: list[TableRow]) -> str:
     if any(rec.validations for rec in records):
         lines += ["", format_sim_stats(sim_stats(records), agreement(records))]
     lines.append("\nfailure reasons per step (each object counted at its first failed step):")
+    reasons = []
     for r in rows:
         failed = [(rec.failed_step, rec.steps[rec.failed_step].reason) for rec in r.records if rec.failed_step]
         lines.append(f"  {r.hand} / {r.simulator}: {format_failures(failure_reasons(failed))}")
+        reasons += [reason for _, reason in failed]
     lines += format_other_strategy(other_strategy_stats(records))
+    trials = [t.name for rec in records for v in rec.validations.values() for t in v.trials if not t.success]
+    lines += reason_meanings(reasons + trials)
     return "\n".join(lines)
 
 
