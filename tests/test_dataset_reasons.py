@@ -16,7 +16,8 @@ from ges_core.dataset import NOT_RUN, DatasetWriter
 from ges_core.dataset.reasons import REASON_HELP, reason_help, reason_lines
 from ges_core.synthesis.run.table import format_table, table_rows
 
-ROOT = Path(ges_core.__file__).parent
+ROOT = Path(ges_core.__file__).parent / "synthesis"
+"""The Stage 1 pipeline's code: where a record's reasons are written (Stage 2's own reasons are other words)."""
 
 RECORDED = [
     r"""_fail\(\s*"([a-z_]+)\"""",  # contact generation (generate.py)
@@ -24,7 +25,7 @@ RECORDED = [
     r"""StepOutcome\.failed\(\s*"([a-z_]+)\"""",  # a step's outcome set in the worker
     r"""failed_contacts\(\s*"([a-z_]+)\"""",  # the contact step's failure in the worker
 ]
-"""Where the code writes a failure reason as a literal."""
+"""How the pipeline's code writes a failure reason as a literal."""
 
 
 def _reasons_in_code() -> set[str]:
