@@ -53,18 +53,12 @@ REASON_HELP: dict[str, str] = {
 }
 """Failure reason -> one line: what it means and, where there is one, what to try."""
 
+_CAPACITY = "`ges dataset capacity DATASET` says whether any closing of those fingertips could hold it"
+
 TRIAL_HELP: tuple[tuple[str, str], ...] = (
     (r"limits", "failed with the drives capped at the hand's actuator limits (effort_limit)"),
-    (
-        r"mass_x[0-9.e+-]+",
-        "failed with the object's mass times that factor; `ges dataset capacity DATASET` says whether any closing "
-        "of those fingertips could hold it",
-    ),
-    (
-        r"friction_[0-9.e+-]+",
-        "failed at that (effective) friction coefficient; `ges dataset capacity DATASET` says whether any closing "
-        "of those fingertips could hold it",
-    ),
+    (r"mass_x[0-9.e+-]+", f"failed with the object's mass times that factor; {_CAPACITY}"),
+    (r"friction_[0-9.e+-]+", f"failed at that (effective) friction coefficient; {_CAPACITY}"),
     (r"pose_[0-9]+", "failed with the object moved a few mm and degrees from where the grasp expects it"),
 )
 """(pattern of a perturbation trial's name, what its failure means): the robust step's reasons

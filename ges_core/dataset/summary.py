@@ -120,8 +120,7 @@ class DatasetSummary:
         lines += format_other_strategy(self.other)
         if self.sims:
             lines += ["", format_sim_stats(self.sims, self.agreement)]
-        reasons = [r for g in self.groups for step in g.failures.values() for r in step]
-        lines += reason_meanings(reasons + [t for s in self.sims for t in s.trial_failures])
+        lines += reason_meanings([r for g in self.groups for step in g.failures.values() for r in step], self.sims)
         return "\n".join(lines)
 
 
@@ -218,10 +217,11 @@ def failure_reasons(failed: Iterable[tuple[str, str]]) -> dict[str, dict[str, in
     return out
 
 
-def reason_meanings(reasons: Iterable[str]) -> list[str]:
-    """A blank line, ``what the reasons mean:`` and a line per distinct known reason of ``reasons`` (first-seen
-    order; :mod:`ges_core.dataset.reasons`); [] when none is known."""
-    lines = reason_lines(reasons, indent="  ")
+def reason_meanings(reasons: Iterable[str], sims: Iterable[SimStats] = ()) -> list[str]:
+    """A blank line, ``what the reasons mean:`` and a line per distinct known reason of ``reasons`` (the steps'
+    failure reasons) and of the perturbation trials that failed in ``sims`` (first-seen order;
+    :mod:`ges_core.dataset.reasons`); [] when none is known."""
+    lines = reason_lines([*reasons, *(t for s in sims for t in s.trial_failures)], indent="  ")
     return ["", "what the reasons mean:", *lines] if lines else []
 
 

@@ -140,8 +140,9 @@ def format_table(rows: list[TableRow]) -> str:
         )
     lines.append(f"\n{TOTAL_TIME}.")
     records = [rec for r in rows for rec in r.records]
-    if any(rec.validations for rec in records):
-        lines += ["", format_sim_stats(sim_stats(records), agreement(records))]
+    sims = sim_stats(records)  # () when no record was validated
+    if sims:
+        lines += ["", format_sim_stats(sims, agreement(records))]
     lines.append("\nfailure reasons per step (each object counted at its first failed step):")
     reasons = []
     for r in rows:
@@ -149,8 +150,7 @@ def format_table(rows: list[TableRow]) -> str:
         lines.append(f"  {r.hand} / {r.simulator}: {format_failures(failure_reasons(failed))}")
         reasons += [reason for _, reason in failed]
     lines += format_other_strategy(other_strategy_stats(records))
-    trials = [t.name for rec in records for v in rec.validations.values() for t in v.trials if not t.success]
-    lines += reason_meanings(reasons + trials)
+    lines += reason_meanings(reasons, sims)
     return "\n".join(lines)
 
 
