@@ -193,14 +193,16 @@ def test_the_fingertips_bound_lies_between_the_trial_that_held_and_the_one_that_
     kinematics, no simulator) must lie between 1 and 30 weights; ``ges dataset capacity`` sets both trials beside
     that bound (limits within it, mass_x30 beyond), per simulator."""
     from ges_core.synthesis.physics.capacity import fingertip_capacity
+    from ges_core.synthesis.physics.robust import effective_friction
+    from ges_core.synthesis.run.capacity import CLOUD_POINTS
 
     record, config, folder = weak_box_run
     hand = load_registry().build_hand("allegro")
     library = config.library.build()
     obj = library.get(record.object_id)
-    points, normals = library.point_cloud(record.object_id, 4096, seed=0)
+    points, normals = library.point_cloud(record.object_id, CLOUD_POINTS, seed=0)
     grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
-    mu = 0.5 * (config.scene.hand_friction + obj.friction)
+    mu = effective_friction(config.scene.hand_friction, obj.friction)
     tip = fingertip_capacity(hand, grasp, points, normals, mu, contacts=record.contacts)  # as the command reads it
     assert len(tip.fingers) >= 2 and 1.0 <= tip.ratio(obj.mass, abs(config.scene.gravity)) < 30.0, (tip, obj.mass)
     assert cli.main(["dataset", "capacity", str(folder)]) == 0
