@@ -124,3 +124,32 @@ def test_state_round_trip_and_a_changed_run_is_refused(tmp_path) -> None:
 def test_disabled_curriculum_trains_on_the_last_stage_only(tmp_path) -> None:
     cur = Curriculum.for_cluster(CurriculumConfig(enabled=False), _clusters(tmp_path), 0, ALL)
     assert cur.stages == [3] and cur.objects() == ALL and cur.end_iteration(1) is None
+
+
+def test_promotion_on_the_in_run_evaluation(tmp_path) -> None:
+    """``promote_on: evaluation`` reads the latest evaluation of the stage, not the training window; the rate is
+    forgotten at a promotion (the next stage waits for its own evaluation) and survives a resume."""
+    cfg = CurriculumConfig(window=4, promote_success=0.5, max_iterations=100, promote_on="evaluation")
+    cur = Curriculum.for_cluster(cfg, _clusters(tmp_path), 0, ALL)
+    cur.record([True] * 8)  # the training episodes alone promote nothing
+    assert cur.end_iteration(1) is None
+    cur.record_evaluation(0.25, 8)
+    assert cur.end_iteration(2) is None and cur.end_iteration(3) is None  # below the threshold, kept until the next
+    cur.record_evaluation(0.5, 8)
+    again = Curriculum.for_cluster(cfg, _clusters(tmp_path), 0, ALL)
+    again.load_state_dict(cur.state_dict())
+    for c in (cur, again):
+        p = c.end_iteration(4)
+        assert (p.from_stage, p.to_stage, p.reason, p.success_rate, p.episodes) == (1, 2, "evaluation", 0.5, 8)
+        assert "evaluation: success 0.50 in the evaluation's 8 noise-free episode(s)" in p.describe()
+        assert c.evaluation is None and c.end_iteration(5) is None  # stage 2 waits for an evaluation of its own
+    assert cur.all_objects() == ALL
+
+
+def test_evaluation_promotion_needs_the_in_run_evaluation() -> None:
+    from ges_core.training.config import load_train_config
+
+    with pytest.raises(ConfigError, match=r"evaluation.interval"):
+        load_train_config("tiny", overrides=["curriculum.promote_on=evaluation"])
+    cfg = load_train_config("tiny", overrides=["curriculum.promote_on=evaluation", "evaluation.interval=50"])
+    assert cfg.evaluation.interval == 50 and cfg.evaluation.seed not in range(8)  # not ges eval-experts' seeds

@@ -279,3 +279,66 @@ def test_residual_critic_warmup_and_own_critic_fit(tmp_path, clusters) -> None:
         updates = [r["update"] for r in rows]
         assert updates == (["critic", "ppo", "ppo"] if extra else ["ppo", "ppo", "ppo"])
     assert moved["fit"] > 1e-4 and moved["plain"] < 1e-6, moved
+
+
+def _history(out) -> list[dict]:
+    rows = [json.loads(line) for line in (out / "history.jsonl").read_text().splitlines()]
+    return [{k: v for k, v in r.items() if k not in ("seconds", "collect_s", "learn_s")} for r in rows]
+
+
+def test_in_run_evaluation_is_eval_experts_on_the_checkpoint_and_leaves_training_alone(tmp_path, clusters) -> None:
+    """``evaluation.interval=2``: the noise-free policy's episodes every 2 iterations are the cells ``ges
+    eval-experts`` writes for that checkpoint (same seed and episodes; the highest rise of each episode compared,
+    a continuous figure); the training itself is that of a run without evaluations; ``best.pt`` is the best
+    evaluation's checkpoint; a resumed run compares against the stored best."""
+    from ges_core.env.evaluate import BaselineConfig
+    from ges_core.experts.choice import parse_expert
+    from ges_core.experts.evaluate import evaluate_experts
+    from ges_core.training.config import TrainConfig
+    from ges_core.training.envs import env_config
+
+    residual = ("action_mode=residual", "ppo.schedule=fixed", "ppo.learning_rate=1e-3")
+    plain = _train(tmp_path / "plain", clusters, "iterations=4", *residual)
+    out = tmp_path / "eval"
+    run = _train(out, clusters, "iterations=4", *residual, "evaluation.interval=2", "evaluation.episodes=2")
+    assert _history(out) == _history(tmp_path / "plain")
+    a, b = _weights(plain.checkpoint), _weights(run.checkpoint)
+    assert all(torch.equal(a[k], b[k]) for k in a)
+
+    rows = [json.loads(line) for line in (out / "evaluations.jsonl").read_text().splitlines()]
+    assert [r["iteration"] for r in rows] == [2, 4] and all(r["episodes"] == 4 for r in rows)  # 2 objects x 2
+    assert run.evaluation["objects"] == 2 and run.evaluation["last"] == rows[-1]["success_paper"]
+    best = run.evaluation["best_iteration"]
+    assert best == max(rows, key=lambda r: (r["success_paper"], -r["iteration"]))["iteration"]
+    kept, stored = _weights(out / "checkpoints" / "best.pt"), _weights(out / "checkpoints" / f"model_{best}.pt")
+    assert all(torch.equal(kept[k], stored[k]) for k in kept)
+
+    cfg = TrainConfig.model_validate(read_checkpoint(run.checkpoint)["ges"]["train_config"])
+    env = env_config(cfg)
+    env = env.model_copy(update={"randomization": env.randomization.model_copy(update={"seed": 100})})
+    config = BaselineConfig(hand="allegro", sim="sapien", envs=2, selection=cfg.selection, seed=100, env=env,
+                            splits=("train",))  # fmt: skip
+    column = parse_expert(f"it2=ppo:checkpoint={out / 'checkpoints' / 'model_2.pt'}")
+    report = evaluate_experts(DATASET, config, [column], tmp_path / "matrix")
+    cells = json.loads(report.path.read_text())["cells"]
+    assert set(cells) == set(rows[0]["per_object"])
+    for oid, cell in cells.items():
+        it2 = cell["it2"]
+        assert [it2["episodes"], it2["paper"], it2["peers"]] == rows[0]["per_object"][oid]
+        assert it2["max_rise"] == rows[0]["max_rise"][oid] and max(it2["max_rise"]) > 0.01  # it moved the object
+
+    again = _train(out, clusters, "iterations=6", resume=True)
+    rows = [json.loads(line) for line in (out / "evaluations.jsonl").read_text().splitlines()]
+    assert [r["iteration"] for r in rows] == [2, 4, 6]
+    tops = [r["iteration"] for r in rows if r["success_paper"] == max(x["success_paper"] for x in rows)]
+    assert again.evaluation["best_iteration"] == tops[0]  # a tie with the stored best keeps the earlier one
+    assert read_checkpoint(again.checkpoint)["ges"]["state"]["evaluation"]["best_iteration"] == tops[0]
+
+
+def test_evaluation_promotes_the_curriculum(tmp_path, clusters) -> None:
+    """``curriculum.promote_on=evaluation``: the stages advance on the evaluation's success (the base expert holds
+    these grasps), long before the iteration cap, and the log says so."""
+    run = _train(tmp_path / "run", clusters, "iterations=2", "action_mode=residual", "curriculum.max_iterations=50",
+                 "curriculum.promote_on=evaluation", "evaluation.interval=1", "evaluation.episodes=1")  # fmt: skip
+    assert [p.split(",")[1].strip().split(":")[0] for p in run.promotions] == ["evaluation", "evaluation"]
+    assert run.stage == 3 and "noise-free episode(s)" in (tmp_path / "run" / "curriculum.log").read_text()

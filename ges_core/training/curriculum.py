@@ -11,8 +11,11 @@ The hard-case expert runs stages 1-2 on a given object set (``objects``): its "c
 objects' standardized features. Only objects with a usable Stage 1 grasp take part (``available``).
 
 Promotion: once the stage has seen ``window`` episodes and their success rate (``protocol``) reaches
-``promote_success``, or after ``max_iterations`` iterations in the stage, whichever comes first. The last stage is
-never left. Each promotion is returned as a :class:`Promotion` (the runner logs it) and kept in :attr:`history`.
+``promote_success``, or after ``max_iterations`` iterations in the stage, whichever comes first. With
+``promote_on: evaluation`` the rate is the stage's objects' success in the latest in-run evaluation of the stage
+(:meth:`Curriculum.record_evaluation`; the noise-free policy, :mod:`ges_core.training.evaluation`) instead.
+The last stage is never left. Each promotion is returned as a :class:`Promotion` (the runner logs it) and kept
+in :attr:`history`.
 """
 
 from __future__ import annotations
@@ -42,20 +45,23 @@ class Promotion:
     from_stage: int
     to_stage: int
     reason: str
-    """'success' (the rate reached the threshold) or 'iteration_cap'."""
+    """'success' (the training episodes' rate reached the threshold), 'evaluation' (the in-run evaluation's did)
+    or 'iteration_cap'."""
     success_rate: float
-    """Success rate over the window when it happened (NaN: no episode ended in the stage)."""
+    """Success rate the rule read when it happened (NaN: no episode ended in the stage / no evaluation yet)."""
     episodes: int
-    """Episodes the stage saw."""
+    """Episodes that rate is over (the window's, or the evaluation's on the stage's objects)."""
     stage_name: str = ""
     """What the new stage trains on (empty in records written before it was stored: STAGE_NAMES then)."""
 
     def describe(self) -> str:
         rate = "no episode" if math.isnan(self.success_rate) else f"success {self.success_rate:.2f}"
         name = self.stage_name or STAGE_NAMES[self.to_stage]
+        over = (f"in the evaluation's {self.episodes} noise-free episode(s)" if self.reason == "evaluation"
+                else f"over the last {self.episodes} episode(s)")  # fmt: skip
         return (
             f"iteration {self.iteration}: curriculum stage {self.from_stage} -> {self.to_stage} "
-            f"({name}), {self.reason}: {rate} over the last {self.episodes} episode(s)"
+            f"({name}), {self.reason}: {rate} {over}"
         )
 
 
@@ -79,6 +85,8 @@ class Curriculum:
         self.episodes_in_stage = 0
         self.history: list[Promotion] = []
         self.names = dict(names or STAGE_NAMES)
+        self.evaluation: tuple[float, int] | None = None
+        """The latest in-run evaluation of the current stage: (success rate on its objects, episodes)."""
 
     @classmethod
     def for_cluster(
@@ -119,6 +127,10 @@ class Curriculum:
         """Object ids of the current stage."""
         return self.stage_objects[self.stage]
 
+    def all_objects(self) -> list[str]:
+        """Every object of any stage, sorted (what the in-run evaluation runs on)."""
+        return sorted({o for objects in self.stage_objects.values() for o in objects})
+
     def weights(self) -> dict[str, float]:
         """Pool weights: 1 for each object of the current stage (objects left out get 0)."""
         return dict.fromkeys(self.objects(), 1.0)
@@ -127,6 +139,11 @@ class Curriculum:
         """Outcomes of episodes that ended (True: a success under ``protocol``)."""
         self.window.extend(bool(s) for s in successes)
         self.episodes_in_stage += len(successes)
+
+    def record_evaluation(self, rate: float, episodes: int) -> None:
+        """The in-run evaluation's success rate on the current stage's objects (read with ``promote_on:
+        evaluation``; kept until the next evaluation or promotion)."""
+        self.evaluation = (float(rate), int(episodes))
 
     def success_rate(self) -> float:
         """Success rate over the window (NaN before any episode ended in the stage)."""
@@ -137,18 +154,24 @@ class Curriculum:
         self.iterations_in_stage += 1
         if self.index == len(self.stages) - 1:
             return None
-        rate = self.success_rate()
-        if len(self.window) >= self.cfg.window and rate >= self.cfg.promote_success:
-            reason = "success"
+        if self.cfg.promote_on == "evaluation":
+            rate, seen = self.evaluation if self.evaluation is not None else (math.nan, 0)
+            reached = seen > 0 and rate >= self.cfg.promote_success
+        else:
+            rate, seen = self.success_rate(), len(self.window)
+            reached = seen >= self.cfg.window and rate >= self.cfg.promote_success
+        if reached:
+            reason = "evaluation" if self.cfg.promote_on == "evaluation" else "success"
         elif self.iterations_in_stage >= self.cfg.max_iterations:
             reason = "iteration_cap"
         else:
             return None
         to = self.stages[self.index + 1]
-        promotion = Promotion(iteration, self.stage, to, reason, rate, len(self.window), self.names[to])
+        promotion = Promotion(iteration, self.stage, to, reason, rate, seen, self.names[to])
         self.index += 1
         self.iterations_in_stage, self.episodes_in_stage = 0, 0
         self.window.clear()
+        self.evaluation = None
         self.history.append(promotion)
         return promotion
 
@@ -161,6 +184,7 @@ class Curriculum:
             "window": list(self.window),
             "history": [asdict(p) for p in self.history],
             "stage_objects": {str(k): v for k, v in self.stage_objects.items()},
+            "evaluation": None if self.evaluation is None else list(self.evaluation),
         }
 
     def load_state_dict(self, state: dict) -> None:
@@ -176,6 +200,8 @@ class Curriculum:
         self.window.clear()
         self.window.extend(bool(s) for s in state["window"])
         self.history = [Promotion(**p) for p in state["history"]]
+        evaluation = state.get("evaluation")  # absent in checkpoints written before in-run evaluations
+        self.evaluation = None if evaluation is None else (float(evaluation[0]), int(evaluation[1]))
 
 
 def _by_distance(clusters, objects: Sequence[str]) -> list[str]:

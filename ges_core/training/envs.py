@@ -39,6 +39,8 @@ class TrainingSetup:
     config: TrainConfig
     """The run's config as the env was built from it: the given one with the hand's ``settings.train`` filling
     what it did not set (:func:`ges_core.hand_settings.hand_train_config`)."""
+    hand_model: object = None
+    """The run's HandModel (prepared as Stage 1's; what the in-run evaluation builds its envs with)."""
 
     @property
     def env(self):
@@ -86,7 +88,7 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
         context = ExpertContext.of_env(venv.env, sim=sim_name, registry=registry)
         base = registry.build_expert(cfg.base_expert, context, **cfg.base_expert_settings)
         venv = ResidualVecEnv(venv, base, cfg.residual_scale)
-    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, rejected, cfg)
+    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, rejected, cfg, hand)
 
 
 def _vec_env(cfg: TrainConfig, registry, hand, sim_name: str, pool: GraspPool) -> GraspVecEnv | SubprocVecEnv:

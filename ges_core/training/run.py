@@ -25,7 +25,7 @@ from ges_core.paths import atomic_write_text
 from ges_core.training.checkpoint import find_checkpoints, latest_loadable
 from ges_core.training.config import TrainConfig, load_train_config
 from ges_core.training.envs import TrainingSetup, build_setup
-from ges_core.training.runner import GraspRunner
+from ges_core.training.runner import BEST, GraspRunner
 
 __all__ = ["TrainSummary", "rsl_config", "train_expert", "train_from_args", "warm_start_active"]
 
@@ -59,6 +59,9 @@ class TrainSummary:
     """The behaviour-cloning warm start's record (``warm_start.json``); None when it did not run in this call."""
     residual_scale: float | None = None
     """Residual mode: the scale the policy's output was trained at (the run's, else the hand's); None otherwise."""
+    evaluation: dict | None = None
+    """In-run evaluations (``evaluation.interval`` > 0): ``last`` and ``best`` paper success, ``best_iteration``,
+    ``best_checkpoint`` (None: not kept), ``objects`` and ``episodes`` per object; None when off."""
 
     def table(self) -> str:
         """A few lines for the terminal."""
@@ -73,6 +76,7 @@ class TrainSummary:
             f"  episodes {self.episodes}: success {_pct(self.success_paper)} (paper), {_pct(self.success_peers)} "
             f"(peers); last iteration {_pct(self.last_success_paper)} (paper)",
             *([_warm_line(self.warm_start)] if self.warm_start else []),
+            *([_evaluation_line(self.evaluation)] if self.evaluation else []),
             f"  NaN actions {self.nan_actions} (episodes ended unstable), undone updates {self.bad_updates}",
             f"  checkpoint {self.checkpoint}" + (f" (resumed from {self.resumed_from})" if self.resumed_from else ""),
         ]
@@ -83,6 +87,13 @@ def _warm_line(w: dict) -> str:
     loss = w["imitation_loss"]
     return (f"  warm start: {w['demo_env_steps']:,} demonstration steps ({w['demo_successes']}/{w['demo_episodes']} "
             f"episodes succeeded), imitation loss {loss[0]:.4f} -> {loss[-1]:.4f}")  # fmt: skip
+
+
+def _evaluation_line(e: dict) -> str:
+    where = f" -> {e['best_checkpoint']}" if e.get("best_checkpoint") else ""
+    at = f" at iteration {e['best_iteration']}{where}" if e.get("best_iteration") else ""
+    return (f"  evaluation (noise-free, {e['objects']} object(s) x {e['episodes']} episode(s)): last "
+            f"{_pct(e['last'])}, best {_pct(e['best'])}{at}")  # fmt: skip
 
 
 def _pct(x: float) -> str:
@@ -188,6 +199,10 @@ def train_expert(
         runner.meta = _meta(setup, cfg, train_cfg, runner)
         if cfg.action_mode == "residual":
             _zero_output_layer(runner)
+        if cfg.evaluation.interval:
+            from ges_core.training.evaluation import InRunEvaluator
+
+            runner.evaluator = InRunEvaluator.for_run(dataset, cfg, setup, registry, setup.hand_model)
         if previous is not None:
             runner.resume_from(previous[1])
         out.mkdir(parents=True, exist_ok=True)
@@ -216,6 +231,7 @@ def _learn(runner: GraspRunner, cfg: TrainConfig, progress: bool) -> str:
 
     runner.on_iteration = tick
     runner.on_promotion = bar.write
+    runner.on_evaluation = bar.write
     try:
         return runner.learn(todo)
     except KeyboardInterrupt:
@@ -239,7 +255,16 @@ def _summary(out: Path, setup, cfg: TrainConfig, runner: GraspRunner, stopped: s
         checkpoint=str(ckpt) if ckpt.exists() else "", resumed_from=str(previous[0]) if previous else None,
         warm_start=getattr(runner, "warm_start_record", None),
         residual_scale=cfg.residual_scale if cfg.action_mode == "residual" else None,
+        evaluation=_evaluation_summary(out, cfg, runner),
     )  # fmt: skip
+
+
+def _evaluation_summary(out: Path, cfg: TrainConfig, runner: GraspRunner) -> dict | None:
+    if runner.evaluator is None:
+        return None
+    best = out / "checkpoints" / BEST
+    return {**runner.evaluation, "best_checkpoint": str(best) if best.exists() else None,
+            "objects": len(runner.evaluator.objects), "episodes": cfg.evaluation.episodes}  # fmt: skip
 
 
 def train_from_args(args, registry) -> TrainSummary:

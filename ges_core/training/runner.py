@@ -5,8 +5,11 @@
 iteration: the outcomes of the episodes that ended counted per episode (both success protocols, end reasons, NaN
 actions) and fed to the curriculum, whose promotions set the pool's weights and are logged; one line of
 ``history.jsonl`` (the success curve); a checkpoint every ``checkpoint_interval`` iterations and at the end;
-the wall-time limit. The first iteration is preceded by a normalizer warm-up. An update that leaves a non-finite
-weight is undone (the weights from before it are restored) and counted, so a diverging step does not end the run.
+the wall-time limit; with ``evaluation.interval``, every that many iterations an in-run evaluation of the
+noise-free policy (:mod:`ges_core.training.evaluation`: ``evaluations.jsonl``, the curriculum's evaluation rule, a
+checkpoint, ``checkpoints/best.pt``). The first iteration is preceded by a normalizer warm-up. An update that
+leaves a non-finite weight is undone (the weights from before it are restored) and counted, so a diverging step
+does not end the run.
 
 Iterations are counted as *done*: a checkpoint's ``iter`` is the number of iterations behind it, and a resumed
 run starts at that number (rsl-rl's own loop re-runs the last index).
@@ -31,7 +34,7 @@ from rsl_rl.runners import OnPolicyRunner
 from ges_core.env.success import EndReason
 from ges_core.training.checkpoint import FORMAT, VERSION, write_checkpoint
 
-__all__ = ["EpisodeCounts", "GraspRunner"]
+__all__ = ["BEST", "EpisodeCounts", "GraspRunner", "describe_evaluation"]
 
 _SUCCESS = int(EndReason.SUCCESS)
 
@@ -106,6 +109,16 @@ class GraspRunner(OnPolicyRunner):
         self.on_iteration: Callable[[int, dict], None] | None = None
         """Called after every iteration with (iterations done, the history row): the progress bar."""
         self.on_promotion: Callable[[str], None] | None = None
+        self.evaluator = None
+        """An :class:`~ges_core.training.evaluation.InRunEvaluator` when ``evaluation.interval`` > 0 (set by the
+        caller)."""
+        self.evaluation = {"last": None, "best": None, "best_iteration": None}
+        """Paper-protocol success of the latest and the best in-run evaluation (over all its objects) and the
+        iterations behind the best (checkpointed: a resumed run keeps comparing against it)."""
+        self.on_evaluation: Callable[[str], None] | None = None
+        """Called with one line after each in-run evaluation."""
+        self._evaluated = False
+        self._new_best = False
 
     # -- the loop --------------------------------------------------------------------------------
     def learn(self, num_learning_iterations: int, init_at_random_ep_len: bool = False) -> str:
@@ -126,8 +139,13 @@ class GraspRunner(OnPolicyRunner):
             obs = self._iteration(it, start, start + num_learning_iterations, obs)
             self.current_learning_iteration = it + 1
             self.seconds = time.perf_counter() - began
-            if (it + 1) % self.settings.checkpoint_interval == 0:
-                self.save_checkpoint()
+            if (it + 1) % self.settings.checkpoint_interval == 0 or self._evaluated:
+                numbered = self.save_checkpoint()
+                if self._new_best and self.settings.evaluation.keep_best:
+                    from ges_core.paths import atomic_write_bytes
+
+                    atomic_write_bytes(numbered.parent / BEST, numbered.read_bytes())
+                self._evaluated = self._new_best = False
             if limit is not None and self.seconds >= limit:
                 self.save_checkpoint()
                 return "time_limit"
@@ -293,6 +311,9 @@ class GraspRunner(OnPolicyRunner):
         t["env_steps"] += self.cfg["num_steps_per_env"] * self.env.num_envs
         self.curriculum.record(counts.outcomes)
         stage = self.curriculum.stage
+        interval = self.settings.evaluation.interval
+        if self.evaluator is not None and interval and (it + 1) % interval == 0:
+            self._evaluate(it + 1)
         promotion = self.curriculum.end_iteration(it + 1)
         if promotion is not None:
             self.pool.set_weights(self.curriculum.weights())
@@ -312,6 +333,45 @@ class GraspRunner(OnPolicyRunner):
         self.last_counts = counts
         if self.on_iteration is not None:
             self.on_iteration(it + 1, row)
+
+    def _evaluate(self, done: int) -> None:
+        """The in-run evaluation of the weights after ``done`` iterations (a temporary checkpoint file the
+        registry's ``ppo`` expert reads): one ``evaluations.jsonl`` line, the curriculum's evaluation rate, the
+        best so far, TensorBoard scalars and the callback's line."""
+        from ges_core.paths import atomic_write_bytes
+
+        path = self.run_dir / "checkpoints" / EVALUATING
+        data = self.checkpoint_dict()
+        data["iter"] = done
+        buf = io.BytesIO()
+        torch.save(data, buf)
+        atomic_write_bytes(path, buf.getvalue())
+        try:
+            result = self.evaluator.evaluate(path, done)
+        finally:
+            path.unlink(missing_ok=True)
+        stage_objects = self.curriculum.objects()
+        stage_rate, stage_episodes = result.rate(stage_objects), result.episodes(stage_objects)
+        self.curriculum.record_evaluation(stage_rate, stage_episodes)
+        rate = result.rate()
+        state = self.evaluation
+        best = state["best"]
+        self._new_best = not math.isnan(rate) and (best is None or rate > best)
+        state["last"] = _num(rate)
+        if self._new_best:
+            state["best"], state["best_iteration"] = _num(rate), done
+        self._evaluated = True
+        row = {**result.to_row(), "stage": self.curriculum.stage, "stage_success_paper": _num(stage_rate),
+               "best": self._new_best}  # fmt: skip
+        with open(self.run_dir / "evaluations.jsonl", "a", encoding="utf-8") as fh:
+            fh.write(json.dumps(row) + "\n")
+        w = self.logger.writer
+        if w is not None:
+            for key in ("success_paper", "success_peers", "stage_success_paper"):
+                if row[key] is not None:
+                    w.add_scalar(f"Evaluation/{key}", row[key], done)
+        if self.on_evaluation is not None:
+            self.on_evaluation(describe_evaluation(row, len(result.per_object), self.evaluator.config.envs))
 
     def _scalars(self, it: int, row: dict, counts: EpisodeCounts) -> None:
         w = self.logger.writer
@@ -353,6 +413,7 @@ class GraspRunner(OnPolicyRunner):
             "torch_rng": torch.get_rng_state(),
             "env_rng": env.random.state(),
             "logger": {"tot_timesteps": self.logger.tot_timesteps, "tot_time": self.logger.tot_time},
+            "evaluation": dict(self.evaluation),
         }
         data["ges"] = {"format": FORMAT, "version": VERSION, **self.meta, "state": state}
         return data
@@ -384,6 +445,7 @@ class GraspRunner(OnPolicyRunner):
         self.env.env.random.set_state(state["env_rng"])
         self.logger.tot_timesteps = state["logger"]["tot_timesteps"]
         self.logger.tot_time = state["logger"]["tot_time"]
+        self.evaluation.update(state.get("evaluation") or {})  # absent before in-run evaluations
         self.warmed = True
         if self.demonstrator is not None and self.settings.warm_start.freeze_actor_normalizer:
             from ges_core.training.warm_start import freeze_normalizer
@@ -391,6 +453,25 @@ class GraspRunner(OnPolicyRunner):
             freeze_normalizer(self.alg.actor)  # ``until`` is not in the state dict
         if self.demonstrator is not None and self.settings.warm_start.anchor_steps:
             self.demonstrations = _read_demonstrations(self.run_dir / DEMOS)
+
+
+BEST = "best.pt"
+"""The checkpoint of the best in-run evaluation so far, beside ``last.pt`` (``evaluation.keep_best``)."""
+EVALUATING = "evaluating.pt"
+"""The temporary checkpoint an in-run evaluation reads (removed after it)."""
+
+
+def describe_evaluation(row: dict, objects: int, episodes: int) -> str:
+    """One line for the terminal from an ``evaluations.jsonl`` row."""
+
+    def pct(x):
+        return "-" if x is None else f"{100 * x:.1f} %"
+
+    return (
+        f"iteration {row['iteration']}: evaluation {pct(row['success_paper'])} (paper), {pct(row['success_peers'])} "
+        f"(peers) over {objects} object(s) x {episodes} noise-free episode(s); stage {row['stage']}'s objects "
+        f"{pct(row['stage_success_paper'])}; {row['seconds']:.0f} s" + (" (best so far)" if row["best"] else "")
+    )
 
 
 DEMOS = "demonstrations.pt"

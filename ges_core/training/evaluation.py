@@ -1,0 +1,117 @@
+"""Evaluation during training: the policy of a checkpoint, without action noise, on the run's objects.
+
+The training episodes show the policy with PPO's action noise, and their success is what the curriculum's default
+rule and the run's curves read. What an expert is used with (``ges eval-experts``, ``ges evaluate``) is the noise-free
+policy, and the two can differ: the residual experts of stop 43 kept a flat training success of 79-86 % while the
+noise-free policy gained. Every ``evaluation.interval`` iterations :class:`InRunEvaluator` runs a checkpoint of the
+current weights exactly as ``ges eval-experts`` runs a column: the registry's ``ppo`` expert built from that file,
+one fresh simulator per object, :func:`~ges_core.env.evaluate.evaluate_object`, ``evaluation.episodes`` envs, the
+run's env settings (randomization included) seeded with ``evaluation.seed``. So an evaluation's figure for an
+object is the cell ``ges eval-experts`` writes for that checkpoint with the same seed and episodes.
+
+It runs in the training process between two iterations, on its own simulators and with torch's random state put
+back afterwards: the training trajectories are those of a run without it.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import torch
+
+__all__ = ["EvaluationResult", "InRunEvaluator"]
+
+
+@dataclass
+class EvaluationResult:
+    """One evaluation: per object [episodes, paper successes, peers successes]."""
+
+    iteration: int
+    """Iterations done when it ran (the weights after that many updates)."""
+    per_object: dict[str, list[int]]
+    max_rise: dict[str, list[float]] = field(default_factory=dict)
+    """object id -> per episode the highest rise of the object above its start, m (how near a failure came)."""
+    seconds: float = 0.0
+    errors: dict[str, str] = field(default_factory=dict)
+    """object id -> the error that ended its episodes (they count as failures)."""
+
+    def rate(self, objects: Sequence[str] | None = None, protocol: str = "paper") -> float:
+        """Success rate over ``objects`` (None: all evaluated) under ``protocol``; NaN when none of them ran."""
+        col = 1 if protocol == "paper" else 2
+        rows = [self.per_object[o] for o in (self.per_object if objects is None else objects) if o in self.per_object]
+        episodes = sum(r[0] for r in rows)
+        return sum(r[col] for r in rows) / episodes if episodes else math.nan
+
+    def episodes(self, objects: Sequence[str] | None = None) -> int:
+        return sum(r[0] for o, r in self.per_object.items() if objects is None or o in objects)
+
+    def to_row(self) -> dict:
+        """One line of ``evaluations.jsonl``."""
+        return {
+            "iteration": self.iteration, "success_paper": _num(self.rate()),
+            "success_peers": _num(self.rate(None, "peers")), "episodes": self.episodes(), "per_object": self.per_object,
+            "max_rise": self.max_rise, "errors": self.errors, "seconds": round(self.seconds, 2),
+        }  # fmt: skip
+
+
+class InRunEvaluator:
+    """Runs a checkpoint on a fixed set of training objects (module docs)."""
+
+    def __init__(self, registry, hand, records: Sequence, library, config, scene) -> None:
+        """hand: the run's HandModel; records: one GraspRecord per object (the pool's); config: the
+        :class:`~ges_core.env.evaluate.BaselineConfig` of every cell but the checkpoint; scene: its SceneConfig."""
+        self.registry, self.hand, self.library, self.config, self.scene = registry, hand, library, config, scene
+        self.records = {r.object_id: r for r in records}
+        self.on_object: Callable[[str], None] | None = None
+        """Called after each object (its id): a progress bar."""
+
+    @classmethod
+    def for_run(cls, dataset: str | Path, cfg, setup, registry, hand) -> InRunEvaluator:
+        """The evaluator of a training run: the records of every object of its curriculum (the pool's grasps),
+        ``cfg.evaluation``'s episodes and seed, the run's env settings, the dataset's Stage 1 scene."""
+        from ges_core.env.evaluate import BaselineConfig
+        from ges_core.env.evaluate.runner import dataset_scene
+        from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
+        from ges_core.training.envs import env_config
+
+        e = cfg.evaluation
+        data = open_grasp_dataset(dataset)
+        wanted = set(setup.curriculum.all_objects())
+        chosen = select_records(data, setup.hand, split="train", selection=cfg.selection)
+        records = [r for r in chosen.records if r.object_id in wanted]
+        env = env_config(cfg)
+        env = env.model_copy(update={"randomization": env.randomization.model_copy(update={"seed": e.seed})})
+        config = BaselineConfig(hand=setup.hand, sim=setup.sim, envs=e.episodes, selection=cfg.selection, seed=e.seed,
+                                env=env, expert="ppo")  # fmt: skip
+        return cls(registry, hand, records, library_for(data), config, dataset_scene(data, e.episodes))
+
+    @property
+    def objects(self) -> list[str]:
+        return list(self.records)
+
+    def evaluate(self, checkpoint: str | Path, iteration: int) -> EvaluationResult:
+        """Every object's episodes with the policy of ``checkpoint``; torch's random state is restored after."""
+        from ges_core.env.evaluate.runner import evaluate_object
+
+        start = time.perf_counter()
+        config = self.config.model_copy(update={"expert_settings": {"checkpoint": str(checkpoint)}})
+        result = EvaluationResult(iteration, {})
+        with torch.random.fork_rng(devices=[]):
+            for object_id, record in self.records.items():
+                row = evaluate_object(self.registry, self.hand, record, self.library, config, self.scene)
+                result.per_object[object_id] = [row["envs"], row["paper_success"], row["peers_success"]]
+                result.max_rise[object_id] = row["max_rise"]
+                if "error" in row:
+                    result.errors[object_id] = row["error"]
+                if self.on_object is not None:
+                    self.on_object(object_id)
+        result.seconds = time.perf_counter() - start
+        return result
+
+
+def _num(value: float) -> float | None:
+    return None if math.isnan(value) else round(float(value), 4)
