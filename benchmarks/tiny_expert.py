@@ -2,7 +2,8 @@
 
 Reads ``history.jsonl`` and ``summary.json`` of each ``ges train-expert`` run folder given (default: every run
 under ``runs/tiny/experts``), prints a table of the success rate (paper protocol, per episode) in bins of
-iterations with the curriculum stage, writes ``benchmarks/results/tiny_expert.json`` and a PNG of the curves
+iterations with the curriculum stage (and the in-run evaluations of ``evaluations.jsonl`` where the run had them,
+dashed in the PNG), writes ``benchmarks/results/tiny_expert.json`` and a PNG of the curves
 (``benchmarks/results/tiny_expert.png``). The training itself is ``ges train-expert`` (docs/training.md):
 
     ges train-expert runs/tiny/dataset --cluster 1 --out runs/tiny/experts/expert1
@@ -50,7 +51,31 @@ def read_run(folder: Path) -> dict:
         loss = warm_start.pop("imitation_loss")
         warm_start["imitation_loss_first_last"] = [loss[0], loss[-1]]
     return {"run": folder.name, "label": LABELS.get(folder.name, folder.name), "rows": rows, "summary": summary,
-            "warm_start": warm_start, "config_yaml": config}  # fmt: skip
+            "warm_start": warm_start, "config_yaml": config, "evaluations": read_evaluations(folder, rows)}  # fmt: skip
+
+
+def read_evaluations(folder: Path, rows: list[dict]) -> list[dict]:
+    """The run's in-run evaluations (``evaluations.jsonl``, ``evaluation.interval``): iteration, env steps then,
+    noise-free success under both protocols, episodes, the training episodes' success over the same iterations
+    since the previous evaluation (the noisy curve's figure beside it); [] when the run had none."""
+    path = folder / "evaluations.jsonl"
+    if not path.is_file():
+        return []
+    out, since = [], 0
+    for line in path.read_text().splitlines():
+        if not line.strip():
+            continue
+        e = json.loads(line)
+        span = [r for r in rows if since < r["iteration"] <= e["iteration"]]
+        episodes = sum(r["episodes"] for r in span)
+        wins = sum(round((r["success_paper"] or 0) * r["episodes"]) for r in span)
+        out.append({
+            "iteration": e["iteration"], "env_steps": span[-1]["env_steps"] if span else None,
+            "success_paper": e["success_paper"], "success_peers": e["success_peers"], "episodes": e["episodes"],
+            "best": e["best"], "training_success_paper": round(wins / episodes, 3) if episodes else None,
+        })  # fmt: skip
+        since = e["iteration"]
+    return out
 
 
 def read_matrix(path: Path) -> dict:
@@ -102,8 +127,12 @@ def plot(runs: list[dict], path: Path, title: str) -> None:
     fig, ax = plt.subplots(figsize=(7, 4))
     for run in runs:
         b = [x for x in run["bins"] if x["success_paper"] is not None]
-        ax.plot([x["env_steps"] for x in b], [x["success_paper"] for x in b], marker="o",
-                label=f"{run['run']}: {run['label'].split(' (')[0]}")  # fmt: skip
+        (line,) = ax.plot([x["env_steps"] for x in b], [x["success_paper"] for x in b], marker="o",
+                          label=f"{run['run']}: {run['label'].split(' (')[0]}")  # fmt: skip
+        e = [x for x in run["evaluations"] if x["env_steps"] is not None and x["success_paper"] is not None]
+        if e:
+            ax.plot([x["env_steps"] for x in e], [x["success_paper"] for x in e], marker="s", linestyle="--",
+                    color=line.get_color(), label=f"{run['run']}: in-run evaluation (noise-free)")  # fmt: skip
     ax.set_xlabel("env steps")
     ax.set_ylabel("success (paper protocol, per episode)")
     ax.set_ylim(-0.02, 1.02)
@@ -136,6 +165,13 @@ def main() -> None:
         for b in run["bins"]:
             print(f"| {b['iterations']} | {b['env_steps']:,} | {b['seconds']:.0f} | {b['stage']} | {b['episodes']} | "
                   f"{b['success_paper']} | {b['success_peers']} |")  # fmt: skip
+        if run["evaluations"]:
+            print("| iteration | env steps | evaluation (paper) | (peers) | episodes | training episodes since |")
+            print("|---|---|---|---|---|---|")
+            for e in run["evaluations"]:
+                print(f"| {e['iteration']}{' (best)' if e['best'] else ''} | {e['env_steps']:,} | "
+                      f"{e['success_paper']} | {e['success_peers']} | {e['episodes']} | "
+                      f"{e['training_success_paper']} |")  # fmt: skip
     plot(runs, picture, args.title)
     for run in runs:
         del run["rows"]  # the curve is in bins; history.jsonl stays in the run folder

@@ -335,10 +335,18 @@ def test_in_run_evaluation_is_eval_experts_on_the_checkpoint_and_leaves_training
     assert read_checkpoint(again.checkpoint)["ges"]["state"]["evaluation"]["best_iteration"] == tops[0]
 
 
-def test_evaluation_promotes_the_curriculum(tmp_path, clusters) -> None:
-    """``curriculum.promote_on=evaluation``: the stages advance on the evaluation's success (the base expert holds
-    these grasps), long before the iteration cap, and the log says so."""
-    run = _train(tmp_path / "run", clusters, "iterations=2", "action_mode=residual", "curriculum.max_iterations=50",
-                 "curriculum.promote_on=evaluation", "evaluation.interval=1", "evaluation.episodes=1")  # fmt: skip
-    assert [p.split(",")[1].strip().split(":")[0] for p in run.promotions] == ["evaluation", "evaluation"]
-    assert run.stage == 3 and "noise-free episode(s)" in (tmp_path / "run" / "curriculum.log").read_text()
+def test_evaluation_promotes_the_curriculum(tmp_path, clusters, capsys) -> None:
+    """``ges train-expert --eval-every 1 -o curriculum.promote_on=evaluation``: the stages advance on the
+    evaluation's success (the base expert holds these grasps), long before the iteration cap, and the log says so."""
+    save_clusters(clusters, tmp_path / "clusters.json")
+    extra = [*FAST, "action_mode=residual", "curriculum.max_iterations=50", "curriculum.promote_on=evaluation",
+             "evaluation.episodes=1"]  # fmt: skip
+    args = ["train-expert", DATASET, "--out", str(tmp_path / "run"), "--no-progress", "--clusters",
+            str(tmp_path / "clusters.json"), "--iterations", "2", "--eval-every", "1"]  # fmt: skip
+    assert main([*args, *(x for o in extra for x in ("-o", o))]) == 0
+    printed = capsys.readouterr().out
+    assert re.search(r"evaluation \(noise-free, 2 object\(s\) x 1 episode\(s\)\): last [\d.]+ %, best [\d.]+ % at "
+                     r"iteration \d -> .*best\.pt", printed)  # fmt: skip
+    log = (tmp_path / "run" / "curriculum.log").read_text().splitlines()
+    assert [line.split(",")[1].strip().split(":")[0] for line in log] == ["evaluation", "evaluation"]
+    assert all("noise-free episode(s)" in line for line in log)

@@ -36,6 +36,11 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "a 2-core machine, same trajectories; docs/training.md 'Env workers')",
     )  # fmt: skip
     p.add_argument("--iterations", type=positive_int, metavar="N", help="PPO iterations (default: the preset's)")
+    p.add_argument(
+        "--eval-every", type=positive_int, metavar="N",
+        help="every N iterations, evaluate the policy without action noise on the run's objects, as ges eval-experts "
+        "does; writes evaluations.jsonl and checkpoints/best.pt (evaluation.*; docs/training.md)",
+    )  # fmt: skip
     p.add_argument("--seed", type=non_negative_int, metavar="N", help="seed of the run (default: the preset's)")
     p.add_argument("--out", type=Path, metavar="DIR", help="run folder (default: DATASET/../experts/<name>)")
     p.add_argument("--name", metavar="NAME", help="expert name (default: expert<cluster>)")
@@ -57,6 +62,8 @@ def run_train_cmd(args: argparse.Namespace) -> int:
     set_torch_threads()  # ges --threads / $GES_THREADS / 1 (ges_core.threads)
     if args.workers is not None:
         args.overrides = [*args.overrides, f"workers={args.workers}"]
+    if args.eval_every is not None:
+        args.overrides = [*args.overrides, f"evaluation.interval={args.eval_every}"]
     summary = train_from_args(args, registry_from_args(args))
     print(summary.table())
     return 0
