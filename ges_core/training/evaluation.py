@@ -66,11 +66,11 @@ class InRunEvaluator:
         :class:`~ges_core.env.evaluate.BaselineConfig` of every cell but the checkpoint; scene: its SceneConfig."""
         self.registry, self.hand, self.library, self.config, self.scene = registry, hand, library, config, scene
         self.records = {r.object_id: r for r in records}
-        self.on_object: Callable[[str], None] | None = None
-        """Called after each object (its id): a progress bar."""
+        self.on_object: Callable[[int, int], None] | None = None
+        """Called after each object with (objects done, objects): the training's progress bar."""
 
     @classmethod
-    def for_run(cls, dataset: str | Path, cfg, setup, registry, hand) -> InRunEvaluator:
+    def for_run(cls, dataset: str | Path, cfg, setup, registry) -> InRunEvaluator:
         """The evaluator of a training run: the records of every object of its curriculum (the pool's grasps),
         ``cfg.evaluation``'s episodes and seed, the run's env settings, the dataset's Stage 1 scene."""
         from ges_core.env.evaluate import BaselineConfig
@@ -87,7 +87,7 @@ class InRunEvaluator:
         env = env.model_copy(update={"randomization": env.randomization.model_copy(update={"seed": e.seed})})
         config = BaselineConfig(hand=setup.hand, sim=setup.sim, envs=e.episodes, selection=cfg.selection, seed=e.seed,
                                 env=env, expert="ppo")  # fmt: skip
-        return cls(registry, hand, records, library_for(data), config, dataset_scene(data, e.episodes))
+        return cls(registry, setup.hand_model, records, library_for(data), config, dataset_scene(data, e.episodes))
 
     @property
     def objects(self) -> list[str]:
@@ -108,7 +108,7 @@ class InRunEvaluator:
                 if "error" in row:
                     result.errors[object_id] = row["error"]
                 if self.on_object is not None:
-                    self.on_object(object_id)
+                    self.on_object(len(result.per_object), len(self.records))
         result.seconds = time.perf_counter() - start
         return result
 

@@ -202,7 +202,7 @@ def train_expert(
         if cfg.evaluation.interval:
             from ges_core.training.evaluation import InRunEvaluator
 
-            runner.evaluator = InRunEvaluator.for_run(dataset, cfg, setup, registry, setup.hand_model)
+            runner.evaluator = InRunEvaluator.for_run(dataset, cfg, setup, registry)
         if previous is not None:
             runner.resume_from(previous[1])
         out.mkdir(parents=True, exist_ok=True)
@@ -232,6 +232,8 @@ def _learn(runner: GraspRunner, cfg: TrainConfig, progress: bool) -> str:
     runner.on_iteration = tick
     runner.on_promotion = bar.write
     runner.on_evaluation = bar.write
+    if runner.evaluator is not None:
+        runner.evaluator.on_object = lambda done, total: bar.set_postfix_str(f"evaluating {done}/{total} objects")
     try:
         return runner.learn(todo)
     except KeyboardInterrupt:
