@@ -287,10 +287,11 @@ def _history(out) -> list[dict]:
 
 
 def test_in_run_evaluation_is_eval_experts_on_the_checkpoint_and_leaves_training_alone(tmp_path, clusters) -> None:
-    """``evaluation.interval=2``: the noise-free policy's episodes every 2 iterations are the cells ``ges
-    eval-experts`` writes for that checkpoint (same seed and episodes; the highest rise of each episode compared,
-    a continuous figure); the training itself is that of a run without evaluations; ``best.pt`` is the best
-    evaluation's checkpoint; a resumed run compares against the stored best."""
+    """``evaluation.interval=2``: the noise-free policy's episodes before the first iteration and every 2 iterations
+    are the cells ``ges eval-experts`` writes for that checkpoint (same seed and episodes; the highest rise of each
+    episode compared, a continuous figure), and before the first iteration the residual's base expert's cells;
+    the training itself is that of a run without evaluations; ``best.pt`` is the best evaluation's checkpoint; a
+    resumed run compares against the stored best."""
     from ges_core.env.evaluate import BaselineConfig
     from ges_core.experts.choice import parse_expert
     from ges_core.experts.evaluate import evaluate_experts
@@ -300,13 +301,14 @@ def test_in_run_evaluation_is_eval_experts_on_the_checkpoint_and_leaves_training
     residual = ("action_mode=residual", "ppo.schedule=fixed", "ppo.learning_rate=1e-3")
     plain = _train(tmp_path / "plain", clusters, "iterations=4", *residual)
     out = tmp_path / "eval"
-    run = _train(out, clusters, "iterations=4", *residual, "evaluation.interval=2", "evaluation.episodes=2")
+    run = _train(out, clusters, "iterations=4", *residual, "evaluation.interval=2", "evaluation.episodes=2",
+                 "keep_checkpoints=9")  # fmt: skip
     assert _history(out) == _history(tmp_path / "plain")
     a, b = _weights(plain.checkpoint), _weights(run.checkpoint)
     assert all(torch.equal(a[k], b[k]) for k in a)
 
     rows = [json.loads(line) for line in (out / "evaluations.jsonl").read_text().splitlines()]
-    assert [r["iteration"] for r in rows] == [2, 4] and all(r["episodes"] == 4 for r in rows)  # 2 objects x 2
+    assert [r["iteration"] for r in rows] == [0, 2, 4] and all(r["episodes"] == 4 for r in rows)  # 2 objects x 2
     assert run.evaluation["objects"] == 2 and run.evaluation["last"] == rows[-1]["success_paper"]
     best = run.evaluation["best_iteration"]
     assert best == max(rows, key=lambda r: (r["success_paper"], -r["iteration"]))["iteration"]
@@ -321,15 +323,18 @@ def test_in_run_evaluation_is_eval_experts_on_the_checkpoint_and_leaves_training
     column = parse_expert(f"it2=ppo:checkpoint={out / 'checkpoints' / 'model_2.pt'}")
     report = evaluate_experts(DATASET, config, [column], tmp_path / "matrix")
     cells = json.loads(report.path.read_text())["cells"]
-    assert set(cells) == set(rows[0]["per_object"])
+    assert set(cells) == set(rows[1]["per_object"])
     for oid, cell in cells.items():
         it2 = cell["it2"]
-        assert [it2["episodes"], it2["paper"], it2["peers"]] == rows[0]["per_object"][oid]
-        assert it2["max_rise"] == rows[0]["max_rise"][oid] and max(it2["max_rise"]) > 0.01  # it moved the object
+        assert [it2["episodes"], it2["paper"], it2["peers"]] == rows[1]["per_object"][oid]
+        assert it2["max_rise"] == rows[1]["max_rise"][oid] and max(it2["max_rise"]) > 0.01  # it moved the object
+        base = cell["scripted"]  # the residual's starting policy is its base expert: iteration 0's row
+        assert [base["episodes"], base["paper"], base["peers"]] == rows[0]["per_object"][oid]
+        assert base["max_rise"] == rows[0]["max_rise"][oid]
 
     again = _train(out, clusters, "iterations=6", resume=True)
     rows = [json.loads(line) for line in (out / "evaluations.jsonl").read_text().splitlines()]
-    assert [r["iteration"] for r in rows] == [2, 4, 6]
+    assert [r["iteration"] for r in rows] == [0, 2, 4, 6]
     tops = [r["iteration"] for r in rows if r["success_paper"] == max(x["success_paper"] for x in rows)]
     assert again.evaluation["best_iteration"] == tops[0]  # a tie with the stored best keeps the earlier one
     assert read_checkpoint(again.checkpoint)["ges"]["state"]["evaluation"]["best_iteration"] == tops[0]

@@ -3,7 +3,8 @@
 The training episodes show the policy with PPO's action noise, and their success is what the curriculum's default
 rule and the run's curves read. What an expert is used with (``ges eval-experts``, ``ges evaluate``) is the noise-free
 policy, and the two can differ: the residual experts of stop 43 kept a flat training success of 79-86 % while the
-noise-free policy gained. Every ``evaluation.interval`` iterations :class:`InRunEvaluator` runs a checkpoint of the
+noise-free policy gained. Before the first iteration (the starting policy: a residual's base expert, a warm
+start's cloned actor) and every ``evaluation.interval`` iterations :class:`InRunEvaluator` runs a checkpoint of the
 current weights exactly as ``ges eval-experts`` runs a column: the registry's ``ppo`` expert built from that file,
 one fresh simulator per object, :func:`~ges_core.env.evaluate.evaluate_object`, ``evaluation.episodes`` envs, the
 run's env settings (randomization included) seeded with ``evaluation.seed``. So an evaluation's figure for an

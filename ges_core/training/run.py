@@ -91,7 +91,7 @@ def _warm_line(w: dict) -> str:
 
 def _evaluation_line(e: dict) -> str:
     where = f" -> {e['best_checkpoint']}" if e.get("best_checkpoint") else ""
-    at = f" at iteration {e['best_iteration']}{where}" if e.get("best_iteration") else ""
+    at = f" at iteration {e['best_iteration']}{where}" if e.get("best_iteration") is not None else ""
     return (f"  evaluation (noise-free, {e['objects']} object(s) x {e['episodes']} episode(s)): last "
             f"{_pct(e['last'])}, best {_pct(e['best'])}{at}")  # fmt: skip
 

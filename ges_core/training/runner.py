@@ -5,11 +5,11 @@
 iteration: the outcomes of the episodes that ended counted per episode (both success protocols, end reasons, NaN
 actions) and fed to the curriculum, whose promotions set the pool's weights and are logged; one line of
 ``history.jsonl`` (the success curve); a checkpoint every ``checkpoint_interval`` iterations and at the end;
-the wall-time limit; with ``evaluation.interval``, every that many iterations an in-run evaluation of the
-noise-free policy (:mod:`ges_core.training.evaluation`: ``evaluations.jsonl``, the curriculum's evaluation rule, a
-checkpoint, ``checkpoints/best.pt``). The first iteration is preceded by a normalizer warm-up. An update that
-leaves a non-finite weight is undone (the weights from before it are restored) and counted, so a diverging step
-does not end the run.
+the wall-time limit; with ``evaluation.interval``, before the first iteration and every that many iterations an
+in-run evaluation of the noise-free policy (:mod:`ges_core.training.evaluation`: ``evaluations.jsonl``, the
+curriculum's evaluation rule, a checkpoint, ``checkpoints/best.pt``). The first iteration is preceded by a
+normalizer warm-up. An update that leaves a non-finite weight is undone (the weights from before it are
+restored) and counted, so a diverging step does not end the run.
 
 Iterations are counted as *done*: a checkpoint's ``iter`` is the number of iterations behind it, and a resumed
 run starts at that number (rsl-rl's own loop re-runs the last index).
@@ -133,6 +133,9 @@ class GraspRunner(OnPolicyRunner):
             obs = self._warm_up(obs)
             self.seconds = time.perf_counter() - began
         self.warmed = True
+        if self.evaluator is not None and self.current_learning_iteration == 0 and self.evaluation["last"] is None:
+            self._evaluate(0)  # the starting policy (residual: its base expert; warm start: the cloned actor)
+            self._checkpoint_after(self.save_checkpoint())
         start = self.current_learning_iteration
         limit = self.settings.time_limit
         for it in range(start, start + num_learning_iterations):
@@ -140,12 +143,7 @@ class GraspRunner(OnPolicyRunner):
             self.current_learning_iteration = it + 1
             self.seconds = time.perf_counter() - began
             if (it + 1) % self.settings.checkpoint_interval == 0 or self._evaluated:
-                numbered = self.save_checkpoint()
-                if self._new_best and self.settings.evaluation.keep_best:
-                    from ges_core.paths import atomic_write_bytes
-
-                    atomic_write_bytes(numbered.parent / BEST, numbered.read_bytes())
-                self._evaluated = self._new_best = False
+                self._checkpoint_after(self.save_checkpoint())
             if limit is not None and self.seconds >= limit:
                 self.save_checkpoint()
                 return "time_limit"
@@ -333,6 +331,15 @@ class GraspRunner(OnPolicyRunner):
         self.last_counts = counts
         if self.on_iteration is not None:
             self.on_iteration(it + 1, row)
+
+    def _checkpoint_after(self, numbered: Path) -> None:
+        """After writing checkpoint ``numbered``: copy it to ``best.pt`` when the evaluation just before it was
+        the best so far (``evaluation.keep_best``)."""
+        if self._new_best and self.settings.evaluation.keep_best:
+            from ges_core.paths import atomic_write_bytes
+
+            atomic_write_bytes(numbered.parent / BEST, numbered.read_bytes())
+        self._evaluated = self._new_best = False
 
     def _evaluate(self, done: int) -> None:
         """The in-run evaluation of the weights after ``done`` iterations (a temporary checkpoint file the
