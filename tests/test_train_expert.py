@@ -309,6 +309,8 @@ def test_in_run_evaluation_is_eval_experts_on_the_checkpoint_and_leaves_training
 
     rows = [json.loads(line) for line in (out / "evaluations.jsonl").read_text().splitlines()]
     assert [r["iteration"] for r in rows] == [0, 2, 4] and all(r["episodes"] == 4 for r in rows)  # 2 objects x 2
+    for r in rows[1:]:  # against the starting policy (iteration 0), from the rows' own rates
+        assert r["vs_start"]["points"] == round(100 * (r["success_paper"] - rows[0]["success_paper"]), 2)
     assert run.evaluation["objects"] == 2 and run.evaluation["last"] == rows[-1]["success_paper"]
     best = run.evaluation["best_iteration"]
     assert best == max(rows, key=lambda r: (r["success_paper"], -r["iteration"]))["iteration"]

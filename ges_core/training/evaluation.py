@@ -50,6 +50,16 @@ class EvaluationResult:
     def episodes(self, objects: Sequence[str] | None = None) -> int:
         return sum(r[0] for o, r in self.per_object.items() if objects is None or o in objects)
 
+    def against(self, start: dict[str, list[int]]) -> dict:
+        """This evaluation against the starting policy's per-object rows ``start`` (iteration 0's ``per_object``),
+        on the objects both ran: paper-protocol points (percentage points of success) and objects up / down."""
+        common = [o for o in self.per_object if o in start]
+        now, then = self.rate(common), EvaluationResult(0, start).rate(common)
+        up = sum(self.per_object[o][1] * start[o][0] > start[o][1] * self.per_object[o][0] for o in common)
+        down = sum(self.per_object[o][1] * start[o][0] < start[o][1] * self.per_object[o][0] for o in common)
+        points = None if math.isnan(now) or math.isnan(then) else round(100 * (now - then), 2)
+        return {"points": points, "objects_up": up, "objects_down": down}
+
     def to_row(self) -> dict:
         """One line of ``evaluations.jsonl``."""
         return {

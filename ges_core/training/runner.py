@@ -112,9 +112,10 @@ class GraspRunner(OnPolicyRunner):
         self.evaluator = None
         """An :class:`~ges_core.training.evaluation.InRunEvaluator` when ``evaluation.interval`` > 0 (set by the
         caller)."""
-        self.evaluation = {"last": None, "best": None, "best_iteration": None}
-        """Paper-protocol success of the latest and the best in-run evaluation (over all its objects) and the
-        iterations behind the best (checkpointed: a resumed run keeps comparing against it)."""
+        self.evaluation = {"last": None, "best": None, "best_iteration": None, "start": None}
+        """Paper-protocol success of the latest and the best in-run evaluation (over all its objects), the
+        iterations behind the best, and the starting policy's per-object rows (iteration 0's ``per_object``; later
+        evaluations are compared with it). Checkpointed: a resumed run keeps comparing against them."""
         self.on_evaluation: Callable[[str], None] | None = None
         """Called with one line after each in-run evaluation."""
         self._evaluated = False
@@ -367,9 +368,13 @@ class GraspRunner(OnPolicyRunner):
         state["last"] = _num(rate)
         if self._new_best:
             state["best"], state["best_iteration"] = _num(rate), done
+        if done == 0:
+            state["start"] = result.per_object
         self._evaluated = True
         row = {**result.to_row(), "stage": self.curriculum.stage, "stage_success_paper": _num(stage_rate),
                "best": self._new_best}  # fmt: skip
+        if done and state["start"] is not None:
+            row["vs_start"] = result.against(state["start"])
         with open(self.run_dir / "evaluations.jsonl", "a", encoding="utf-8") as fh:
             fh.write(json.dumps(row) + "\n")
         w = self.logger.writer
@@ -474,10 +479,17 @@ def describe_evaluation(row: dict, objects: int, episodes: int) -> str:
     def pct(x):
         return "-" if x is None else f"{100 * x:.1f} %"
 
+    vs = row.get("vs_start")
+    against = (
+        f"; against the start {vs['points']:+.1f} points ({vs['objects_up']} object(s) up, {vs['objects_down']} down)"
+        if vs and vs["points"] is not None
+        else ""
+    )
     return (
         f"iteration {row['iteration']}: evaluation {pct(row['success_paper'])} (paper), {pct(row['success_peers'])} "
         f"(peers) over {objects} object(s) x {episodes} noise-free episode(s); stage {row['stage']}'s objects "
-        f"{pct(row['stage_success_paper'])}; {row['seconds']:.0f} s" + (" (best so far)" if row["best"] else "")
+        f"{pct(row['stage_success_paper'])}{against}; {row['seconds']:.0f} s"
+        + (" (best so far)" if row["best"] else "")
     )
 
 
