@@ -364,7 +364,7 @@ class GraspRunner(OnPolicyRunner):
         rate = result.rate()
         state = self.evaluation
         best = state["best"]
-        self._new_best = not math.isnan(rate) and (best is None or rate > best)
+        self._new_best = not math.isnan(rate) and (best is None or _num(rate) > best)  # best is stored rounded
         state["last"] = _num(rate)
         if self._new_best:
             state["best"], state["best_iteration"] = _num(rate), done
