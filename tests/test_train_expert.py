@@ -357,3 +357,29 @@ def test_evaluation_promotes_the_curriculum(tmp_path, clusters, capsys) -> None:
     log = (tmp_path / "run" / "curriculum.log").read_text().splitlines()
     assert [line.split(",")[1].strip().split(":")[0] for line in log] == ["evaluation", "evaluation"]
     assert all("noise-free episode(s)" in line for line in log)
+
+
+def test_a_run_killed_after_its_last_checkpoint_resumes_with_one_log_line_per_iteration(tmp_path, clusters) -> None:
+    """A kill after iteration 4 was logged but before its checkpoint (here: the checkpoints of iterations 3 and 4
+    removed, last.pt back at 2, and a history line cut short): --resume repeats iterations 3-4, and the run
+    folder's logs hold one line per iteration and evaluation, those up to 2 as they were. (The repeated iterations
+    restart their episodes, so they are not the killed run's: docs/training.md.)"""
+    extra = ("action_mode=residual", "ppo.schedule=fixed", "ppo.learning_rate=1e-3", "evaluation.interval=2",
+             "evaluation.episodes=1", "curriculum.max_iterations=3")  # fmt: skip
+    out = tmp_path / "killed"
+    _train(out, clusters, "iterations=4", *extra)
+    before = {name: (out / name).read_text().splitlines() for name in ("history.jsonl", "evaluations.jsonl")}
+    ckpts = out / "checkpoints"
+    for n in (3, 4):
+        (ckpts / f"model_{n}.pt").unlink()
+    (ckpts / "last.pt").write_bytes((ckpts / "model_2.pt").read_bytes())
+    with open(out / "history.jsonl", "a", encoding="utf-8") as fh:
+        fh.write('{"iteration": 5, "env_st')  # the line being written when the process died
+    again = _train(out, clusters, "iterations=4", resume=True)
+    assert again.iterations == 4 and again.resumed_from.endswith("last.pt")
+    history = (out / "history.jsonl").read_text().splitlines()
+    assert [json.loads(x)["iteration"] for x in history] == [1, 2, 3, 4] and history[:2] == before["history.jsonl"][:2]
+    rows = (out / "evaluations.jsonl").read_text().splitlines()
+    assert [json.loads(x)["iteration"] for x in rows] == [0, 2, 4] and rows[:2] == before["evaluations.jsonl"][:2]
+    log = (out / "curriculum.log").read_text().splitlines()
+    assert [line.split(":")[0] for line in log] == ["iteration 3"]  # stage 1 -> 2 once, at the cap of 3 iterations

@@ -445,9 +445,11 @@ class GraspRunner(OnPolicyRunner):
         atomic_write_bytes(Path(path), buf.getvalue())
 
     def resume_from(self, data: dict) -> None:
-        """Continue from a checkpoint dict: weights, optimizer, iterations, curriculum, random states, totals."""
+        """Continue from a checkpoint dict: weights, optimizer, iterations, curriculum, random states, totals; the
+        run folder's logs are cut back to its iterations (:func:`trim_run_logs`)."""
         self.alg.load(data, None, strict=True)
         self.current_learning_iteration = int(data["iter"])
+        trim_run_logs(self.run_dir, self.current_learning_iteration)
         state = data["ges"]["state"]
         self.curriculum.load_state_dict(state["curriculum"])
         self.pool.set_weights(self.curriculum.weights())
@@ -465,6 +467,30 @@ class GraspRunner(OnPolicyRunner):
             freeze_normalizer(self.alg.actor)  # ``until`` is not in the state dict
         if self.demonstrator is not None and self.settings.warm_start.anchor_steps:
             self.demonstrations = _read_demonstrations(self.run_dir / DEMOS)
+
+
+def trim_run_logs(run_dir: Path, done: int) -> None:
+    """Drop what a killed run logged after its checkpoint of ``done`` iterations: the lines of ``history.jsonl``,
+    ``evaluations.jsonl`` and ``curriculum.log`` of later iterations, and a line cut short (rewritten atomically).
+    The resumed run repeats those iterations and logs them again, so each iteration keeps one line."""
+    from ges_core.paths import atomic_write_text
+
+    def iteration(name: str, line: str) -> float:
+        try:
+            if name == "curriculum.log":  # "iteration N: curriculum stage ..."
+                return int(line.split(":", 1)[0].split()[-1])
+            return int(json.loads(line)["iteration"])
+        except (ValueError, KeyError, IndexError, TypeError):
+            return math.inf  # a line the kill cut short: dropped
+
+    for name in ("history.jsonl", "evaluations.jsonl", "curriculum.log"):
+        path = run_dir / name
+        if not path.is_file():
+            continue
+        lines = [line for line in path.read_text(encoding="utf-8").splitlines() if line.strip()]
+        kept = [line for line in lines if iteration(name, line) <= done]
+        if len(kept) < len(lines):
+            atomic_write_text(path, "".join(line + "\n" for line in kept))
 
 
 BEST = "best.pt"
