@@ -76,8 +76,10 @@ def test_run_checkpoint_resume_and_curriculum(tmp_path, clusters) -> None:
     before = _weights(out / "checkpoints" / "model_2.pt")
     with pytest.raises(ConfigError, match="pass --resume"):
         _train(out, clusters, "iterations=3")
-    again = _train(out, clusters, "iterations=3", resume=True)
+    again = _train(out, clusters, "iterations=3", "evaluation.interval=1", "evaluation.episodes=1", resume=True)
     assert again.iterations == 3 and again.resumed_from.endswith("last.pt") and again.stage == 3
+    # the resume keeps the stored config but takes evaluations given on its command line (they touch no weight)
+    assert [json.loads(x)["iteration"] for x in (out / "evaluations.jsonl").read_text().splitlines()] == [3]
     assert read_checkpoint(out / "checkpoints" / "last.pt")["iter"] == 3
     assert [json.loads(x)["iteration"] for x in (out / "history.jsonl").read_text().splitlines()] == [1, 2, 3]
     after = _weights(out / "checkpoints" / "model_3.pt")

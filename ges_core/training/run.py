@@ -23,7 +23,7 @@ import yaml
 from ges_core.errors import ConfigError
 from ges_core.paths import atomic_write_text
 from ges_core.training.checkpoint import find_checkpoints, latest_loadable
-from ges_core.training.config import TrainConfig, load_train_config
+from ges_core.training.config import EvaluationConfig, TrainConfig, load_train_config
 from ges_core.training.envs import TrainingSetup, build_setup
 from ges_core.training.runner import BEST, GraspRunner
 
@@ -186,9 +186,10 @@ def train_expert(
     if not resume and (find_checkpoints(out / "checkpoints") or (out / "checkpoints" / "last.pt").exists()):
         raise ConfigError(f"{out} already holds checkpoints of a run; pass --resume to continue it, or another --out")
     if resume and previous is not None:
-        cfg = TrainConfig.model_validate(
-            previous[1]["ges"]["train_config"] | {"iterations": cfg.iterations, "time_limit": cfg.time_limit}
-        )
+        update = {"iterations": cfg.iterations, "time_limit": cfg.time_limit}
+        if cfg.evaluation != EvaluationConfig():  # evaluations leave the training alone: a resume may set them
+            update["evaluation"] = cfg.evaluation.model_dump()
+        cfg = TrainConfig.model_validate(previous[1]["ges"]["train_config"] | update)
     torch.manual_seed(cfg.seed)
     setup = build_setup(dataset, cfg, registry, clusters)
     cfg = setup.config  # with the hand's settings.train (what the run left unset)
