@@ -6,8 +6,7 @@ from __future__ import annotations
 import json
 import math
 
-from ges_core.training.evaluation import EvaluationResult
-from ges_core.training.runner import describe_evaluation
+from ges_core.training.evaluation import EvaluationResult, describe_evaluation
 
 
 def test_rates_and_the_comparison_with_the_start() -> None:
@@ -27,9 +26,8 @@ def test_a_tie_with_the_best_is_not_a_new_best(tmp_path) -> None:
     """46/52 twice (a rate that does not round to itself): the second is not 'best so far' (the stored best is
     rounded to 4 digits; compared as stored). Runs GraspRunner._evaluate on a stand-in runner whose evaluator returns
     hand-written results (no simulator)."""
+    from pathlib import Path
     from types import SimpleNamespace
-
-    import torch
 
     from ges_core.training.config import CurriculumConfig
     from ges_core.training.curriculum import Curriculum
@@ -48,7 +46,7 @@ def test_a_tie_with_the_best_is_not_a_new_best(tmp_path) -> None:
 
     (tmp_path / "checkpoints").mkdir()
     runner = SimpleNamespace(
-        run_dir=tmp_path, checkpoint_dict=lambda: {"w": torch.zeros(1)}, curriculum=Curriculum(
+        run_dir=tmp_path, save=lambda path: Path(path).write_bytes(b"weights"), curriculum=Curriculum(
             CurriculumConfig(stages=[3]), {3: [f"o{i}" for i in range(13)]}),
         evaluation={"last": None, "best": None, "best_iteration": None, "start": None},
         evaluator=SimpleNamespace(evaluate=evaluate, config=SimpleNamespace(envs=4)),

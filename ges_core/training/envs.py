@@ -9,7 +9,7 @@ from pathlib import Path
 from ges_core.dataset.hands import warn_if_hand_changed
 from ges_core.env.grasp_env import EnvConfig, GraspEnv
 from ges_core.env.grasp_pool import GraspPool
-from ges_core.env.grasp_source import dataset_hand, library_for, open_grasp_dataset, select_records
+from ges_core.env.grasp_source import GraspSelection, dataset_hand, library_for, open_grasp_dataset, select_records
 from ges_core.env.reward import reward_preset
 from ges_core.env.vec_env import GraspVecEnv
 from ges_core.env.workers import SubprocVecEnv
@@ -20,7 +20,7 @@ from ges_core.sim import SceneConfig
 from ges_core.training.config import TrainConfig
 from ges_core.training.curriculum import Curriculum
 
-__all__ = ["TrainingSetup", "build_setup", "env_config", "training_pool", "worker_env"]
+__all__ = ["TrainingSetup", "build_setup", "env_config", "training_grasps", "worker_env"]
 
 
 @dataclass
@@ -34,13 +34,22 @@ class TrainingSetup:
     venv: object
     """A GraspVecEnv (``workers: 1``) or a SubprocVecEnv, or a ResidualVecEnv around one (``action_mode:
     residual``)."""
-    rejected: dict[str, str]
-    """Training objects left out by the grasp selection: object id -> why."""
+    grasps: GraspSelection
+    """The training records the pool was built from (one per object) and the objects left out, with why."""
     config: TrainConfig
     """The run's config as the env was built from it: the given one with the hand's ``settings.train`` filling
     what it did not set (:func:`ges_core.hand_settings.hand_train_config`)."""
-    hand_model: object = None
+    hand_model: object
     """The run's HandModel (prepared as Stage 1's; what the in-run evaluation builds its envs with)."""
+    dataset: object
+    """The opened Stage 1 dataset (:func:`~ges_core.env.grasp_source.open_grasp_dataset`)."""
+    library: object
+    """Its ObjectLibrary (:func:`~ges_core.env.grasp_source.library_for`), the pool's objects' source."""
+
+    @property
+    def rejected(self) -> dict[str, str]:
+        """Training objects left out by the grasp selection: object id -> why."""
+        return dict(self.grasps.rejected)
 
     @property
     def env(self):
@@ -56,16 +65,15 @@ def env_config(cfg: TrainConfig) -> EnvConfig:
     return cfg.env.model_copy(update=update)
 
 
-def training_pool(dataset, hand, cfg: TrainConfig) -> tuple[GraspPool, dict[str, str]]:
-    """The pool of the opened ``dataset``'s (:func:`~ges_core.env.grasp_source.open_grasp_dataset`) training objects
-    with a usable grasp for ``hand`` (the first ``max_objects`` by id) and the rejected ones. AssetError when none
-    is usable."""
-    chosen = select_records(dataset, hand.name, split="train", selection=cfg.selection)
+def training_grasps(dataset, hand_name: str, cfg: TrainConfig) -> GraspSelection:
+    """The opened ``dataset``'s (:func:`~ges_core.env.grasp_source.open_grasp_dataset`) training records of
+    ``hand_name`` that pass ``cfg.selection`` (the first ``max_objects`` by id), and the rejected ones."""
+    chosen = select_records(dataset, hand_name, split="train", selection=cfg.selection)
     if cfg.max_objects is not None:
         keep = sorted(r.object_id for r in chosen.records)[: cfg.max_objects]
         chosen = type(chosen)(chosen.hand, chosen.selection, tuple(r for r in chosen.records if r.object_id in keep),
                               chosen.rejected, chosen.splits)  # fmt: skip
-    return GraspPool.from_selection(chosen, hand, library_for(dataset)), dict(chosen.rejected)
+    return chosen
 
 
 def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=None) -> TrainingSetup:
@@ -77,7 +85,8 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
     data = open_grasp_dataset(dataset_path)
     warn_if_hand_changed(data.manifest, data.root, hand_name, hand)
     cfg = hand_train_config(hand.description, cfg)
-    pool, rejected = training_pool(data, hand, cfg)
+    grasps, library = training_grasps(data, hand_name, cfg), library_for(data)
+    pool = GraspPool.from_selection(grasps, hand, library)  # AssetError when no record is usable
     curriculum = _curriculum(cfg, clusters, pool)
     pool.set_weights(curriculum.weights())
     venv = _vec_env(cfg, registry, hand, sim_name, pool)
@@ -88,7 +97,7 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
         context = ExpertContext.of_env(venv.env, sim=sim_name, registry=registry)
         base = registry.build_expert(cfg.base_expert, context, **cfg.base_expert_settings)
         venv = ResidualVecEnv(venv, base, cfg.residual_scale)
-    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, rejected, cfg, hand)
+    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, grasps, cfg, hand, data, library)
 
 
 def _vec_env(cfg: TrainConfig, registry, hand, sim_name: str, pool: GraspPool) -> GraspVecEnv | SubprocVecEnv:

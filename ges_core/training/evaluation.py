@@ -24,7 +24,7 @@ from pathlib import Path
 
 import torch
 
-__all__ = ["EvaluationResult", "InRunEvaluator"]
+__all__ = ["EvaluationResult", "InRunEvaluator", "describe_evaluation"]
 
 
 @dataclass
@@ -81,24 +81,22 @@ class InRunEvaluator:
         """Called after each object with (objects done, objects): the training's progress bar."""
 
     @classmethod
-    def for_run(cls, dataset: str | Path, cfg, setup, registry) -> InRunEvaluator:
-        """The evaluator of a training run: the records of every object of its curriculum (the pool's grasps),
-        ``cfg.evaluation``'s episodes and seed, the run's env settings, the dataset's Stage 1 scene."""
+    def for_run(cls, cfg, setup, registry) -> InRunEvaluator:
+        """The evaluator of a training run: the pool's records of every object of its curriculum,
+        ``cfg.evaluation``'s episodes and seed, the run's env settings, the dataset's Stage 1 scene (all from the
+        run's :class:`~ges_core.training.envs.TrainingSetup`)."""
         from ges_core.env.evaluate import BaselineConfig
         from ges_core.env.evaluate.runner import dataset_scene
-        from ges_core.env.grasp_source import library_for, open_grasp_dataset, select_records
         from ges_core.training.envs import env_config
 
         e = cfg.evaluation
-        data = open_grasp_dataset(dataset)
         wanted = set(setup.curriculum.all_objects())
-        chosen = select_records(data, setup.hand, split="train", selection=cfg.selection)
-        records = [r for r in chosen.records if r.object_id in wanted]
+        records = [r for r in setup.grasps.records if r.object_id in wanted]
         env = env_config(cfg)
         env = env.model_copy(update={"randomization": env.randomization.model_copy(update={"seed": e.seed})})
         config = BaselineConfig(hand=setup.hand, sim=setup.sim, envs=e.episodes, selection=cfg.selection, seed=e.seed,
                                 env=env, expert="ppo")  # fmt: skip
-        return cls(registry, setup.hand_model, records, library_for(data), config, dataset_scene(data, e.episodes))
+        return cls(registry, setup.hand_model, records, setup.library, config, dataset_scene(setup.dataset, e.episodes))
 
     @property
     def objects(self) -> list[str]:
@@ -122,6 +120,26 @@ class InRunEvaluator:
                     self.on_object(len(result.per_object), len(self.records))
         result.seconds = time.perf_counter() - start
         return result
+
+
+def describe_evaluation(row: dict, objects: int, episodes: int) -> str:
+    """One line for the terminal from an ``evaluations.jsonl`` row."""
+
+    def pct(x):
+        return "-" if x is None else f"{100 * x:.1f} %"
+
+    vs = row.get("vs_start")
+    against = (
+        f"; against the start {vs['points']:+.1f} points ({vs['objects_up']} object(s) up, {vs['objects_down']} down)"
+        if vs and vs["points"] is not None
+        else ""
+    )
+    return (
+        f"iteration {row['iteration']}: evaluation {pct(row['success_paper'])} (paper), {pct(row['success_peers'])} "
+        f"(peers) over {objects} object(s) x {episodes} noise-free episode(s); stage {row['stage']}'s objects "
+        f"{pct(row['stage_success_paper'])}{against}; {row['seconds']:.0f} s"
+        + (" (best so far)" if row["best"] else "")
+    )
 
 
 def _num(value: float) -> float | None:

@@ -203,7 +203,7 @@ def train_expert(
         if cfg.evaluation.interval:
             from ges_core.training.evaluation import InRunEvaluator
 
-            runner.evaluator = InRunEvaluator.for_run(dataset, cfg, setup, registry)
+            runner.evaluator = InRunEvaluator.for_run(cfg, setup, registry)
         if previous is not None:
             runner.resume_from(previous[1])
         out.mkdir(parents=True, exist_ok=True)
@@ -266,7 +266,8 @@ def _evaluation_summary(out: Path, cfg: TrainConfig, runner: GraspRunner) -> dic
     if runner.evaluator is None:
         return None
     best = out / "checkpoints" / BEST
-    return {**runner.evaluation, "best_checkpoint": str(best) if best.exists() else None,
+    kept = {k: runner.evaluation[k] for k in ("last", "best", "best_iteration")}  # per-object rows: evaluations.jsonl
+    return {**kept, "best_checkpoint": str(best) if best.exists() else None,
             "objects": len(runner.evaluator.objects), "episodes": cfg.evaluation.episodes}  # fmt: skip
 
 

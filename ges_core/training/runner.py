@@ -33,8 +33,9 @@ from rsl_rl.runners import OnPolicyRunner
 
 from ges_core.env.success import EndReason
 from ges_core.training.checkpoint import FORMAT, VERSION, write_checkpoint
+from ges_core.training.evaluation import describe_evaluation
 
-__all__ = ["BEST", "EpisodeCounts", "GraspRunner", "describe_evaluation"]
+__all__ = ["BEST", "EpisodeCounts", "GraspRunner", "trim_run_logs"]
 
 _SUCCESS = int(EndReason.SUCCESS)
 
@@ -344,16 +345,10 @@ class GraspRunner(OnPolicyRunner):
 
     def _evaluate(self, done: int) -> None:
         """The in-run evaluation of the weights after ``done`` iterations (a temporary checkpoint file the
-        registry's ``ppo`` expert reads): one ``evaluations.jsonl`` line, the curriculum's evaluation rate, the
-        best so far, TensorBoard scalars and the callback's line."""
-        from ges_core.paths import atomic_write_bytes
-
+        registry's ``ppo`` expert reads; it reads the weights, not the file's ``iter``): one ``evaluations.jsonl``
+        line, the curriculum's evaluation rate, the best so far, TensorBoard scalars and the callback's line."""
         path = self.run_dir / "checkpoints" / EVALUATING
-        data = self.checkpoint_dict()
-        data["iter"] = done
-        buf = io.BytesIO()
-        torch.save(data, buf)
-        atomic_write_bytes(path, buf.getvalue())
+        self.save(str(path))
         try:
             result = self.evaluator.evaluate(path, done)
         finally:
@@ -497,26 +492,6 @@ BEST = "best.pt"
 """The checkpoint of the best in-run evaluation so far, beside ``last.pt`` (``evaluation.keep_best``)."""
 EVALUATING = "evaluating.pt"
 """The temporary checkpoint an in-run evaluation reads (removed after it)."""
-
-
-def describe_evaluation(row: dict, objects: int, episodes: int) -> str:
-    """One line for the terminal from an ``evaluations.jsonl`` row."""
-
-    def pct(x):
-        return "-" if x is None else f"{100 * x:.1f} %"
-
-    vs = row.get("vs_start")
-    against = (
-        f"; against the start {vs['points']:+.1f} points ({vs['objects_up']} object(s) up, {vs['objects_down']} down)"
-        if vs and vs["points"] is not None
-        else ""
-    )
-    return (
-        f"iteration {row['iteration']}: evaluation {pct(row['success_paper'])} (paper), {pct(row['success_peers'])} "
-        f"(peers) over {objects} object(s) x {episodes} noise-free episode(s); stage {row['stage']}'s objects "
-        f"{pct(row['stage_success_paper'])}{against}; {row['seconds']:.0f} s"
-        + (" (best so far)" if row["best"] else "")
-    )
 
 
 DEMOS = "demonstrations.pt"
