@@ -85,6 +85,12 @@ def main() -> None:
     p.add_argument("--matrix", type=Path, default=TINY / "eval" / "matrix-allegro-sapien.json")
     p.add_argument("--expert", action="append", help="[LABEL=]NAME[:k=v] (default: runs/tiny's abs and residual)")
     p.add_argument("--gate", action="append", default=[], help="[LABEL=]PATH of a trained gate (repeatable)")
+    p.add_argument(
+        "--gate-argmax",
+        action="append",
+        default=[],
+        help="[LABEL=]PATH of a trained gate picking by the paper's argmax (repeatable)",
+    )
     p.add_argument("--train-gate", action="append", default=[], metavar="NAME", help="train this gate here")
     p.add_argument("--gate-epochs", type=int, default=60)
     p.add_argument("--hand", default="allegro")
@@ -104,7 +110,7 @@ def main() -> None:
     args = p.parse_args()
     set_torch_threads()
     out = args.out or args.dataset.parent / "ges"
-    gates = [parse_gate(g) for g in args.gate]
+    gates = [parse_gate(g) for g in args.gate] + [parse_gate(g, argmax=True) for g in args.gate_argmax]
     gates += [parse_gate(str(train_gate(n, args.matrix, out, args.gate_epochs))) for n in args.train_gate]
     data = {"hand": args.hand, "sim": args.sim, "envs": args.episodes, "selection": args.select, "seed": args.seed,
             "env": {"randomization": {**RANDOMIZED, "seed": args.seed}}}  # fmt: skip

@@ -33,6 +33,7 @@ from ges_core.gating import (
     split_indices,
     targets,
 )
+from ges_core.gating.checkpoint import read_pick_rule
 from ges_core.gating.ops import ball_query, farthest_point_sample, knn
 from ges_core.registry import load_registry
 
@@ -369,6 +370,13 @@ def test_ges_train_gate_end_to_end_on_a_matrix_file(tmp_path, capsys, registry):
     assert len(json.loads((out / "history.json").read_text())) == 3
     gate = load_gate(out / "gate.pt", registry, experts=list(EXPERTS))  # the baseline column is not an expert
     assert gate.predict(torch.zeros(1, 128, 3) + torch.rand(1, 128, 3) * 0.05).shape == (1, 3)
+    rule = read_pick_rule(out / "gate.pt")  # fitted on the held-out objects after training, stored with the weights
+    assert rule.fallback in EXPERTS and summary["pick"] == rule.to_json()
+    assert f"pick: {rule.describe()}" in table and "success of the rule's picks" in table
+    assert set(summary["picked"]) == {"train", "val", "unseen_object", "unseen_category"}
+    paper = tmp_path / "paper"
+    assert main(["train-gate", str(matrix), "--gate", "centroid", "-o", "pick=argmax", "--out", str(paper)]) == 0
+    assert read_pick_rule(paper / "gate.pt").fallback is None and "pick: argmax" in capsys.readouterr().out
 
 
 def test_ges_train_gate_errors_are_one_line(tmp_path, capsys):

@@ -175,6 +175,35 @@ def test_reuse_matrix_takes_the_identical_cells(run, dataset, gate, tmp_path):
     assert again.table.rows == report.table.rows
 
 
+def test_the_stored_pick_rule_and_the_argmax_side_by_side(run, dataset, gate, tmp_path):
+    """A gate whose checkpoint holds a fallback rule picks by it; the same file under --gate-argmax picks by the
+    argmax (the fitted centres: a different expert per object). Both rows come from the matrix's cells here."""
+    import shutil
+
+    from ges_core.gating.checkpoint import write_pick_rule
+    from ges_core.gating.fallback import PickRule
+
+    _, _, mfile, _ = run
+    root, ids = dataset
+    ruled = tmp_path / "ruled.pt"
+    shutil.copy(gate, ruled)
+    write_pick_rule(ruled, PickRule("scripted", 1.0, "test: never leave the script"))
+    experts = [parse_expert(e) for e in EXPERTS]
+    report = evaluate_ges(root, run_config(), experts, [GateChoice(ruled), GateChoice(ruled, argmax=True)],
+                          tmp_path / "out", matrix_file=mfile, registry=Registry(lambda: True),
+                          reuse_matrix=True)  # fmt: skip
+    assert report.picks["centroid"].chosen == {ids[0]: "scripted", ids[1]: "scripted"}
+    assert report.picks["centroid-argmax"].chosen == {ids[0]: "scripted", ids[1]: "low"}
+    gates = json.loads(report.path.read_text())["gates"]
+    assert gates["centroid"]["pick"]["fallback"] == "scripted"
+    assert gates["centroid-argmax"]["pick"]["fallback"] is None
+    rows = {r["row"]: r for r in report.table.rows["paper"]}
+    assert {"GES (centroid)", "GES (centroid-argmax)"} <= set(rows)
+    write_pick_rule(ruled, PickRule("nope", 0.5))
+    with pytest.raises(ConfigError, match="'nope' is not one of the gate's"):
+        load_gates([GateChoice(ruled)], load_registry(), ["scripted", "low"])
+
+
 def test_reuse_matrix_runs_a_cell_that_other_code_made(run, dataset, gate, tmp_path):
     """Equal settings under other code are not the same episodes: such a matrix cell is run, not reused."""
     _, _, mfile, _ = run

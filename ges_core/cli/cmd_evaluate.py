@@ -36,7 +36,13 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     )  # fmt: skip
     p.add_argument(
         "--gate", action="append", default=[], metavar="[LABEL=]PATH",
-        help="a gate checkpoint of ges train-gate (repeatable: one Table 2 row per gate)",
+        help="a gate checkpoint of ges train-gate (repeatable: one Table 2 row per gate), picking by the rule "
+        "stored in it (ges train-gate's pick: the best training expert unless the gate clearly prefers another)",
+    )  # fmt: skip
+    p.add_argument(
+        "--gate-argmax", action="append", default=[], metavar="[LABEL=]PATH",
+        help="a gate checkpoint picking by the paper's argmax whatever rule it stores (repeatable; default row "
+        "label PLUGIN-argmax): give one path to both --gate and --gate-argmax to compare the two rules",
     )  # fmt: skip
     add_episode_options(p)
     p.add_argument(
@@ -71,7 +77,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
 
     set_torch_threads()
     registry = registry_from_args(args)
-    gates = [parse_gate(g) for g in args.gate]
+    gates = [parse_gate(g) for g in args.gate] + [parse_gate(g, argmax=True) for g in args.gate_argmax]
     given, trained_on = None, None
     if not args.expert and gates:
         path = training_matrix(gates[0])

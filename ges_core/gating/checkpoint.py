@@ -8,6 +8,8 @@ Layout (a dict, readable with ``torch.load(path, weights_only=True)``)::
     settings: the plugin's settings (JSON-like)
     state: tensors (torch state_dict, or the centroid gate's centres)
     train: {config, summary, train_ids, val_ids, dropped_ids} or {} for an untrained gate
+    pick: optional, the rule that turns the distribution into one expert (ges_core.gating.fallback.PickRule:
+          {fallback, margin, how}); absent: the paper's argmax. ``ges train-gate`` adds it after training.
 
 Written atomically: a reader or a killed run never sees half a file.
 """
@@ -23,7 +25,7 @@ import torch
 from ges_core.errors import ConfigError, StorageError
 from ges_core.paths import atomic_write_bytes
 
-__all__ = ["FORMAT", "VERSION", "load_gate", "read_checkpoint", "write_checkpoint"]
+__all__ = ["FORMAT", "VERSION", "load_gate", "read_checkpoint", "read_pick_rule", "write_checkpoint", "write_pick_rule"]
 
 FORMAT = "ges-gate"
 VERSION = 1
@@ -71,3 +73,18 @@ def load_gate(path: str | Path, registry=None, *, experts=None):
     if experts is not None:
         gate.check_experts(experts)
     return gate
+
+
+def write_pick_rule(path: str | Path, rule) -> Path:
+    """Store ``rule`` (a :class:`~ges_core.gating.fallback.PickRule`) in the gate checkpoint at ``path``, whatever
+    plugin wrote it (rewritten atomically; the weights are untouched)."""
+    data = read_checkpoint(path)
+    data["pick"] = rule.to_json()
+    return write_checkpoint(path, {k: v for k, v in data.items() if k not in ("format", "version")})
+
+
+def read_pick_rule(path: str | Path):
+    """The :class:`~ges_core.gating.fallback.PickRule` stored in the checkpoint at ``path`` (the argmax if none)."""
+    from ges_core.gating.fallback import PickRule
+
+    return PickRule.from_json(read_checkpoint(path).get("pick"))

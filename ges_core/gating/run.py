@@ -17,15 +17,19 @@ import logging
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
+import numpy as np
 import torch
 from pydantic import Field
 
 from ges_core.config import ConfigModel, apply_overrides, parse_model, read_yaml
 from ges_core.errors import ConfigError
 from ges_core.experts.compare import column_list
+from ges_core.gating.checkpoint import write_pick_rule
 from ges_core.gating.clouds import library_clouds
+from ges_core.gating.data import best_experts
+from ges_core.gating.fallback import ARGMAX, PickRule, fit_pick_rule
 from ges_core.gating.loss import gate_accuracy
 from ges_core.gating.sources import MatrixRates, load_rates
 from ges_core.gating.train import GateData, TrainConfig, TrainResult
@@ -60,6 +64,12 @@ class TrainGateConfig(ConfigModel):
     split: str = Field("train", description="matrix split trained on (its val_fraction held out)")
     cloud_seed: int = Field(0, description="seed of the surface samples the clouds are drawn from")
     checkpoint_every: int = Field(5, ge=1, description="epochs between checkpoints (and one at the end)")
+    pick: Literal["fallback", "argmax"] = Field(
+        "fallback",
+        description="how the gate's distribution becomes one expert (stored in the checkpoint): fallback, the best "
+        "single training expert unless the gate leads it by a margin chosen on the validation objects "
+        "(ges_core.gating.fallback); argmax, the paper's rule",
+    )
     train: TrainConfig = Field(default_factory=TrainConfig, description="training settings")
 
 
@@ -92,26 +102,45 @@ class GateRunSummary:
     experts: tuple[str, ...]
     n_points: int
     accuracy: dict[str, float]
-    """train (the fitted objects), val (held out), unseen_object, unseen_category; NaN where none."""
+    """train (the fitted objects), val (held out), unseen_object, unseen_category; NaN where none. The paper's gate
+    accuracy: the argmax is one of the object's best experts."""
     counts: dict[str, int]
     kept_epoch: int
     seconds: float
     checkpoint: Path
+    pick: PickRule = ARGMAX
+    """The rule stored in the checkpoint (config ``pick``)."""
+    picked: dict[str, dict[str, float]] | None = None
+    """Per split as :attr:`accuracy`: ``accuracy`` (the rule's pick is one of the best), ``success`` (mean success
+    rate of the rule's picks in the matrix), ``argmax_success`` and ``fallback_success`` (of the argmax's picks and
+    of the fallback expert alone); None for the argmax rule."""
 
     def table(self) -> str:
-        """Markdown table of the gate accuracy per split."""
-        rows = [f"| {k} | {self.counts.get(k, 0)} | {_pct(v)} |" for k, v in self.accuracy.items()]
+        """Markdown table of the gate accuracy per split (and, with a fallback rule, what the rule picks)."""
         head = [
             f"gate {self.gate} ({self.n_points} points) over experts {', '.join(self.experts)}; "
             f"kept epoch {self.kept_epoch}; {self.seconds:.1f} s; checkpoint {self.checkpoint}",
+            f"pick: {self.pick.describe()}" + (f" ({self.pick.how})" if self.pick.fallback else ""),
             "",
-            "| objects | n | gate accuracy (pick among the best) |",
-            "|---|---|---|",
         ]
-        return "\n".join(head + rows)
+        if not self.picked:
+            rows = [f"| {k} | {self.counts.get(k, 0)} | {_pct(v)} |" for k, v in self.accuracy.items()]
+            return "\n".join(head + ["| objects | n | gate accuracy (pick among the best) |", "|---|---|---|"] + rows)
+        rows = [
+            f"| {k} | {self.counts.get(k, 0)} | {_pct(v)} | {_pct(self.picked[k]['accuracy'])} | "
+            f"{_pct(self.picked[k]['success'])} | {_pct(self.picked[k]['argmax_success'])} | "
+            f"{_pct(self.picked[k]['fallback_success'])} |"
+            for k, v in self.accuracy.items()
+        ]
+        return "\n".join(head + [
+            "| objects | n | gate accuracy (argmax among the best) | the rule's pick among the best | success of the "
+            "rule's picks (matrix) | of the argmax's | of the fallback alone |",
+            "|---|---|---|---|---|---|---|",
+        ] + rows)  # fmt: skip
 
     def to_json(self) -> dict:
-        return {**self.__dict__, "experts": list(self.experts), "checkpoint": str(self.checkpoint)}
+        return {**self.__dict__, "experts": list(self.experts), "checkpoint": str(self.checkpoint),
+                "pick": self.pick.to_json()}  # fmt: skip
 
 
 def _pct(v: float) -> str:
@@ -160,9 +189,21 @@ def train_gate_run(
         )
     gate.save(checkpoint)
     atomic_write_text(out / "history.json", json.dumps(result.history, indent=1) + "\n")
-    accuracy, counts = _accuracies(result, gate, matrix, library, n, config, out)
+    probs = _split_probs(result, gate, matrix, library, n, config, out)
+    rule = ARGMAX if config.pick == "argmax" else _fit_rule(gate.experts, probs)
+    write_pick_rule(checkpoint, rule)
+    accuracy, counts = _accuracies(result, probs)
     summary = GateRunSummary(
-        config.gate, gate.experts, n, accuracy, counts, result.kept_epoch, time.perf_counter() - start, checkpoint
+        config.gate,
+        gate.experts,
+        n,
+        accuracy,
+        counts,
+        result.kept_epoch,
+        time.perf_counter() - start,
+        checkpoint,
+        rule,
+        None if rule.fallback is None else _picked(rule, gate.experts, probs),
     )
     written = {**summary.to_json(), "config": config.model_dump(mode="json")}
     written["matrix"] = str(Path(config.matrix).resolve())  # where `ges evaluate --gate` finds it from any folder
@@ -212,19 +253,62 @@ def _cached_clouds(library, ids: tuple[str, ...], n: int, seed: int, out: Path) 
     return torch.stack([cache[i] for i in ids])
 
 
-def _accuracies(result: TrainResult, gate, matrix: MatrixRates, library, n: int, config: TrainGateConfig, out: Path):
-    """Gate accuracy on the fitted, held-out and unseen-split objects (objects where every expert failed left out)."""
+def _split_probs(
+    result: TrainResult, gate, matrix: MatrixRates, library, n: int, config: TrainGateConfig, out: Path
+) -> dict[str, tuple]:
+    """Per split (train: the fitted objects, val: held out, and the matrix's unseen splits): (the gate's scores
+    (m, k), the objects' rates (m, k)) over the objects where some expert succeeded (as training counts them)."""
+    fitted = matrix.split(config.split)
+    index = {oid: i for i, oid in enumerate(fitted.object_ids)}
+    parts = {name: fitted.subset([index[i] for i in ids]) for name, ids in (("train", result.train_ids),
+                                                                            ("val", result.val_ids))}  # fmt: skip
+    for split in SPLITS[1:]:
+        rates = matrix.split(split)
+        parts[split] = rates.subset([i for i, r in enumerate(rates.rates) if r.max() > 0])
+    out_probs = {}
+    for name, sub in parts.items():
+        if not sub.object_ids:
+            out_probs[name] = (torch.zeros(0, len(gate.experts)), sub.rates.reshape(0, len(gate.experts)))
+            continue
+        clouds = _cached_clouds(library, sub.object_ids, n, config.cloud_seed, out)
+        with torch.no_grad():
+            out_probs[name] = (gate.predict(clouds, sub.object_ids), sub.rates)
+    return out_probs
+
+
+def _fit_rule(experts, probs: dict[str, tuple]) -> PickRule:
+    """The fallback rule of :func:`~ges_core.gating.fallback.fit_pick_rule` on the fitted and held-out objects."""
+    return fit_pick_rule(experts, probs["train"][1], *probs["val"])
+
+
+def _accuracies(result: TrainResult, probs: dict[str, tuple]):
+    """Gate accuracy on the fitted, held-out and unseen-split objects (objects where every expert failed left out);
+    train and val as training measured them (the kept epoch)."""
     acc = {"train": result.summary().get("accuracy/train", float("nan")),
            "val": result.summary().get("accuracy/val", float("nan"))}  # fmt: skip
     counts = {"train": len(result.train_ids), "val": len(result.val_ids)}
     for split in SPLITS[1:]:
-        rates = matrix.split(split)
-        keep = [i for i, r in enumerate(rates.rates) if r.max() > 0]
-        counts[split] = len(keep)
-        if not keep:
-            acc[split] = float("nan")
-            continue
-        sub = rates.subset(keep)
-        probs = gate.predict(_cached_clouds(library, sub.object_ids, n, config.cloud_seed, out), sub.object_ids)
-        acc[split] = gate_accuracy(probs, sub.rates)
+        p, rates = probs[split]
+        counts[split] = len(rates)
+        acc[split] = gate_accuracy(p, rates) if len(rates) else float("nan")
     return acc, counts
+
+
+def _picked(rule: PickRule, experts, probs: dict[str, tuple]) -> dict[str, dict[str, float]]:
+    """Per split: what ``rule`` picks against the argmax and the fallback alone (:attr:`GateRunSummary.picked`)."""
+    nan = float("nan")
+    out = {}
+    for name, (p, rates) in probs.items():
+        if not len(rates):
+            out[name] = {"accuracy": nan, "success": nan, "argmax_success": nan, "fallback_success": nan}
+            continue
+        rows = np.arange(len(rates))
+        pick, top = rule.choose(p, experts), np.asarray(p.argmax(dim=1))
+        best = best_experts(rates)
+        out[name] = {
+            "accuracy": float(best[rows, pick].mean()),
+            "success": float(rates[rows, pick].mean()),
+            "argmax_success": float(rates[rows, top].mean()),
+            "fallback_success": float(rates[:, rule.column(experts)].mean()),
+        }
+    return out

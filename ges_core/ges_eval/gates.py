@@ -4,15 +4,17 @@
 >>> picks = pick_experts(gates[0], clouds_for(library, ids, gates[0].n_points), ids)
 
 A gate reads each object's cloud exactly as ``ges train-gate`` fed it (:func:`ges_core.gating.library_clouds`:
-``n_points`` farthest points of ``4 n_points`` seeded surface samples, object frame, metres) and picks the expert
-with the highest score (the argmax of its distribution).
+``n_points`` farthest points of ``4 n_points`` seeded surface samples, object frame, metres) and picks one expert
+by the rule stored in its checkpoint (:class:`~ges_core.gating.fallback.PickRule`: the argmax, or the best single
+training expert unless the gate clearly prefers another); ``GateChoice(argmax=True)`` (``--gate-argmax``) takes the
+paper's argmax whatever the checkpoint holds.
 """
 
 from __future__ import annotations
 
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,8 +23,9 @@ import torch
 from ges_core.errors import AssetError, ConfigError, StorageError
 from ges_core.experts.choice import ExpertChoice, parse_expert
 from ges_core.experts.matrix import read_matrix_json
-from ges_core.gating.checkpoint import load_gate, read_checkpoint
+from ges_core.gating.checkpoint import load_gate, read_checkpoint, read_pick_rule
 from ges_core.gating.clouds import library_clouds
+from ges_core.gating.fallback import ARGMAX, PickRule
 from ges_core.paths import file_sha256
 
 __all__ = [
@@ -44,25 +47,28 @@ _LABEL = re.compile(r"^[A-Za-z0-9_.+-]+$")
 
 @dataclass(frozen=True)
 class GateChoice:
-    """One ``--gate [LABEL=]PATH``: the checkpoint and the row label (None: from the checkpoint)."""
+    """One ``--gate [LABEL=]PATH`` (or ``--gate-argmax``): the checkpoint, the row label (None: from the checkpoint)
+    and whether to pick by the paper's argmax instead of the checkpoint's rule."""
 
     path: Path
     label: str | None = None
+    argmax: bool = False
 
 
-def parse_gate(text: str) -> GateChoice:
+def parse_gate(text: str, *, argmax: bool = False) -> GateChoice:
     """``[LABEL=]PATH`` -> :class:`GateChoice` (an '=' before any '/' ends a label)."""
     head, eq, tail = text.partition("=")
     if eq and "/" not in head and head:
         if not _LABEL.match(head):
             raise ConfigError(f"gate '{text}': the label '{head}' may hold letters, digits and _.+- only")
-        return GateChoice(Path(tail), head)
-    return GateChoice(Path(text))
+        return GateChoice(Path(tail), head, argmax)
+    return GateChoice(Path(text), argmax=argmax)
 
 
 @dataclass(frozen=True)
 class LoadedGate:
-    """A gate ready to pick: its row label, plugin name, checkpoint (path and content hash) and input size."""
+    """A gate ready to pick: its row label, plugin name, checkpoint (path and content hash), input size and the rule
+    that turns its distribution into one expert."""
 
     label: str
     gate: object
@@ -71,11 +77,12 @@ class LoadedGate:
     path: Path
     sha: str
     n_points: int
+    rule: PickRule = ARGMAX
 
     def describe(self) -> dict:
         """JSON-ready identity (stored with the results)."""
         return {"gate": self.plugin, "path": str(self.path.resolve()), "sha": self.sha, "n_points": self.n_points,
-                "experts": list(self.gate.experts)}  # fmt: skip
+                "experts": list(self.gate.experts), "pick": self.rule.to_json()}  # fmt: skip
 
 
 def training_matrix(choice: GateChoice) -> Path | None:
@@ -166,7 +173,11 @@ def _load_one(choice: GateChoice, registry, experts: Sequence[str]) -> LoadedGat
     plugin = read_checkpoint(path)["gate"]
     gate = load_gate(path, registry)
     gate.check_experts(_in_gate_order(gate.experts, experts))
-    return LoadedGate(choice.label or plugin, gate, plugin, path, file_sha256(path), int(gate.settings.n_points))
+    rule = ARGMAX if choice.argmax else read_pick_rule(path)
+    if rule.fallback is not None:
+        rule.column(gate.experts)  # a rule naming an expert the gate does not serve: ConfigError naming both
+    label = choice.label or (f"{plugin}-argmax" if choice.argmax else plugin)
+    return LoadedGate(label, gate, plugin, path, file_sha256(path), int(gate.settings.n_points), rule)
 
 
 def _in_gate_order(gate_experts: Sequence[str], experts: Sequence[str]) -> list[str]:
@@ -180,7 +191,7 @@ def _label(loaded: list[LoadedGate], choices: Sequence[GateChoice]) -> list[Load
     out = []
     for g, c in zip(loaded, choices, strict=True):
         if c.label is None and labels.count(g.label) > 1:
-            g = LoadedGate(f"{g.plugin}-{g.n_points}", g.gate, g.plugin, g.path, g.sha, g.n_points)
+            g = replace(g, label=f"{g.label}-{g.n_points}")
         out.append(g)
     labels = [g.label for g in out]
     twice = sorted({lab for lab in labels if labels.count(lab) > 1})
@@ -202,22 +213,22 @@ class Picks:
     experts: tuple[str, ...]
     """The gate's expert labels, the columns of ``scores``."""
     chosen: dict[str, str]
-    """Object id -> the label of the expert with the highest score."""
+    """Object id -> the label of the expert the gate's rule picked (:attr:`LoadedGate.rule`)."""
     scores: dict[str, list[float]]
     """Object id -> the gate's distribution over ``experts`` (sums to 1)."""
 
 
 def pick_experts(gate: LoadedGate, clouds: torch.Tensor | Sequence[np.ndarray], object_ids: Sequence[str]) -> Picks:
-    """One expert per object: the argmax of ``gate``'s distribution on each cloud (a (n, N, 3) tensor or a list of
-    (m_i, 3) arrays, object frame, metres; clouds of another size are brought to the gate's, an empty or NaN cloud is
-    an ArrayError naming its object)."""
+    """One expert per object: ``gate``'s rule (:attr:`LoadedGate.rule`) on its distribution for each cloud (a (n, N,
+    3) tensor or a list of (m_i, 3) arrays, object frame, metres; clouds of another size are brought to the gate's, an
+    empty or NaN cloud is an ArrayError naming its object)."""
     ids = list(object_ids)
     if not ids:
         return Picks(tuple(gate.gate.experts), {}, {})
     with torch.no_grad():
         probs = gate.gate.predict(clouds, ids).double()
     names = tuple(gate.gate.experts)
-    best = probs.argmax(dim=1).tolist()
+    best = gate.rule.choose(probs, names).tolist()
     chosen = {oid: names[j] for oid, j in zip(ids, best, strict=True)}
     scores = {oid: [round(float(p), 6) for p in row] for oid, row in zip(ids, probs, strict=True)}
     return Picks(names, chosen, scores)
