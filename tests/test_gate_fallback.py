@@ -91,3 +91,11 @@ def test_the_rule_is_stored_in_any_gate_checkpoint(tmp_path):
     data = read_checkpoint(path)
     assert data["experts"] == list(EXPERTS) and torch.equal(data["state"]["x"], torch.ones(2))  # the rest untouched
     assert PickRule.from_json(rule.to_json()) == rule
+
+
+def test_a_damaged_rule_is_a_clear_error_naming_the_file(tmp_path):
+    path = tmp_path / "gate.pt"
+    write_checkpoint(path, {"gate": "centroid", "experts": list(EXPERTS), "settings": {}, "state": {},
+                            "pick": {"fallback": "a", "margin": "wide"}})  # fmt: skip
+    with pytest.raises(ConfigError, match=r"gate.pt: its pick rule .* --gate-argmax"):
+        read_pick_rule(path)

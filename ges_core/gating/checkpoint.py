@@ -87,4 +87,11 @@ def read_pick_rule(path: str | Path):
     """The :class:`~ges_core.gating.fallback.PickRule` stored in the checkpoint at ``path`` (the argmax if none)."""
     from ges_core.gating.fallback import PickRule
 
-    return PickRule.from_json(read_checkpoint(path).get("pick"))
+    stored = read_checkpoint(path).get("pick")
+    try:
+        return PickRule.from_json(stored)
+    except (TypeError, ValueError, AttributeError, ConfigError) as exc:
+        raise ConfigError(
+            f"{path}: its pick rule {stored!r} is not one ges_core.gating.fallback.PickRule can read ({exc}); "
+            "retrain the gate (ges train-gate) or pass the file to ges evaluate with --gate-argmax"
+        ) from exc
