@@ -2,7 +2,7 @@
 
 The paper picks the expert of the highest predicted probability (the argmax). Where the experts differ on an object by
 an episode or two, a gate trained on a few dozen objects learns that noise and sends objects to a weaker expert: on the
-real scans and the ``tiny`` preset every gate so trained lost 4-10 points against the best single expert
+real scans and the ``tiny`` preset most gates so trained lost 3.5-10 points against the best single expert
 (docs/evaluate.md). :class:`PickRule` keeps the argmax only where it beats a *fallback* expert, the one with the highest
 mean success over the gate's training objects, by more than a probability ``margin``::
 
