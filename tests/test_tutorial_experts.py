@@ -105,9 +105,11 @@ def test_the_page_commands_in_order(folder: Path) -> None:
     scored = rates[:, learned].max(axis=1) > 0  # objects every learned expert failed are left out of the accuracy
     for split in SPLITS[1:]:
         assert int(gate_rows[split][0]) == sum(s == split and ok for s, ok in zip(m.splits, scored, strict=True))
-    for split, (n, acc) in gate_rows.items():
+    for split, (n, acc, *picked) in gate_rows.items():
         assert summary["counts"][split] == int(n)
         assert acc == (f"{100 * summary['accuracy'][split]:.1f} %" if int(n) else "-")  # no object scored: "-"
+        assert picked[1] == (f"{100 * summary['picked'][split]['success']:.1f} %" if int(n) else "-")
+    assert "pick: always expert1 (" in out.stdout  # the page: one validation object, held by both experts alike
     # the page: expert1 is best on every object, so the gate's 100 % is trivial
     assert (rates[:, m.experts.index("expert1")] >= rates[:, m.experts.index("expert0")]).all()
 

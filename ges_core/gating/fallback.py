@@ -103,7 +103,7 @@ def fit_pick_rule(
     means = train_rates.mean(axis=0)
     fallback = int(np.argmax(means))
     name = experts[fallback]
-    best = f"{name} (mean {100 * means[fallback]:.1f} % over {len(train_rates)} training objects)"
+    best = f"{name} (mean {100 * means[fallback]:.1f} % over {len(train_rates)} training object(s))"
     if len(val_rates) == 0:
         return PickRule(name, 0.0, f"fallback {best}; no validation objects to choose a margin on: margin 0 (argmax)")
     p = val_probs.detach().cpu().double().numpy() if isinstance(val_probs, torch.Tensor) else np.asarray(val_probs)
@@ -123,7 +123,7 @@ def fit_pick_rule(
     if (chosen == len(candidates) - 1 and len(candidates) > 1) or not (gap > 0).any():
         margin = 1.0  # no validation object was worth leaving the fallback for: never leave it
     how = (
-        f"fallback {best}; margin {margin:.3g} chosen on {len(p)} validation objects: their mean success "
+        f"fallback {best}; margin {margin:.3g} chosen on {len(p)} validation object(s): their mean success "
         f"{100 * scores[chosen]:.1f} % against {100 * scores[0]:.1f} % with the argmax and "
         f"{100 * float(val_rates[:, fallback].mean()):.1f} % with the fallback alone"
     )
