@@ -23,6 +23,7 @@ from typing import Any
 import torch
 
 from ges_core.errors import ConfigError, StorageError
+from ges_core.gating.fallback import PickRule
 from ges_core.paths import atomic_write_bytes
 
 __all__ = ["FORMAT", "VERSION", "load_gate", "read_checkpoint", "read_pick_rule", "write_checkpoint", "write_pick_rule"]
@@ -75,7 +76,7 @@ def load_gate(path: str | Path, registry=None, *, experts=None):
     return gate
 
 
-def write_pick_rule(path: str | Path, rule) -> Path:
+def write_pick_rule(path: str | Path, rule: PickRule) -> Path:
     """Store ``rule`` (a :class:`~ges_core.gating.fallback.PickRule`) in the gate checkpoint at ``path``, whatever
     plugin wrote it (rewritten atomically; the weights are untouched)."""
     data = read_checkpoint(path)
@@ -83,10 +84,8 @@ def write_pick_rule(path: str | Path, rule) -> Path:
     return write_checkpoint(path, {k: v for k, v in data.items() if k not in ("format", "version")})
 
 
-def read_pick_rule(path: str | Path):
+def read_pick_rule(path: str | Path) -> PickRule:
     """The :class:`~ges_core.gating.fallback.PickRule` stored in the checkpoint at ``path`` (the argmax if none)."""
-    from ges_core.gating.fallback import PickRule
-
     stored = read_checkpoint(path).get("pick")
     try:
         return PickRule.from_json(stored)

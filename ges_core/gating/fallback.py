@@ -45,7 +45,7 @@ class PickRule:
 
     def choose(self, probs: torch.Tensor | np.ndarray, experts: Sequence[str]) -> np.ndarray:
         """(n,) int64 column index per row of ``probs`` ((n, k) scores over ``experts``, the gate's columns)."""
-        p = probs.detach().cpu().double().numpy() if isinstance(probs, torch.Tensor) else np.asarray(probs, float)
+        p = _as_array(probs)
         if p.ndim != 2 or p.shape[1] != len(experts):
             raise ConfigError(f"pick rule: scores of shape {p.shape} for {len(experts)} experts")
         top = p.argmax(axis=1)
@@ -106,18 +106,15 @@ def fit_pick_rule(
     best = f"{name} (mean {100 * means[fallback]:.1f} % over {len(train_rates)} training object(s))"
     if len(val_rates) == 0:
         return PickRule(name, 0.0, f"fallback {best}; no validation objects to choose a margin on: margin 0 (argmax)")
-    p = val_probs.detach().cpu().double().numpy() if isinstance(val_probs, torch.Tensor) else np.asarray(val_probs)
+    p = _as_array(val_probs)
     if p.shape != val_rates.shape:
         raise ConfigError(f"pick rule: validation scores {p.shape} and rates {val_rates.shape} differ in shape")
     rows = np.arange(len(p))
-    top = p.argmax(axis=1)
-    gap = p[rows, top] - p[:, fallback]
+    gap = p.max(axis=1) - p[:, fallback]
     candidates = np.unique(np.concatenate([[0.0], gap[gap > 0]]))  # a margin between two gaps picks as the lower
-    scores = []
-    for m in candidates:
-        pick = np.where(gap > m, top, fallback)
-        scores.append(round(float(val_rates[rows, pick].mean()), 9))
-    scores = np.asarray(scores)
+    scores = np.asarray(
+        [round(float(val_rates[rows, PickRule(name, float(m)).choose(p, experts)].mean()), 9) for m in candidates]
+    )
     chosen = int(np.flatnonzero(scores == scores.max())[-1])  # the largest margin of the best
     margin = float(candidates[chosen])
     if (chosen == len(candidates) - 1 and len(candidates) > 1) or not (gap > 0).any():
@@ -128,3 +125,8 @@ def fit_pick_rule(
         f"{100 * float(val_rates[:, fallback].mean()):.1f} % with the fallback alone"
     )
     return PickRule(name, margin, how)
+
+
+def _as_array(probs: torch.Tensor | np.ndarray) -> np.ndarray:
+    """Scores as a float64 numpy array (a tensor detached and moved to the CPU)."""
+    return probs.detach().cpu().double().numpy() if isinstance(probs, torch.Tensor) else np.asarray(probs, float)

@@ -268,7 +268,7 @@ def _split_probs(
     out_probs = {}
     for name, sub in parts.items():
         if not sub.object_ids:
-            out_probs[name] = (torch.zeros(0, len(gate.experts)), sub.rates.reshape(0, len(gate.experts)))
+            out_probs[name] = (torch.zeros(0, len(gate.experts)), sub.rates)  # rates: (0, k)
             continue
         clouds = _cached_clouds(library, sub.object_ids, n, config.cloud_seed, out)
         with torch.no_grad():
