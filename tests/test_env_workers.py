@@ -269,3 +269,45 @@ def test_training_on_grasps_made_for_another_description_of_the_hand_is_warned_a
     with pytest.warns(HandChangedWarning, match=rf"{joint.replace('[', '.').replace(']', '.')}: 123.0 -> 400.0"):
         build_setup(copy, cfg, load_registry()).venv.close()
     assert built == ["allegro"]
+
+
+def test_training_envs_run_in_the_datasets_stage1_physics_unless_the_run_gives_its_own(tmp_path) -> None:
+    """``build_setup`` builds its envs, the workers' and the in-run evaluation's in the scene the dataset's Stage 1
+    ran in (what ``ges eval-experts`` scores in), not in ``SceneConfig``'s defaults; ``-o scene.KEY=VALUE`` gives a
+    run its own. Read back from PhysX itself (solver iterations, hand friction) as well as from the config."""
+    import shutil
+
+    from ges_core.env.grasp_source import open_grasp_dataset
+    from ges_core.training.envs import training_scene
+    from ges_core.training.evaluation import InRunEvaluator
+
+    copy = tmp_path / "ds"
+    shutil.copytree(DATASET, copy)
+    manifest = json.loads((copy / "manifest.json").read_text())
+    manifest["run_config"]["scene"] |= {"solver_iterations": 17, "hand_friction": 0.7}
+    (copy / "manifest.json").write_text(json.dumps(manifest))
+
+    def physx(sim) -> tuple[int, set[float]]:
+        hand = sim._envs[0].hand
+        shapes = [s for link in hand.get_links() for s in link.collision_shapes]
+        return hand.get_solver_position_iterations(), {round(s.physical_material.static_friction, 6) for s in shapes}
+
+    for extra, iterations, friction in (((), 17, 0.7), (("scene.solver_iterations=9",), 9, 1.0)):
+        cfg = load_train_config("tiny", overrides=[*FAST, "num_envs=2", "workers=1", *extra])
+        setup = build_setup(copy, cfg, load_registry())
+        try:
+            sim = setup.venv.env.sim
+            assert (sim.config.num_envs, sim.config.solver_iterations, sim.config.hand_friction) == (
+                2,
+                iterations,
+                friction,
+            )
+            assert physx(sim) == (iterations, {friction})
+            scene = training_scene(open_grasp_dataset(copy), cfg)
+            worker = worker_env(load_registry, "allegro", "sapien", setup.pool, env_config(cfg), [1], scene=scene)
+            assert worker.sim.config.num_envs == 1 and physx(worker.sim) == (iterations, {friction})
+            worker.sim.close()
+            evaluator = InRunEvaluator.for_run(cfg, setup, load_registry())
+            assert (evaluator.scene.solver_iterations, evaluator.scene.hand_friction) == (iterations, friction)
+        finally:
+            setup.venv.close()

@@ -14,6 +14,7 @@ from pydantic import Field, model_validator
 from ges_core.config import ConfigModel, apply_overrides, parse_model, read_yaml
 from ges_core.env.grasp_env import EnvConfig
 from ges_core.errors import ConfigError
+from ges_core.sim import SceneConfig
 
 __all__ = [
     "PRESETS",
@@ -242,6 +243,11 @@ class TrainConfig(ConfigModel):
         "tsr_scr", description="reward weights (env/reward.py REWARD_PRESETS); custom: env.reward as given"
     )
     env: EnvConfig = Field(default_factory=EnvConfig, description="the environment (randomization included)")
+    scene: SceneConfig | None = Field(
+        None,
+        description="physics of the training envs and of the in-run evaluation; None: the dataset's Stage 1 scene, "
+        "as ges eval-experts uses (num_envs is set per process)",
+    )
     ppo: PPOSettings = Field(default_factory=PPOSettings)
     curriculum: CurriculumConfig = Field(default_factory=CurriculumConfig)
     warm_start: WarmStartConfig = Field(default_factory=WarmStartConfig)

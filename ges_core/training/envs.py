@@ -20,7 +20,7 @@ from ges_core.sim import SceneConfig
 from ges_core.training.config import TrainConfig
 from ges_core.training.curriculum import Curriculum
 
-__all__ = ["TrainingSetup", "build_setup", "env_config", "training_grasps", "worker_env"]
+__all__ = ["TrainingSetup", "build_setup", "env_config", "training_grasps", "training_scene", "worker_env"]
 
 
 @dataclass
@@ -89,7 +89,7 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
     pool = GraspPool.from_selection(grasps, hand, library)  # AssetError when no record is usable
     curriculum = _curriculum(cfg, clusters, pool)
     pool.set_weights(curriculum.weights())
-    venv = _vec_env(cfg, registry, hand, sim_name, pool)
+    venv = _vec_env(cfg, registry, hand, sim_name, pool, training_scene(data, cfg))
     if cfg.action_mode == "residual":
         from ges_core.policy import ExpertContext
         from ges_core.training.residual import ResidualVecEnv
@@ -100,26 +100,47 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
     return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, grasps, cfg, hand, data, library)
 
 
-def _vec_env(cfg: TrainConfig, registry, hand, sim_name: str, pool: GraspPool) -> GraspVecEnv | SubprocVecEnv:
+def training_scene(dataset, cfg: TrainConfig) -> SceneConfig:
+    """The physics of a run's envs: ``cfg.scene``, else the opened ``dataset``'s Stage 1 scene (what ``ges
+    eval-experts`` scores the expert in), with ``num_envs = cfg.num_envs``."""
+    from ges_core.env.evaluate.runner import dataset_scene
+
+    return dataset_scene(dataset, cfg.num_envs, cfg.scene)
+
+
+def _vec_env(
+    cfg: TrainConfig, registry, hand, sim_name: str, pool: GraspPool, scene: SceneConfig
+) -> GraspVecEnv | SubprocVecEnv:
     """``cfg.workers == 1``: a GraspVecEnv in this process; more: a SubprocVecEnv whose workers each build their
     slice of the envs (the registry rebuilt there through ``registry.rebuild``; the pool, weights included,
-    pickled)."""
+    pickled). ``scene``: the physics (:func:`training_scene`); each worker sets its own ``num_envs``."""
     if cfg.workers == 1:
-        sim = registry.build_sim(sim_name, SceneConfig(num_envs=cfg.num_envs))
+        sim = registry.build_sim(sim_name, scene)
         return GraspVecEnv(GraspEnv.from_pool(sim, hand, pool, env_config(cfg)), seed=cfg.seed)
     if getattr(registry, "rebuild", None) is None:
         raise ConfigError(
             "env workers rebuild the registry in each worker process: build it with ges_core.registry.load_registry "
             "(it records how), or set workers=1"
         )
-    make = partial(worker_env, registry.rebuild, hand.name, sim_name, pool, env_config(cfg))
+    make = partial(worker_env, registry.rebuild, hand.name, sim_name, pool, env_config(cfg), scene=scene)
     return SubprocVecEnv(make, cfg.num_envs, cfg.workers, hand=hand, pool=pool, seed=cfg.seed)
 
 
-def worker_env(rebuild, hand_name: str, sim_name: str, pool: GraspPool, cfg: EnvConfig, env_ids) -> GraspEnv:
-    """One env worker's GraspEnv (called in the worker): envs ``env_ids`` (global ids, seeding their streams)."""
+def worker_env(
+    rebuild,
+    hand_name: str,
+    sim_name: str,
+    pool: GraspPool,
+    cfg: EnvConfig,
+    env_ids,
+    *,
+    scene: SceneConfig | None = None,
+) -> GraspEnv:
+    """One env worker's GraspEnv (called in the worker): envs ``env_ids`` (global ids, seeding their streams);
+    ``scene``: the run's physics (None: ``SceneConfig``'s defaults), ``num_envs`` set to ``len(env_ids)``."""
     registry = rebuild()
-    sim = registry.build_sim(sim_name, SceneConfig(num_envs=len(env_ids)))
+    scene = (scene or SceneConfig()).model_copy(update={"num_envs": len(env_ids)})
+    sim = registry.build_sim(sim_name, scene)
     return GraspEnv.from_pool(sim, registry.build_hand(hand_name), pool, cfg, env_index=env_ids)
 
 

@@ -83,8 +83,8 @@ class InRunEvaluator:
     @classmethod
     def for_run(cls, cfg, setup, registry) -> InRunEvaluator:
         """The evaluator of a training run: the pool's records of every object of its curriculum,
-        ``cfg.evaluation``'s episodes and seed, the run's env settings, the dataset's Stage 1 scene (all from the
-        run's :class:`~ges_core.training.envs.TrainingSetup`)."""
+        ``cfg.evaluation``'s episodes and seed, the run's env settings and physics (``cfg.scene``, else the
+        dataset's Stage 1 scene; all from the run's :class:`~ges_core.training.envs.TrainingSetup`)."""
         from ges_core.env.evaluate import BaselineConfig
         from ges_core.env.evaluate.runner import dataset_scene
         from ges_core.training.envs import env_config
@@ -96,7 +96,8 @@ class InRunEvaluator:
         env = env.model_copy(update={"randomization": env.randomization.model_copy(update={"seed": e.seed})})
         config = BaselineConfig(hand=setup.hand, sim=setup.sim, envs=e.episodes, selection=cfg.selection, seed=e.seed,
                                 env=env, expert="ppo")  # fmt: skip
-        return cls(registry, setup.hand_model, records, setup.library, config, dataset_scene(setup.dataset, e.episodes))
+        scene = dataset_scene(setup.dataset, e.episodes, cfg.scene)
+        return cls(registry, setup.hand_model, records, setup.library, config, scene)
 
     @property
     def objects(self) -> list[str]:
