@@ -13,12 +13,17 @@ and a projection for free cores from them: env-steps / (main CPU + the busiest w
 the main process and the workers alternate and the workers run side by side without waiting (a projection from
 measured CPU times, not a measurement).
 
+``--solver-iterations 20 15 10`` adds the contact solver's position iterations as one more row key (``-o
+scene.solver_iterations=N`` of ``ges train-expert``; default: the dataset's Stage 1 scene), the counts alternating
+within each (sim, envs, workers); ``--results NAME`` writes ``benchmarks/results/NAME.json`` instead.
+
 Upper bound (``--workers``): W processes each stepping envs/W envs with seeded random actions for the same wall
 time, no PPO and no inter-process traffic at all, against one process stepping all envs: what the real
 SubprocVecEnv rows above could reach at most.
 
     python benchmarks/ppo_throughput.py [--dataset runs/tiny/dataset] [--sims sapien pybullet] [--envs 8 32 64]
-        [--ppo-workers 1 2] [--iterations 3] [--workers 2] [--worker-seconds 10]
+        [--ppo-workers 1 2] [--iterations 3] [--workers 2] [--worker-seconds 10] [--solver-iterations 20 15]
+        [--results NAME]
 """
 
 from __future__ import annotations
@@ -32,6 +37,7 @@ from pathlib import Path
 
 import torch
 
+from ges_core.cli.args import positive_int
 from ges_core.dataset import software_versions
 from ges_core.registry import load_registry
 from ges_core.training.config import load_train_config
@@ -52,16 +58,27 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def _config(sim: str, envs: int, steps: int, workers: int = 1):
+def _config(sim: str, envs: int, steps: int, workers: int = 1, solver_iterations: int | None = None):
+    scene = [f"scene.solver_iterations={solver_iterations}"] if solver_iterations else []
     return load_train_config(
         "tiny", overrides=[f"sim={sim}", f"num_envs={envs}", f"ppo.num_steps_per_env={steps}",
-                           "curriculum.enabled=false", "time_limit=null", f"workers={workers}"],
+                           "curriculum.enabled=false", "time_limit=null", f"workers={workers}", *scene],
     )  # fmt: skip
 
 
-def measure_ppo(dataset: Path, sim: str, envs: int, iterations: int, steps: int, out: Path, workers: int = 1) -> dict:
-    """Timed PPO iterations of one setup (collection + update), its envs in ``workers`` processes."""
-    cfg = _config(sim, envs, steps, workers)
+def measure_ppo(
+    dataset: Path,
+    sim: str,
+    envs: int,
+    iterations: int,
+    steps: int,
+    out: Path,
+    workers: int = 1,
+    solver_iterations: int | None = None,
+) -> dict:
+    """Timed PPO iterations of one setup (collection + update), its envs in ``workers`` processes; the contact solver
+    at ``solver_iterations`` (None: the dataset's Stage 1 scene's)."""
+    cfg = _config(sim, envs, steps, workers, solver_iterations)
     torch.manual_seed(0)
     load_before = _load()
     t0 = time.perf_counter()
@@ -89,6 +106,7 @@ def measure_ppo(dataset: Path, sim: str, envs: int, iterations: int, steps: int,
     worker_cpu = [b - a for a, b in zip(cpu[0][1], cpu[1][1], strict=True)]
     return {
         "sim": sim, "hand": setup.hand, "envs": envs, "workers": workers, "iterations": iterations,
+        "solver_iterations": solver_iterations,  # None: the dataset's scene (PyBullet: its registry setting, 100)
         "steps_per_iteration": steps * envs,
         "objects": len(setup.pool), "build_s": round(build_s, 2),
         "env_steps_per_s": round(n / (collect + learn), 1), "collect_steps_per_s": round(n / collect, 1),
@@ -153,22 +171,31 @@ def main() -> None:
     parser.add_argument("--worker-envs", type=int, default=32)
     parser.add_argument("--worker-seconds", type=float, default=10.0)
     parser.add_argument("--out", type=Path, default=Path("/tmp/ppo_throughput_runs"))
+    parser.add_argument(
+        "--solver-iterations",
+        nargs="+",
+        type=positive_int,
+        default=[None],
+        help="contact solver position iterations of the rows (default: the dataset's scene)",
+    )
+    parser.add_argument("--results", default="ppo_throughput", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
     torch.set_num_threads(1)
     rows = []
     for sim in args.sims:
         for envs in args.envs:
             for workers in args.ppo_workers:
-                row = measure_ppo(args.dataset, sim, envs, args.iterations, args.steps, args.out, workers)
-                rows.append(row)
-                print(row, flush=True)
+                for solver in args.solver_iterations:
+                    row = measure_ppo(args.dataset, sim, envs, args.iterations, args.steps, args.out, workers, solver)
+                    rows.append(row)
+                    print(row, flush=True)
     speedups = _speedups(rows)
     workers = [measure_workers(args.dataset, sim, args.worker_envs, args.workers, args.worker_seconds)
                for sim in args.sims] if args.workers > 1 else []  # fmt: skip
     for w in workers:
         print(w, flush=True)
     _table(rows, speedups, workers)
-    write_results(RESULTS, {
+    write_results(RESULTS.with_name(f"{args.results}.json"), {
         "benchmark": "ppo_throughput", "goal_env_steps_per_s": GOAL, "dataset": str(args.dataset),
         "rows": rows, "speedups": speedups, "workers": workers, "cpu": platform.processor() or platform.machine(),
         "cores": os.cpu_count(), "software": software_versions(), "code": code_state(),
@@ -176,29 +203,37 @@ def main() -> None:
 
 
 def _speedups(rows: list[dict]) -> list[dict]:
-    """Per (sim, envs): each worker count's collect + update rate over the one-process row's."""
-    base = {(r["sim"], r["envs"]): r for r in rows if r["workers"] == 1}
-    return [{"sim": r["sim"], "envs": r["envs"], "workers": r["workers"],
-             "speedup": round(r["env_steps_per_s"] / base[r["sim"], r["envs"]]["env_steps_per_s"], 2),
-             "collect_speedup": round(r["collect_steps_per_s"] / base[r["sim"], r["envs"]]["collect_steps_per_s"], 2)}
-            for r in rows if r["workers"] > 1 and (r["sim"], r["envs"]) in base]  # fmt: skip
+    """Per (sim, envs, solver iterations): each worker count's collect + update rate over the one-process row's."""
+
+    def key(r: dict) -> tuple:
+        return r["sim"], r["envs"], r["solver_iterations"]
+
+    base = {key(r): r for r in rows if r["workers"] == 1}
+    return [{"sim": r["sim"], "envs": r["envs"], "solver_iterations": r["solver_iterations"], "workers": r["workers"],
+             "speedup": round(r["env_steps_per_s"] / base[key(r)]["env_steps_per_s"], 2),
+             "collect_speedup": round(r["collect_steps_per_s"] / base[key(r)]["collect_steps_per_s"], 2)}
+            for r in rows if r["workers"] > 1 and key(r) in base]  # fmt: skip
 
 
 def _table(rows: list[dict], speedups: list[dict], workers: list[dict]) -> None:
-    print("\n| sim | hand | envs | workers | env-steps/s (collect + update) | collect only | update share | build s "
-          "| CPU us/step main | CPU us/step workers | projected, free cores | load before/after |")  # fmt: skip
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("\n| sim | hand | envs | workers | solver iterations | env-steps/s (collect + update) | collect only "
+          "| update share | build s | CPU us/step main | CPU us/step workers | projected, free cores "
+          "| load before/after |")  # fmt: skip
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         per_worker = " + ".join(f"{c:.0f}" for c in r["cpu_us_per_step_workers"]) or "-"
-        print(f"| {r['sim']} | {r['hand']} | {r['envs']} | {r['workers']} | {r['env_steps_per_s']:,.0f} | "
+        print(f"| {r['sim']} | {r['hand']} | {r['envs']} | {r['workers']} | {r['solver_iterations'] or 'dataset'} | "
+              f"{r['env_steps_per_s']:,.0f} | "
               f"{r['collect_steps_per_s']:,.0f} | {100 * r['update_share']:.0f} % | {r['build_s']} | "
               f"{r['cpu_us_per_step_main']:.0f} | {per_worker} | {r['projected_free_cores_steps_per_s']:,.0f} | "
               f"{r['load_before']} / {r['load_after']} |")  # fmt: skip
     if speedups:
-        print("\n| sim | envs | workers | speed-up (collect + update) | speed-up (collect) |")
-        print("|---|---|---|---|---|")
+        print("\n| sim | envs | solver iterations | workers | speed-up (collect + update) | speed-up (collect) |")
+        print("|---|---|---|---|---|---|")
         for s in speedups:
-            print(f"| {s['sim']} | {s['envs']} | {s['workers']} | x{s['speedup']} | x{s['collect_speedup']} |")
+            solver = s["solver_iterations"] or "dataset"
+            print(f"| {s['sim']} | {s['envs']} | {solver} | {s['workers']} | x{s['speedup']} | "
+                  f"x{s['collect_speedup']} |")  # fmt: skip
     if workers:
         print("\n| sim | envs | 1 process (steps/s) | 2 processes (aggregate) | speedup | load before/after |")
         print("|---|---|---|---|---|---|")
