@@ -8,7 +8,8 @@ add up, and the comparisons of ``benchmarks/ges_evaluate.py`` are made on the su
     python benchmarks/ges_pooled.py runs/proc/ges_shift/ges-allegro-sapien.json \\
         runs/proc/ges_shift3/ges-allegro-sapien.json --oracle-from M_SEED0 M_SEED1 --results ges_shift_pooled
 
-Each GES results file names its matrix; the gates' picks come from the results files (a gate's pick does not
+Gates are matched by label, in whatever order a run lists them; a gate not every run holds is left out (a note
+names it). Each GES results file names its matrix; the gates' picks come from the results files (a gate's pick does not
 depend on the episode seed when the clouds are sampled with the same seed; if they differ, the episodes of each
 run's own pick are added). Writes ``benchmarks/results/NAME.json``.
 """
@@ -31,17 +32,25 @@ ROOT = Path(__file__).resolve().parent
 
 
 def pooled_rows(runs: list[list[GesRow]]) -> list[GesRow]:
-    """The gates' rows of several runs (same gates, same objects) with their episodes added."""
+    """The rows of the gates every run holds, matched by label (in any order), episodes added; the first run's order.
+    A gate some runs lack is left out (:func:`common_gates` says which)."""
+    by_label = [{r.label: r for r in run} for run in runs]
     out = []
-    for same in zip(*runs, strict=True):
-        labels = {r.label for r in same}
-        if len(labels) != 1:
-            raise SystemExit(f"the runs hold other gates in the same place: {sorted(labels)}")
+    for label in common_gates([[r.label for r in run] for run in runs]):
+        same = [rows[label] for rows in by_label]
         out.append(GesRow(
-            same[0].label, {p: sum(r.successes[p] for r in same) for p in PROTOCOLS},
-            sum(r.episodes for r in same), same[0].picked,
+            label, {p: sum(r.successes[p] for r in same) for p in PROTOCOLS}, sum(r.episodes for r in same),
+            same[0].picked,
         ))  # fmt: skip
     return out
+
+
+def common_gates(labels: list[list[str]]) -> list[str]:
+    """The gate labels every run holds, in the first run's order; SystemExit if there is none."""
+    common = [label for label in labels[0] if all(label in run for run in labels[1:])]
+    if not common:
+        raise SystemExit(f"the runs share no gate: {[sorted(run) for run in labels]}")
+    return common
 
 
 def main() -> None:
@@ -56,9 +65,13 @@ def main() -> None:
     datas = [read_results_json(p) for p in args.results_files]
     experts = list(datas[0]["experts"])
     for p, d in zip(args.results_files, datas, strict=True):
-        if list(d["experts"]) != experts or list(d["gates"]) != list(datas[0]["gates"]):
-            raise SystemExit(f"{p} chooses among {list(d['experts'])} with gates {list(d['gates'])}; the first run "
-                             f"among {experts} with {list(datas[0]['gates'])}: pool runs of the same GES")  # fmt: skip
+        if sorted(d["experts"]) != sorted(experts):
+            raise SystemExit(f"{p} chooses among {list(d['experts'])}; the first run among {experts}: pool runs of "
+                             "the same experts")  # fmt: skip
+    common = common_gates([list(d["gates"]) for d in datas])
+    for p, d in zip(args.results_files, datas, strict=True):
+        if left := [label for label in d["gates"] if label not in common]:
+            print(f"note: {p} also holds gates {left}, which not every run holds: left out")
     views = [select_columns(load_matrix(d["matrix"]), experts) for d in datas]
     ids = tuple(oid for oid in views[0].object_ids if all(oid in d["cells"] for d in datas))
     matrix = pool_matrices(views)  # ConfigError unless the runs' matrices hold the same objects
