@@ -325,6 +325,55 @@ checkpoint_every: 2
 """
 
 
+# -- category smoothing of the targets (TrainConfig.category_smoothing) ------------------------------------------------
+def test_category_smoothing_mixes_each_row_with_its_categorys_mean_over_the_given_rows_only():
+    from ges_core.gating.data import category_smoothed
+
+    rng = np.random.default_rng(3)
+    rates = rng.uniform(0, 1, (12, 3))
+    categories = [("mug", "box", "can")[i] for i in rng.integers(0, 3, 12)]
+    rows = np.array([0, 2, 3, 5, 6, 8, 9, 11])
+    for weight in (0.0, 0.3, 1.0):
+        expected = [
+            (1 - weight) * rates[r]
+            + weight * np.mean([rates[j] for j in rows if categories[j] == categories[r]], axis=0)
+            for r in rows
+        ]
+        np.testing.assert_allclose(category_smoothed(rates, categories, rows, weight), expected, rtol=0, atol=1e-12)
+    elsewhere = rates.copy()
+    elsewhere[[1, 4, 7, 10]] = rng.uniform(0, 1, (4, 3))  # the rows left out (validation) never reach the result
+    np.testing.assert_array_equal(category_smoothed(elsewhere, categories, rows, 0.5),
+                                  category_smoothed(rates, categories, rows, 0.5))  # fmt: skip
+    with pytest.raises(ArrayError, match="11 categories for 12 rows"):
+        category_smoothed(rates, categories[:11], rows, 0.5)
+
+
+def test_training_with_category_smoothing_is_training_on_the_smoothed_rates(registry, data):
+    """A gate trained with smoothing 1 has the weights of one trained without it on rates whose training rows were
+    replaced by their category's mean over the training rows (validation rows as they were); and not those of the
+    unsmoothed run."""
+    categories = tuple(i.split("/")[1] for i in data.rates.object_ids)  # procedural/<category>/<n>
+    config = TrainConfig(epochs=2, batch_size=8, val_fraction=0.25)
+    train_rows, _ = split_indices(len(categories), config.val_fraction, config.seed)
+    smoothed = data.rates.rates.copy()
+    for c in set(categories):
+        same = [r for r in train_rows if categories[r] == c]
+        smoothed[same] = data.rates.rates[same].mean(axis=0)
+
+    def weights(gate_data: GateData, weight: float) -> dict:
+        gate = build(registry, "pointnet2")
+        gate.fit(gate_data, config.model_copy(update={"category_smoothing": weight}))
+        return gate.model.state_dict()
+
+    with_smoothing = weights(GateData(data.rates, data.clouds, categories), 1.0)
+    by_hand = weights(GateData(SuccessRates(data.rates.object_ids, EXPERTS, smoothed), data.clouds), 0.0)
+    plain = weights(GateData(data.rates, data.clouds, categories), 0.0)
+    assert all(torch.equal(with_smoothing[k], by_hand[k]) for k in with_smoothing)
+    assert not all(torch.equal(with_smoothing[k], plain[k]) for k in with_smoothing)
+    with pytest.raises(ConfigError, match="train.category_smoothing needs each object's category"):
+        build(registry, "pointnet2").fit(data, config.model_copy(update={"category_smoothing": 0.5}))
+
+
 def _matrix_file(tmp_path) -> tuple:
     """A matrix file in ges eval-experts' format over 30 library objects of every split; the cells follow the
     size rule (4 episodes each), plus the scripted baseline column that the gate must leave out."""
@@ -374,6 +423,11 @@ def test_ges_train_gate_end_to_end_on_a_matrix_file(tmp_path, capsys, registry):
     assert rule.fallback in EXPERTS and summary["pick"] == rule.to_json()
     assert f"pick: {rule.describe()}" in table and "success of the rule's picks" in table
     assert set(summary["picked"]) == {"train", "val", "unseen_object", "unseen_category"}
+    smooth = tmp_path / "smooth"  # the categories come from the matrix file
+    args = ["train-gate", str(matrix), "--config", str(tmp_path / "gate.yaml"), "-o", "train.category_smoothing=0.5"]
+    assert main([*args, "--out", str(smooth)]) == 0
+    assert json.loads((smooth / "summary.json").read_text())["config"]["train"]["category_smoothing"] == 0.5
+    capsys.readouterr()
     paper = tmp_path / "paper"
     assert main(["train-gate", str(matrix), "--gate", "centroid", "-o", "pick=argmax", "--out", str(paper)]) == 0
     assert read_pick_rule(paper / "gate.pt").fallback is None and "pick: argmax" in capsys.readouterr().out

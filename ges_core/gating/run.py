@@ -234,7 +234,7 @@ def _split_data(matrix: MatrixRates, split: str, library, n: int, seed: int, out
         raise ConfigError(
             f"the matrix has {len(rates.object_ids)} evaluated object(s) in split '{split}'; a gate needs 2+"
         )
-    return GateData(rates, _cached_clouds(library, rates.object_ids, n, seed, out))
+    return GateData(rates, _cached_clouds(library, rates.object_ids, n, seed, out), matrix.split_categories(split))
 
 
 def _cached_clouds(library, ids: tuple[str, ...], n: int, seed: int, out: Path) -> torch.Tensor:

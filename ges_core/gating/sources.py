@@ -32,10 +32,16 @@ class MatrixRates:
     """The Stage 1 dataset folder the matrix was evaluated on ('' if the file does not say)."""
     incomplete: tuple[str, ...]
     """Objects left out because a cell of theirs has no episodes yet (an evaluation still running)."""
+    categories: tuple[str, ...] = ()
+    """Per row: the object's category (the matrix's)."""
 
     def split(self, name: str) -> SuccessRates:
         """The rows of split ``name``."""
         return self.rates.subset([i for i, s in enumerate(self.splits) if s == name])
+
+    def split_categories(self, name: str) -> tuple[str, ...]:
+        """The categories of the rows of split ``name`` (the order of :meth:`split`)."""
+        return tuple(c for c, s in zip(self.categories, self.splits, strict=True) if s == name)
 
 
 def rates_from_matrix(
@@ -88,4 +94,6 @@ def load_rates(
         log.info("pooled %d matrices: %.1f episodes per cell on average", len(matrices),
                  float(np.mean(matrix.episodes)))  # fmt: skip
     rates, splits, left = rates_from_matrix(matrix, protocol, columns=columns)
-    return MatrixRates(rates, splits, str(data.get("dataset") or ""), left)
+    category = dict(zip(matrix.object_ids, matrix.categories, strict=True))
+    categories = tuple(category[o] for o in rates.object_ids)
+    return MatrixRates(rates, splits, str(data.get("dataset") or ""), left, categories)

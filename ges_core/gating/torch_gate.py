@@ -94,7 +94,7 @@ class TorchGate(Gate):
         self.model = self.build_model(len(self.experts))
         result = train_model(
             self.model,
-            GateData(data.rates, clouds),
+            GateData(data.rates, clouds, data.categories),
             config,
             log_dir=log_dir,
             on_epoch=on_epoch,

@@ -31,7 +31,7 @@ from pydantic import Field
 from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError, StorageError
 from ges_core.gating.clouds import AugmentConfig, augment
-from ges_core.gating.data import SuccessRates, split_indices, targets
+from ges_core.gating.data import SuccessRates, category_smoothed, split_indices, targets
 from ges_core.gating.loss import gate_accuracy, kl_loss
 from ges_core.paths import atomic_write_bytes
 
@@ -52,6 +52,13 @@ class TrainConfig(ConfigModel):
     all_failed: Literal["drop", "uniform"] = Field(
         "drop", description="objects where every expert failed: left out (drop) or a uniform target"
     )
+    category_smoothing: float = Field(
+        0.0,
+        ge=0,
+        le=1,
+        description="weight of the category's mean rates in each training object's target (0: the paper's, the "
+        "object's own rates); the mean is over the training objects of the category, validation targets stay raw",
+    )
     keep: Literal["best_val", "last"] = Field(
         "best_val", description="weights kept at the end: lowest validation loss (last if no validation) or last"
     )
@@ -65,12 +72,19 @@ class GateData:
 
     rates: SuccessRates
     clouds: torch.Tensor
+    categories: tuple[str, ...] | None = None
+    """(n_objects,) each object's category (the matrix's), for ``TrainConfig.category_smoothing``; None: unknown."""
 
     def __post_init__(self) -> None:
         if self.clouds.ndim != 3 or self.clouds.shape[0] != len(self.rates.object_ids) or self.clouds.shape[2] != 3:
             raise ConfigError(
                 f"gate data: clouds have shape {tuple(self.clouds.shape)}, expected "
                 f"({len(self.rates.object_ids)}, points, 3) for the {len(self.rates.object_ids)} objects of the rates"
+            )
+        if self.categories is not None and len(self.categories) != len(self.rates.object_ids):
+            raise ConfigError(
+                f"gate data: {len(self.categories)} categories for the {len(self.rates.object_ids)} objects of the "
+                "rates"
             )
 
 
@@ -126,6 +140,8 @@ def train_model(
         )
     target = torch.zeros(len(data.rates.object_ids), p.shape[1], dtype=torch.float32)
     target[torch.from_numpy(kept)] = torch.from_numpy(p).float()
+    if config.category_smoothing:
+        target[torch.from_numpy(train_rows)] = torch.from_numpy(_smoothed_targets(data, train_rows, config)).float()
     ids = data.rates.object_ids
     result = TrainResult(
         [ids[i] for i in train_rows],
@@ -182,6 +198,18 @@ def train_model(
     return result
 
 
+def _smoothed_targets(data: GateData, rows: np.ndarray, config: TrainConfig) -> np.ndarray:
+    """(len(rows), k) targets of the training ``rows`` from their category-smoothed rates, normalized to sum to 1."""
+    if data.categories is None:
+        raise ConfigError(
+            "train.category_smoothing needs each object's category: give the gate data its categories "
+            "(ges train-gate reads them from the matrix)"
+        )
+    smoothed = category_smoothed(data.rates.rates, data.categories, rows, config.category_smoothing)
+    total = smoothed.sum(axis=1, keepdims=True)
+    return np.where(total > 0, smoothed / np.where(total > 0, total, 1.0), 1.0 / smoothed.shape[1])
+
+
 def _cosine_lr(config: TrainConfig, epoch: int) -> float:
     """Cosine decay from lr (epoch 1) to lr / 100 (last epoch): a smooth end without a schedule to tune."""
     frac = (epoch - 1) / max(config.epochs - 1, 1)
@@ -228,8 +256,9 @@ STATE_FORMAT = "ges-gate-train-state"
 def _identity(config: TrainConfig, data: GateData, train_rows: np.ndarray, val_rows: np.ndarray) -> dict:
     """What a resumed run must share with the one that wrote the state: settings (the epoch count aside: a
     finished run may be extended), objects and their rates, experts, the split, the input clouds."""
-    return {
-        "config": config.model_dump(mode="json", exclude={"epochs"}),
+    unset = set() if config.category_smoothing else {"category_smoothing"}  # states written before it existed
+    identity = {
+        "config": config.model_dump(mode="json", exclude={"epochs"} | unset),
         "object_ids": list(data.rates.object_ids),
         "experts": list(data.rates.experts),
         "rates": np.asarray(data.rates.rates, dtype=np.float64).round(12).tolist(),
@@ -237,6 +266,9 @@ def _identity(config: TrainConfig, data: GateData, train_rows: np.ndarray, val_r
         "val_rows": [int(i) for i in val_rows],
         "clouds": [list(data.clouds.shape), float(data.clouds.double().sum()), float(data.clouds.double().abs().sum())],
     }
+    if config.category_smoothing:
+        identity["categories"] = list(data.categories or ())
+    return identity
 
 
 def _write_state(path: Path, identity: dict, epoch: int, model, optim, gen, best, best_loss, result) -> None:
