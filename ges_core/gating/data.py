@@ -14,7 +14,7 @@ import numpy as np
 
 from ges_core.errors import ArrayError, ConfigError
 
-__all__ = ["ALL_FAILED", "SuccessRates", "best_experts", "category_smoothed", "split_indices", "targets"]
+__all__ = ["ALL_FAILED", "SuccessRates", "best_experts", "category_smoothed", "normalized", "split_indices", "targets"]
 
 ALL_FAILED = ("drop", "uniform")
 """What :func:`targets` does with an object whose every expert failed (see its docstring)."""
@@ -79,11 +79,14 @@ def targets(rates: SuccessRates, all_failed: Literal["drop", "uniform"] = "drop"
         raise ConfigError(f"all_failed must be one of {ALL_FAILED}, got {all_failed!r}")
     failed = rates.all_failed()
     kept = np.flatnonzero(~failed) if all_failed == "drop" else np.arange(len(rates.object_ids))
-    r = rates.rates[kept]
-    total = r.sum(axis=1, keepdims=True)
-    k = r.shape[1]
-    p = np.where(total > 0, r / np.where(total > 0, total, 1.0), 1.0 / k)
-    return kept.astype(np.int64), p
+    return kept.astype(np.int64), normalized(rates.rates[kept])
+
+
+def normalized(rates: np.ndarray) -> np.ndarray:
+    """(m, k) each row of ``rates`` divided by its sum; a row summing to 0 becomes uniform, 1/k."""
+    rates = np.asarray(rates, dtype=np.float64)
+    total = rates.sum(axis=1, keepdims=True)
+    return np.where(total > 0, rates / np.where(total > 0, total, 1.0), 1.0 / rates.shape[1])
 
 
 def category_smoothed(rates: np.ndarray, categories: Sequence[str], rows: np.ndarray, weight: float) -> np.ndarray:

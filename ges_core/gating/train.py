@@ -31,7 +31,7 @@ from pydantic import Field
 from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError, StorageError
 from ges_core.gating.clouds import AugmentConfig, augment
-from ges_core.gating.data import SuccessRates, category_smoothed, split_indices, targets
+from ges_core.gating.data import SuccessRates, category_smoothed, normalized, split_indices, targets
 from ges_core.gating.loss import gate_accuracy, kl_loss
 from ges_core.paths import atomic_write_bytes
 
@@ -205,9 +205,7 @@ def _smoothed_targets(data: GateData, rows: np.ndarray, config: TrainConfig) -> 
             "train.category_smoothing needs each object's category: give the gate data its categories "
             "(ges train-gate reads them from the matrix)"
         )
-    smoothed = category_smoothed(data.rates.rates, data.categories, rows, config.category_smoothing)
-    total = smoothed.sum(axis=1, keepdims=True)
-    return np.where(total > 0, smoothed / np.where(total > 0, total, 1.0), 1.0 / smoothed.shape[1])
+    return normalized(category_smoothed(data.rates.rates, data.categories, rows, config.category_smoothing))
 
 
 def _cosine_lr(config: TrainConfig, epoch: int) -> float:
