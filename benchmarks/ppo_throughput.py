@@ -180,6 +180,9 @@ def main() -> None:
     )
     parser.add_argument("--results", default="ppo_throughput", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    if args.dataset == FALLBACK_DATASET:  # its 2 objects step faster than a real training set: say so up front
+        print(f"note: no {DEFAULT_DATASET}; measuring on the test dataset {FALLBACK_DATASET} (2 objects), not the "
+              "tiny preset's 13: give --dataset for figures comparable with docs/training.md", flush=True)  # fmt: skip
     torch.set_num_threads(1)
     rows = []
     for sim in args.sims:
