@@ -108,7 +108,8 @@ def _make(num_envs: int):
     setup = build_setup(DATASET, cfg, load_registry())
     setup.venv.close()
     registry = load_registry()
-    return partial(worker_env, registry.rebuild, "allegro", "sapien", setup.pool, env_config(cfg)), setup
+    make = partial(worker_env, registry.rebuild, "allegro", "sapien", setup.pool, env_config(cfg), scene=setup.scene)
+    return make, setup
 
 
 def test_a_dead_or_hung_worker_is_a_clear_error_never_a_hang() -> None:
@@ -277,8 +278,6 @@ def test_training_envs_run_in_the_datasets_stage1_physics_unless_the_run_gives_i
     run its own. Read back from PhysX itself (solver iterations, hand friction) as well as from the config."""
     import shutil
 
-    from ges_core.env.grasp_source import open_grasp_dataset
-    from ges_core.training.envs import training_scene
     from ges_core.training.evaluation import InRunEvaluator
 
     copy = tmp_path / "ds"
@@ -303,8 +302,7 @@ def test_training_envs_run_in_the_datasets_stage1_physics_unless_the_run_gives_i
                 friction,
             )
             assert physx(sim) == (iterations, {friction})
-            scene = training_scene(open_grasp_dataset(copy), cfg)
-            worker = worker_env(load_registry, "allegro", "sapien", setup.pool, env_config(cfg), [1], scene=scene)
+            worker = worker_env(load_registry, "allegro", "sapien", setup.pool, env_config(cfg), [1], scene=setup.scene)
             assert worker.sim.config.num_envs == 1 and physx(worker.sim) == (iterations, {friction})
             worker.sim.close()
             evaluator = InRunEvaluator.for_run(cfg, setup, load_registry())

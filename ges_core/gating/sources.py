@@ -32,7 +32,7 @@ class MatrixRates:
     """The Stage 1 dataset folder the matrix was evaluated on ('' if the file does not say)."""
     incomplete: tuple[str, ...]
     """Objects left out because a cell of theirs has no episodes yet (an evaluation still running)."""
-    categories: tuple[str, ...] = ()
+    categories: tuple[str, ...]
     """Per row: the object's category (the matrix's)."""
 
     def split(self, name: str) -> SuccessRates:

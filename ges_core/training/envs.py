@@ -7,6 +7,7 @@ from functools import partial
 from pathlib import Path
 
 from ges_core.dataset.hands import warn_if_hand_changed
+from ges_core.env.evaluate.runner import dataset_scene
 from ges_core.env.grasp_env import EnvConfig, GraspEnv
 from ges_core.env.grasp_pool import GraspPool
 from ges_core.env.grasp_source import GraspSelection, dataset_hand, library_for, open_grasp_dataset, select_records
@@ -20,7 +21,7 @@ from ges_core.sim import SceneConfig
 from ges_core.training.config import TrainConfig
 from ges_core.training.curriculum import Curriculum
 
-__all__ = ["TrainingSetup", "build_setup", "env_config", "training_grasps", "training_scene", "worker_env"]
+__all__ = ["TrainingSetup", "build_setup", "env_config", "training_grasps", "worker_env"]
 
 
 @dataclass
@@ -45,6 +46,9 @@ class TrainingSetup:
     """The opened Stage 1 dataset (:func:`~ges_core.env.grasp_source.open_grasp_dataset`)."""
     library: object
     """Its ObjectLibrary (:func:`~ges_core.env.grasp_source.library_for`), the pool's objects' source."""
+    scene: SceneConfig
+    """The run's physics with ``num_envs = config.num_envs``: ``config.scene``, else the dataset's Stage 1 scene (what
+    ``ges eval-experts`` scores the expert in). The envs, the env workers' and the in-run evaluation's."""
 
     @property
     def rejected(self) -> dict[str, str]:
@@ -89,7 +93,8 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
     pool = GraspPool.from_selection(grasps, hand, library)  # AssetError when no record is usable
     curriculum = _curriculum(cfg, clusters, pool)
     pool.set_weights(curriculum.weights())
-    venv = _vec_env(cfg, registry, hand, sim_name, pool, training_scene(data, cfg))
+    scene = dataset_scene(data, cfg.num_envs, cfg.scene)
+    venv = _vec_env(cfg, registry, hand, sim_name, pool, scene)
     if cfg.action_mode == "residual":
         from ges_core.policy import ExpertContext
         from ges_core.training.residual import ResidualVecEnv
@@ -97,15 +102,7 @@ def build_setup(dataset_path: str | Path, cfg: TrainConfig, registry, clusters=N
         context = ExpertContext.of_env(venv.env, sim=sim_name, registry=registry)
         base = registry.build_expert(cfg.base_expert, context, **cfg.base_expert_settings)
         venv = ResidualVecEnv(venv, base, cfg.residual_scale)
-    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, grasps, cfg, hand, data, library)
-
-
-def training_scene(dataset, cfg: TrainConfig) -> SceneConfig:
-    """The physics of a run's envs: ``cfg.scene``, else the opened ``dataset``'s Stage 1 scene (what ``ges
-    eval-experts`` scores the expert in), with ``num_envs = cfg.num_envs``."""
-    from ges_core.env.evaluate.runner import dataset_scene
-
-    return dataset_scene(dataset, cfg.num_envs, cfg.scene)
+    return TrainingSetup(hand_name, sim_name, pool, curriculum, venv, grasps, cfg, hand, data, library, scene)
 
 
 def _vec_env(
@@ -113,7 +110,7 @@ def _vec_env(
 ) -> GraspVecEnv | SubprocVecEnv:
     """``cfg.workers == 1``: a GraspVecEnv in this process; more: a SubprocVecEnv whose workers each build their
     slice of the envs (the registry rebuilt there through ``registry.rebuild``; the pool, weights included,
-    pickled). ``scene``: the physics (:func:`training_scene`); each worker sets its own ``num_envs``."""
+    pickled). ``scene``: the run's physics (:attr:`TrainingSetup.scene`); each worker sets its own ``num_envs``."""
     if cfg.workers == 1:
         sim = registry.build_sim(sim_name, scene)
         return GraspVecEnv(GraspEnv.from_pool(sim, hand, pool, env_config(cfg)), seed=cfg.seed)
@@ -134,13 +131,12 @@ def worker_env(
     cfg: EnvConfig,
     env_ids,
     *,
-    scene: SceneConfig | None = None,
+    scene: SceneConfig,
 ) -> GraspEnv:
     """One env worker's GraspEnv (called in the worker): envs ``env_ids`` (global ids, seeding their streams);
-    ``scene``: the run's physics (None: ``SceneConfig``'s defaults), ``num_envs`` set to ``len(env_ids)``."""
+    ``scene``: the run's physics (:attr:`TrainingSetup.scene`), ``num_envs`` set to ``len(env_ids)``."""
     registry = rebuild()
-    scene = (scene or SceneConfig()).model_copy(update={"num_envs": len(env_ids)})
-    sim = registry.build_sim(sim_name, scene)
+    sim = registry.build_sim(sim_name, scene.model_copy(update={"num_envs": len(env_ids)}))
     return GraspEnv.from_pool(sim, registry.build_hand(hand_name), pool, cfg, env_index=env_ids)
 
 

@@ -83,10 +83,9 @@ class InRunEvaluator:
     @classmethod
     def for_run(cls, cfg, setup, registry) -> InRunEvaluator:
         """The evaluator of a training run: the pool's records of every object of its curriculum,
-        ``cfg.evaluation``'s episodes and seed, the run's env settings and physics (``cfg.scene``, else the
-        dataset's Stage 1 scene; all from the run's :class:`~ges_core.training.envs.TrainingSetup`)."""
+        ``cfg.evaluation``'s episodes and seed, the run's env settings and physics (all from the run's
+        :class:`~ges_core.training.envs.TrainingSetup`)."""
         from ges_core.env.evaluate import BaselineConfig
-        from ges_core.env.evaluate.runner import dataset_scene
         from ges_core.training.envs import env_config
 
         e = cfg.evaluation
@@ -96,7 +95,7 @@ class InRunEvaluator:
         env = env.model_copy(update={"randomization": env.randomization.model_copy(update={"seed": e.seed})})
         config = BaselineConfig(hand=setup.hand, sim=setup.sim, envs=e.episodes, selection=cfg.selection, seed=e.seed,
                                 env=env, expert="ppo")  # fmt: skip
-        scene = dataset_scene(setup.dataset, e.episodes, cfg.scene)
+        scene = setup.scene.model_copy(update={"num_envs": e.episodes})
         return cls(registry, setup.hand_model, records, setup.library, config, scene)
 
     @property
