@@ -32,6 +32,9 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--points", type=positive_int, metavar="N", help="points per cloud (default 1024)")
     p.add_argument("--epochs", type=positive_int, metavar="N", help="training epochs (default: the config's)")
     p.add_argument("--seed", type=non_negative_int, metavar="N", help="seed of weights, split, batches, augmentation")
+    p.add_argument("--folds", type=positive_int, metavar="K", help="K >= 2: one network per fold of the objects, "
+                   "averaged into one gate, the pick rule chosen on every object's out-of-fold score (default 1: "
+                   "one network, train.val_fraction held out; docs/gating.md, 'Folds')")  # fmt: skip
     p.add_argument("--no-augment", action="store_true", help="train on the clouds as sampled (no rotation/scaling)")
     p.add_argument("--resume", action="store_true", help="continue a killed run from OUT/train_state.pt (written with "
                    "each checkpoint); it ends as if it had never stopped")  # fmt: skip

@@ -7,6 +7,8 @@ Layout (a dict, readable with ``torch.load(path, weights_only=True)``)::
     experts: [expert names], the order of the gate's output columns
     settings: the plugin's settings (JSON-like)
     state: tensors (torch state_dict, or the centroid gate's centres)
+    members: optional, how many networks a torch gate averages (absent: 1; ``train.folds`` K writes K, the state
+             then holding ``members.0.`` .. ``members.K-1.``: ges_core.gating.torch_gate.MeanOfMembers)
     train: {config, summary, train_ids, val_ids, dropped_ids} or {} for an untrained gate
     pick: optional, the rule that turns the distribution into one expert (ges_core.gating.fallback.PickRule:
           {fallback, margin, how}); absent: the paper's argmax. ``ges train-gate`` adds it after training.

@@ -14,7 +14,16 @@ import numpy as np
 
 from ges_core.errors import ArrayError, ConfigError
 
-__all__ = ["ALL_FAILED", "SuccessRates", "best_experts", "category_smoothed", "normalized", "split_indices", "targets"]
+__all__ = [
+    "ALL_FAILED",
+    "SuccessRates",
+    "best_experts",
+    "category_smoothed",
+    "fold_indices",
+    "normalized",
+    "split_indices",
+    "targets",
+]
 
 ALL_FAILED = ("drop", "uniform")
 """What :func:`targets` does with an object whose every expert failed (see its docstring)."""
@@ -128,3 +137,19 @@ def split_indices(n: int, val_fraction: float, seed: int) -> tuple[np.ndarray, n
         n_val = min(max(n_val, 1), n - 1)
     order = np.random.default_rng(seed).permutation(n)
     return np.sort(order[n_val:]).astype(np.int64), np.sort(order[:n_val]).astype(np.int64)
+
+
+def fold_indices(n: int, folds: int, fold: int, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """Fold ``fold`` of a seeded ``folds``-way partition of range(n), as (train, validation): sorted int64 index
+    arrays, the validation part one of ``folds`` near-equal parts (sizes differ by at most one), train the rest.
+
+    The ``folds`` validation parts of one (n, folds, seed) are disjoint and cover range(n): every object is held out
+    by exactly one fold (what ``train.folds`` needs for out-of-fold scores)."""
+    if folds < 2:
+        raise ConfigError(f"a fold split needs 2+ folds, got {folds}")
+    if not 0 <= fold < folds:
+        raise ConfigError(f"fold {fold} of {folds}: must be in [0, {folds - 1}]")
+    if n < folds:
+        raise ConfigError(f"{folds} folds of {n} object(s): each fold needs an object; give fewer folds")
+    part = np.array_split(np.random.default_rng(seed).permutation(n), folds)[fold]
+    return np.setdiff1d(np.arange(n), part).astype(np.int64), np.sort(part).astype(np.int64)

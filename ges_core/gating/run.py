@@ -1,12 +1,15 @@
 """``ges train-gate``'s pipeline: matrix -> rates and clouds -> fitted gate -> checkpoint, curves, summary.
 
-A killed run continues with ``resume`` (``ges train-gate --resume``) from OUT/train_state.pt, written with each
-checkpoint: it ends with the weights and curves of a run that never stopped.
+A killed run continues with ``resume`` (``ges train-gate --resume``) from OUT/train_state.pt (a folds run: each
+OUT/fold-f/train_state.pt), written with each checkpoint: it ends with the weights and curves of a run that never
+stopped.
 
-Objects: the matrix's ``split`` rows (train by default) are the gate's data, of which ``val_fraction``
-is held out for validation; the matrix's other splits are scored too (unseen objects, unseen
-categories), never trained on. Clouds are sampled once per (object, size, seed) and cached in
-OUT/clouds-<n>-<seed>.pt (an object set or library change is detected by the ids it holds).
+Objects: the matrix's ``split`` rows (train by default) are the gate's data, of which ``val_fraction`` is held out
+for validation (or, with ``train.folds`` K >= 2, each of K folds in turn, one network per fold, averaged:
+:mod:`ges_core.gating.folds`; "val" is then every kept object scored by the network that never saw it); the
+matrix's other splits are scored too (unseen objects, unseen categories), never trained on. Clouds are sampled once
+per (object, size, seed) and cached in OUT/clouds-<n>-<seed>.pt (an object set or library change is detected by the
+ids it holds).
 """
 
 from __future__ import annotations
@@ -30,6 +33,7 @@ from ges_core.gating.checkpoint import write_pick_rule
 from ges_core.gating.clouds import library_clouds
 from ges_core.gating.data import best_experts
 from ges_core.gating.fallback import ARGMAX, PickRule, fit_pick_rule
+from ges_core.gating.folds import FoldsResult, train_folds
 from ges_core.gating.loss import gate_accuracy
 from ges_core.gating.sources import MatrixRates, load_rates
 from ges_core.gating.train import GateData, TrainConfig, TrainResult
@@ -86,7 +90,7 @@ def config_from_args(args: argparse.Namespace) -> TrainGateConfig:
     if args.points is not None:
         data.setdefault("settings", {})["n_points"] = args.points
     train = data.setdefault("train", {})
-    for key, value in (("epochs", args.epochs), ("seed", args.seed)):
+    for key, value in (("epochs", args.epochs), ("seed", args.seed), ("folds", args.folds)):
         if value is not None:
             train[key] = value
     if args.no_augment:
@@ -103,9 +107,11 @@ class GateRunSummary:
     n_points: int
     accuracy: dict[str, float]
     """train (the fitted objects), val (held out), unseen_object, unseen_category; NaN where none. The paper's gate
-    accuracy: the argmax is one of the object's best experts."""
+    accuracy: the argmax is one of the object's best experts. With folds: train, the averaged gate on every kept
+    object (each seen by all members but one); val, each kept object scored by the member that held it out."""
     counts: dict[str, int]
-    kept_epoch: int
+    kept_epoch: int | tuple[int, ...]
+    """The epoch whose weights were kept; with folds, one per member."""
     seconds: float
     checkpoint: Path
     pick: PickRule = ARGMAX
@@ -117,9 +123,15 @@ class GateRunSummary:
 
     def table(self) -> str:
         """Markdown table of the gate accuracy per split (and, with a fallback rule, what the rule picks)."""
+        kept = (
+            f"kept epoch {self.kept_epoch}"
+            if isinstance(self.kept_epoch, int)
+            else f"{len(self.kept_epoch)} folds averaged (kept epochs {', '.join(map(str, self.kept_epoch))}; val: "
+            "each object scored by the network that held it out)"
+        )
         head = [
             f"gate {self.gate} ({self.n_points} points) over experts {', '.join(self.experts)}; "
-            f"kept epoch {self.kept_epoch}; {self.seconds:.1f} s; checkpoint {self.checkpoint}",
+            f"{kept}; {self.seconds:.1f} s; checkpoint {self.checkpoint}",
             f"pick: {self.pick.describe()}" + (f" ({self.pick.how})" if self.pick.fallback else ""),
             "",
         ]
@@ -150,7 +162,8 @@ def _pct(v: float) -> str:
 def train_gate_run(
     config: TrainGateConfig, registry=None, *, resume: bool = False, progress: bool = False
 ) -> GateRunSummary:
-    """Train the gate ``config`` describes; write OUT/gate.pt, train_state.pt, tb/, history.json, summary.json.
+    """Train the gate ``config`` describes; write OUT/gate.pt, train_state.pt, tb/, history.json, summary.json (with
+    ``train.folds`` K: OUT/gate.pt averaging the members of OUT/fold-f/, history.json per fold).
     ``resume``: continue from OUT/train_state.pt (a state of other data or settings is a ConfigError).
     ``progress``: a bar over the epochs with the last epoch's losses."""
     from tqdm import tqdm
@@ -168,38 +181,53 @@ def train_gate_run(
     data = _split_data(matrix, config.split, library, n, config.cloud_seed, out)
     checkpoint = out / "gate.pt"
 
-    bar = tqdm(total=config.train.epochs, desc=f"gate {config.gate}", unit="epoch", disable=not progress)
+    folds, epochs = config.train.folds, config.train.epochs
+    bar = tqdm(total=folds * epochs, desc=f"gate {config.gate}", unit="epoch", disable=not progress)
 
-    def on_epoch(epoch: int, result: TrainResult) -> None:
-        if epoch % config.checkpoint_every == 0:
+    def on_epoch(fold: int, epoch: int, result: TrainResult) -> None:
+        if folds == 1 and epoch % config.checkpoint_every == 0:
             gate.save(checkpoint)
         row = result.history[-1]
-        bar.update(epoch - bar.n)  # a resumed run's first call moves the bar to where the state left off
-        bar.set_postfix({k.replace("loss/", "loss "): f"{row[k]:.4g}" for k in ("loss/train", "loss/val") if k in row})
+        bar.update(fold * epochs + epoch - bar.n)  # a resumed run's first call moves the bar to where it left off
+        shown = {k.replace("loss/", "loss "): f"{row[k]:.4g}" for k in ("loss/train", "loss/val") if k in row}
+        bar.set_postfix(({"fold": f"{fold + 1}/{folds}"} if folds > 1 else {}) | shown)
 
     with bar:
-        result = gate.fit(
-            data,
-            config.train,
-            log_dir=out / "tb",
-            on_epoch=on_epoch,
-            state_file=out / "train_state.pt",
-            state_every=config.checkpoint_every,
-            resume=resume,
-        )
+        if folds == 1:
+            result = gate.fit(
+                data,
+                config.train,
+                log_dir=out / "tb",
+                on_epoch=lambda epoch, result: on_epoch(0, epoch, result),
+                state_file=out / "train_state.pt",
+                state_every=config.checkpoint_every,
+                resume=resume,
+            )
+        else:
+            folded = train_folds(lambda: _build_gate(registry, config), data, config.train, out, resume=resume,
+                                 state_every=config.checkpoint_every, on_epoch=on_epoch)  # fmt: skip
+            gate = folded.gate
     gate.save(checkpoint)
-    atomic_write_text(out / "history.json", json.dumps(result.history, indent=1) + "\n")
-    probs = _split_probs(result, gate, matrix, library, n, config, out)
+    if folds == 1:
+        atomic_write_text(out / "history.json", json.dumps(result.history, indent=1) + "\n")
+        probs = _split_probs(result, gate, matrix, library, n, config, out)
+        accuracy, counts = _accuracies(result, probs)
+        kept_epoch: int | tuple[int, ...] = result.kept_epoch
+    else:
+        histories = {f"fold-{f}": r.history for f, r in enumerate(folded.results)}
+        atomic_write_text(out / "history.json", json.dumps(histories, indent=1) + "\n")
+        probs = _fold_probs(folded, gate, matrix, library, n, config, out)
+        accuracy, counts = _accuracies(None, probs)
+        kept_epoch = tuple(r.kept_epoch for r in folded.results)
     rule = ARGMAX if config.pick == "argmax" else _fit_rule(gate.experts, probs)
     write_pick_rule(checkpoint, rule)
-    accuracy, counts = _accuracies(result, probs)
     summary = GateRunSummary(
         config.gate,
         gate.experts,
         n,
         accuracy,
         counts,
-        result.kept_epoch,
+        kept_epoch,
         time.perf_counter() - start,
         checkpoint,
         rule,
@@ -262,18 +290,38 @@ def _split_probs(
     index = {oid: i for i, oid in enumerate(fitted.object_ids)}
     parts = {name: fitted.subset([index[i] for i in ids]) for name, ids in (("train", result.train_ids),
                                                                             ("val", result.val_ids))}  # fmt: skip
+    return {name: _predicted(gate, sub, library, n, config, out) for name, sub in (parts | _unseen(matrix)).items()}
+
+
+def _fold_probs(
+    folded: FoldsResult, gate, matrix: MatrixRates, library, n: int, config: TrainGateConfig, out: Path
+) -> dict[str, tuple]:
+    """As :func:`_split_probs` for a folds run: train, the averaged gate on every kept object; val, the same objects'
+    out-of-fold scores (each from the member that held it out); the unseen splits by the averaged gate."""
+    fitted = matrix.split(config.split)
+    kept = fitted.subset([i for i, oid in enumerate(fitted.object_ids) if oid in folded.out_of_fold])
+    oof = torch.stack([folded.out_of_fold[oid] for oid in kept.object_ids])
+    probs = {name: _predicted(gate, sub, library, n, config, out) for name, sub in ({"train": kept} |
+                                                                                 _unseen(matrix)).items()}  # fmt: skip
+    return {"train": probs.pop("train"), "val": (oof, kept.rates)} | probs
+
+
+def _unseen(matrix: MatrixRates) -> dict:
+    """The matrix's unseen splits, each without the objects where every expert failed (as training drops them)."""
+    out = {}
     for split in SPLITS[1:]:
         rates = matrix.split(split)
-        parts[split] = rates.subset([i for i, r in enumerate(rates.rates) if r.max() > 0])
-    out_probs = {}
-    for name, sub in parts.items():
-        if not sub.object_ids:
-            out_probs[name] = (torch.zeros(0, len(gate.experts)), sub.rates)  # rates: (0, k)
-            continue
-        clouds = _cached_clouds(library, sub.object_ids, n, config.cloud_seed, out)
-        with torch.no_grad():
-            out_probs[name] = (gate.predict(clouds, sub.object_ids), sub.rates)
-    return out_probs
+        out[split] = rates.subset([i for i, r in enumerate(rates.rates) if r.max() > 0])
+    return out
+
+
+def _predicted(gate, sub, library, n: int, config: TrainGateConfig, out: Path) -> tuple:
+    """(the gate's scores (m, k), the rates (m, k)) of the objects of ``sub`` (SuccessRates)."""
+    if not sub.object_ids:
+        return torch.zeros(0, len(gate.experts)), sub.rates  # rates: (0, k)
+    clouds = _cached_clouds(library, sub.object_ids, n, config.cloud_seed, out)
+    with torch.no_grad():
+        return gate.predict(clouds, sub.object_ids), sub.rates
 
 
 def _fit_rule(experts, probs: dict[str, tuple]) -> PickRule:
@@ -281,13 +329,15 @@ def _fit_rule(experts, probs: dict[str, tuple]) -> PickRule:
     return fit_pick_rule(experts, probs["train"][1], *probs["val"])
 
 
-def _accuracies(result: TrainResult, probs: dict[str, tuple]):
+def _accuracies(result: TrainResult | None, probs: dict[str, tuple]):
     """Gate accuracy on the fitted, held-out and unseen-split objects (objects where every expert failed left out);
-    train and val as training measured them (the kept epoch)."""
-    acc = {"train": result.summary().get("accuracy/train", float("nan")),
-           "val": result.summary().get("accuracy/val", float("nan"))}  # fmt: skip
-    counts = {"train": len(result.train_ids), "val": len(result.val_ids)}
-    for split in SPLITS[1:]:
+    train and val as training measured them (the kept epoch), or (``result`` None: a folds run) from ``probs``."""
+    acc, counts = {}, {}
+    if result is not None:
+        acc = {"train": result.summary().get("accuracy/train", float("nan")),
+               "val": result.summary().get("accuracy/val", float("nan"))}  # fmt: skip
+        counts = {"train": len(result.train_ids), "val": len(result.val_ids)}
+    for split in SPLITS[1:] if result is not None else ("train", "val", *SPLITS[1:]):
         p, rates = probs[split]
         counts[split] = len(rates)
         acc[split] = gate_accuracy(p, rates) if len(rates) else float("nan")

@@ -1,7 +1,9 @@
 """A gate whose scores come from a torch network on the object's point cloud (CurveNet, PointNet++).
 
 A plugin subclasses :class:`TorchGate`, names its settings model and builds its network; this class
-does the rest: input checks, scaling to network units, softmax, training (``fit``), checkpoints.
+does the rest: input checks, scaling to network units, softmax, training (``fit``), checkpoints, and
+averaging several trained networks of one plugin into one gate (:meth:`TorchGate.averaged`, what
+``train.folds`` makes: :mod:`ges_core.gating.folds`).
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from ges_core.gating.inputs import gate_input
 from ges_core.gating.train import GateData, TrainConfig, TrainResult, train_model
 from ges_core.policy import Gate
 
-__all__ = ["GateSettings", "TorchGate"]
+__all__ = ["GateSettings", "MeanOfMembers", "TorchGate"]
 
 
 class GateSettings(ConfigModel):
@@ -35,6 +37,21 @@ class GateSettings(ConfigModel):
         description="metres per network unit: clouds are divided by it, so a 10 cm object spans ~1 unit (the "
         "range the backbones' radii are given in) while its metric size, which decides the expert, is kept",
     )
+
+
+class MeanOfMembers(torch.nn.Module):
+    """Several networks of one layout as one: ``log(mean_m softmax(member_m(x)))``, so the gate's softmax of it is
+    the members' mean probability. x: (B, N, 3) network units; returns (B, k) log-probabilities."""
+
+    def __init__(self, members: Sequence[torch.nn.Module]) -> None:
+        super().__init__()
+        if len(members) < 2:
+            raise ConfigError(f"an averaged gate needs 2+ networks, got {len(members)}")
+        self.members = torch.nn.ModuleList(members)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        probs = torch.stack([torch.softmax(m(x), dim=-1) for m in self.members]).mean(dim=0)
+        return torch.log(probs.clamp_min(torch.finfo(probs.dtype).tiny))
 
 
 class TorchGate(Gate):
@@ -82,10 +99,12 @@ class TorchGate(Gate):
         state_file: str | Path | None = None,
         state_every: int = 5,
         resume: bool = False,
+        fold: int | None = None,
     ) -> TrainResult:
         """Train a fresh network on ``data`` (clouds in metres, any size: brought to ``n_points``); the
         experts become ``data.rates.experts``. Seeded by ``config.seed``. ``state_file``, ``state_every``,
-        ``resume``: the resumable training state (:func:`ges_core.gating.train.train_model`)."""
+        ``resume``, ``fold``: the resumable training state and the held-out fold
+        (:func:`ges_core.gating.train.train_model`)."""
         config = config or TrainConfig()
         ids = data.rates.object_ids
         clouds = gate_input(data.clouds, self.settings.n_points, ids) / self.settings.input_scale
@@ -101,6 +120,7 @@ class TorchGate(Gate):
             state_file=state_file,
             state_every=state_every,
             resume=resume,
+            fold=fold,
         )
         self.train_info = {
             "config": config.model_dump(mode="json"),
@@ -111,9 +131,38 @@ class TorchGate(Gate):
         }
         return result
 
+    @property
+    def members(self) -> int:
+        """How many networks the gate averages (1: a single network; :meth:`averaged`)."""
+        return len(self.model.members) if isinstance(self.model, MeanOfMembers) else 1
+
+    @classmethod
+    def averaged(cls, gates: Sequence[TorchGate], train_info: dict[str, Any] | None = None) -> TorchGate:
+        """One gate scoring with the mean probability of ``gates`` (2+ trained single networks of this plugin, with
+        equal settings and experts: a ConfigError names what differs). ``train_info``: stored in its checkpoint."""
+        for g in gates:
+            if type(g) is not cls or g.members != 1:
+                raise ConfigError(f"gate '{cls.name}' averages single '{cls.name}' networks, not a {g.name} gate "
+                                  f"of {g.members} network(s)")  # fmt: skip
+            if g.experts != gates[0].experts or g.settings != gates[0].settings:
+                raise ConfigError(
+                    f"gate '{cls.name}': networks trained for other experts or settings cannot be averaged "
+                    f"({list(gates[0].experts)} vs {list(g.experts)})"
+                )
+        out = cls(**gates[0].settings.model_dump())
+        out.experts = gates[0].experts
+        out.model = MeanOfMembers([g._trained() for g in gates])
+        out.model.eval()
+        out.train_info = train_info or {}
+        return out
+
+    def _build(self, members: int) -> torch.nn.Module:
+        k = len(self.experts)
+        return self.build_model(k) if members == 1 else MeanOfMembers([self.build_model(k) for _ in range(members)])
+
     # -- checkpoints --------------------------------------------------------------------------
     def save(self, path: str | Path) -> None:
-        """Write the network, settings and experts to ``path`` (atomically)."""
+        """Write the network(s), settings and experts to ``path`` (atomically)."""
         model = self._trained()
         write_checkpoint(
             path,
@@ -123,16 +172,17 @@ class TorchGate(Gate):
                 "settings": self.settings.model_dump(mode="json"),
                 "state": model.state_dict(),
                 "train": self.train_info,
+                "members": self.members,
             },
         )
 
     @classmethod
     def load(cls, path: str | Path) -> TorchGate:
-        """The gate saved at ``path`` by this plugin."""
+        """The gate saved at ``path`` by this plugin (one network, or the averaged networks of ``members``)."""
         data = read_checkpoint(path, gate=cls.name)
         gate = cls(**data["settings"])
         gate.experts = tuple(data["experts"])
-        gate.model = gate.build_model(len(gate.experts))
+        gate.model = gate._build(int(data.get("members", 1)))
         gate.model.load_state_dict(data["state"])
         gate.model.eval()
         gate.train_info = data.get("train", {})

@@ -31,7 +31,14 @@ from pydantic import Field
 from ges_core.config import ConfigModel
 from ges_core.errors import ConfigError, StorageError
 from ges_core.gating.clouds import AugmentConfig, augment
-from ges_core.gating.data import SuccessRates, category_smoothed, normalized, split_indices, targets
+from ges_core.gating.data import (
+    SuccessRates,
+    category_smoothed,
+    fold_indices,
+    normalized,
+    split_indices,
+    targets,
+)
 from ges_core.gating.loss import gate_accuracy, kl_loss
 from ges_core.paths import atomic_write_bytes
 
@@ -47,7 +54,16 @@ class TrainConfig(ConfigModel):
     batch_size: int = Field(16, ge=2, description="objects per batch (2+: BatchNorm needs a batch statistic)")
     lr: float = Field(1e-3, gt=0, description="Adam learning rate at the start; cosine decay to 1 % at the end")
     weight_decay: float = Field(1e-4, ge=0, description="Adam L2 weight decay")
-    val_fraction: float = Field(0.2, ge=0, lt=1, description="fraction of the kept objects held out for validation")
+    val_fraction: float = Field(
+        0.2, ge=0, lt=1, description="fraction of the kept objects held out for validation (folds 1)"
+    )
+    folds: int = Field(
+        1,
+        ge=1,
+        description="1: one gate, val_fraction of the objects held out. K >= 2: K gates, each holding out one of K "
+        "seeded parts of the objects, averaged into one (ges_core.gating.folds): every object gets a score from a "
+        "gate that never saw it, so the pick rule is chosen on all of them instead of one validation split",
+    )
     seed: int = Field(0, description="seed of the weights, the split, the batch order and the augmentation")
     all_failed: Literal["drop", "uniform"] = Field(
         "drop", description="objects where every expert failed: left out (drop) or a uniform target"
@@ -122,17 +138,19 @@ def train_model(
     state_file: str | Path | None = None,
     state_every: int = 5,
     resume: bool = False,
+    fold: int | None = None,
 ) -> TrainResult:
     """Train ``model`` (clouds (B, N, 3) in the gate's input units -> logits (B, k)) in place.
 
     ``data.clouds`` must already be in the model's input units. ``log_dir``: TensorBoard event files
     there. ``on_epoch(epoch, result)`` after each epoch (checkpoints). ``state_file``: the training state
     written there every ``state_every`` epochs and after the last (module docs); ``resume``: continue from
-    it (a missing file starts from scratch, saying so). Returns the split and the curves; the model ends
-    with the weights ``config.keep`` names.
+    it (a missing file starts from scratch, saying so). ``fold``: with ``config.folds`` >= 2, which fold of the
+    kept objects is held out (:func:`~ges_core.gating.data.fold_indices`; ``val_fraction`` unused). Returns the
+    split and the curves; the model ends with the weights ``config.keep`` names.
     """
     kept, p = targets(data.rates, config.all_failed)
-    train_rows, val_rows = (kept[i] for i in split_indices(len(kept), config.val_fraction, config.seed))
+    train_rows, val_rows = (kept[i] for i in _split(len(kept), config, fold))
     if len(train_rows) < 2:
         raise ConfigError(
             f"gate training needs 2+ training objects, has {len(train_rows)} (of {len(data.rates.object_ids)}, "
@@ -198,6 +216,20 @@ def train_model(
     return result
 
 
+def _split(n: int, config: TrainConfig, fold: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """(train, validation) positions among the ``n`` kept objects: a fold of ``config.folds``, or val_fraction."""
+    if config.folds == 1:
+        if fold is not None:
+            raise ConfigError(f"fold {fold} given but train.folds is 1; set train.folds to the number of folds")
+        return split_indices(n, config.val_fraction, config.seed)
+    if fold is None:
+        raise ConfigError(
+            f"train.folds = {config.folds} trains one gate per fold: use ges train-gate (ges_core.gating.folds), "
+            "or pass the fold to train"
+        )
+    return fold_indices(n, config.folds, fold, config.seed)
+
+
 def _smoothed_targets(data: GateData, rows: np.ndarray, config: TrainConfig) -> np.ndarray:
     """(len(rows), k) targets of the training ``rows`` from their category-smoothed rates, normalized to sum to 1."""
     if data.categories is None:
@@ -254,7 +286,8 @@ STATE_FORMAT = "ges-gate-train-state"
 def _identity(config: TrainConfig, data: GateData, train_rows: np.ndarray, val_rows: np.ndarray) -> dict:
     """What a resumed run must share with the one that wrote the state: settings (the epoch count aside: a
     finished run may be extended), objects and their rates, experts, the split, the input clouds."""
-    unset = set() if config.category_smoothing else {"category_smoothing"}  # states written before it existed
+    unset = set() if config.category_smoothing else {"category_smoothing"}  # states written before these existed
+    unset |= set() if config.folds > 1 else {"folds"}
     identity = {
         "config": config.model_dump(mode="json", exclude={"epochs"} | unset),
         "object_ids": list(data.rates.object_ids),
