@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import subprocess
 
-from ges_core.experts.evaluate import git_code_stamp
+from ges_core.experts.evaluate import code_changes_since, git_code_stamp
 
 
 def _git(root, *args):
@@ -36,3 +36,25 @@ def test_a_docs_commit_keeps_the_stamp_and_a_code_change_moves_it(tmp_path):
 
     _git(tmp_path, "commit", "-q", "-am", "code again")
     assert git_code_stamp(tmp_path) == _git(tmp_path, "rev-parse", "HEAD")[:12] != code_commit
+
+
+def test_code_changes_since_lists_the_code_files_that_differ_and_nothing_else(tmp_path):
+    """What --accept-code shows: code files changed since a stamp's commit, committed or not; docs are not code."""
+    _git(tmp_path, "init", "-q")
+    (tmp_path / "ges_core").mkdir()
+    for name in ("a.py", "b.py"):
+        (tmp_path / "ges_core" / name).write_text("x = 1\n")
+    (tmp_path / "README.md").write_text("hi\n")
+    _git(tmp_path, "add", ".")
+    _git(tmp_path, "commit", "-q", "-m", "code")
+    stamp = git_code_stamp(tmp_path)
+    assert code_changes_since(stamp, tmp_path) == []
+    (tmp_path / "ges_core" / "b.py").write_text("x = 2\n")
+    (tmp_path / "README.md").write_text("more\n")
+    _git(tmp_path, "commit", "-q", "-am", "code and docs")
+    (tmp_path / "registry.yaml").write_text("defaults: {}\n")
+    _git(tmp_path, "add", "registry.yaml")
+    assert code_changes_since(stamp, tmp_path) == ["ges_core/b.py", "registry.yaml"]
+    assert code_changes_since(git_code_stamp(tmp_path), tmp_path) is None  # a stamp of uncommitted code
+    assert code_changes_since("0123456789ab", tmp_path) is None  # a commit git does not know
+    assert code_changes_since("version 0.1.0", tmp_path) is None

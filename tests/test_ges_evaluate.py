@@ -221,6 +221,34 @@ def test_reuse_matrix_runs_a_cell_that_other_code_made(run, dataset, gate, tmp_p
     assert "1 matrix cell(s) and 0 resumed GES cell(s) were run by other code" in again.summary()
 
 
+def test_accept_code_takes_the_cells_of_a_named_other_code_and_only_those(run, dataset, gate, tmp_path):
+    """--accept-code STAMP: the matrix's cells of that stamp are taken (keeping their stamp), cells of any other
+    code still run; a later run that does not name the stamp runs the cell it had taken; the flag alone is refused."""
+    _, _, mfile, _ = run
+    root, ids = dataset
+    raw = json.loads(mfile.read_text())
+    raw["cells"][ids[1]]["low"]["code"] = "0123456789ab"
+    copy = tmp_path / "matrix.json"
+    copy.write_text(json.dumps(raw))
+    experts = [parse_expert(e) for e in EXPERTS]
+    kw = {"matrix_file": copy, "reuse_matrix": True}
+    taken = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "a",
+                         registry=Registry(lambda: True), accept_code=["0123456789ab"], **kw)  # fmt: skip
+    assert (taken.from_matrix, taken.from_accepted_code, taken.ran) == (2, 1, 0)
+    cell = json.loads(taken.path.read_text())["cells"][ids[1]]["low"]
+    assert cell == {**raw["cells"][ids[1]]["low"], "source": "matrix"}  # its own stamp, not this code's
+    assert "cells run by code 0123456789ab counted as this code's (--accept-code; 1 taken" in taken.summary()
+    other = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "b", registry=Registry(),
+                         accept_code=["fedcba987654"], **kw)  # fmt: skip
+    assert (other.from_matrix, other.from_accepted_code, other.ran) == (1, 0, 1)
+    reg = Registry()
+    again = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "a", registry=reg, **kw)
+    assert (again.from_matrix, again.ran, reg.sims) == (1, 1, 2)  # the taken cell is not kept without the stamp
+    with pytest.raises(ConfigError, match="only matters with reuse_matrix"):
+        evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "c", matrix_file=copy,
+                     accept_code=["0123456789ab"])  # fmt: skip
+
+
 def test_a_results_file_of_other_settings_is_refused(run, dataset, gate):
     report, out, mfile, _ = run
     root, _ = dataset

@@ -56,6 +56,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "the same (same run header, expert and checkpoint hash, grasp, and code stamp); the summary counts them",
     )  # fmt: skip
     p.add_argument(
+        "--accept-code", action="append", default=[], metavar="STAMP",
+        help="with --reuse-matrix: matrix cells run by this other code stamp (the matrix's cells' 'code') count as "
+        "this code's, on your word that nothing since changes an episode (e.g. only gate code changed); repeatable; "
+        "the summary lists the code files that differ. Without it, cells of other code are run again",
+    )  # fmt: skip
+    p.add_argument(
         "--cloud-seed", type=non_negative_int, default=0, metavar="N", help="seed of the gate's cloud samples (0)"
     )
     add_run_options(p)
@@ -98,7 +104,7 @@ def run_evaluate(args: argparse.Namespace) -> int:
     report = evaluate_ges(
         args.dataset, config, experts, gates, args.out or args.dataset.parent / "ges",
         matrix_file=args.matrix, registry=registry, progress=not args.no_progress, fanout=fanout_from_args(args),
-        reuse_matrix=args.reuse_matrix, cloud_seed=args.cloud_seed,
+        reuse_matrix=args.reuse_matrix, accept_code=args.accept_code, cloud_seed=args.cloud_seed,
     )  # fmt: skip
     paths = write_outputs(report, config.model_dump(mode="json"))
     print(f"GES | hand {config.hand} | sim {config.sim} | {config.envs} episode(s) per object | "

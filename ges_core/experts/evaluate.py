@@ -353,6 +353,25 @@ def git_code_stamp(root: Path) -> str:
     return f"{commit}+{hashlib.sha256(diff).hexdigest()[:8]}" if diff else commit
 
 
+def code_changes_since(stamp: str, root: Path | None = None) -> list[str] | None:
+    """The files of :data:`CODE_PATHS` that differ between the commit of ``stamp`` (a :func:`code_stamp`) and the
+    working tree of the git checkout at ``root`` (default: this one): what someone accepting cells of that stamp
+    vouches changes no episode. None when it cannot be told (an installed package, a stamp of uncommitted code, a
+    commit git does not know)."""
+    if root is None:
+        import ges_core
+
+        root = Path(ges_core.__file__).resolve().parents[1]
+    if "+" in stamp or stamp.startswith("version") or not (root / ".git").exists():
+        return None
+    try:
+        diff = ["git", "diff", "--name-only", stamp, "--", *CODE_PATHS]
+        done = subprocess.run(diff, cwd=root, capture_output=True, text=True, timeout=30, check=True)
+    except (OSError, subprocess.SubprocessError):
+        return None
+    return done.stdout.split()
+
+
 def read_clusters(path: str | Path) -> dict[str, int]:
     """Object id -> cluster from a clusters file of ``ges cluster`` (format ``ges.object_clusters``, or the
     dataset folder holding one) or from a plain JSON object mapping ids to integers."""

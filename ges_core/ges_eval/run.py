@@ -16,11 +16,15 @@ of running it when the episodes would be the same ones: step 1 has proven the se
 identity with checkpoint hashes, grasp key) and the cell carries this code's
 :func:`~ges_core.experts.evaluate.code_stamp` (equal settings under other code gave other episodes: a change of the
 randomization streams changed every one); the cell is marked ``source: matrix`` and the summary says how many.
+``accept_code`` adds stamps of other code whose cells count as this code's, on the caller's word (say, only gate
+code changed since, which picks experts but runs no episode): the cell keeps its stamp and the summary lists the
+code files that differ.
 """
 
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -34,6 +38,7 @@ from ges_core.experts.choice import ExpertChoice
 from ges_core.experts.evaluate import (
     cell_config,
     cells_by_other_code,
+    code_changes_since,
     code_stamp,
     column_identity,
     evaluate_experts,
@@ -71,7 +76,11 @@ class GesReport:
     resumed: int = 0
     """GES cells found in the results file."""
     from_matrix: int = 0
-    """GES cells taken from the matrix (``reuse_matrix``: identical settings and code)."""
+    """GES cells taken from the matrix (``reuse_matrix``: identical settings and code, or code of ``accept_code``)."""
+    accepted_code: dict[str, list[str] | None] = field(default_factory=dict)
+    """``accept_code``: stamp -> the code files that differ between it and this code (None: not known)."""
+    from_accepted_code: int = 0
+    """Of :attr:`from_matrix`, the cells that code of ``accept_code`` ran."""
     matrix_other_code: int = 0
     """Cells of the run's matrix rows and columns that other code ran (another :func:`code_stamp`, or none)."""
     resumed_other_code: int = 0
@@ -94,6 +103,12 @@ class GesReport:
             + (f", {self.from_matrix} taken from the matrix (identical settings and code)" if self.from_matrix else ""),
             f"{len(self.errors)} cell(s) with errors; {self.seconds:.1f} s",
         ]
+        for stamp, changed in self.accepted_code.items():
+            files = "not known" if changed is None else (", ".join(changed) or "none")
+            lines.append(
+                f"note: cells run by code {stamp} counted as this code's (--accept-code; {self.from_accepted_code} "
+                f"taken in all); code files changed since: {files}"
+            )
         if self.matrix_other_code or self.resumed_other_code:
             lines.append(
                 f"note: {self.matrix_other_code} matrix cell(s) and {self.resumed_other_code} resumed GES cell(s) were "
@@ -114,6 +129,7 @@ def evaluate_ges(
     progress: bool = False,
     fanout: Fanout | None = None,
     reuse_matrix: bool = False,
+    accept_code: Sequence[str] = (),
     cloud_seed: int = 0,
 ) -> GesReport:
     """Run GES with each gate on the records of ``config.hand`` passing ``config.selection`` in ``config.splits``
@@ -123,7 +139,12 @@ def evaluate_ges(
     baseline is added to the matrix unless one is labelled ``scripted``). matrix_file: the success matrix to
     complete and compare against (default: ``ges eval-experts``' file, DATASET/../experts/matrix-HAND-SIM.json).
     cloud_seed: seed of the surface samples each gate's cloud is drawn from (``ges train-gate``'s, 0).
+    accept_code: with ``reuse_matrix``, code stamps (:func:`~ges_core.experts.evaluate.code_stamp`) whose matrix cells
+    count as this code's: the caller vouches that nothing between them changes an episode (e.g. only gate code
+    changed); the report lists the code files that differ (:attr:`GesReport.accepted_code`).
     """
+    if accept_code and not reuse_matrix:
+        raise ConfigError("accept_code (--accept-code) only matters with reuse_matrix (--reuse-matrix)")
     start = time.perf_counter()
     registry = registry if registry is not None else _default_registry()
     data = open_grasp_dataset(dataset)
@@ -146,9 +167,11 @@ def evaluate_ges(
     report.late = mreport.late
     matrix_cells = read_matrix_json(mfile).get("cells", {})  # the file as evaluate_experts left it, read once
     report.matrix_other_code = cells_by_other_code(matrix_cells, records, columns)
-    todo = _todo(records, picks, results, report, reuse_matrix)
+    accepted = {code_stamp(), *accept_code} if reuse_matrix else set()
+    report.accepted_code = {s: code_changes_since(s) for s in accept_code if s != code_stamp()}
+    todo = _todo(records, picks, results, report, accepted)
     if reuse_matrix:
-        todo = _take_from_matrix(todo, matrix_cells, results, report)
+        todo = _take_from_matrix(todo, matrix_cells, results, report, accepted)
     _run(data, registry, config, {c.label: c for c in experts}, todo, results, report, progress, fanout or Fanout())
     report.ges_rows = [ges_row(mreport.matrix, g.label, picks[g.label].chosen, results) for g in loaded]
     report.table = table2(mreport.matrix, labels, report.ges_rows)
@@ -188,9 +211,10 @@ def _pick_all(gates: list[LoadedGate], library, ids: list[str], seed: int) -> di
     return out
 
 
-def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesReport, reuse_matrix: bool) -> list[tuple]:
+def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesReport, accepted: set[str]) -> list[tuple]:
     """(record, expert label) of every pick without a cell in the results file, in record order, each once; a cell
-    an earlier run took from the matrix counts as missing unless this run reuses the matrix too."""
+    an earlier run took from the matrix counts as missing unless this run reuses the matrix too and accepts the code
+    that ran it (``accepted``: code stamps, empty without ``reuse_matrix``)."""
     todo, seen = [], set()
     for r in records:
         for p in picks.values():
@@ -199,27 +223,32 @@ def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesRep
                 continue
             seen.add(key)
             cell = results.cell(*key)
-            if cell is None or (cell.get("source") == "matrix" and not reuse_matrix):
+            if cell is None or (cell.get("source") == "matrix" and cell.get("code") not in accepted):
                 todo.append((r, key[1]))
             elif cell.get("source") == "matrix":
                 report.from_matrix += 1
+                report.from_accepted_code += cell.get("code") != code_stamp()
             else:
                 report.resumed += 1
                 report.resumed_other_code += cell.get("code") != code_stamp()
     return todo
 
 
-def _take_from_matrix(todo: list[tuple], cells: dict, results: ResultsFile, report: GesReport) -> list[tuple]:
+def _take_from_matrix(
+    todo: list[tuple], cells: dict, results: ResultsFile, report: GesReport, accepted: set[str]
+) -> list[tuple]:
     """Store the matrix's cell (``cells``: the matrix file's) for each (record, expert) it holds that this code ran
-    (settings proven identical by the matrix run's checks, code by :func:`code_stamp`); return the rest, to run."""
+    (settings proven identical by the matrix run's checks, code by :func:`code_stamp`) or code of ``accepted`` (the
+    cell keeps its own stamp); return the rest, to run."""
     rest = []
     for r, label in todo:
         cell = cells.get(r.object_id, {}).get(label)
-        if cell is None or "error" in cell or cell.get("code") != code_stamp():
+        if cell is None or "error" in cell or cell.get("code") not in accepted:
             rest.append((r, label))
             continue
         results.put(r.object_id, label, {**cell, "source": "matrix"})
         report.from_matrix += 1
+        report.from_accepted_code += cell.get("code") != code_stamp()
     return rest
 
 
