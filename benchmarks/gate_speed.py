@@ -18,10 +18,14 @@ what the code gained from what the lighter defaults gained. Timed in turn, each 
 weights in the cache where its own were; "timed alone" is today's gate called repeatedly by itself (its weights
 and buffers warm), as a run that only selects experts would call it. Both are printed.
 
+``--averaged K`` adds, for each network gate, a row "NAME x K": the gate of ``ges train-gate --folds K`` (K networks,
+their mean probability; ges_core.gating.torch_gate.MeanOfMembers), timed alone as the single gate is.
+
 The issue's goal: <= 10 ms for CurveNet at 1024 points. The machine's load average is recorded per row:
 on a shared machine the wall time includes waiting for a core.
 
 Usage: python benchmarks/gate_speed.py [--repeats 15] [--objects 8] [--baseline REV | --no-baseline] [--label TEXT]
+       [--averaged K] [--results NAME]
 """
 
 from __future__ import annotations
@@ -114,7 +118,18 @@ def baseline_twin(gate, rev: str, *, same_settings: bool):
     return old
 
 
-def measure(registry, repeats: int, n_objects: int, baseline: str | None) -> list[dict]:
+def averaged_row(registry, name: str, n: int, k: int, one: torch.Tensor, batch: torch.Tensor, repeats: int) -> dict:
+    """The row of ``name``'s gate averaging ``k`` networks (each seeded as :func:`ready_gate`'s), timed alone."""
+    members = [ready_gate(registry, name, n, None, None, None) for _ in range(k)]
+    gate = type(members[0]).averaged(members)
+    wall, cpu = timed(lambda: gate.predict(one), repeats)
+    wall32, _ = timed(lambda: gate.predict(batch), max(3, repeats // 5))
+    print(f"{name} x {k:2d} {n:5d} points: {1e3 * wall:7.1f} ms wall, {1e3 * cpu:7.1f} ms CPU", flush=True)
+    return {"gate": f"{name} x {k}", "points": n, "members": k, "ms_per_object": 1e3 * wall, "cpu_ms_per_object":
+            1e3 * cpu, "ms_per_object_batch32": 1e3 * wall32 / 32, "load_average": os.getloadavg()[0]}  # fmt: skip
+
+
+def measure(registry, repeats: int, n_objects: int, baseline: str | None, averaged: int = 0) -> list[dict]:
     ids, big, rates = clouds(n_objects)
     rows = []
     for n in SIZES:
@@ -148,6 +163,8 @@ def measure(registry, repeats: int, n_objects: int, baseline: str | None) -> lis
             was = f" (old {row['old_ms_per_object']:.1f} ms, x{row['speedup']:.2f})" if "speedup" in row else ""
             was += f"; alone {row['ms_per_object_alone']:.1f} ms" if "ms_per_object_alone" in row else ""
             print(f"{name:10s} {n:5d} points: {1e3 * wall:7.1f} ms wall, {1e3 * cpu:7.1f} ms CPU{was}", flush=True)
+            if averaged > 1 and name != "centroid":
+                rows.append(averaged_row(registry, name, n, averaged, one, batch, repeats))
     return rows
 
 
@@ -188,16 +205,24 @@ def main() -> None:
     parser.add_argument("--baseline", default=BASELINE_REV, help="git revision of the old code (default: %(default)s)")
     parser.add_argument("--no-baseline", action="store_true", help="time today's code only")
     parser.add_argument("--label", default="", help="what the machine was doing (recorded with the results)")
+    parser.add_argument(
+        "--averaged",
+        type=int,
+        default=0,
+        metavar="K",
+        help="also time each network gate averaging K networks (ges train-gate --folds K)",
+    )
+    parser.add_argument("--results", default="gate_speed", metavar="NAME", help="results/NAME.json")
     args = parser.parse_args()
     baseline = None if args.no_baseline else args.baseline
     torch.set_num_threads(1)
     load_before = os.getloadavg()[0]
     gflops = reference_gflops()
-    rows = measure(load_registry(), args.repeats, args.objects, baseline)
+    rows = measure(load_registry(), args.repeats, args.objects, baseline, args.averaged)
     print(table(rows))
     print(f"reference: 512^3 matmul at {gflops:.1f} GFLOP/s on one thread; load average {os.getloadavg()[0]:.1f}")
     write_results(
-        RESULTS,
+        RESULTS.with_name(f"{args.results}.json"),
         {
             "benchmark": "gate_speed",
             "what": "gate.predict time per object, one CPU thread (torch.set_num_threads(1)), median over repeats; "
