@@ -234,13 +234,14 @@ def test_accept_code_takes_the_cells_of_a_named_other_code_and_only_those(run, d
     kw = {"matrix_file": copy, "reuse_matrix": True}
     taken = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "a",
                          registry=Registry(lambda: True), accept_code=["0123456789ab"], **kw)  # fmt: skip
-    assert (taken.from_matrix, taken.from_accepted_code, taken.ran) == (2, 1, 0)
+    assert (taken.from_matrix, taken.from_accepted_code, taken.ran) == (2, {"0123456789ab": 1}, 0)
     cell = json.loads(taken.path.read_text())["cells"][ids[1]]["low"]
     assert cell == {**raw["cells"][ids[1]]["low"], "source": "matrix"}  # its own stamp, not this code's
-    assert "cells run by code 0123456789ab counted as this code's (--accept-code; 1 taken" in taken.summary()
+    assert "2 taken from the matrix (identical settings and code; 1 of them run by code accepted" in taken.summary()
+    assert "cells run by code 0123456789ab counted as this code's (--accept-code: 1 taken)" in taken.summary()
     other = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "b", registry=Registry(),
                          accept_code=["fedcba987654"], **kw)  # fmt: skip
-    assert (other.from_matrix, other.from_accepted_code, other.ran) == (1, 0, 1)
+    assert (other.from_matrix, other.from_accepted_code, other.ran) == (1, {}, 1)
     reg = Registry()
     again = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "a", registry=reg, **kw)
     assert (again.from_matrix, again.ran, reg.sims) == (1, 1, 2)  # the taken cell is not kept without the stamp

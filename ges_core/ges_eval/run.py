@@ -79,8 +79,8 @@ class GesReport:
     """GES cells taken from the matrix (``reuse_matrix``: identical settings and code, or code of ``accept_code``)."""
     accepted_code: dict[str, list[str] | None] = field(default_factory=dict)
     """``accept_code``: stamp -> the code files that differ between it and this code (None: not known)."""
-    from_accepted_code: int = 0
-    """Of :attr:`from_matrix`, the cells that code of ``accept_code`` ran."""
+    from_accepted_code: dict[str, int] = field(default_factory=dict)
+    """Of :attr:`from_matrix`, how many cells each stamp of ``accept_code`` ran."""
     matrix_other_code: int = 0
     """Cells of the run's matrix rows and columns that other code ran (another :func:`code_stamp`, or none)."""
     resumed_other_code: int = 0
@@ -93,6 +93,10 @@ class GesReport:
     """Per split and gate (paper protocol): ``(best single expert, BaselineDifference of GES against it)``
     (:func:`ges_core.ges_eval.against_best.ges_against_best`)."""
 
+    def _accepted(self) -> str:
+        n = sum(self.from_accepted_code.values())
+        return f"; {n} of them run by code accepted with --accept-code" if n else ""
+
     def summary(self) -> str:
         """Lines: objects, gates, cells run / resumed / reused, errors, time and where the files are."""
         m = self.matrix
@@ -100,14 +104,18 @@ class GesReport:
             f"{len(m.object_ids)} object(s), {len(self.picks)} gate(s) over experts {', '.join(self.table.experts)}",
             f"matrix {self.matrix_path}: {self.matrix_evaluated} cell(s) evaluated, {self.matrix_reused} reused",
             f"GES {self.path}: {self.ran} cell(s) run, {self.resumed} resumed"
-            + (f", {self.from_matrix} taken from the matrix (identical settings and code)" if self.from_matrix else ""),
+            + (
+                f", {self.from_matrix} taken from the matrix (identical settings and code{self._accepted()})"
+                if self.from_matrix
+                else ""
+            ),  # fmt: skip
             f"{len(self.errors)} cell(s) with errors; {self.seconds:.1f} s",
         ]
         for stamp, changed in self.accepted_code.items():
             files = "not known" if changed is None else (", ".join(changed) or "none")
             lines.append(
-                f"note: cells run by code {stamp} counted as this code's (--accept-code; {self.from_accepted_code} "
-                f"taken in all); code files changed since: {files}"
+                f"note: cells run by code {stamp} counted as this code's (--accept-code: "
+                f"{self.from_accepted_code.get(stamp, 0)} taken); code files changed since: {files}"
             )
         if self.matrix_other_code or self.resumed_other_code:
             lines.append(
@@ -227,7 +235,7 @@ def _todo(records, picks: dict[str, Picks], results: ResultsFile, report: GesRep
                 todo.append((r, key[1]))
             elif cell.get("source") == "matrix":
                 report.from_matrix += 1
-                report.from_accepted_code += cell.get("code") != code_stamp()
+                _count_accepted(report, cell)
             else:
                 report.resumed += 1
                 report.resumed_other_code += cell.get("code") != code_stamp()
@@ -248,8 +256,14 @@ def _take_from_matrix(
             continue
         results.put(r.object_id, label, {**cell, "source": "matrix"})
         report.from_matrix += 1
-        report.from_accepted_code += cell.get("code") != code_stamp()
+        _count_accepted(report, cell)
     return rest
+
+
+def _count_accepted(report: GesReport, cell: dict) -> None:
+    """Count ``cell``, taken from the matrix, under its stamp when another code than this ran it (accept_code)."""
+    if (stamp := cell.get("code")) != code_stamp():
+        report.from_accepted_code[stamp] = report.from_accepted_code.get(stamp, 0) + 1
 
 
 def _run(data, registry, config, choices: dict[str, ExpertChoice], todo, results, report, progress, fanout) -> None:
