@@ -95,8 +95,12 @@ def test_the_averaged_gate_is_the_members_mean_and_survives_a_round_trip(registr
     other = build(registry, "pointnet2")
     relabelled = SuccessRates(data.rates.object_ids, ("a", "b", "c"), data.rates.rates)
     other.fit(GateData(relabelled, data.clouds), TrainConfig(epochs=1, batch_size=8))
-    with pytest.raises(ConfigError, match="other experts or settings"):
+    with pytest.raises(ConfigError, match="other experts cannot be averaged"):
         type(other).averaged([members[0], other])
+    wider = registry.spec("gate", "pointnet2").load()(**{**TINY["pointnet2"], "head": [8]})
+    wider.fit(data, TrainConfig(epochs=1, batch_size=8))
+    with pytest.raises(ConfigError, match=r"other settings cannot be averaged \(\['head'\] differ\)"):
+        type(wider).averaged([members[0], wider])
 
 
 def test_a_gate_without_a_network_is_refused_before_training(registry, data, tmp_path):  # noqa: F811

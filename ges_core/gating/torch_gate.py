@@ -144,11 +144,12 @@ class TorchGate(Gate):
             if type(g) is not cls or g.members != 1:
                 raise ConfigError(f"gate '{cls.name}' averages single '{cls.name}' networks, not a {g.name} gate "
                                   f"of {g.members} network(s)")  # fmt: skip
-            if g.experts != gates[0].experts or g.settings != gates[0].settings:
-                raise ConfigError(
-                    f"gate '{cls.name}': networks trained for other experts or settings cannot be averaged "
-                    f"({list(gates[0].experts)} vs {list(g.experts)})"
-                )
+            if g.experts != gates[0].experts:
+                raise ConfigError(f"gate '{cls.name}': networks trained for other experts cannot be averaged "
+                                  f"({list(gates[0].experts)} vs {list(g.experts)})")  # fmt: skip
+            if g.settings != gates[0].settings:
+                differ = sorted(k for k, v in g.settings.model_dump().items() if gates[0].settings.model_dump()[k] != v)
+                raise ConfigError(f"gate '{cls.name}': networks of other settings cannot be averaged ({differ} differ)")
         out = cls(**gates[0].settings.model_dump())
         out.experts = gates[0].experts
         out.model = MeanOfMembers([g._trained() for g in gates])
