@@ -107,6 +107,7 @@ def main() -> None:
         metavar="STAMP",
         help="with --reuse-matrix: cells of this code stamp count as this code's (ges evaluate --help)",
     )
+    p.add_argument("--verify-accepted", type=int, default=4, metavar="N", help="rerun N accepted cells first")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--results", type=Path, default=RESULTS, help="results JSON to write")
     p.add_argument("--oracle-from", type=Path, nargs="+", default=[], metavar="MATRIX",
@@ -127,7 +128,7 @@ def main() -> None:
     start = time.perf_counter()
     report = evaluate_ges(args.dataset, config, experts, gates, out, matrix_file=args.matrix, progress=True,
                           fanout=Fanout(workers=args.workers), reuse_matrix=args.reuse_matrix,
-                          accept_code=args.accept_code)  # fmt: skip
+                          accept_code=args.accept_code, verify_accepted=args.verify_accepted)  # fmt: skip
     wall = time.perf_counter() - start
     paths = write_outputs(report, config.model_dump(mode="json"))
     for protocol in ("paper", "peers"):
@@ -157,6 +158,7 @@ def main() -> None:
         "seconds": round(wall, 1), "seconds_per_cell_run": round(_cell_seconds(report), 2),
         "paired_with_matrix": paired(report, args.matrix), "matrix_cells_other_code": report.matrix_other_code,
         "accepted_code": report.accepted_code, "ges_cells_from_accepted_code": report.from_accepted_code,
+        "accepted_cells_verified": report.verified,
         "table": report.table.to_json(), "goals": checks,
         "against_best": against_best_json(report.against_best),
         "oracle_from": [str(m) for m in args.oracle_from], "held_out_oracle": [r.__dict__ for r in held_out],

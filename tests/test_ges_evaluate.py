@@ -245,6 +245,18 @@ def test_accept_code_takes_the_cells_of_a_named_other_code_and_only_those(run, d
     reg = Registry()
     again = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "a", registry=reg, **kw)
     assert (again.from_matrix, again.ran, reg.sims) == (1, 1, 2)  # the taken cell is not kept without the stamp
+    verified = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "v", registry=Registry(),
+                            accept_code=["0123456789ab"], verify_accepted=3, **kw)  # fmt: skip
+    assert verified.verified == [f"{ids[1]} / low"] and verified.from_accepted_code == {"0123456789ab": 1}
+    assert verified.ran == 0 and "verified: 1 accepted cell(s) rerun by this code gave the same episodes" in (
+        verified.summary()
+    )
+    raw["cells"][ids[1]]["low"]["max_rise"] = [x + 0.001 for x in raw["cells"][ids[1]]["low"]["max_rise"]]
+    copy.write_text(json.dumps(raw))  # the same stamp, other episodes: as if the code since had changed them
+    with pytest.raises(ConfigError, match=rf"1 of 1 sampled cell\(s\).*{ids[1]} / low \(code 0123456789ab: max_rise"):
+        evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "w", registry=Registry(),
+                     accept_code=["0123456789ab"], verify_accepted=1, **kw)  # fmt: skip
+    assert not json.loads(results_path(tmp_path / "w", "allegro", "sapien").read_text())["cells"].get(ids[1])
     with pytest.raises(ConfigError, match="only matters with reuse_matrix"):
         evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "c", matrix_file=copy,
                      accept_code=["0123456789ab"])  # fmt: skip

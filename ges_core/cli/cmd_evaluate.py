@@ -62,6 +62,12 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
         "the summary lists the code files that differ. Without it, cells of other code are run again",
     )  # fmt: skip
     p.add_argument(
+        "--verify-accepted", type=non_negative_int, default=4, metavar="N",
+        help="with --accept-code: first rerun N of the cells to be taken under those stamps (spread over the "
+        "objects) with this code, and stop, naming them, if any gives other episodes (default 4; 0: take them on your "
+        "word alone)",
+    )  # fmt: skip
+    p.add_argument(
         "--cloud-seed", type=non_negative_int, default=0, metavar="N", help="seed of the gate's cloud samples (0)"
     )
     add_run_options(p)
@@ -104,7 +110,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     report = evaluate_ges(
         args.dataset, config, experts, gates, args.out or args.dataset.parent / "ges",
         matrix_file=args.matrix, registry=registry, progress=not args.no_progress, fanout=fanout_from_args(args),
-        reuse_matrix=args.reuse_matrix, accept_code=args.accept_code, cloud_seed=args.cloud_seed,
+        reuse_matrix=args.reuse_matrix, accept_code=args.accept_code,
+        verify_accepted=args.verify_accepted if args.accept_code else 0, cloud_seed=args.cloud_seed,
     )  # fmt: skip
     paths = write_outputs(report, config.model_dump(mode="json"))
     print(f"GES | hand {config.hand} | sim {config.sim} | {config.envs} episode(s) per object | "

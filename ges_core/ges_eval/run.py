@@ -81,6 +81,8 @@ class GesReport:
     """``accept_code``: stamp -> the code files that differ between it and this code (None: not known)."""
     from_accepted_code: dict[str, int] = field(default_factory=dict)
     """Of :attr:`from_matrix`, how many cells each stamp of ``accept_code`` ran."""
+    verified: list[str] = field(default_factory=list)
+    """``object / expert`` of the accepted cells rerun by this code and found identical (``verify_accepted``)."""
     matrix_other_code: int = 0
     """Cells of the run's matrix rows and columns that other code ran (another :func:`code_stamp`, or none)."""
     resumed_other_code: int = 0
@@ -111,6 +113,9 @@ class GesReport:
             ),  # fmt: skip
             f"{len(self.errors)} cell(s) with errors; {self.seconds:.1f} s",
         ]
+        if self.verified:
+            lines.append(f"verified: {len(self.verified)} accepted cell(s) rerun by this code gave the same episodes "
+                         f"({', '.join(self.verified)})")  # fmt: skip
         for stamp, changed in self.accepted_code.items():
             files = "not known" if changed is None else (", ".join(changed) or "none")
             lines.append(
@@ -138,6 +143,7 @@ def evaluate_ges(
     fanout: Fanout | None = None,
     reuse_matrix: bool = False,
     accept_code: Sequence[str] = (),
+    verify_accepted: int = 0,
     cloud_seed: int = 0,
 ) -> GesReport:
     """Run GES with each gate on the records of ``config.hand`` passing ``config.selection`` in ``config.splits``
@@ -149,7 +155,10 @@ def evaluate_ges(
     cloud_seed: seed of the surface samples each gate's cloud is drawn from (``ges train-gate``'s, 0).
     accept_code: with ``reuse_matrix``, code stamps (:func:`~ges_core.experts.evaluate.code_stamp`) whose matrix cells
     count as this code's: the caller vouches that nothing between them changes an episode (e.g. only gate code
-    changed); the report lists the code files that differ (:attr:`GesReport.accepted_code`).
+    changed); the report lists the code files that differ (:attr:`GesReport.accepted_code`). verify_accepted: rerun
+    that many of the cells about to be taken under an ``accept_code`` stamp (spread over the objects) with this code
+    first; any that differs from the matrix's (successes, end reasons, highest rise, steps) is a ConfigError naming it,
+    and nothing is taken.
     """
     if accept_code and not reuse_matrix:
         raise ConfigError("accept_code (--accept-code) only matters with reuse_matrix (--reuse-matrix)")
@@ -179,6 +188,8 @@ def evaluate_ges(
     report.accepted_code = {s: code_changes_since(s) for s in accept_code if s != code_stamp()}
     todo = _todo(records, picks, results, report, accepted)
     if reuse_matrix:
+        sample = _accepted_sample(todo, matrix_cells, accepted - {code_stamp()}, verify_accepted)
+        _verify(data, registry, config, {c.label: c for c in experts}, sample, matrix_cells, report, fanout or Fanout())
         todo = _take_from_matrix(todo, matrix_cells, results, report, accepted)
     _run(data, registry, config, {c.label: c for c in experts}, todo, results, report, progress, fanout or Fanout())
     report.ges_rows = [ges_row(mreport.matrix, g.label, picks[g.label].chosen, results) for g in loaded]
@@ -258,6 +269,46 @@ def _take_from_matrix(
         report.from_matrix += 1
         _count_accepted(report, cell)
     return rest
+
+
+SAME_EPISODES = ("episodes", "paper", "peers", "end_reasons", "max_rise", "steps")
+"""What two cells of the same settings share when they ran the same episodes (:func:`_verify`)."""
+
+
+def _accepted_sample(todo: list[tuple], cells: dict, stamps: set[str], n: int) -> list[tuple]:
+    """Up to ``n`` of ``todo``'s (record, label) whose matrix cell (``cells``) another code of ``stamps`` ran, spread
+    evenly over them in record order."""
+    candidates = [(r, label) for r, label in todo
+                  if (c := cells.get(r.object_id, {}).get(label)) is not None and "error" not in c
+                  and c.get("code") in stamps]  # fmt: skip
+    if n <= 0 or not candidates:
+        return []
+    picks = np.unique(np.linspace(0, len(candidates) - 1, min(n, len(candidates))).round().astype(int))
+    return [candidates[i] for i in picks]
+
+
+def _verify(data, registry, config, choices, sample: list[tuple], cells: dict, report: GesReport, fanout) -> None:
+    """Rerun ``sample``'s cells with this code; a ConfigError naming every one whose episodes differ from the
+    matrix's cell (:data:`SAME_EPISODES`)."""
+    if not sample:
+        return
+    jobs = [Cell(r.object_id, cell_config(config, choices[label])) for r, label in sample]
+    differ = []
+    for i, row in evaluate_cells(data, jobs, {r.object_id: r for r, _ in sample}, registry, fanout):
+        record, label = sample[i]
+        stored, now = cells[record.object_id][label], matrix_cell(row)
+        keys = [k for k in SAME_EPISODES if stored.get(k) != now.get(k)]
+        name = f"{record.object_id} / {label}"
+        if keys:
+            differ.append(f"{name} (code {stored.get('code')}: {', '.join(keys)} differ)")
+        else:
+            report.verified.append(name)
+    if differ:
+        raise ConfigError(
+            f"--accept-code: {len(differ)} of {len(sample)} sampled cell(s) rerun by this code ({code_stamp()}) gave "
+            f"other episodes than the matrix's: {'; '.join(differ)}. The code since that stamp changes episodes: "
+            "drop --accept-code and run the cells (or evaluate a new --matrix with this code)"
+        )
 
 
 def _count_accepted(report: GesReport, cell: dict) -> None:
