@@ -204,14 +204,21 @@ def test_the_stored_pick_rule_and_the_argmax_side_by_side(run, dataset, gate, tm
         load_gates([GateChoice(ruled)], load_registry(), ["scripted", "low"])
 
 
+def _stamped_copy(mfile, object_id: str, tmp_path):
+    """The matrix file's JSON with its ``low`` cell of ``object_id`` stamped as run by code 0123456789ab, and the path
+    of a copy holding it: (raw, path)."""
+    raw = json.loads(mfile.read_text())
+    raw["cells"][object_id]["low"]["code"] = "0123456789ab"
+    copy = tmp_path / "matrix.json"
+    copy.write_text(json.dumps(raw))
+    return raw, copy
+
+
 def test_reuse_matrix_runs_a_cell_that_other_code_made(run, dataset, gate, tmp_path):
     """Equal settings under other code are not the same episodes: such a matrix cell is run, not reused."""
     _, _, mfile, _ = run
     root, ids = dataset
-    raw = json.loads(mfile.read_text())
-    raw["cells"][ids[1]]["low"]["code"] = "0123456789ab"
-    copy = tmp_path / "matrix.json"
-    copy.write_text(json.dumps(raw))
+    raw, copy = _stamped_copy(mfile, ids[1], tmp_path)
     reg = Registry()
     again = evaluate_ges(root, run_config(), [parse_expert(e) for e in EXPERTS], [GateChoice(gate)], tmp_path,
                          matrix_file=copy, registry=reg, reuse_matrix=True)  # fmt: skip
@@ -226,10 +233,7 @@ def test_accept_code_takes_the_cells_of_a_named_other_code_and_only_those(run, d
     code still run; a later run that does not name the stamp runs the cell it had taken; the flag alone is refused."""
     _, _, mfile, _ = run
     root, ids = dataset
-    raw = json.loads(mfile.read_text())
-    raw["cells"][ids[1]]["low"]["code"] = "0123456789ab"
-    copy = tmp_path / "matrix.json"
-    copy.write_text(json.dumps(raw))
+    raw, copy = _stamped_copy(mfile, ids[1], tmp_path)
     experts = [parse_expert(e) for e in EXPERTS]
     kw = {"matrix_file": copy, "reuse_matrix": True}
     taken = evaluate_ges(root, run_config(), experts, [GateChoice(gate)], tmp_path / "a",

@@ -65,6 +65,7 @@ def train_folds(
     members: list[TorchGate] = []
     results: list[TrainResult] = []
     out_of_fold: dict[str, torch.Tensor] = {}
+    index = {oid: i for i, oid in enumerate(data.rates.object_ids)}
     for fold in range(config.folds):
         member = make_gate()
         if not isinstance(member, TorchGate):
@@ -85,7 +86,6 @@ def train_folds(
         )
         member.save(where / "gate.pt")
         atomic_write_text(where / "history.json", json.dumps(result.history, indent=1) + "\n")
-        index = {oid: i for i, oid in enumerate(data.rates.object_ids)}
         held_out = result.val_ids
         if held_out:
             probs = member.predict(data.clouds[[index[i] for i in held_out]], held_out)

@@ -184,14 +184,15 @@ def evaluate_ges(
     report.late = mreport.late
     matrix_cells = read_matrix_json(mfile).get("cells", {})  # the file as evaluate_experts left it, read once
     report.matrix_other_code = cells_by_other_code(matrix_cells, records, columns)
+    choices, fanout = {c.label: c for c in experts}, fanout or Fanout()
     accepted = {code_stamp(), *accept_code} if reuse_matrix else set()
     report.accepted_code = {s: code_changes_since(s) for s in accept_code if s != code_stamp()}
     todo = _todo(records, picks, results, report, accepted)
     if reuse_matrix:
         sample = _accepted_sample(todo, matrix_cells, accepted - {code_stamp()}, verify_accepted)
-        _verify(data, registry, config, {c.label: c for c in experts}, sample, matrix_cells, report, fanout or Fanout())
+        _verify(data, registry, config, choices, sample, matrix_cells, report, fanout)
         todo = _take_from_matrix(todo, matrix_cells, results, report, accepted)
-    _run(data, registry, config, {c.label: c for c in experts}, todo, results, report, progress, fanout or Fanout())
+    _run(data, registry, config, choices, todo, results, report, progress, fanout)
     report.ges_rows = [ges_row(mreport.matrix, g.label, picks[g.label].chosen, results) for g in loaded]
     report.table = table2(mreport.matrix, labels, report.ges_rows)
     report.against_best = ges_against_best(mreport.matrix, report.ges_rows, labels)
@@ -262,13 +263,18 @@ def _take_from_matrix(
     rest = []
     for r, label in todo:
         cell = cells.get(r.object_id, {}).get(label)
-        if cell is None or "error" in cell or cell.get("code") not in accepted:
+        if not _takeable(cell, accepted):
             rest.append((r, label))
             continue
         results.put(r.object_id, label, {**cell, "source": "matrix"})
         report.from_matrix += 1
         _count_accepted(report, cell)
     return rest
+
+
+def _takeable(cell: dict | None, stamps: set[str]) -> bool:
+    """Whether a matrix cell can stand for a GES cell: it exists, has no error, and code of ``stamps`` ran it."""
+    return cell is not None and "error" not in cell and cell.get("code") in stamps
 
 
 SAME_EPISODES = ("episodes", "paper", "peers", "end_reasons", "max_rise", "steps")
@@ -278,9 +284,7 @@ SAME_EPISODES = ("episodes", "paper", "peers", "end_reasons", "max_rise", "steps
 def _accepted_sample(todo: list[tuple], cells: dict, stamps: set[str], n: int) -> list[tuple]:
     """Up to ``n`` of ``todo``'s (record, label) whose matrix cell (``cells``) another code of ``stamps`` ran, spread
     evenly over them in record order."""
-    candidates = [(r, label) for r, label in todo
-                  if (c := cells.get(r.object_id, {}).get(label)) is not None and "error" not in c
-                  and c.get("code") in stamps]  # fmt: skip
+    candidates = [(r, label) for r, label in todo if _takeable(cells.get(r.object_id, {}).get(label), stamps)]
     if n <= 0 or not candidates:
         return []
     picks = np.unique(np.linspace(0, len(candidates) - 1, min(n, len(candidates))).round().astype(int))
@@ -290,12 +294,8 @@ def _accepted_sample(todo: list[tuple], cells: dict, stamps: set[str], n: int) -
 def _verify(data, registry, config, choices, sample: list[tuple], cells: dict, report: GesReport, fanout) -> None:
     """Rerun ``sample``'s cells with this code; a ConfigError naming every one whose episodes differ from the
     matrix's cell (:data:`SAME_EPISODES`)."""
-    if not sample:
-        return
-    jobs = [Cell(r.object_id, cell_config(config, choices[label])) for r, label in sample]
     differ = []
-    for i, row in evaluate_cells(data, jobs, {r.object_id: r for r, _ in sample}, registry, fanout):
-        record, label = sample[i]
+    for (record, label), row in _evaluated(data, registry, config, choices, sample, fanout):
         stored, now = cells[record.object_id][label], matrix_cell(row)
         keys = [k for k in SAME_EPISODES if stored.get(k) != now.get(k)]
         name = f"{record.object_id} / {label}"
@@ -323,11 +323,9 @@ def _run(data, registry, config, choices: dict[str, ExpertChoice], todo, results
 
     if not todo:
         return
-    jobs = [Cell(r.object_id, cell_config(config, choices[label])) for r, label in todo]
-    bar = tqdm(total=len(jobs), disable=not progress, unit="cell", desc="GES", dynamic_ncols=True)
+    bar = tqdm(total=len(todo), disable=not progress, unit="cell", desc="GES", dynamic_ncols=True)
     wins = 0
-    for i, row in evaluate_cells(data, jobs, {r.object_id: r for r, _ in todo}, registry, fanout):
-        record, label = todo[i]
+    for (record, label), row in _evaluated(data, registry, config, choices, todo, fanout):
         results.put(record.object_id, label, {**matrix_cell(row), "source": "run"})
         report.ran += 1
         wins += row["paper_success"]
@@ -336,6 +334,16 @@ def _run(data, registry, config, choices: dict[str, ExpertChoice], todo, results
         bar.update(1)
         bar.set_postfix(success=f"{wins}/{report.ran * config.envs}", last=f"{record.object_id}/{label}")
     bar.close()
+
+
+def _evaluated(data, registry, config, choices: dict[str, ExpertChoice], pairs: list[tuple], fanout):
+    """((record, expert label), row of the episode runner) for each pair of ``pairs``, as each finishes (none: no
+    worker pool is started)."""
+    if not pairs:
+        return
+    jobs = [Cell(r.object_id, cell_config(config, choices[label])) for r, label in pairs]
+    for i, row in evaluate_cells(data, jobs, {r.object_id: r for r, _ in pairs}, registry, fanout):
+        yield pairs[i], row
 
 
 def ges_row(matrix: SuccessMatrix, label: str, chosen: dict[str, str], results: ResultsFile) -> GesRow:
