@@ -6,7 +6,8 @@ stopped.
 
 Objects: the matrix's ``split`` rows (train by default) are the gate's data, of which ``val_fraction`` is held out
 for validation (or, with ``train.folds`` K >= 2, each of K folds in turn, one network per fold, averaged:
-:mod:`ges_core.gating.folds`; "val" is then every kept object scored by the network that never saw it); the
+:mod:`ges_core.gating.folds`; "val" is then every kept object scored by the network that never saw it; with
+``train.distill`` the average is then distilled into one network, :mod:`ges_core.gating.distill`); the
 matrix's other splits are scored too (unseen objects, unseen categories), never trained on. Clouds are sampled once
 per (object, size, seed) and cached in OUT/clouds-<n>-<seed>.pt (an object set or library change is detected by the
 ids it holds).
@@ -32,6 +33,7 @@ from ges_core.experts.compare import column_list
 from ges_core.gating.checkpoint import write_pick_rule
 from ges_core.gating.clouds import library_clouds
 from ges_core.gating.data import best_experts
+from ges_core.gating.distill import agreement_of, distill
 from ges_core.gating.fallback import ARGMAX, PickRule, fit_pick_rule
 from ges_core.gating.folds import FoldsResult, train_folds
 from ges_core.gating.loss import gate_accuracy
@@ -93,6 +95,8 @@ def config_from_args(args: argparse.Namespace) -> TrainGateConfig:
     for key, value in (("epochs", args.epochs), ("seed", args.seed), ("folds", args.folds)):
         if value is not None:
             train[key] = value
+    if args.distill:
+        train["distill"] = True
     if args.no_augment:
         train.setdefault("augment", {})["enabled"] = False
     return parse_model(TrainGateConfig, apply_overrides(data, args.overrides), where="ges train-gate config")
@@ -120,6 +124,10 @@ class GateRunSummary:
     """Per split as :attr:`accuracy`: ``accuracy`` (the rule's pick is one of the best), ``success`` (mean success
     rate of the rule's picks in the matrix), ``argmax_success`` and ``fallback_success`` (of the argmax's picks and
     of the fallback expert alone); None for the argmax rule."""
+    distilled: dict[str, dict[str, float]] | None = None
+    """With ``train.distill``: per split (train, unseen_object, unseen_category), the fraction of objects where the
+    distilled network picks what the averaged networks (OUT/averaged.pt) pick: ``pick`` by the stored rule,
+    ``argmax`` by the argmax; None otherwise."""
 
     def table(self) -> str:
         """Markdown table of the gate accuracy per split (and, with a fallback rule, what the rule picks)."""
@@ -135,6 +143,10 @@ class GateRunSummary:
             f"pick: {self.pick.describe()}" + (f" ({self.pick.how})" if self.pick.fallback else ""),
             "",
         ]
+        if self.distilled:
+            agree = ", ".join(f"{k} {_pct(v['pick'])} ({_pct(v['argmax'])})" for k, v in self.distilled.items())
+            head.insert(-1, f"distilled into one network (the averaged one: {self.checkpoint.parent / 'averaged.pt'}); "
+                            f"its pick (argmax) is the average's on: {agree}")  # fmt: skip
         if not self.picked:
             rows = [f"| {k} | {self.counts.get(k, 0)} | {_pct(v)} |" for k, v in self.accuracy.items()]
             return "\n".join(head + ["| objects | n | gate accuracy (pick among the best) |", "|---|---|---|"] + rows)
@@ -163,7 +175,8 @@ def train_gate_run(
     config: TrainGateConfig, registry=None, *, resume: bool = False, progress: bool = False
 ) -> GateRunSummary:
     """Train the gate ``config`` describes; write OUT/gate.pt, train_state.pt, tb/, history.json, summary.json (with
-    ``train.folds`` K: OUT/gate.pt averaging the members of OUT/fold-f/, history.json per fold).
+    ``train.folds`` K: OUT/gate.pt averaging the members of OUT/fold-f/, history.json per fold; with
+    ``train.distill`` too: OUT/gate.pt the distilled network of OUT/distilled/, OUT/averaged.pt the average).
     ``resume``: continue from OUT/train_state.pt (a state of other data or settings is a ConfigError).
     ``progress``: a bar over the epochs with the last epoch's losses."""
     from tqdm import tqdm
@@ -182,7 +195,8 @@ def train_gate_run(
     checkpoint = out / "gate.pt"
 
     folds, epochs = config.train.folds, config.train.epochs
-    bar = tqdm(total=folds * epochs, desc=f"gate {config.gate}", unit="epoch", disable=not progress)
+    networks = folds + config.train.distill
+    bar = tqdm(total=networks * epochs, desc=f"gate {config.gate}", unit="epoch", disable=not progress)
 
     def on_epoch(fold: int, epoch: int, result: TrainResult) -> None:
         if folds == 1 and epoch % config.checkpoint_every == 0:
@@ -190,7 +204,8 @@ def train_gate_run(
         row = result.history[-1]
         bar.update(fold * epochs + epoch - bar.n)  # a resumed run's first call moves the bar to where it left off
         shown = {k.replace("loss/", "loss "): f"{row[k]:.4g}" for k in ("loss/train", "loss/val") if k in row}
-        bar.set_postfix(({"fold": f"{fold + 1}/{folds}"} if folds > 1 else {}) | shown)
+        where = {"fold": f"{fold + 1}/{folds}"} if fold < folds else {"network": "distilled"}
+        bar.set_postfix((where if folds > 1 else {}) | shown)
 
     with bar:
         if folds == 1:
@@ -206,8 +221,13 @@ def train_gate_run(
         else:
             folded = train_folds(lambda: _build_gate(registry, config), data, config.train, out, resume=resume,
                                  state_every=config.checkpoint_every, on_epoch=on_epoch)  # fmt: skip
-            gate = folded.gate
+            gate = teacher = folded.gate
+            if config.train.distill:
+                gate, distilled = distill(lambda: _build_gate(registry, config), teacher, data, config.train, out,
+                                          resume=resume, state_every=config.checkpoint_every,
+                                          on_epoch=lambda epoch, result: on_epoch(folds, epoch, result))  # fmt: skip
     gate.save(checkpoint)
+    agreement = None
     if folds == 1:
         atomic_write_text(out / "history.json", json.dumps(result.history, indent=1) + "\n")
         probs = _split_probs(result, gate, matrix, library, n, config, out)
@@ -215,12 +235,20 @@ def train_gate_run(
         kept_epoch: int | tuple[int, ...] = result.kept_epoch
     else:
         histories = {f"fold-{f}": r.history for f, r in enumerate(folded.results)}
+        if config.train.distill:
+            histories["distilled"] = distilled.history
         atomic_write_text(out / "history.json", json.dumps(histories, indent=1) + "\n")
         probs = _fold_probs(folded, gate, matrix, library, n, config, out)
+        if config.train.distill:
+            taught = _fold_probs(folded, teacher, matrix, library, n, config, out)
         accuracy, counts = _accuracies(None, probs)
         kept_epoch = tuple(r.kept_epoch for r in folded.results)
     rule = ARGMAX if config.pick == "argmax" else _fit_rule(gate.experts, probs)
     write_pick_rule(checkpoint, rule)
+    if config.train.distill:  # the averaged networks, with the same rule, for comparison
+        agreement = {k: agreement_of(rule, gate.experts, probs[k][0], taught[k][0]) for k in ("train", *SPLITS[1:])}
+        teacher.save(out / "averaged.pt")
+        write_pick_rule(out / "averaged.pt", rule)
     summary = GateRunSummary(
         config.gate,
         gate.experts,
@@ -232,6 +260,7 @@ def train_gate_run(
         checkpoint,
         rule,
         None if rule.fallback is None else _picked(rule, gate.experts, probs),
+        agreement,
     )
     written = {**summary.to_json(), "config": config.model_dump(mode="json")}
     written["matrix"] = str(Path(config.matrix).resolve())  # where `ges evaluate --gate` finds it from any folder

@@ -100,11 +100,12 @@ class TorchGate(Gate):
         state_every: int = 5,
         resume: bool = False,
         fold: int | None = None,
+        soft_targets: torch.Tensor | None = None,
     ) -> TrainResult:
         """Train a fresh network on ``data`` (clouds in metres, any size: brought to ``n_points``); the
         experts become ``data.rates.experts``. Seeded by ``config.seed``. ``state_file``, ``state_every``,
-        ``resume``, ``fold``: the resumable training state and the held-out fold
-        (:func:`ges_core.gating.train.train_model`)."""
+        ``resume``, ``fold``, ``soft_targets``: the resumable training state, the held-out fold and targets other
+        than the normalized rates (:func:`ges_core.gating.train.train_model`)."""
         config = config or TrainConfig()
         ids = data.rates.object_ids
         clouds = gate_input(data.clouds, self.settings.n_points, ids) / self.settings.input_scale
@@ -121,6 +122,7 @@ class TorchGate(Gate):
             state_every=state_every,
             resume=resume,
             fold=fold,
+            soft_targets=soft_targets,
         )
         self.train_info = {
             "config": config.model_dump(mode="json"),

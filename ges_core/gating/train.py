@@ -26,10 +26,10 @@ from typing import Literal
 
 import numpy as np
 import torch
-from pydantic import Field
+from pydantic import Field, model_validator
 
 from ges_core.config import ConfigModel
-from ges_core.errors import ConfigError, StorageError
+from ges_core.errors import ArrayError, ConfigError, StorageError
 from ges_core.gating.clouds import AugmentConfig, augment
 from ges_core.gating.data import (
     SuccessRates,
@@ -64,6 +64,12 @@ class TrainConfig(ConfigModel):
         "seeded parts of the objects, averaged into one (ges_core.gating.folds): every object gets a score from a "
         "gate that never saw it, so the pick rule is chosen on all of them instead of one validation split",
     )
+    distill: bool = Field(
+        False,
+        description="with folds K >= 2: after the K networks, train one more of the plugin on every kept object "
+        "towards their averaged probabilities and store it as the gate (one network's inference time instead of "
+        "K's; ges_core.gating.distill)",
+    )
     seed: int = Field(0, description="seed of the weights, the split, the batch order and the augmentation")
     all_failed: Literal["drop", "uniform"] = Field(
         "drop", description="objects where every expert failed: left out (drop) or a uniform target"
@@ -79,6 +85,15 @@ class TrainConfig(ConfigModel):
         "best_val", description="weights kept at the end: lowest validation loss (last if no validation) or last"
     )
     augment: AugmentConfig = Field(default_factory=AugmentConfig, description="augmentation of the training clouds")
+
+    @model_validator(mode="after")
+    def _distill_needs_folds(self) -> TrainConfig:
+        if self.distill and self.folds < 2:
+            raise ValueError(
+                f"train.distill distils the averaged networks of train.folds >= 2 into one; folds is {self.folds}: "
+                "set folds (e.g. --folds 5) or leave distill off"
+            )
+        return self
 
 
 @dataclass(frozen=True)
@@ -139,6 +154,7 @@ def train_model(
     state_every: int = 5,
     resume: bool = False,
     fold: int | None = None,
+    soft_targets: torch.Tensor | None = None,
 ) -> TrainResult:
     """Train ``model`` (clouds (B, N, 3) in the gate's input units -> logits (B, k)) in place.
 
@@ -146,10 +162,14 @@ def train_model(
     there. ``on_epoch(epoch, result)`` after each epoch (checkpoints). ``state_file``: the training state
     written there every ``state_every`` epochs and after the last (module docs); ``resume``: continue from
     it (a missing file starts from scratch, saying so). ``fold``: with ``config.folds`` >= 2, which fold of the
-    kept objects is held out (:func:`~ges_core.gating.data.fold_indices`; ``val_fraction`` unused). Returns the
-    split and the curves; the model ends with the weights ``config.keep`` names.
+    kept objects is held out (:func:`~ges_core.gating.data.fold_indices`; ``val_fraction`` unused).
+    ``soft_targets``: (n_objects, k) probabilities (rows sum to 1) to fit instead of the normalized rates, e.g. a
+    teacher gate's (:mod:`~ges_core.gating.distill`); the objects kept and the accuracies still follow the rates.
+    Returns the split and the curves; the model ends with the weights ``config.keep`` names.
     """
     kept, p = targets(data.rates, config.all_failed)
+    if soft_targets is not None:
+        p = _checked_soft_targets(soft_targets, data)[kept]
     train_rows, val_rows = (kept[i] for i in _split(len(kept), config, fold))
     if len(train_rows) < 2:
         raise ConfigError(
@@ -157,8 +177,8 @@ def train_model(
             f"{len(data.rates.object_ids) - len(kept)} left out because every expert failed); give more objects"
         )
     target = torch.zeros(len(data.rates.object_ids), p.shape[1], dtype=torch.float32)
-    target[torch.from_numpy(kept)] = torch.from_numpy(p).float()
-    if config.category_smoothing:
+    target[torch.from_numpy(kept)] = torch.as_tensor(p).float()
+    if config.category_smoothing and soft_targets is None:
         target[torch.from_numpy(train_rows)] = torch.from_numpy(_smoothed_targets(data, train_rows, config)).float()
     ids = data.rates.object_ids
     result = TrainResult(
@@ -169,7 +189,7 @@ def train_model(
     gen = torch.Generator().manual_seed(config.seed)
     optim = torch.optim.Adam(model.parameters(), lr=config.lr, weight_decay=config.weight_decay)
     best, best_loss, done = None, math.inf, 0
-    identity = _identity(config, data, train_rows, val_rows)
+    identity = _identity(config, data, train_rows, val_rows, soft_targets)
     if resume and state_file is not None:
         state = _read_state(Path(state_file), identity)
         if state is not None:
@@ -230,6 +250,17 @@ def _split(n: int, config: TrainConfig, fold: int | None) -> tuple[np.ndarray, n
     return fold_indices(n, config.folds, fold, config.seed)
 
 
+def _checked_soft_targets(soft: torch.Tensor, data: GateData) -> torch.Tensor:
+    """``soft`` as float64 if it is (n_objects, k) finite probabilities with rows summing to 1, else an ArrayError."""
+    soft = torch.as_tensor(soft, dtype=torch.float64)
+    shape = (len(data.rates.object_ids), len(data.rates.experts))
+    if tuple(soft.shape) != shape:
+        raise ArrayError(f"soft targets have shape {tuple(soft.shape)}, expected (objects, experts) = {shape}")
+    if not torch.isfinite(soft).all() or (soft < 0).any() or not torch.allclose(soft.sum(1), torch.ones(1).double()):
+        raise ArrayError("soft targets must be finite probabilities whose rows sum to 1")
+    return soft
+
+
 def _smoothed_targets(data: GateData, rows: np.ndarray, config: TrainConfig) -> np.ndarray:
     """(len(rows), k) targets of the training ``rows`` from their category-smoothed rates, normalized to sum to 1."""
     if data.categories is None:
@@ -283,11 +314,15 @@ def _scores(model, data: GateData, target, rows: np.ndarray, split: str) -> dict
 STATE_FORMAT = "ges-gate-train-state"
 
 
-def _identity(config: TrainConfig, data: GateData, train_rows: np.ndarray, val_rows: np.ndarray) -> dict:
+def _identity(
+    config: TrainConfig, data: GateData, train_rows: np.ndarray, val_rows: np.ndarray, soft_targets=None
+) -> dict:
     """What a resumed run must share with the one that wrote the state: settings (the epoch count aside: a
-    finished run may be extended), objects and their rates, experts, the split, the input clouds."""
+    finished run may be extended), objects and their rates, experts, the split, the input clouds, the soft targets
+    when given."""
     unset = set() if config.category_smoothing else {"category_smoothing"}  # states written before these existed
     unset |= set() if config.folds > 1 else {"folds"}
+    unset |= {"distill"}  # what follows the folds' networks, not how one trains
     identity = {
         "config": config.model_dump(mode="json", exclude={"epochs"} | unset),
         "object_ids": list(data.rates.object_ids),
@@ -299,6 +334,8 @@ def _identity(config: TrainConfig, data: GateData, train_rows: np.ndarray, val_r
     }
     if config.category_smoothing:
         identity["categories"] = list(data.categories or ())
+    if soft_targets is not None:
+        identity["soft_targets"] = np.asarray(soft_targets, dtype=np.float64).round(6).tolist()
     return identity
 
 
