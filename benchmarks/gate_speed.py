@@ -20,12 +20,14 @@ and buffers warm), as a run that only selects experts would call it. Both are pr
 
 ``--averaged K`` adds, for each network gate, a row "NAME x K": the gate of ``ges train-gate --folds K`` (K networks,
 their mean probability; ges_core.gating.torch_gate.MeanOfMembers), timed alone as the single gate is.
+``--checkpoint LABEL=PATH`` (repeatable) adds a row per trained gate file (``ges train-gate``'s OUT/gate.pt: one
+network, K averaged, or K distilled into one with ``--distill``), at its own number of points, timed alone.
 
 The issue's goal: <= 10 ms for CurveNet at 1024 points. The machine's load average is recorded per row:
 on a shared machine the wall time includes waiting for a core.
 
 Usage: python benchmarks/gate_speed.py [--repeats 15] [--objects 8] [--baseline REV | --no-baseline] [--label TEXT]
-       [--averaged K] [--results NAME]
+       [--averaged K] [--checkpoint LABEL=PATH ...] [--results NAME]
 """
 
 from __future__ import annotations
@@ -121,17 +123,43 @@ def baseline_twin(gate, rev: str, *, same_settings: bool):
 def averaged_row(registry, name: str, n: int, k: int, one: torch.Tensor, batch: torch.Tensor, repeats: int) -> dict:
     """The row of ``name``'s gate averaging ``k`` networks (each seeded as :func:`ready_gate`'s), timed alone."""
     members = [ready_gate(registry, name, n, None, None, None) for _ in range(k)]
-    gate = type(members[0]).averaged(members)
+    return timed_alone(f"{name} x {k}", type(members[0]).averaged(members), n, k, one, batch, repeats)
+
+
+def timed_alone(label: str, gate, n: int, members: int, one: torch.Tensor, batch: torch.Tensor, repeats: int) -> dict:
+    """The row of a ready gate reading ``n`` points, ``members`` networks, timed alone on ``one`` and ``batch``."""
     wall, cpu = timed(lambda: gate.predict(one), repeats)
     wall32, _ = timed(lambda: gate.predict(batch), max(3, repeats // 5))
-    print(f"{name} x {k:2d} {n:5d} points: {1e3 * wall:7.1f} ms wall, {1e3 * cpu:7.1f} ms CPU", flush=True)
-    return {"gate": f"{name} x {k}", "points": n, "members": k, "ms_per_object": 1e3 * wall, "cpu_ms_per_object":
+    print(f"{label} {n:5d} points: {1e3 * wall:7.1f} ms wall, {1e3 * cpu:7.1f} ms CPU", flush=True)
+    return {"gate": label, "points": n, "members": members, "ms_per_object": 1e3 * wall, "cpu_ms_per_object":
             1e3 * cpu, "ms_per_object_batch32": 1e3 * wall32 / 32, "load_average": os.getloadavg()[0]}  # fmt: skip
 
 
-def measure(registry, repeats: int, n_objects: int, baseline: str | None, averaged: int = 0) -> list[dict]:
-    ids, big, rates = clouds(n_objects)
+def sized_clouds(ids, big: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
+    """(1, n, 3) the first object's cloud and (32, n, 3) a batch cycling through the objects, at ``n`` points."""
+    sized = torch.stack([torch.from_numpy(fit_cloud(c.numpy(), n, i)) for c, i in zip(big, ids, strict=True)])
+    return sized[:1], sized[torch.arange(32) % len(ids)]
+
+
+def checkpoint_rows(registry, checkpoints: list[str], ids, big: torch.Tensor, repeats: int) -> list[dict]:
+    """A row per ``LABEL=PATH`` (a ``ges train-gate`` checkpoint), at the gate's own number of points."""
+    from ges_core.gating import load_gate
+
     rows = []
+    for item in checkpoints:
+        label, _, path = item.rpartition("=")
+        gate = load_gate(path, registry)
+        n = gate.settings.n_points
+        one, batch = sized_clouds(ids, big, n)
+        members = getattr(gate, "members", 1)
+        rows.append({**timed_alone(label or path, gate, n, members, one, batch, repeats), "checkpoint": path})
+    return rows
+
+
+def measure(registry, repeats: int, n_objects: int, baseline: str | None, averaged: int = 0,
+            checkpoints: list[str] = ()) -> list[dict]:  # fmt: skip
+    ids, big, rates = clouds(n_objects)
+    rows = checkpoint_rows(registry, list(checkpoints), ids, big, repeats)
     for n in SIZES:
         sized = torch.stack([torch.from_numpy(fit_cloud(c.numpy(), n, i)) for c, i in zip(big, ids, strict=True)])
         batch = sized[torch.arange(32) % len(ids)]
@@ -212,13 +240,15 @@ def main() -> None:
         metavar="K",
         help="also time each network gate averaging K networks (ges train-gate --folds K)",
     )
+    parser.add_argument("--checkpoint", action="append", default=[], metavar="LABEL=PATH",
+                        help="also time this trained gate file (repeatable)")  # fmt: skip
     parser.add_argument("--results", default="gate_speed", metavar="NAME", help="results/NAME.json")
     args = parser.parse_args()
     baseline = None if args.no_baseline else args.baseline
     torch.set_num_threads(1)
     load_before = os.getloadavg()[0]
     gflops = reference_gflops()
-    rows = measure(load_registry(), args.repeats, args.objects, baseline, args.averaged)
+    rows = measure(load_registry(), args.repeats, args.objects, baseline, args.averaged, args.checkpoint)
     print(table(rows))
     print(f"reference: 512^3 matmul at {gflops:.1f} GFLOP/s on one thread; load average {os.getloadavg()[0]:.1f}")
     write_results(
