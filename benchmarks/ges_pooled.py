@@ -8,6 +8,9 @@ add up, and the comparisons of ``benchmarks/ges_evaluate.py`` are made on the su
     python benchmarks/ges_pooled.py runs/proc/ges_shift/ges-allegro-sapien.json \\
         runs/proc/ges_shift3/ges-allegro-sapien.json --oracle-from M_SEED0 M_SEED1 --results ges_shift_pooled
 
+``--versus A=B`` adds GES of gate A minus GES of gate B per split, paired over objects (e.g. a distilled gate against
+the averaged one it imitates).
+
 Gates are matched by label, in whatever order a run lists them; a gate not every run holds is left out (a note
 names it). Each GES results file names its matrix; the gates' picks come from the results files (a gate's pick does not
 depend on the episode seed when the clouds are sampled with the same seed; if they differ, the episodes of each
@@ -21,7 +24,12 @@ from pathlib import Path
 
 from ges_core.experts.compare import held_out_oracle, held_out_oracle_table, pool_matrices, select_columns
 from ges_core.experts.matrix import PROTOCOLS, load_matrix
-from ges_core.ges_eval.against_best import against_best_json, ges_against_best, ges_against_best_table
+from ges_core.ges_eval.against_best import (
+    against_best_json,
+    ges_against_best,
+    ges_against_best_table,
+    ges_between,
+)
 from ges_core.ges_eval.results import ResultsFile, read_results_json
 from ges_core.ges_eval.run import ges_row
 from ges_core.ges_eval.table import GesRow, table2
@@ -59,6 +67,8 @@ def main() -> None:
     parser.add_argument("--oracle-from", nargs="+", type=Path, default=[], metavar="MATRIX",
                         help="matrices the gates were trained on (pooled): the oracle picked on them, scored on the "
                         "pooled runs")  # fmt: skip
+    parser.add_argument("--versus", action="append", default=[], metavar="A=B",
+                        help="also GES of gate A minus GES of gate B, paired over objects (repeatable)")  # fmt: skip
     parser.add_argument("--results", default="ges_pooled", help="name of the JSON under benchmarks/results/")
     args = parser.parse_args()
 
@@ -91,6 +101,12 @@ def main() -> None:
         print(table.markdown(p) + "\n")
     diffs = ges_against_best(matrix, rows, experts)
     print(ges_against_best_table(diffs))
+    pairs = [tuple(v.split("=", 1)) for v in args.versus]
+    if bad := [v for v, pair in zip(args.versus, pairs, strict=True) if len(pair) != 2]:
+        raise SystemExit(f"--versus takes A=B (two gate labels), got {bad}")
+    between = ges_between(matrix, rows, pairs) if pairs else []
+    if between:
+        print("\n" + ges_against_best_table(between, title="GES of one gate against another's"))
     held = []
     if args.oracle_from:
         pick = pool_matrices([select_columns(load_matrix(m), experts) for m in args.oracle_from])
@@ -99,6 +115,7 @@ def main() -> None:
     write_results(ROOT / "results" / f"{args.results}.json", {
         "runs": [str(p) for p in args.results_files], "matrices": [d["matrix"] for d in datas],
         "experts": experts, "table2": table.rows, "against_best": against_best_json(diffs),
+        "versus": against_best_json(between),
         "oracle_from": [str(m) for m in args.oracle_from], "held_out_oracle": [r.__dict__ for r in held],
         "code": code_state(),
     })  # fmt: skip

@@ -4,9 +4,10 @@ split's, the difference is the pooled rates' (numpy on the same counts), and the
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from ges_core.experts.matrix import SuccessMatrix
-from ges_core.ges_eval.against_best import ges_against_best, ges_against_best_table
+from ges_core.ges_eval.against_best import ges_against_best, ges_against_best_table, ges_between
 from ges_core.ges_eval.table import GesRow
 
 SPLITS = ["train"] * 30 + ["unseen_object"] * 12
@@ -59,3 +60,20 @@ def test_ges_against_the_best_expert_of_each_split() -> None:
     text = ges_against_best_table(diffs)
     assert "| gate |" in text and "| GES (only_b) |" in text and "vs a (" in text
     assert " below |" in text and "above** |" in text
+
+
+def test_one_gate_against_another_is_the_difference_of_their_episodes() -> None:
+    m = _matrix(np.random.default_rng(1))
+    n = len(SPLITS)
+    only_a, only_b = _row("only_a", m, np.zeros(n, dtype=np.int64)), _row("only_b", m, np.ones(n, dtype=np.int64))
+    diffs = ges_between(m, [only_a, only_b], [("only_b", "only_a")], resamples=1000)
+    by = {(d.expert, d.split): (versus, d) for versus, d in diffs}
+    for split, rows in (("train", np.array([s == "train" for s in SPLITS])), (None, np.ones(n, dtype=bool))):
+        versus, d = by[("GES (only_b)", split)]
+        expected = 100 * (m.successes["paper"][rows, 1].sum() - m.successes["paper"][rows, 0].sum()) / (4 * rows.sum())
+        assert versus == "only_a" and np.isclose(d.points, expected) and d.objects == rows.sum()
+    assert by[("GES (only_b)", "train")][1].verdict == "above"  # b wins most on train by construction
+    assert by[("GES (only_b)", "unseen_object")][1].verdict == "below"
+    assert "vs only_a (" in ges_against_best_table(diffs, title="GES of one gate against another's")
+    with pytest.raises(KeyError, match="no GES row 'nope'"):
+        ges_between(m, [only_a], [("nope", "only_a")])

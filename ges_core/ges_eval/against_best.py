@@ -20,7 +20,7 @@ from ges_core.experts.compare import BaselineDifference, compare_to_baseline, co
 from ges_core.experts.matrix import PROTOCOLS, SuccessMatrix
 from ges_core.ges_eval.table import COLUMNS, GesRow
 
-__all__ = ["against_best_json", "ges_against_best", "ges_against_best_table"]
+__all__ = ["against_best_json", "ges_against_best", "ges_against_best_table", "ges_between"]
 
 
 def ges_against_best(
@@ -39,14 +39,7 @@ def ges_against_best(
     out of that comparison."""
     view = select_columns(matrix, list(experts))
     ges_labels = tuple(f"GES ({r.label})" for r in rows)
-    joined = replace(
-        view,
-        experts=(*view.experts, *ges_labels),
-        expert_names=(*view.expert_names, *("ges",) * len(rows)),
-        expert_settings=(*view.expert_settings, *({"gate": r.label} for r in rows)),
-        episodes=np.column_stack([view.episodes, *(r.episodes for r in rows)]),
-        successes={p: np.column_stack([view.successes[p], *(r.successes[p] for r in rows)]) for p in PROTOCOLS},
-    )
+    joined = _joined(view, rows)
     out = []
     for split in COLUMNS:
         sel = view.rows(split)
@@ -61,11 +54,52 @@ def ges_against_best(
     return out
 
 
-def ges_against_best_table(diffs: list[tuple[str, BaselineDifference]], level: float = 0.95) -> str:
+def ges_between(
+    matrix: SuccessMatrix,
+    rows: list[GesRow],
+    pairs: list[tuple[str, str]],
+    protocol: str = "paper",
+    resamples: int = 4000,
+    seed: int = 0,
+) -> list[tuple[str, BaselineDifference]]:
+    """Per split (and all objects) and pair ``(a, b)`` of gate labels: ``(b's label, GES (a) minus GES (b))``, paired
+    over the objects both have GES episodes on, as :func:`ges_against_best` (e.g. a distilled gate against the
+    averaged one it imitates). A label no row holds is a KeyError naming the labels there are."""
+    by_label = {r.label: r for r in rows}
+    for label in {x for pair in pairs for x in pair}:
+        if label not in by_label:
+            raise KeyError(f"no GES row '{label}'; the rows are {sorted(by_label)}")
+    joined = _joined(select_columns(matrix, []), rows)
+    out = []
+    for a, b in pairs:
+        against = replace(select_columns(joined, [f"GES ({b})", f"GES ({a})"]), baseline=f"GES ({b})")
+        for split in COLUMNS:
+            for d in compare_to_baseline(against, protocol, splits=(split,), resamples=resamples, seed=seed):
+                out.append((b, d))
+    return out
+
+
+def _joined(view: SuccessMatrix, rows: list[GesRow]) -> SuccessMatrix:
+    """``view`` with one more column per GES row, ``GES (label)``, holding its episodes."""
+    return replace(
+        view,
+        experts=(*view.experts, *(f"GES ({r.label})" for r in rows)),
+        expert_names=(*view.expert_names, *("ges",) * len(rows)),
+        expert_settings=(*view.expert_settings, *({"gate": r.label} for r in rows)),
+        episodes=np.column_stack([view.episodes, *(r.episodes for r in rows)]),
+        successes={p: np.column_stack([view.successes[p], *(r.successes[p] for r in rows)]) for p in PROTOCOLS},
+    )
+
+
+def ges_against_best_table(
+    diffs: list[tuple[str, BaselineDifference]],
+    level: float = 0.95,
+    title: str = "GES against the best single expert of each split",
+) -> str:
     """Markdown: one row per gate, one column per split: ``+1.2 [-0.4, +2.9] vs res1 (5 up, 3 down)`` and the
-    verdict (:func:`ges_core.experts.compare.comparison_table`'s format)."""
+    verdict (:func:`ges_core.experts.compare.comparison_table`'s format); also for :func:`ges_between`'s pairs."""
     return comparison_table(
-        [d for _, d in diffs], level, title="GES against the best single expert of each split", row_header="gate",
+        [d for _, d in diffs], level, title=title, row_header="gate",
         versus={(d.expert, d.split): best for best, d in diffs},
     )  # fmt: skip
 
