@@ -22,6 +22,7 @@ from ges_core.gating.checkpoint import read_pick_rule
 from ges_core.gating.data import targets
 from ges_core.gating.distill import distill
 from ges_core.gating.folds import train_folds
+from ges_core.ges_eval.gates import load_gates, parse_gate
 
 FOLDS = TrainConfig(epochs=3, batch_size=8, folds=3, distill=True)
 
@@ -115,6 +116,14 @@ def test_ges_train_gate_distill_stores_the_student_and_the_average(tmp_path, cap
     assert summary["distilled"]["train"]["argmax"] == pytest.approx(
         float(np.mean(a.numpy().argmax(1) == b.numpy().argmax(1)))
     )
+    described = [
+        g.describe()
+        for g in load_gates(
+            [parse_gate(f"s={out / 'gate.pt'}"), parse_gate(f"a={out / 'averaged.pt'}")], registry, student.experts
+        )
+    ]
+    assert described[0]["networks"] == 1 and described[0]["distilled_from_networks"] == 3
+    assert described[1]["networks"] == 3 and "distilled_from_networks" not in described[1]
     experts = list(student.experts)
     assert summary["distilled"]["train"]["pick"] == pytest.approx(
         float(np.mean(rule.choose(a, experts) == rule.choose(b, experts)))

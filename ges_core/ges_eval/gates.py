@@ -80,9 +80,15 @@ class LoadedGate:
     rule: PickRule = ARGMAX
 
     def describe(self) -> dict:
-        """JSON-ready identity (stored with the results)."""
-        return {"gate": self.plugin, "path": str(self.path.resolve()), "sha": self.sha, "n_points": self.n_points,
-                "experts": list(self.gate.experts), "pick": self.rule.to_json()}  # fmt: skip
+        """JSON-ready identity (stored with the results); a network gate also says how many networks it runs
+        (``networks``: K for ``ges train-gate --folds K``) and, distilled (``--distill``), how many it imitates."""
+        out = {"gate": self.plugin, "path": str(self.path.resolve()), "sha": self.sha, "n_points": self.n_points,
+               "experts": list(self.gate.experts), "pick": self.rule.to_json()}  # fmt: skip
+        if (networks := getattr(self.gate, "members", None)) is not None:
+            out["networks"] = networks
+        if teacher := getattr(self.gate, "train_info", {}).get("distilled_from"):
+            out["distilled_from_networks"] = teacher["members"]
+        return out
 
 
 def training_matrix(choice: GateChoice) -> Path | None:
