@@ -135,10 +135,11 @@ def timed_alone(label: str, gate, n: int, members: int, one: torch.Tensor, batch
             1e3 * cpu, "ms_per_object_batch32": 1e3 * wall32 / 32, "load_average": os.getloadavg()[0]}  # fmt: skip
 
 
-def sized_clouds(ids, big: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor]:
-    """(1, n, 3) the first object's cloud and (32, n, 3) a batch cycling through the objects, at ``n`` points."""
+def sized_clouds(ids, big: torch.Tensor, n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """At ``n`` points: (n_objects, n, 3) every object's cloud, (1, n, 3) the first one's and (32, n, 3) a batch
+    cycling through the objects."""
     sized = torch.stack([torch.from_numpy(fit_cloud(c.numpy(), n, i)) for c, i in zip(big, ids, strict=True)])
-    return sized[:1], sized[torch.arange(32) % len(ids)]
+    return sized, sized[:1], sized[torch.arange(32) % len(ids)]
 
 
 def checkpoint_rows(registry, checkpoints: list[str], ids, big: torch.Tensor, repeats: int) -> list[dict]:
@@ -150,7 +151,7 @@ def checkpoint_rows(registry, checkpoints: list[str], ids, big: torch.Tensor, re
         label, _, path = item.rpartition("=")
         gate = load_gate(path, registry)
         n = gate.settings.n_points
-        one, batch = sized_clouds(ids, big, n)
+        _, one, batch = sized_clouds(ids, big, n)
         members = getattr(gate, "members", 1)
         rows.append({**timed_alone(label or path, gate, n, members, one, batch, repeats), "checkpoint": path})
     return rows
@@ -161,11 +162,9 @@ def measure(registry, repeats: int, n_objects: int, baseline: str | None, averag
     ids, big, rates = clouds(n_objects)
     rows = checkpoint_rows(registry, list(checkpoints), ids, big, repeats)
     for n in SIZES:
-        sized = torch.stack([torch.from_numpy(fit_cloud(c.numpy(), n, i)) for c, i in zip(big, ids, strict=True)])
-        batch = sized[torch.arange(32) % len(ids)]
+        sized, one, batch = sized_clouds(ids, big, n)
         for name in GATES:
             gate = ready_gate(registry, name, n, ids, sized, rates)
-            one = sized[:1]
             row = {"gate": name, "points": n}
             if baseline is not None and name != "centroid":
                 shipped, same = (baseline_twin(gate, baseline, same_settings=flag) for flag in (False, True))

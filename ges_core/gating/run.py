@@ -227,7 +227,6 @@ def train_gate_run(
                                           resume=resume, state_every=config.checkpoint_every,
                                           on_epoch=lambda epoch, result: on_epoch(folds, epoch, result))  # fmt: skip
     gate.save(checkpoint)
-    agreement = None
     if folds == 1:
         atomic_write_text(out / "history.json", json.dumps(result.history, indent=1) + "\n")
         probs = _split_probs(result, gate, matrix, library, n, config, out)
@@ -239,13 +238,13 @@ def train_gate_run(
             histories["distilled"] = distilled.history
         atomic_write_text(out / "history.json", json.dumps(histories, indent=1) + "\n")
         probs = _fold_probs(folded, gate, matrix, library, n, config, out)
-        if config.train.distill:
-            taught = _fold_probs(folded, teacher, matrix, library, n, config, out)
         accuracy, counts = _accuracies(None, probs)
         kept_epoch = tuple(r.kept_epoch for r in folded.results)
     rule = ARGMAX if config.pick == "argmax" else _fit_rule(gate.experts, probs)
     write_pick_rule(checkpoint, rule)
+    agreement = None
     if config.train.distill:  # the averaged networks, with the same rule, for comparison
+        taught = _fold_probs(folded, teacher, matrix, library, n, config, out)
         agreement = {k: agreement_of(rule, gate.experts, probs[k][0], taught[k][0]) for k in ("train", *SPLITS[1:])}
         teacher.save(out / "averaged.pt")
         write_pick_rule(out / "averaged.pt", rule)
