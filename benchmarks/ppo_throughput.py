@@ -2,9 +2,9 @@
 
 For each simulator x env count x env-worker count (``--ppo-workers``, default 1 and 2): a multi-object training
 setup exactly as ``ges train-expert --workers W`` builds it (the dataset's training grasps as a pool, the tiny
-preset's randomization, Allegro, absolute actions, curriculum off; W > 1: a SubprocVecEnv, the envs split across
-W worker processes, ``ges_core.env.workers``), one untimed warm-up iteration, then ``--iterations`` timed ones
-(``num_steps_per_env`` x envs steps each). Reported per row: env-steps/s over collection + update, collection
+preset's randomization, Allegro (``--hand``), absolute actions, curriculum off; W > 1: a SubprocVecEnv, the envs
+split across W worker processes, ``ges_core.env.workers``), one untimed warm-up iteration, then ``--iterations``
+timed ones (``num_steps_per_env`` x envs steps each). Reported per row: env-steps/s over collection + update, collection
 alone, the update's share, the build time (W > 1: starting the workers) and the load average before and after
 (the machine is shared), and per (sim, envs) the speed-up of W workers over one process. On a loaded machine the
 wall-clock figures fall with the share of a core each process gets, so each row also gives the CPU time per
@@ -23,7 +23,10 @@ SubprocVecEnv rows above could reach at most.
 
     python benchmarks/ppo_throughput.py [--dataset runs/tiny/dataset] [--sims sapien pybullet] [--envs 8 32 64]
         [--ppo-workers 1 2] [--iterations 3] [--workers 2] [--worker-seconds 10] [--solver-iterations 20 15]
-        [--results NAME]
+        [--hand NAME] [--results NAME]
+
+``--hand NAME`` measures another hand than the preset's Allegro, on a dataset holding that hand's grasps (e.g. a
+``ges demo -o "hands=[shadow]"`` dataset).
 """
 
 from __future__ import annotations
@@ -58,8 +61,10 @@ def _load() -> float:
     return round(os.getloadavg()[0], 2)
 
 
-def _config(sim: str, envs: int, steps: int, workers: int = 1, solver_iterations: int | None = None):
+def _config(sim: str, envs: int, steps: int, workers: int = 1, solver_iterations: int | None = None,
+            hand: str | None = None):  # fmt: skip
     scene = [f"scene.solver_iterations={solver_iterations}"] if solver_iterations else []
+    scene += [f"hand={hand}"] if hand else []
     return load_train_config(
         "tiny", overrides=[f"sim={sim}", f"num_envs={envs}", f"ppo.num_steps_per_env={steps}",
                            "curriculum.enabled=false", "time_limit=null", f"workers={workers}", *scene],
@@ -75,10 +80,11 @@ def measure_ppo(
     out: Path,
     workers: int = 1,
     solver_iterations: int | None = None,
+    hand: str | None = None,
 ) -> dict:
     """Timed PPO iterations of one setup (collection + update), its envs in ``workers`` processes; the contact solver
-    at ``solver_iterations`` (None: the dataset's Stage 1 scene's)."""
-    cfg = _config(sim, envs, steps, workers, solver_iterations)
+    at ``solver_iterations`` (None: the dataset's Stage 1 scene's); ``hand`` (None: the tiny preset's)."""
+    cfg = _config(sim, envs, steps, workers, solver_iterations, hand)
     torch.manual_seed(0)
     load_before = _load()
     t0 = time.perf_counter()
@@ -124,10 +130,10 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
-def _stepper(dataset: str, sim: str, envs: int, seconds: float, seed: int, queue) -> None:
+def _stepper(dataset: str, sim: str, envs: int, seconds: float, seed: int, queue, hand: str | None = None) -> None:
     """One worker: build the setup, step random actions for ``seconds``; put the env-steps it made."""
     torch.set_num_threads(1)
-    cfg = _config(sim, envs, 8).model_copy(update={"seed": seed})
+    cfg = _config(sim, envs, 8, hand=hand).model_copy(update={"seed": seed})
     setup = build_setup(dataset, cfg, load_registry())
     venv, gen = setup.venv, torch.Generator().manual_seed(seed)
     queue.put(("ready", 0))
@@ -139,13 +145,13 @@ def _stepper(dataset: str, sim: str, envs: int, seconds: float, seed: int, queue
     venv.close()
 
 
-def measure_workers(dataset: Path, sim: str, envs: int, workers: int, seconds: float) -> dict:
+def measure_workers(dataset: Path, sim: str, envs: int, workers: int, seconds: float, hand: str | None = None) -> dict:
     """Aggregate random-action env-steps/s of ``workers`` processes (envs split between them) vs one process."""
     ctx = mp.get_context("spawn")
     result = {"sim": sim, "envs": envs, "seconds": seconds, "load_before": _load()}
     for count in (1, workers):
         queue = ctx.Queue()
-        procs = [ctx.Process(target=_stepper, args=(str(dataset), sim, envs // count, seconds, i, queue))
+        procs = [ctx.Process(target=_stepper, args=(str(dataset), sim, envs // count, seconds, i, queue, hand))
                  for i in range(count)]  # fmt: skip
         for p in procs:
             p.start()
@@ -178,6 +184,7 @@ def main() -> None:
         default=[None],
         help="contact solver position iterations of the rows (default: the dataset's scene)",
     )
+    parser.add_argument("--hand", help="hand plugin (default: the tiny preset's); the dataset must hold its grasps")
     parser.add_argument("--results", default="ppo_throughput", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
     if args.dataset == FALLBACK_DATASET:  # its 2 objects step faster than a real training set: say so up front
@@ -189,11 +196,12 @@ def main() -> None:
         for envs in args.envs:
             for workers in args.ppo_workers:
                 for solver in args.solver_iterations:
-                    row = measure_ppo(args.dataset, sim, envs, args.iterations, args.steps, args.out, workers, solver)
+                    row = measure_ppo(args.dataset, sim, envs, args.iterations, args.steps, args.out, workers, solver,
+                                      args.hand)  # fmt: skip
                     rows.append(row)
                     print(row, flush=True)
     speedups = _speedups(rows)
-    workers = [measure_workers(args.dataset, sim, args.worker_envs, args.workers, args.worker_seconds)
+    workers = [measure_workers(args.dataset, sim, args.worker_envs, args.workers, args.worker_seconds, args.hand)
                for sim in args.sims] if args.workers > 1 else []  # fmt: skip
     for w in workers:
         print(w, flush=True)
