@@ -63,11 +63,11 @@ def _load() -> float:
 
 def _config(sim: str, envs: int, steps: int, workers: int = 1, solver_iterations: int | None = None,
             hand: str | None = None):  # fmt: skip
-    scene = [f"scene.solver_iterations={solver_iterations}"] if solver_iterations else []
-    scene += [f"hand={hand}"] if hand else []
+    extra = [f"scene.solver_iterations={solver_iterations}"] if solver_iterations else []
+    extra += [f"hand={hand}"] if hand else []
     return load_train_config(
         "tiny", overrides=[f"sim={sim}", f"num_envs={envs}", f"ppo.num_steps_per_env={steps}",
-                           "curriculum.enabled=false", "time_limit=null", f"workers={workers}", *scene],
+                           "curriculum.enabled=false", "time_limit=null", f"workers={workers}", *extra],
     )  # fmt: skip
 
 
