@@ -243,6 +243,8 @@ def main() -> None:
                         help="also time this trained gate file (repeatable)")  # fmt: skip
     parser.add_argument("--results", default="gate_speed", metavar="NAME", help="results/NAME.json")
     args = parser.parse_args()
+    if "/" in args.results or args.results.endswith(".json"):
+        parser.error(f"--results takes a name (written to benchmarks/results/NAME.json), got {args.results!r}")
     baseline = None if args.no_baseline else args.baseline
     torch.set_num_threads(1)
     load_before = os.getloadavg()[0]

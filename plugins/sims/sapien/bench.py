@@ -24,18 +24,26 @@ _BLOCK = 50
 
 
 def measure_overhead(
-    hand: HandModel, obj: ObjectAsset, wrist: np.ndarray, grasp_q: np.ndarray, *, steps: int = 300, **scene: object
+    hand: HandModel,
+    obj: ObjectAsset,
+    wrist: np.ndarray,
+    grasp_q: np.ndarray,
+    *,
+    steps: int = 300,
+    contact_offset: float | None = None,
+    **scene: object,
 ) -> dict[str, float]:
     """µs per step of the raw physics step and of the full control step.
 
     Blocks of 50 raw and 50 full steps alternate until ``steps`` of each ran; each figure is the best
     block of thread CPU time (PhysX runs in the calling thread with ``cpu_workers=0``), which a
     shared, busy machine disturbs far less than wall time.
-    wrist: (7,) base pose above the object; grasp_q: (K,) closed joint targets.
+    wrist: (7,) base pose above the object; grasp_q: (K,) closed joint targets; contact_offset: per shape, metres
+    (None: SAPIEN's 0.01; the framework runs the registry's setting, which :func:`main` passes).
     """
     from ges_plugins.sims.sapien.backend import SapienBackend
 
-    with SapienBackend(SceneConfig(num_envs=1, **scene)) as sim:
+    with SapienBackend(SceneConfig(num_envs=1, **scene), contact_offset=contact_offset) as sim:
         sim.load_hand(hand)
         sim.load_object(obj)
         sim.set_hand_state(np.asarray(hand.description.open_pose)[None], wrist[None])
@@ -106,13 +114,17 @@ def main() -> None:
     args = parser.parse_args()
     from ges_core.registry import load_registry
 
-    hand = load_registry().build_hand(args.hand)
+    registry = load_registry()
+    hand = registry.build_hand(args.hand)
     if not set(_ALLEGRO_CLOSE) <= set(hand.description.joint_names):
         parser.error(f"the bench scene is posed for the Allegro hand (joint_0.0 ... joint_15.0); got '{args.hand}'")
     obj, wrist, q = allegro_top_down(hand)
+    offset = registry.settings("sim", "sapien").get("contact_offset")  # what every framework run uses
     for self_collision in (False, True):
-        result = measure_overhead(hand, obj, wrist, q, steps=args.steps, self_collision=self_collision)
-        print(f"self_collision={self_collision}: " + ", ".join(f"{k}={v:.1f}" for k, v in result.items()))
+        result = measure_overhead(hand, obj, wrist, q, steps=args.steps, contact_offset=offset,
+                                  self_collision=self_collision)  # fmt: skip
+        print(f"contact_offset={offset} self_collision={self_collision}: "
+              + ", ".join(f"{k}={v:.1f}" for k, v in result.items()))  # fmt: skip
 
 
 if __name__ == "__main__":
