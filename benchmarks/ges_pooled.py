@@ -71,6 +71,9 @@ def main() -> None:
                         help="also GES of gate A minus GES of gate B, paired over objects (repeatable)")  # fmt: skip
     parser.add_argument("--results", default="ges_pooled", help="name of the JSON under benchmarks/results/")
     args = parser.parse_args()
+    pairs = [tuple(v.split("=", 1)) for v in args.versus]
+    if bad := [v for v, pair in zip(args.versus, pairs, strict=True) if len(pair) != 2]:
+        raise SystemExit(f"--versus takes A=B (two gate labels), got {bad}")
 
     datas = [read_results_json(p) for p in args.results_files]
     experts = list(datas[0]["experts"])
@@ -101,9 +104,6 @@ def main() -> None:
         print(table.markdown(p) + "\n")
     diffs = ges_against_best(matrix, rows, experts)
     print(ges_against_best_table(diffs))
-    pairs = [tuple(v.split("=", 1)) for v in args.versus]
-    if bad := [v for v, pair in zip(args.versus, pairs, strict=True) if len(pair) != 2]:
-        raise SystemExit(f"--versus takes A=B (two gate labels), got {bad}")
     between = ges_between(matrix, rows, pairs) if pairs else []
     if between:
         print("\n" + ges_against_best_table(between, title="GES of one gate against another's"))

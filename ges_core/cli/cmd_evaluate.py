@@ -110,8 +110,8 @@ def run_evaluate(args: argparse.Namespace) -> int:
     report = evaluate_ges(
         args.dataset, config, experts, gates, args.out or args.dataset.parent / "ges",
         matrix_file=args.matrix, registry=registry, progress=not args.no_progress, fanout=fanout_from_args(args),
-        reuse_matrix=args.reuse_matrix, accept_code=args.accept_code,
-        verify_accepted=args.verify_accepted if args.accept_code else 0, cloud_seed=args.cloud_seed,
+        reuse_matrix=args.reuse_matrix, accept_code=args.accept_code, verify_accepted=args.verify_accepted,
+        cloud_seed=args.cloud_seed,
     )  # fmt: skip
     paths = write_outputs(report, config.model_dump(mode="json"))
     print(f"GES | hand {config.hand} | sim {config.sim} | {config.envs} episode(s) per object | "

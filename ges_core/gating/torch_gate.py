@@ -142,6 +142,7 @@ class TorchGate(Gate):
     def averaged(cls, gates: Sequence[TorchGate], train_info: dict[str, Any] | None = None) -> TorchGate:
         """One gate scoring with the mean probability of ``gates`` (2+ trained single networks of this plugin, with
         equal settings and experts: a ConfigError names what differs). ``train_info``: stored in its checkpoint."""
+        first = gates[0].settings.model_dump()
         for g in gates:
             if type(g) is not cls or g.members != 1:
                 raise ConfigError(f"gate '{cls.name}' averages single '{cls.name}' networks, not a {g.name} gate "
@@ -150,9 +151,9 @@ class TorchGate(Gate):
                 raise ConfigError(f"gate '{cls.name}': networks trained for other experts cannot be averaged "
                                   f"({list(gates[0].experts)} vs {list(g.experts)})")  # fmt: skip
             if g.settings != gates[0].settings:
-                differ = sorted(k for k, v in g.settings.model_dump().items() if gates[0].settings.model_dump()[k] != v)
+                differ = sorted(k for k, v in g.settings.model_dump().items() if first[k] != v)
                 raise ConfigError(f"gate '{cls.name}': networks of other settings cannot be averaged ({differ} differ)")
-        out = cls(**gates[0].settings.model_dump())
+        out = cls(**first)
         out.experts = gates[0].experts
         out.model = MeanOfMembers([g._trained() for g in gates])
         out.model.eval()
