@@ -8,7 +8,7 @@ from pathlib import Path
 
 from ges_core.paths import atomic_write_text
 
-__all__ = ["code_state", "write_results"]
+__all__ = ["code_state", "results_path", "write_results"]
 
 
 def code_state() -> dict:
@@ -20,6 +20,17 @@ def code_state() -> dict:
 
     modified = git("status", "--porcelain", "--untracked-files=no").splitlines()
     return {"commit": git("rev-parse", "HEAD"), "modified": modified}
+
+
+RESULTS_DIR = Path(__file__).resolve().parent / "results"
+
+
+def results_path(name: str) -> Path:
+    """benchmarks/results/NAME.json for a script's ``--results NAME``; a path or a name ending in .json is refused
+    (SystemExit saying so) instead of writing outside the results folder."""
+    if not name or "/" in name or "\\" in name or name.endswith(".json"):
+        raise SystemExit(f"--results takes a name (written to benchmarks/results/NAME.json), got {name!r}")
+    return RESULTS_DIR / f"{name}.json"
 
 
 def write_results(path: Path, data: dict) -> None:

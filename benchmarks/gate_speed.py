@@ -50,9 +50,8 @@ from ges_core.gating import GateData, SuccessRates, TrainConfig, fit_cloud, libr
 from ges_core.objects.library import LibraryConfig, ObjectLibrary  # noqa: E402
 from ges_core.registry import load_registry  # noqa: E402
 
-from _results import code_state, write_results  # noqa: E402
+from _results import code_state, results_path, write_results  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results" / "gate_speed.json"
 GATES = ("curvenet", "pointnet2", "centroid")
 SIZES = (1024, 4096)
 EXPERTS = ("small", "medium", "large")
@@ -243,8 +242,7 @@ def main() -> None:
                         help="also time this trained gate file (repeatable)")  # fmt: skip
     parser.add_argument("--results", default="gate_speed", metavar="NAME", help="results/NAME.json")
     args = parser.parse_args()
-    if "/" in args.results or args.results.endswith(".json"):
-        parser.error(f"--results takes a name (written to benchmarks/results/NAME.json), got {args.results!r}")
+    results = results_path(args.results)  # a bad name stops here, before anything is measured
     baseline = None if args.no_baseline else args.baseline
     torch.set_num_threads(1)
     load_before = os.getloadavg()[0]
@@ -253,7 +251,7 @@ def main() -> None:
     print(table(rows))
     print(f"reference: 512^3 matmul at {gflops:.1f} GFLOP/s on one thread; load average {os.getloadavg()[0]:.1f}")
     write_results(
-        RESULTS.with_name(f"{args.results}.json"),
+        results,
         {
             "benchmark": "gate_speed",
             "what": "gate.predict time per object, one CPU thread (torch.set_num_threads(1)), median over repeats; "

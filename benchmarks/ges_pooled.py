@@ -34,9 +34,7 @@ from ges_core.ges_eval.results import ResultsFile, read_results_json
 from ges_core.ges_eval.run import ges_row
 from ges_core.ges_eval.table import GesRow, table2
 
-from _results import code_state, write_results
-
-ROOT = Path(__file__).resolve().parent
+from _results import code_state, results_path, write_results
 
 
 def pooled_rows(runs: list[list[GesRow]]) -> list[GesRow]:
@@ -71,6 +69,7 @@ def main() -> None:
                         help="also GES of gate A minus GES of gate B, paired over objects (repeatable)")  # fmt: skip
     parser.add_argument("--results", default="ges_pooled", help="name of the JSON under benchmarks/results/")
     args = parser.parse_args()
+    results = results_path(args.results)
     pairs = [tuple(v.split("=", 1)) for v in args.versus]
     if bad := [v for v, pair in zip(args.versus, pairs, strict=True) if len(pair) != 2]:
         raise SystemExit(f"--versus takes A=B (two gate labels), got {bad}")
@@ -112,14 +111,13 @@ def main() -> None:
         pick = pool_matrices([select_columns(load_matrix(m), experts) for m in args.oracle_from])
         held = held_out_oracle(pick, matrix)
         print("\n" + held_out_oracle_table(held, picked="the gates' matrices", scored="the pooled runs"))
-    write_results(ROOT / "results" / f"{args.results}.json", {
+    write_results(results, {
         "runs": [str(p) for p in args.results_files], "matrices": [d["matrix"] for d in datas],
         "experts": experts, "table2": table.rows, "against_best": against_best_json(diffs),
         "versus": against_best_json(between),
         "oracle_from": [str(m) for m in args.oracle_from], "held_out_oracle": [r.__dict__ for r in held],
         "code": code_state(),
     })  # fmt: skip
-    print(f"\nwrote benchmarks/results/{args.results}.json")
 
 
 if __name__ == "__main__":

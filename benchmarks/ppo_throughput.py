@@ -48,9 +48,8 @@ from ges_core.training.envs import build_setup
 from ges_core.training.run import rsl_config
 from ges_core.training.runner import GraspRunner
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).resolve().parent / "results" / "ppo_throughput.json"
 GOAL = 2000.0
 """The issue's goal: >= 2,000 env-steps/s during PPO in SAPIEN on the 2-core machine."""
 DEFAULT_DATASET = Path(__file__).resolve().parent.parent / "runs" / "tiny" / "dataset"
@@ -187,6 +186,7 @@ def main() -> None:
     parser.add_argument("--hand", help="hand plugin (default: the tiny preset's); the dataset must hold its grasps")
     parser.add_argument("--results", default="ppo_throughput", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)
     if args.dataset == FALLBACK_DATASET:  # its 2 objects step faster than a real training set: say so up front
         print(f"note: no {DEFAULT_DATASET}; measuring on the test dataset {FALLBACK_DATASET} (2 objects), not the "
               "tiny preset's 13: give --dataset for figures comparable with docs/training.md", flush=True)  # fmt: skip
@@ -206,7 +206,7 @@ def main() -> None:
     for w in workers:
         print(w, flush=True)
     _table(rows, speedups, workers)
-    write_results(RESULTS.with_name(f"{args.results}.json"), {
+    write_results(results, {
         "benchmark": "ppo_throughput", "goal_env_steps_per_s": GOAL, "dataset": str(args.dataset),
         "rows": rows, "speedups": speedups, "workers": workers, "cpu": platform.processor() or platform.machine(),
         "cores": os.cpu_count(), "software": software_versions(), "code": code_state(),
