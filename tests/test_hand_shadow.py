@@ -17,7 +17,7 @@ import torch
 from scipy.spatial import cKDTree
 from scipy.spatial.transform import Rotation
 
-from ges_core.errors import AssetError
+from ges_core.errors import AssetError, ConfigError
 from ges_core.transforms import quat_to_matrix
 from ges_plugins.hands.shadow import assets
 from ges_plugins.hands.shadow.convert import (
@@ -428,3 +428,15 @@ def test_sapien_loads_24_joints_and_places_links_like_mujoco(hand, model):
     assert type(capsules[0]).__name__ == "PhysxCollisionShapeCapsule"
     axis = quat_to_matrix(capsules[0].get_local_pose().q)[:, 0]  # PhysX capsules lie along their x axis
     np.testing.assert_allclose(np.abs(axis), [0, 0, 1], atol=1e-6)
+
+
+def test_unknown_self_collision_setting_is_a_config_error_naming_the_choices():
+    with pytest.raises(ConfigError, match=r"self_collision 'some' is not one of mjcf_pairs, all"):
+        ShadowHand(self_collision="some")
+
+
+def test_a_self_collision_exclude_override_replaces_the_mjcf_pairs(hand):
+    """The default leaves out every pair the MJCF does not list; a user's own list wins over it."""
+    assert len(hand.description.self_collision_exclude) == 170
+    own = ShadowHand(self_collision_exclude=[["ffdistal", "palm"]])
+    assert own.description.self_collision_exclude == (("ffdistal", "palm"),)

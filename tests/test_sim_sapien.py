@@ -17,9 +17,10 @@ from ges_core.objects.asset import ConvexPart, ObjectAsset, PrimitiveShape
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.urdf import WRIST_JOINTS, neighbour_link_pairs
+from ges_plugins.hands.shadow.hand import ShadowHand
 from ges_plugins.sims.sapien.backend import SapienBackend
 from ges_plugins.sims.sapien.bench import allegro_top_down
-from ges_plugins.sims.sapien.loading import PAIR_BITS, pair_exclusion_bits
+from ges_plugins.sims.sapien.loading import PAIR_BITS, exclusion_groups, pair_exclusion_bits
 
 from helpers_sim import ALLEGRO_TIPS, UP, allegro_test_hand, box_asset, loaded_sim, open_q, run_python
 
@@ -183,18 +184,43 @@ def _filtered(groups_a: list[list[int]], groups_b: list[list[int]]) -> bool:
     return any(a[2] & b[2] and (a[3] & 0xFFFF) == (b[3] & 0xFFFF) for a in groups_a for b in groups_b)
 
 
-def test_shadow_pair_bits_filter_exactly_the_extra_neighbour_pairs():
-    """Read back from the built shapes: the pairs SAPIEN filters are the neighbour pairs that PhysX does
-    not already skip as parent-child, and no others (the physics is tested in test_sims_cross)."""
-    shadow = load_registry().build_hand("shadow")
-    sim = make_sim(shadow)
+def _sapien_filtered_pairs(sim: SapienBackend) -> tuple[set[frozenset[str]], set[str]]:
+    """Link pairs whose shapes SAPIEN's filter keeps apart, read back from the built shapes, and the solid links."""
     links = {link.name: link.get_collision_shapes() for link in sim._envs[0].hand.get_links()}
     groups = {name: [s.get_collision_groups() for s in shapes] for name, shapes in links.items() if shapes}
-    filtered = {frozenset((a, b)) for a, b in combinations(groups, 2) if _filtered(groups[a], groups[b])}
+    return {frozenset((a, b)) for a, b in combinations(groups, 2) if _filtered(groups[a], groups[b])}, set(groups)
+
+
+def test_shadow_pair_bits_filter_exactly_the_extra_neighbour_pairs():
+    """Read back from the built shapes: with every pair colliding but the neighbours (``self_collision: all``), the
+    pairs SAPIEN filters are the neighbour pairs that PhysX does not already skip as parent-child, and no others (the
+    physics is tested in test_sims_cross)."""
+    shadow = ShadowHand(self_collision="all")
+    filtered, solid = _sapien_filtered_pairs(make_sim(shadow))
     expected = neighbour_link_pairs(shadow.urdf_text()) - _parent_child_pairs(shadow.urdf_text())
-    assert filtered == {pair for pair in expected if pair <= set(groups)}
+    assert filtered == {pair for pair in expected if pair <= solid}
     assert {frozenset(("palm", "thproximal")), frozenset(("thproximal", "thmiddle"))} <= filtered
-    off = make_sim(shadow, self_collision=False)  # every hand pair filtered, the table still collides
+
+
+def test_shadow_collides_in_sapien_exactly_the_pairs_mujoco_lists():
+    """The default Shadow (``self_collision: mjcf_pairs``) leaves 170 pairs out, far more than SAPIEN's 29 bits could
+    exclude one per pair: the pairs SAPIEN lets collide, read back from its shapes, are MuJoCo's own ``<contact>
+    <pair>`` list of the compiled MJCF (parent-child pairs, which PhysX skips itself, aside)."""
+    from ges_plugins.hands.shadow.assets import compile_model
+    from ges_plugins.hands.shadow.convert import contact_pairs_from_mjmodel
+
+    shadow = load_registry().build_hand("shadow")
+    filtered, solid = _sapien_filtered_pairs(make_sim(shadow))
+    colliding = (
+        {frozenset(p) for p in combinations(sorted(solid), 2)} - filtered - _parent_child_pairs(shadow.urdf_text())
+    )
+    assert colliding == {frozenset(pair) for pair in contact_pairs_from_mjmodel(compile_model())}
+    assert len(filtered) > PAIR_BITS
+
+
+def test_self_collision_off_filters_every_hand_pair_and_not_the_table():
+    """self_collision=False: every hand shape pair is filtered, the table still collides with the hand."""
+    off = make_sim(load_registry().build_hand("shadow"), self_collision=False)
     groups = [s.get_collision_groups() for link in off._envs[0].hand.get_links() for s in link.get_collision_shapes()]
     assert all(_filtered([a], [b]) for a, b in combinations(groups, 2))
     table = off._envs[0].scene.entities[0].components[0].collision_shapes[0].get_collision_groups()
@@ -222,6 +248,35 @@ def test_too_many_excluded_pairs_is_an_asset_error():
     assert bits["base"] == (1 << PAIR_BITS) - 1 and sorted(bits[f"leaf{i}"] for i in range(PAIR_BITS)) == [
         1 << i for i in range(PAIR_BITS)
     ]
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_exclusion_groups_share_a_group_exactly_for_the_pairs_allowed(seed):
+    """Random link graphs: every pair that must be kept apart shares a group, no pair outside ``may`` does, and the
+    same input gives the same groups."""
+    rng = np.random.default_rng(seed)
+    links = [f"l{i}" for i in range(int(rng.integers(4, 22)))]
+    pairs = [frozenset(p) for p in combinations(links, 2)]
+    chosen = rng.random(len(pairs))
+    density = rng.uniform(0.1, 0.95)
+    must = {p for p, c in zip(pairs, chosen, strict=True) if c < density}
+    may = must | {p for p, c in zip(pairs, chosen, strict=True) if density <= c < density + 0.05}
+    groups = exclusion_groups(must, may)
+    shared = {frozenset((a, b)) for g in groups for a, b in combinations(g, 2)}
+    assert must <= shared <= may
+    assert groups == exclusion_groups(set(must), set(may))
+    assert len(groups) <= max(len(must), 1)
+
+
+def test_dense_exclusions_take_few_groups():
+    """The complement of a sparse graph (a hand colliding only a few pairs) fits in a handful of groups, where one bit
+    per pair would need one per excluded pair: 20 links, only a ring of 20 pairs colliding."""
+    links = [f"l{i:02d}" for i in range(20)]
+    ring = {frozenset((links[i], links[(i + 1) % 20])) for i in range(20)}
+    must = {frozenset(p) for p in combinations(links, 2)} - ring
+    groups = exclusion_groups(must, must)
+    assert {frozenset((a, b)) for g in groups for a, b in combinations(g, 2)} == must
+    assert len(groups) <= PAIR_BITS < len(must)
 
 
 @pytest.mark.parametrize("hand_gravity", [True, False])

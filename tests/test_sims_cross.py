@@ -121,3 +121,27 @@ def test_shadow_neighbour_links_are_excluded_and_the_rest_collide(registry, sim_
             seen |= set(_hand_pairs(sim))
         assert seen and not seen & neighbours
     assert check_self_collision(hand, sim_name, registry.build_sim) == []  # `ges hand lint`'s check
+
+
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_shadow_collides_only_the_mjcf_pairs_unless_told_all(registry, sim_name):
+    """The default Shadow (``self_collision: mjcf_pairs``): at random poses every touching hand-hand pair is one of
+    the 18 the MJCF lists (read from MuJoCo's compiled model, not from our list); with ``self_collision: all`` (set
+    through the registry) the same poses touch pairs outside it too."""
+    from ges_plugins.hands.shadow.assets import compile_model
+    from ges_plugins.hands.shadow.convert import contact_pairs_from_mjmodel
+
+    listed = {frozenset(pair) for pair in contact_pairs_from_mjmodel(compile_model())}
+    every = load_registry(overrides=("settings.hand.shadow.self_collision=all",)).build_hand("shadow")
+    seen = {}
+    for label, hand in (("mjcf_pairs", registry.build_hand("shadow")), ("all", every)):
+        lim = hand.description.limits_array
+        seen[label] = set()
+        with registry.build_sim(sim_name, SceneConfig(self_collision=True, gravity=0.0)) as sim:
+            sim.load_hand(hand, floating=False)
+            for q in np.random.default_rng(3).uniform(lim[:, 0], lim[:, 1], size=(12, len(lim))):
+                sim.set_hand_state(hand.description.apply_couplings(q)[None])
+                sim.engine_step()
+                seen[label] |= set(_hand_pairs(sim))
+    assert seen["mjcf_pairs"] and seen["mjcf_pairs"] <= listed
+    assert seen["all"] - listed

@@ -222,8 +222,9 @@ def _refusal(root: Path, changed: dict[str, list[str]], recorded: list[str], sto
         parts.append(f"hand '{name}' ({recorded.count(name)} record(s), description {hashes}): {shown or 'unnamed'}")
     return (
         f"dataset {root} was written with other hand descriptions than this run builds: {' | '.join(parts)}. "
-        "Resuming would mix grasps of two different hands in one dataset. Restore the hand as it was, or start over "
-        "(ges demo --fresh moves the folder aside) or write to a new folder (ges synth / ges retarget: --out DIR); "
+        "Resuming would mix grasps of two different hands in one dataset. Restore the hand as it was (its YAML, or "
+        "a setting of its plugin: ges --set settings.hand.NAME.KEY=VALUE ...), or start over (ges demo --fresh moves "
+        "the folder aside) or write to a new folder (ges synth / ges retarget: --out DIR); "
         "in Python, DatasetWriter(..., allow_config_change=True) continues it and keeps the old description in the "
         "manifest's hands_history"
     )

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import hashlib
 import importlib.util
+import json
 import xml.etree.ElementTree as ET
 from pathlib import Path
 from typing import Any
@@ -24,6 +25,7 @@ __all__ = [
     "CONVERTER_FILES",
     "HAND_XML_FILES",
     "ROOT_BODY",
+    "cached_contact_pairs",
     "cached_urdf",
     "compile_model",
     "default_asset_dir",
@@ -40,6 +42,8 @@ ROOT_BODY = "robot0:forearm"
 """Exported root body: the forearm. The MJCF's ``robot0:hand mount`` (0.1 kg mounting plate that
 places the hand in gymnasium's scene) is left out."""
 URDF_NAME = "shadow.urdf"
+PAIRS_NAME = "contact_pairs.json"
+"""The MJCF's ``<contact><pair>`` link pairs, beside the URDF (:func:`cached_contact_pairs`)."""
 CONVERTER_FILES: tuple[Path, ...] = (Path(__file__), Path(__file__).with_name("convert.py"))
 """Their bytes are part of the cache key, so editing the converter invalidates old URDFs."""
 INSTALL_HINT = "pip install 'ges-unigrasp[shadow]'"
@@ -129,10 +133,27 @@ def cached_urdf(asset_dir: Path | None = None) -> Path:
     target = folder / URDF_NAME
     if target.is_file():
         return target
-    from ges_plugins.hands.shadow.convert import collision_meshes_from_mjmodel, urdf_from_mjmodel  # imports mujoco
+    from ges_plugins.hands.shadow.convert import (  # imports mujoco
+        collision_meshes_from_mjmodel,
+        contact_pairs_from_mjmodel,
+        urdf_from_mjmodel,
+    )
 
     model = compile_model(asset_dir)
     for name, text in collision_meshes_from_mjmodel(model, root_body=ROOT_BODY).items():
         atomic_write_text(folder / name, text)
+    atomic_write_text(folder / PAIRS_NAME, json.dumps([list(pair) for pair in contact_pairs_from_mjmodel(model)]))
     urdf = absolutize_mesh_paths(urdf_from_mjmodel(model, root_body=ROOT_BODY), folder)
     return atomic_write_text(target, urdf)
+
+
+def cached_contact_pairs(asset_dir: Path | None = None) -> list[tuple[str, str]]:
+    """The link pairs the MJCF lets collide with each other (its ``<contact><pair>`` list; every other hand-hand pair
+    it turns off with ``contype=1, conaffinity=0``), converted and cached with the URDF (:func:`cached_urdf`)."""
+    path = cached_urdf(asset_dir).with_name(PAIRS_NAME)
+    try:
+        pairs = json.loads(path.read_text())
+    except (OSError, ValueError) as exc:
+        raise AssetError(f"{path}: the Shadow hand's cached contact pairs cannot be read ({exc}); delete its folder "
+                         f"{path.parent} and it is converted again") from exc  # fmt: skip
+    return [(str(a), str(b)) for a, b in pairs]

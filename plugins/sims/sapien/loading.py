@@ -31,6 +31,7 @@ __all__ = [
     "build_hand",
     "build_object",
     "create_scene",
+    "exclusion_groups",
     "force_limits",
     "pair_exclusion_bits",
     "prepare_urdf",
@@ -45,7 +46,7 @@ low 16 bits of their group-3 words are equal; every shape here keeps group 3 at 
 table leave group 2 empty, so they collide with everything."""
 
 PAIR_BITS = 29
-"""Group-2 bits 0..28 are handed out one per excluded link pair (:func:`pair_exclusion_bits`); bit 29
+"""Group-2 bits 0..28 are handed out to groups of mutually excluded links (:func:`pair_exclusion_bits`); bit 29
 is :data:`NO_SELF_COLLISION_BIT` and bits 30-31 stay free for users."""
 
 REST_MARGIN = 2e-4
@@ -149,28 +150,60 @@ def _pair_exclusion_bits(
     """Group-2 bits that keep apart exactly the excluded pairs that PhysX does not already skip.
 
     ``excluded`` (:meth:`ges_core.hand.HandModel.excluded_link_pairs`: the URDF's neighbours and the hand's own
-    ``self_collision_exclude``) lists the pairs that must not collide. A PhysX
-    articulation never collides a link with its parent; every other neighbour pair whose two links
-    both have collision geometry gets its own bit, set on both links. Two links then share a bit
-    exactly when they form such a pair, so every other pair keeps colliding.
+    ``self_collision_exclude``) lists the pairs that must not collide. A PhysX articulation never collides a link
+    with its parent. Every other excluded pair whose two links both have collision geometry must share a bit, and
+    no pair that collides may: each bit goes to a group of links that are pairwise excluded (or parent and child),
+    set on every link of the group (:func:`exclusion_groups`). Two links then share a bit exactly when they must
+    not collide. One bit per pair, as before 6 December 2026, ran out at 29 pairs: a hand that keeps only the pairs
+    its MJCF lists (the Shadow, 18 of 188) excludes 170.
     Returns (link name, bit mask) pairs (links without excluded pairs absent).
     """
     root = parse_urdf(urdf_text)
     solid = {link.get("name") for link in root.findall("link") if link.find("collision") is not None}
     parent_child = {frozenset((j.find("parent").get("link"), j.find("child").get("link"))) for j in root.iter("joint")}
-    extra = sorted(sorted(pair) for pair in excluded - parent_child if pair <= solid)
-    if len(extra) > PAIR_BITS:
+    must = {pair for pair in excluded - parent_child if pair <= solid}
+    groups = exclusion_groups(must, must | {pair for pair in parent_child if pair <= solid})
+    if len(groups) > PAIR_BITS:
         raise AssetError(
-            f"hand '{hand_name}': {len(extra)} link pairs (joined through zero-length links, or listed in "
-            f"self_collision_exclude) must not collide, but SAPIEN has {PAIR_BITS} collision-group bits to exclude "
-            "them with; merge zero-length links into their parents in the URDF, list fewer pairs, or run with "
-            "self_collision=False"
+            f"hand '{hand_name}': {len(must)} link pairs (joined through zero-length links, or listed in "
+            f"self_collision_exclude) must not collide, which takes {len(groups)} groups of mutually excluded links, "
+            f"but SAPIEN has {PAIR_BITS} collision-group bits to exclude them with; merge zero-length links into "
+            "their parents in the URDF, list fewer pairs, or run with self_collision=False"
         )
     bits: dict[str, int] = {}
-    for bit, pair in enumerate(extra):
-        for name in pair:
+    for bit, group in enumerate(groups):
+        for name in group:
             bits[name] = bits.get(name, 0) | 1 << bit
     return tuple(bits.items())
+
+
+def exclusion_groups(must: set[frozenset[str]], may: set[frozenset[str]]) -> list[tuple[str, ...]]:
+    """Groups of links covering every pair of ``must``, each group's pairs all in ``may`` (``must`` within it).
+
+    A greedy cover by cliques, deterministic (names sorted): the first uncovered pair starts a group, then the link
+    that joins it with the most uncovered pairs (every pair it makes in ``may``) is added until none adds one. Two
+    links share a group only through a pair of ``may``; every pair of ``must`` shares one. Not always the fewest
+    groups (that is NP-hard); one group per pair at worst.
+    """
+    left = set(must)
+    links = sorted({name for pair in must for name in pair})
+    groups: list[tuple[str, ...]] = []
+    while left:
+        group = sorted(min(sorted(pair) for pair in left))
+        while True:
+            best, gain = None, 0
+            for link in links:
+                if link in group or any(frozenset((link, m)) not in may for m in group):
+                    continue
+                new = sum(frozenset((link, m)) in left for m in group)
+                if new > gain:
+                    best, gain = link, new
+            if best is None:
+                break
+            group.append(best)
+        groups.append(tuple(sorted(group)))
+        left -= {frozenset((a, b)) for i, a in enumerate(group) for b in group[i + 1 :]}
+    return groups
 
 
 def _configure_hand_body(articulation: sapien.physx.PhysxArticulation, config: SceneConfig) -> None:
