@@ -83,18 +83,19 @@ def warm_up(library, ids: list[str]) -> tuple[dict[str, float], list[str]]:
 
 # -- the pipeline, timed by its records ------------------------------------------------------------------
 def run_pipeline(
-    ids: list[str], hands: list[str], config: SynthesisConfig, folder: Path, clock: str
+    ids: list[str], hands: list[str], config: SynthesisConfig, folder: Path, clock: str, registry=None
 ) -> tuple[list, dict]:
     """The records of one run, its wall seconds and this process's CPU seconds (what the run cost one core,
     whatever else the machine was doing). clock "cpu": the steps' stored seconds are CPU seconds of this
     process (the pipeline's timers read ``time.perf_counter``, which is pointed at ``time.process_time`` for
-    the run; one process, one torch thread: CPU time is the time on one core)."""
+    the run; one process, one torch thread: CPU time is the time on one core). registry: ``run_synthesis``'s
+    (a :class:`~ges_core.synthesis.run.tasks.RegistrySpec`; None: the default registry)."""
     wall_clock = time.perf_counter
     start, cpu = wall_clock(), time.process_time()
     if clock == "cpu":
         time.perf_counter = time.process_time
     try:
-        run_synthesis(ids, hands, config, folder, workers=1)
+        run_synthesis(ids, hands, config, folder, workers=1, registry=registry)
     finally:
         time.perf_counter = wall_clock
     return list(open_dataset(folder)), {"wall": wall_clock() - start, "cpu": time.process_time() - cpu}
