@@ -149,6 +149,19 @@ def test_a_missing_collision_mesh_names_the_link_and_the_fix(tmp_path):
         link_shapes(urdf + "</link></robot>", tmp_path)
 
 
+def test_a_capsule_is_read_with_its_length_as_the_cylinder_part(tmp_path):
+    """<capsule radius length>: length between the cap centres, axis z (as PyBullet and SAPIEN read it); left out
+    with ``capsules=False`` (the inertia bound's reading)."""
+    urdf = (
+        '<robot name="r"><link name="f"><collision><origin xyz="0 0 0.1"/><geometry><capsule radius="0.01" '
+        'length="0.04"/></geometry></collision></link></robot>'
+    )
+    (shape,) = link_shapes(urdf, tmp_path)["f"]
+    assert shape.primitive
+    np.testing.assert_allclose(shape.mesh.bounds, [[-0.01, -0.01, 0.07], [0.01, 0.01, 0.13]], atol=1e-3)
+    assert link_shapes(urdf, tmp_path, capsules=False) == {}
+
+
 def test_package_paths_resolve_in_a_robot_description_layout(tmp_path):
     pkg = tmp_path / "my_hand_description"
     (pkg / "meshes").mkdir(parents=True)

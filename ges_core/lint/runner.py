@@ -7,7 +7,7 @@ from collections.abc import Callable, Sequence
 
 from ges_core.errors import GesError
 from ges_core.hand import HandModel
-from ges_core.lint import checks_assets, checks_geometry, checks_physics, checks_static
+from ges_core.lint import checks_assets, checks_contact_load, checks_geometry, checks_physics, checks_static
 from ges_core.lint.problems import LintProblem
 from ges_core.lint.urdf_tree import UrdfTree
 from ges_core.sim import SceneConfig, SimBackend
@@ -27,6 +27,7 @@ CHECKS: tuple[str, ...] = (
     "opposition",
     "hull-gap",
     "hull-overlap",
+    "contact-load",
     "self-collision",
     "fk",
     "tip-force",
@@ -87,10 +88,11 @@ def _kinematic_checks(hand: HandModel, found: list[LintProblem], skip: Sequence[
         "opposition": lambda: checks_geometry.check_thumb_opposition(hand),
         "hull-gap": lambda: checks_geometry.check_hull_gaps(hand, ref),
         "hull-overlap": lambda: checks_geometry.check_hull_overlaps(hand, ref),
+        "contact-load": lambda: checks_contact_load.check_contact_load(hand),
     }
     if any(p.check == "meshes" and "does not exist" in p.what for p in found):
-        runs.pop("hull-gap")  # both load the meshes
-        runs.pop("hull-overlap")
+        for name in ("hull-gap", "hull-overlap", "contact-load"):  # they load the meshes
+            runs.pop(name)
     return [p for name, run in runs.items() if name not in skip for p in _guarded(name, run)]
 
 
