@@ -48,7 +48,7 @@ class NearPairs:
     """What :func:`near_shape_pairs` counted."""
 
     per_pose: np.ndarray
-    """(POSES,) near shape pairs at each pose."""
+    """(poses,) near shape pairs at each pose."""
     link_share: dict[tuple[str, str], float]
     """(link_a, link_b) sorted -> share of the poses at which some shape pair of the two links is near."""
     shape_pairs: int
@@ -108,9 +108,9 @@ def check_contact_load(hand: HandModel, distance: float = CONTACT_DISTANCE) -> l
         LintProblem(
             "contact-load",
             f"at {len(found.per_pose)} random poses a median of {median:.0f} collision-shape pairs on different links "
-            f"(of {found.shape_pairs}) lie within {distance * 1000:.0f} mm of each other, the engines' contact "
-            f"distance: each is a contact pair every physics step solves, touching or not. Link pairs most often "
-            f"near (share of poses): {named}",
+            f"(of {found.shape_pairs}) lie within {distance * 1000:.0f} mm of each other (SAPIEN's contact distance "
+            f"at the registry's 2 mm offset per shape): each is a contact pair every physics step solves, touching or "
+            f"not. Link pairs most often near (share of poses): {named}",
             "nothing, if those links must collide; where two links cannot touch in a way that matters (neighbouring "
             "fingers side by side, as their source's own contact list may say), list the pair in the hand's "
             "self_collision_exclude (docs/hands/format.md) and measure: docs/hands/assets.md, 'Contact load'",

@@ -34,7 +34,7 @@ class ShadowHand(HandModel):
     """
 
     def __init__(
-        self, *, asset_dir: str | Path | None = None, self_collision: str = "mjcf_pairs", **overrides: Any
+        self, *, asset_dir: str | Path | None = None, self_collision: str = SELF_COLLISION[0], **overrides: Any
     ) -> None:
         if self_collision not in SELF_COLLISION:
             raise ConfigError(
