@@ -20,6 +20,10 @@ def ges_register_hands(register: Callable[[HandSpec], None]) -> None:
             entry_point="ges_plugins.hands.shadow.hand:build_hand",
             requires=("gymnasium_robotics", "mujoco"),  # the MJCF source and its converter
             install="pip install 'ges-unigrasp[shadow]'",
+            # Only the 18 link pairs of the MJCF's <contact><pair> list collide, as in MuJoCo: the same Stage 1 and
+            # Stage 2 verdicts as every pair colliding, SAPIEN's env-step a quarter cheaper (docs/hands/shadow.md,
+            # "Self-collision"). registry.yaml's settings.hand.shadow.self_collision: all brings back every pair.
+            settings={"self_collision": "mjcf_pairs"},
             description="Shadow Dexterous Hand with forearm, 24 joints (gymnasium-robotics MJCF -> URDF)",
         )
     )
