@@ -97,8 +97,9 @@ def _hand_pairs(sim) -> dict[frozenset[str], float]:
 def test_shadow_neighbour_links_are_excluded_and_the_rest_collide(registry, sim_name):
     """Open pose: no overlap deeper than 1 mm (palm-thproximal overlapped 15 mm and thproximal-thmiddle
     24 mm while only parent-child pairs were excluded). Index and middle spread toward each other
-    (a pair that is no neighbour): their proximal links must still report a contact."""
-    hand = registry.build_hand("shadow")
+    (a pair that is no neighbour): their proximal links must still report a contact. The rule of a hand given as a
+    URDF, which the Shadow follows with ``self_collision: all``."""
+    hand = load_registry(overrides=("settings.hand.shadow.self_collision=all",)).build_hand("shadow")
     d = hand.description
     neighbours = neighbour_link_pairs(hand.urdf_text())
     open_q = np.asarray(d.open_pose)[None]
