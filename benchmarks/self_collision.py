@@ -7,7 +7,8 @@ run side by side in one process (one torch thread, CPU time):
 
 * **physics step**: the hand alone, base fixed, no gravity, at 24 seeded random joint poses within the limits;
   the best of 3 blocks of 50 raw engine steps per pose (thread CPU time), median over the poses; SAPIEN also
-  counts the shape pairs PhysX keeps (within the contact offset) at each pose.
+  counts the shape pairs PhysX reports at each pose (hand-hand and hand-table: the base sits at the table's height,
+  so some poses put fingers into it; the same poses for both settings).
 * **Stage 1**: ``run_synthesis`` on the procedural shapes (object 000 of each category, as
   ``benchmarks/stage1_speed.py``), the demo objects and the real scans, SAPIEN refining and validating, robust
   trials on (the defaults), the objects in chunks of 5 with the two settings alternating chunk by chunk (which
