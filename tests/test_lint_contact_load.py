@@ -6,6 +6,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from ges_core.errors import ConfigError
 from ges_core.lint import checks_contact_load
 from ges_core.lint.checks_contact_load import CONTACT_DISTANCE, check_contact_load, near_shape_pairs
 from ges_core.lint.runner import lint_hand
@@ -87,3 +88,5 @@ def test_lint_runs_it_and_skips_it_on_request(monkeypatch):
     notes = [p for p in lint_hand(allegro) if p.check == "contact-load"]
     assert len(notes) == 1 and notes[0].note
     assert not [p for p in lint_hand(allegro, skip=("contact-load",)) if p.check == "contact-load"]
+    with pytest.raises(ConfigError, match=r"no check named 'contact_load'; the checks are .*contact-load"):
+        lint_hand(allegro, skip=("contact_load",))  # a misspelt name skipped nothing before

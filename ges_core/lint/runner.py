@@ -5,7 +5,7 @@ from __future__ import annotations
 import importlib.util
 from collections.abc import Callable, Sequence
 
-from ges_core.errors import GesError
+from ges_core.errors import ConfigError, GesError
 from ges_core.hand import HandModel
 from ges_core.lint import checks_assets, checks_contact_load, checks_geometry, checks_physics, checks_static
 from ges_core.lint.problems import LintProblem
@@ -61,7 +61,10 @@ def lint_hand(
     """All problems (and notes) of ``hand``; physical checks run in each simulator of ``sims`` built by ``make_sim``.
 
     probe: also run :data:`SLOW_CHECKS`. ref: how the user names the hand in a command (default its name).
+    skip: names of :data:`CHECKS` not to run; another name is a ConfigError listing them.
     """
+    if unknown := sorted(set(skip) - set(CHECKS)):
+        raise ConfigError(f"lint: no check named {', '.join(map(repr, unknown))}; the checks are {', '.join(CHECKS)}")
     tree = UrdfTree.from_text(hand.urdf_text())
     d, ref = hand.description, ref or hand.name
     problems: list[LintProblem] = []
