@@ -2,7 +2,7 @@
 
 The Shadow's MJCF (gymnasium-robotics) lets 18 link pairs collide and turns every other hand-hand pair off; a hand
 given as a URDF collides every pair but the neighbours (188 here). ``settings.hand.shadow.self_collision`` picks
-``mjcf_pairs`` (the default since 6 December 2026) or ``all`` (docs/hands/shadow.md, "Self-collision"). Both are
+``mjcf_pairs`` (the default since 5 December 2026) or ``all`` (docs/hands/shadow.md, "Self-collision"). Both are
 run side by side in one process (one torch thread, CPU time):
 
 * **physics step**: the hand alone, base fixed, no gravity, at 24 seeded random joint poses within the limits;

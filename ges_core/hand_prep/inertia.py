@@ -100,7 +100,7 @@ def geometry_points(link: ET.Element, base_dir: Path, kinds: tuple[str, ...]) ->
     try:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            # capsules left out, as before link_shapes read them (6 December 2026): with them the bound flags 9 of
+            # capsules left out, as before link_shapes read them (5 December 2026): with them the bound flags 9 of
             # the Shadow's links at 2-3x, which nobody has looked into yet
             shapes = link_shapes(ET.tostring(probe, encoding="unicode"), base_dir, capsules=False).get("probe", [])
     except (AssetError, OSError, ValueError):

@@ -20,7 +20,7 @@ DESCRIPTION_FILE = Path(__file__).with_name("shadow.yaml")
 
 SELF_COLLISION = ("mjcf_pairs", "all")
 """Which hand-hand link pairs collide (docs/hands/shadow.md, "Self-collision"): the MJCF's own pair list (default),
-or every pair but the neighbours (the rule of a hand given as a URDF; the only one before 6 December 2026)."""
+or every pair but the neighbours (the rule of a hand given as a URDF; the only one before 5 December 2026)."""
 
 
 class ShadowHand(HandModel):

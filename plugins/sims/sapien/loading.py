@@ -154,7 +154,7 @@ def _pair_exclusion_bits(
     with its parent. Every other excluded pair whose two links both have collision geometry must share a bit, and
     no pair that collides may: each bit goes to a group of links that are pairwise excluded (or parent and child),
     set on every link of the group (:func:`exclusion_groups`). Two links then share a bit exactly when they must
-    not collide. One bit per pair, as before 6 December 2026, ran out at 29 pairs: a hand that keeps only the pairs
+    not collide. One bit per pair, as before 5 December 2026, ran out at 29 pairs: a hand that keeps only the pairs
     its MJCF lists (the Shadow, 18 of 188) excludes 170.
     Returns (link name, bit mask) pairs (links without excluded pairs absent).
     """
