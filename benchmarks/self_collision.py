@@ -54,13 +54,13 @@ def _override(setting: str) -> str:
 def step_costs(poses: int, blocks: int = 3, steps: int = 50) -> dict:
     """Per simulator and setting: median µs per raw engine step over random poses (and SAPIEN's shape pairs)."""
     out: dict = {}
+    hands = {s: load_registry(overrides=(_override(s),)).build_hand("shadow") for s in SETTINGS}
+    d = hands[SETTINGS[0]].description
+    lim = d.limits_array
+    rng = np.random.default_rng(0)
+    qs = [d.apply_couplings(rng.uniform(lim[:, 0], lim[:, 1])) for _ in range(poses)]
+    registry = load_registry()
     for sim_name in ("sapien", "pybullet"):
-        hands = {s: load_registry(overrides=(_override(s),)).build_hand("shadow") for s in SETTINGS}
-        d = hands[SETTINGS[0]].description
-        lim = d.limits_array
-        rng = np.random.default_rng(0)
-        qs = [d.apply_couplings(rng.uniform(lim[:, 0], lim[:, 1])) for _ in range(poses)]
-        registry = load_registry()
         sims = {s: registry.build_sim(sim_name, SceneConfig(self_collision=True, gravity=0.0)) for s in SETTINGS}
         times = {s: [] for s in SETTINGS}
         pairs = {s: [] for s in SETTINGS}
@@ -147,6 +147,7 @@ def main() -> None:
     real = [e.object_id for e in LibraryConfig(sources=("real",)).build().entries(source="real")][: args.real]
     procedural = [f"procedural/{c}/000" for c in list(CATEGORIES)[: args.procedural]]
     sets = {"procedural": procedural, "demo": list(DEMO_OBJECTS[: args.demo]), "real": real}
+    sets = {name: ids for name, ids in sets.items() if ids}  # --real 0 etc.: the set is left out
     steps = step_costs(args.poses)
     print("| simulator | setting | raw step, µs (median of poses) | shape pairs (SAPIEN) |\n|---|---|---|---|")
     for sim_name, by in steps.items():

@@ -40,7 +40,7 @@ from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS
 from ges_core.errors import AssetError, ConfigError
 from ges_core.hand import FingerSpec, HandDescription, JointCoupling, WristConvention
-from ges_core.urdf import parse_urdf, root_link
+from ges_core.urdf import parse_urdf, root_link, solid_links
 
 __all__ = ["description_from_yaml", "expand_per_joint", "urdf_joint_limits"]
 
@@ -172,7 +172,7 @@ def _check_exclusions(data: _HandFile, urdf_text: str) -> None:
     """self_collision_exclude may only pair two different links of the URDF that both have collision geometry."""
     root = parse_urdf(urdf_text)
     links = [link.get("name") for link in root.iter("link")]
-    solid = {link.get("name") for link in root.iter("link") if link.find("collision") is not None}
+    solid = set(solid_links(root))
     problems = []
     for a, b in data.self_collision_exclude:
         unknown = [n for n in (a, b) if n not in links]

@@ -25,6 +25,7 @@ __all__ = [
     "root_link",
     "neighbour_link_pairs",
     "origin_matrix",
+    "solid_links",
 ]
 
 WRIST_JOINTS: tuple[str, ...] = (
@@ -64,6 +65,11 @@ def reach_bound(mass: float, offsets: np.ndarray) -> float:
     if len(offsets) == 0:
         return float("inf")
     return mass * float(np.max(np.sum(np.asarray(offsets, dtype=np.float64) ** 2, axis=1)))
+
+
+def solid_links(root: ET.Element) -> list[str]:
+    """Names of the links of a parsed URDF (:func:`parse_urdf`) that have collision geometry, in file order."""
+    return [link.get("name") for link in root.iter("link") if link.find("collision") is not None]
 
 
 def parse_urdf(text: str) -> ET.Element:

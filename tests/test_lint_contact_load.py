@@ -79,7 +79,8 @@ def test_excluded_pairs_are_never_counted():
     found = near_shape_pairs(shadow)
     assert found.link_share and set(found.link_share) <= listed
     none = ShadowHand(self_collision_exclude=pairs_left_out(shadow.urdf_text(), []))
-    assert near_shape_pairs(none).per_pose.sum() == 0 and near_shape_pairs(none).shape_pairs == 0
+    nothing = near_shape_pairs(none)
+    assert nothing.per_pose.sum() == 0 and nothing.shape_pairs == 0
 
 
 def test_lint_runs_it_and_skips_it_on_request(monkeypatch):

@@ -33,6 +33,7 @@ __all__ = [
     "link_shapes",
     "mesh_gap",
     "pair_overlaps",
+    "sat_overlap",
 ]
 
 HULL_OVERLAP_TOL = 1e-3
@@ -152,13 +153,13 @@ def hull_penetration(a: np.ndarray, b: np.ndarray) -> float:
     """
     if np.any(a.min(0) > b.max(0)) or np.any(b.min(0) > a.max(0)):
         return 0.0  # bounding boxes apart
-    depth = _sat_overlap(a, b, np.concatenate([_face_normals(a), _face_normals(b)]))
+    depth = sat_overlap(a, b, np.concatenate([_face_normals(a), _face_normals(b)]))
     if depth <= 0.0:
         return 0.0  # a face plane separates them: no need for the many edge axes
-    return max(0.0, min(depth, _sat_overlap(a, b, _edge_crosses(a, b))))
+    return max(0.0, min(depth, sat_overlap(a, b, _edge_crosses(a, b))))
 
 
-def _sat_overlap(a: np.ndarray, b: np.ndarray, axes: np.ndarray) -> float:
+def sat_overlap(a: np.ndarray, b: np.ndarray, axes: np.ndarray) -> float:
     """Smallest overlap of the two point sets' projections on ``axes`` (A, 3) unit vectors, metres."""
     if len(axes) == 0:
         return float("inf")

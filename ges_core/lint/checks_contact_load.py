@@ -162,8 +162,8 @@ def _apart(a: _Convex, b: _Convex, pose_a: np.ndarray, pose_b: np.ndarray, dista
 
 def _separation(va: np.ndarray, vb: np.ndarray, axes: np.ndarray) -> float:
     """Largest gap between the projections of the point sets ``va``, ``vb`` on unit ``axes`` (A, 3), metres
-    (negative: they overlap on every axis); -inf without axes."""
-    if not len(axes):
-        return -np.inf
-    pa, pb = axes @ va.T, axes @ vb.T  # (A, N), (A, M): rows contiguous for the reductions
-    return float(np.maximum(pb.min(1) - pa.max(1), pa.min(1) - pb.max(1)).max())
+    (negative: they overlap on every axis); -inf without axes. The separating-axis test of ``ges hand prepare``'s
+    overlap check (:func:`ges_core.hand_prep.geometry.sat_overlap`), sign turned."""
+    from ges_core.hand_prep.geometry import sat_overlap
+
+    return -sat_overlap(va, vb, axes)

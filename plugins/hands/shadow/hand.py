@@ -9,7 +9,7 @@ from typing import Any
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.hand_yaml import description_from_yaml
-from ges_core.urdf import neighbour_link_pairs, parse_urdf
+from ges_core.urdf import neighbour_link_pairs, parse_urdf, solid_links
 from ges_plugins.hands.shadow.assets import cached_contact_pairs, cached_urdf
 
 __all__ = ["DESCRIPTION_FILE", "SELF_COLLISION", "ShadowHand", "build_hand", "pairs_left_out"]
@@ -63,8 +63,7 @@ def pairs_left_out(urdf_text: str, allowed: list[tuple[str, str]]) -> list[list[
     """Sorted link pairs that collide under the usual rule (both links with collision geometry, not neighbours:
     :func:`ges_core.urdf.neighbour_link_pairs`) but are not in ``allowed``: the hand's ``self_collision_exclude``
     that leaves exactly ``allowed`` colliding."""
-    root = parse_urdf(urdf_text)
-    solid = sorted(link.get("name") for link in root.findall("link") if link.find("collision") is not None)
+    solid = sorted(solid_links(parse_urdf(urdf_text)))
     neighbours, keep = neighbour_link_pairs(urdf_text), {frozenset(pair) for pair in allowed}
     return [[a, b] for a, b in combinations(solid, 2) if frozenset((a, b)) not in neighbours | keep]
 

@@ -23,6 +23,7 @@ from ges_core.urdf import (
     absolutize_mesh_paths,
     add_floating_base,
     parse_urdf,
+    solid_links,
     strip_render_data,
 )
 from ges_plugins.sims.sapien.engine import sapien
@@ -159,7 +160,7 @@ def _pair_exclusion_bits(
     Returns (link name, bit mask) pairs (links without excluded pairs absent).
     """
     root = parse_urdf(urdf_text)
-    solid = {link.get("name") for link in root.findall("link") if link.find("collision") is not None}
+    solid = set(solid_links(root))
     parent_child = {frozenset((j.find("parent").get("link"), j.find("child").get("link"))) for j in root.iter("joint")}
     must = {pair for pair in excluded - parent_child if pair <= solid}
     groups = exclusion_groups(must, must | {pair for pair in parent_child if pair <= solid})
