@@ -14,13 +14,15 @@ the asked iterations: rerunning the script resumes), each evaluation ``ges eval-
 
     python benchmarks/ablations.py --study reward [--iterations 150] [--action-mode residual] [--episodes 4]
         [--scr-scale 4 10]   # more TSR+SCR arms, both penalty weights times each factor (tsr_scr_x4, ...)
-    python benchmarks/ablations.py --study prior [--iterations 150] [--action-mode absolute]
+    python benchmarks/ablations.py --study prior [--iterations 150] [--action-mode absolute] [--warm-start]
 
 Results: ``benchmarks/results/ablation_<study>.json`` (+ ``ablation_prior.png``); runs under
 ``runs/ablations/<study>/``. ``--seed N`` (N > 0) trains and evaluates in folders of their own (``<arm>-seedN``,
 ``eval-seedN``) and writes ``ablation_<study>_seedN.json``: another seed never reuses seed 0's runs. The
 scripted expert needs the goal in the observation, so the residual action mode cannot run the NoGoal arms of the
-prior study: that study uses the absolute (paper's) action.
+prior study: that study uses the absolute (paper's) action. ``--warm-start`` starts every arm from the
+behaviour-cloning warm start (``warm_start.enabled=true``; a NoGoal arm clones a teacher that sees the goal its
+policy does not); its runs and results are named ``-warm`` / ``_warm``.
 """
 
 from __future__ import annotations
@@ -63,8 +65,9 @@ def ges(*args: str) -> None:
 
 
 def _suffix(args: argparse.Namespace) -> str:
-    """'' for seed 0 (the runs and results as first written), else '-seed<N>': another seed never reuses them."""
-    return f"-seed{args.seed}" if args.seed else ""
+    """'' for seed 0 without the warm start (the runs and results as first written), else '-warm' and/or '-seed<N>':
+    another seed or the warm start never reuses them."""
+    return ("-warm" if args.warm_start else "") + (f"-seed{args.seed}" if args.seed else "")
 
 
 def train(study: str, arm: str, overrides: list[str], args: argparse.Namespace) -> Path:
@@ -74,7 +77,8 @@ def train(study: str, arm: str, overrides: list[str], args: argparse.Namespace) 
     if summary.is_file() and json.loads(summary.read_text()).get("iterations", 0) >= args.iterations:
         print(f"{arm}: reusing {out.relative_to(ROOT)}", flush=True)
         return out
-    opts = [f"action_mode={args.action_mode}", f"iterations={args.iterations}", "time_limit=null", *overrides,
+    warm = ["warm_start.enabled=true"] if args.warm_start else []
+    opts = [f"action_mode={args.action_mode}", f"iterations={args.iterations}", "time_limit=null", *warm, *overrides,
             *args.override]  # fmt: skip
     resume = ["--resume"] if (out / "checkpoints").is_dir() else []
     cli = ["train-expert", str(args.dataset), "--cluster", str(args.cluster), "--seed", str(args.seed),
@@ -180,7 +184,8 @@ def _plot(curves: dict, path: Path, args: argparse.Namespace) -> None:
     rx.set_xlabel("env steps")
     rx.set_ylabel("mean episode reward (rsl-rl)")
     rx.legend()
-    fig.suptitle(f"prior ablation: tiny, Allegro, SAPIEN, cluster {args.cluster}, {args.action_mode} actions")
+    warm = ", behaviour-cloning warm start" if args.warm_start else ""
+    fig.suptitle(f"prior ablation: tiny, Allegro, SAPIEN, cluster {args.cluster}, {args.action_mode} actions{warm}")
     fig.tight_layout()
     fig.savefig(path, dpi=100)
 
@@ -211,8 +216,16 @@ def main() -> None:
         default=[],
         help="reward study: also train TSR+SCR with both penalty weights times each factor",
     )
+    parser.add_argument(
+        "--warm-start",
+        action="store_true",
+        help="absolute actions: every arm starts from the behaviour-cloning warm start (NoGoal arms clone a teacher "
+        "that sees the goal); runs and results get '-warm' / '_warm' in their names",
+    )
     parser.add_argument("-o", action="append", default=[], dest="override", help="more TrainConfig overrides")
     args = parser.parse_args()  # fmt: skip
+    if args.warm_start and args.action_mode == "residual":
+        parser.error("--warm-start is for absolute actions (a residual run already starts at its base expert)")
     args.action_mode = args.action_mode or ("residual" if args.study == "reward" else "absolute")
     start = time.perf_counter()
     body = run_reward(args) if args.study == "reward" else run_prior(args)

@@ -7,7 +7,7 @@ import pytest
 import torch
 from scipy.spatial.transform import Rotation
 
-from ges_core.env.layout import BLOCK_DOCS, ActionLayout, ObservationLayout
+from ges_core.env.layout import BLOCK_DOCS, GOAL_BLOCKS, ActionLayout, ObservationLayout
 from ges_core.errors import ConfigError
 from ges_core.registry import load_registry
 
@@ -28,6 +28,19 @@ def test_layout_allegro_blocks_are_contiguous_and_sized() -> None:
     ends = [s.stop for s in layout.slices.values()]
     starts = [s.start for s in layout.slices.values()]
     assert starts == [0, *ends[:-1]] and ends[-1] == layout.size
+
+
+def test_add_goal_puts_the_goal_blocks_where_a_goal_layout_packs_them() -> None:
+    full, bare = ObservationLayout(3, 2, 1), ObservationLayout(3, 2, 1, goal=False)
+    blocks = {name: torch.rand(4, size, dtype=torch.float64) for name, size in full.sizes().items()}
+    goal = torch.cat([blocks[g] for g in GOAL_BLOCKS], dim=1)
+    bare_obs = bare.pack({k: v for k, v in blocks.items() if k not in GOAL_BLOCKS})
+    assert bare.with_goal() == full and full.with_goal() is full
+    assert torch.equal(bare.add_goal(bare_obs, goal), full.pack(blocks))
+    with pytest.raises(ConfigError, match="goal-less layout's observations"):
+        full.add_goal(full.pack(blocks), goal)  # already has them
+    with pytest.raises(ConfigError, match=r"goal \(4, 5\)"):
+        bare.add_goal(bare_obs, goal[:, :5])
 
 
 def test_pack_unpack_roundtrip_and_errors() -> None:

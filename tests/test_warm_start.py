@@ -5,6 +5,7 @@ actor normalizer, and the pieces on their own."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import pytest
 import torch
@@ -148,3 +149,53 @@ def _context(setup):
     from ges_core.policy import ExpertContext
 
     return ExpertContext.of_env(setup.env, sim=setup.sim)
+
+
+@pytest.mark.parametrize("workers", [1, 2])
+def test_a_nogoal_teacher_labels_what_the_goal_env_labels(clusters, workers) -> None:  # noqa: F811
+    """NoGoal (``env.goal_prior=false``): the demonstrator reads the policy's observation with the env's exact goal
+    put in. Cross-check against a Goal env built alike (the same states, randomization off): the teacher's view
+    equals the Goal env's own observation bit for bit, the labels are the same, and the student keeps its own view
+    (the Goal observation without the goal blocks). With 2 env workers (both envs) the goal comes from them."""
+    from ges_core.env.layout import GOAL_BLOCKS
+    from ges_core.policy import ExpertContext
+    from ges_core.registry import load_registry
+    from ges_core.training.config import load_train_config
+    from ges_core.training.envs import build_setup
+    from ges_core.training.warm_start import collect_demonstrations
+
+    reg, demos, firsts = load_registry(), {}, {}
+    for goal in (True, False):
+        cfg = load_train_config("tiny", overrides=[*FAST, *WARM, f"env.goal_prior={str(goal).lower()}",
+                                                   "env.randomization.enabled=false",
+                                                   f"workers={workers}"])  # fmt: skip
+        torch.manual_seed(cfg.seed)
+        setup = build_setup(DATASET, cfg, reg, clusters)
+        try:
+            layout = setup.env.obs_layout
+            assert layout.goal is goal
+            obs = setup.venv.get_observations()["policy"]
+            firsts[goal] = obs if goal else layout.add_goal(obs, torch.as_tensor(setup.env.goal_obs))
+            context = ExpertContext.of_env(setup.env, sim=setup.sim)
+            expert = reg.build_expert("scripted", replace(context, obs_layout=layout.with_goal()),
+                                      **cfg.warm_start.expert_settings)  # fmt: skip
+            demos[goal] = collect_demonstrations(setup.venv, expert, 48, 0.0, torch.Generator().manual_seed(0))
+        finally:
+            setup.venv.close()
+    assert torch.equal(firsts[True], firsts[False])
+    full = demos[True]
+    assert torch.equal(demos[False].actions, full.actions)
+    goal_cols = torch.cat([torch.arange(full.obs.shape[1])[layout.with_goal().slices[g]] for g in GOAL_BLOCKS])
+    keep = torch.ones(full.obs.shape[1], dtype=torch.bool)
+    keep[goal_cols] = False
+    assert torch.equal(demos[False].obs, full.obs[:, keep])
+
+
+def test_a_nogoal_run_warm_starts_from_its_teacher(tmp_path, clusters) -> None:  # noqa: F811
+    """The warm start runs where the policy has no goal blocks: the cloning learns, the checkpoint is a NoGoal one."""
+    out = tmp_path / "nogoal"
+    summary = _train(out, clusters, "iterations=1", "seed=5", "env.goal_prior=false", *WARM)
+    loss = _record(out)["imitation_loss"]
+    assert loss[-1] < 0.5 * loss[0]
+    made_for = dict(read_checkpoint(summary.checkpoint)["ges"]["made_for"]["observation"])
+    assert "goal_q" not in made_for and "q" in made_for

@@ -43,7 +43,7 @@ from pydantic import Field
 
 from ges_core.arrays import as_numpy, checked_array
 from ges_core.config import ConfigModel
-from ges_core.env.layout import ActionLayout, ObservationLayout
+from ges_core.env.layout import GOAL_BLOCKS, ActionLayout, ObservationLayout
 from ges_core.env.priors import PRIOR_PRESETS, open_hand_start_pose, prior_preset
 from ges_core.env.randomization import RandomizationConfig, Randomizer
 from ges_core.env.reward import TERMS, RewardConfig, RewardFunction, consistency_groups
@@ -168,6 +168,10 @@ class GraspEnv:
         """(n, K) float64 joint targets last sent, rad (the episode's start joints after a reset)."""
         self.bad_actions: np.ndarray | None = None
         """(n,) bool, the envs whose row of the last :meth:`apply_action` held NaN or inf; None: none did."""
+        self.goal_obs = np.zeros((self.n, 6 + d.num_joints), dtype=np.float32)
+        """(n, 6 + K) float32, NoGoal layouts only (``goal_prior=False``): the goal blocks G (:data:`GOAL_BLOCKS`
+        order, exact: no observation noise) of the latest :meth:`observe`, which the policy does not see. What a
+        teacher that knows the goal reads beside it (``ObservationLayout.add_goal``: the NoGoal warm start)."""
         self._last_terms: tuple[dict | None, np.ndarray | None] = (None, None)  # see terms_array
         self._last_state: tuple = (None, None, None)  # see _state_arrays
         self._quat_buf = (np.empty((2, self.n, 4)), np.empty((2, self.n, 4)), np.empty((3, self.n, 4)))
@@ -393,6 +397,8 @@ class GraspEnv:
         state = {name: torch.from_numpy(value) for name, value in arrays.items()}
         self._last_state = (state, arrays, blocks["goal_q"])
         flat = self.obs_layout.pack_np(blocks)
+        if not self.obs_layout.goal:
+            self.goal_obs = np.concatenate([blocks[name] for name in GOAL_BLOCKS], axis=1, dtype=np.float32)
         self.random.add_noise(flat, noise_rows)  # the policy's view only: the state (reward, success) stays exact
         return torch.from_numpy(flat), state
 

@@ -123,6 +123,31 @@ class ObservationLayout:
             )
         return obs
 
+    def with_goal(self) -> ObservationLayout:
+        """This layout with the goal blocks :data:`GOAL_BLOCKS` (itself if it has them)."""
+        return self if self.goal else ObservationLayout(self.num_joints, self.num_contact_links, self.num_tips, True)
+
+    def add_goal(self, obs: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
+        """Observations of :meth:`with_goal`'s layout (num_envs, size + 6 + K) float32: ``obs`` (num_envs, size) of
+        this goal-less layout with ``goal`` (num_envs, 6 + K), the blocks G in :data:`GOAL_BLOCKS` order, put in.
+
+        The view a goal-less policy's teacher reads (the warm start of a NoGoal run, docs/training.md)."""
+        full = self.with_goal()
+        k = full.sizes()
+        width = sum(k[name] for name in GOAL_BLOCKS)
+        if self.goal or obs.shape[-1] != self.size or goal.shape[-1] != width or goal.shape[0] != obs.shape[0]:
+            raise ConfigError(
+                f"add_goal: needs a goal-less layout's observations ({self.size} floats) and their goal blocks "
+                f"({width} floats: {', '.join(GOAL_BLOCKS)}) per row; got a {'goal' if self.goal else 'goal-less'} "
+                f"layout, observations {tuple(obs.shape)} and goal {tuple(goal.shape)}"
+            )
+        out = torch.empty(obs.shape[0], full.size, dtype=torch.float32)
+        for name, sl in self.slices.items():
+            out[:, full.slices[name]] = obs[:, sl]
+        start = full.slices[GOAL_BLOCKS[0]].start
+        out[:, start : start + width] = goal.to(torch.float32)
+        return out
+
     def unpack(self, obs: torch.Tensor, name: str) -> torch.Tensor:
         """The block ``name`` of observations (num_envs, size) as (num_envs, block size)."""
         if name not in self.slices:

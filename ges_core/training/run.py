@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 import torch
@@ -133,12 +133,15 @@ def warm_start_active(cfg: TrainConfig) -> bool:
 
 
 def _demonstrator(setup: TrainingSetup, cfg: TrainConfig, registry):
-    """The Expert the warm start imitates (None when it does not run)."""
+    """The Expert the warm start imitates (None when it does not run). It reads the observation with the goal
+    blocks even where the policy's has none (NoGoal, ``env.goal_prior=false``): a teacher that knows the goal
+    (:func:`ges_core.training.warm_start.collect_demonstrations` puts it in)."""
     if not warm_start_active(cfg):
         return None
     from ges_core.policy import ExpertContext
 
     context = ExpertContext.of_env(setup.env, sim=setup.sim, registry=registry)
+    context = replace(context, obs_layout=context.obs_layout.with_goal())
     return registry.build_expert(cfg.warm_start.expert, context, **cfg.warm_start.expert_settings)
 
 

@@ -74,18 +74,25 @@ def collect_demonstrations(venv, expert, samples: int, noise: float, generator: 
     """Step the GraspVecEnv ``venv`` for ceil(samples / num_envs) control steps with ``expert``'s actions +
     N(0, noise) (executed, clamped); every visited observation is labelled with ``expert``'s clean action. The
     expert forgets each env's episode when it ends; before each label its wrist-target mirror is set to the env's
-    target (:func:`sync_wrist_mirror`)."""
+    target (:func:`sync_wrist_mirror`).
+
+    The expert reads the observation with the goal blocks G. Where the policy's has none (NoGoal), the expert is a
+    teacher: it reads the policy's observation with the env's exact goal put in (``GraspEnv.goal_obs``,
+    ``ObservationLayout.add_goal``), and the demonstrations keep the policy's own view, so the student learns
+    what it can of the teacher's actions without the goal."""
     if samples < 1:
         raise ConfigError(f"warm start: samples is {samples}; give at least 1 demonstration sample")
     n = venv.num_envs
     steps = math.ceil(samples / n)
+    layout = venv.env.obs_layout
     obs = venv.get_observations()["policy"]
     expert.reset()
     all_obs, all_act = [], []
     demo = Demonstrations(torch.empty(0), torch.empty(0), steps * n)
     for _ in range(steps):
         sync_wrist_mirror(expert, venv.env)
-        label = expert.act(obs).to(torch.float32).clamp(-1.0, 1.0)
+        seen = obs if layout.goal else layout.add_goal(obs, torch.as_tensor(venv.env.goal_obs))
+        label = expert.act(seen).to(torch.float32).clamp(-1.0, 1.0)
         all_obs.append(obs.clone())
         all_act.append(label)
         executed = label + noise * torch.randn(label.shape, generator=generator) if noise > 0 else label
