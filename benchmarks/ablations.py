@@ -224,9 +224,9 @@ def main() -> None:
     )
     parser.add_argument("-o", action="append", default=[], dest="override", help="more TrainConfig overrides")
     args = parser.parse_args()  # fmt: skip
+    args.action_mode = args.action_mode or ("residual" if args.study == "reward" else "absolute")
     if args.warm_start and args.action_mode == "residual":
         parser.error("--warm-start is for absolute actions (a residual run already starts at its base expert)")
-    args.action_mode = args.action_mode or ("residual" if args.study == "reward" else "absolute")
     start = time.perf_counter()
     body = run_reward(args) if args.study == "reward" else run_prior(args)
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}

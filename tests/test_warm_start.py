@@ -5,7 +5,6 @@ actor normalizer, and the pieces on their own."""
 from __future__ import annotations
 
 import json
-from dataclasses import replace
 
 import pytest
 import torch
@@ -158,10 +157,10 @@ def test_a_nogoal_teacher_labels_what_the_goal_env_labels(clusters, workers) -> 
     equals the Goal env's own observation bit for bit, the labels are the same, and the student keeps its own view
     (the Goal observation without the goal blocks). With 2 env workers (both envs) the goal comes from them."""
     from ges_core.env.layout import GOAL_BLOCKS
-    from ges_core.policy import ExpertContext
     from ges_core.registry import load_registry
     from ges_core.training.config import load_train_config
     from ges_core.training.envs import build_setup
+    from ges_core.training.run import _demonstrator
     from ges_core.training.warm_start import collect_demonstrations
 
     reg, demos, firsts = load_registry(), {}, {}
@@ -176,9 +175,8 @@ def test_a_nogoal_teacher_labels_what_the_goal_env_labels(clusters, workers) -> 
             assert layout.goal is goal
             obs = setup.venv.get_observations()["policy"]
             firsts[goal] = obs if goal else layout.add_goal(obs, torch.as_tensor(setup.env.goal_obs))
-            context = ExpertContext.of_env(setup.env, sim=setup.sim)
-            expert = reg.build_expert("scripted", replace(context, obs_layout=layout.with_goal()),
-                                      **cfg.warm_start.expert_settings)  # fmt: skip
+            expert = _demonstrator(setup, cfg, reg)  # the run's own: built for the observation with the goal
+            assert expert.obs_layout == layout.with_goal()
             demos[goal] = collect_demonstrations(setup.venv, expert, 48, 0.0, torch.Generator().manual_seed(0))
         finally:
             setup.venv.close()
