@@ -22,7 +22,9 @@ Results: ``benchmarks/results/ablation_<study>.json`` (+ ``ablation_prior.png``)
 scripted expert needs the goal in the observation, so the residual action mode cannot run the NoGoal arms of the
 prior study: that study uses the absolute (paper's) action. ``--warm-start`` starts every arm from the
 behaviour-cloning warm start (``warm_start.enabled=true``; a NoGoal arm clones a teacher that sees the goal its
-policy does not); its runs and results are named ``-warm`` / ``_warm``.
+policy does not); its runs and results are named ``-warm`` / ``_warm``. ``-o KEY=VALUE`` changes every arm and needs
+``--tag NAME`` (runs and results named ``-NAME``), so tagged runs never mix with untagged ones. The results record
+the dataset trained on (record count and manifest SHA-256).
 """
 
 from __future__ import annotations
@@ -31,6 +33,7 @@ import argparse
 import hashlib
 import json
 import os
+import re
 import subprocess
 import sys
 import time
@@ -66,9 +69,10 @@ def ges(*args: str) -> None:
 
 
 def _suffix(args: argparse.Namespace) -> str:
-    """'' for seed 0 without the warm start (the runs and results as first written), else '-warm' and/or '-seed<N>':
-    another seed or the warm start never reuses them."""
-    return ("-warm" if args.warm_start else "") + (f"-seed{args.seed}" if args.seed else "")
+    """'' for seed 0 without the warm start or a tag (the runs and results as first written), else '-warm', '-<tag>'
+    and/or '-seed<N>': another seed, the warm start or another tag never reuses them."""
+    tag = f"-{args.tag}" if args.tag else ""
+    return ("-warm" if args.warm_start else "") + tag + (f"-seed{args.seed}" if args.seed else "")
 
 
 def train(study: str, arm: str, overrides: list[str], args: argparse.Namespace) -> Path:
@@ -234,7 +238,16 @@ def main() -> None:
         "that sees the goal); runs and results get '-warm' / '_warm' in their names",
     )
     parser.add_argument("-o", action="append", default=[], dest="override", help="more TrainConfig overrides")
+    parser.add_argument(
+        "--tag", default="", help="a name for runs with other -o overrides: runs and results get '-TAG'"
+    )
     args = parser.parse_args()  # fmt: skip
+    if args.override and not args.tag:
+        parser.error(
+            "-o changes the arms: give --tag NAME too, so their runs and results do not mix with the untagged ones"
+        )
+    if args.tag and not re.fullmatch(r"[A-Za-z0-9_-]+", args.tag):
+        parser.error(f"--tag {args.tag!r}: letters, digits, '-' and '_' only (it names folders and files)")
     args.action_mode = args.action_mode or ("residual" if args.study == "reward" else "absolute")
     if args.warm_start and args.action_mode == "residual":
         parser.error("--warm-start is for absolute actions (a residual run already starts at its base expert)")
