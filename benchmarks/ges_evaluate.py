@@ -13,8 +13,8 @@ expert, and within 2 points of the oracle; the gate's accuracy (pick among the b
 Gates: every ``--gate PATH`` given, plus one per ``--train-gate NAME`` trained here on the matrix (``ges
 train-gate``'s pipeline, into OUT/gate-NAME; an existing OUT/gate-NAME/gate.pt is reused). The GES episodes run
 (``--reuse-matrix`` takes the identical matrix cells instead, and the JSON says so). Writes
-``benchmarks/results/ges_evaluate.json`` (``--results`` another), and the Table 2 files and the expert-fusion PNG
-in OUT.
+``benchmarks/results/ges_evaluate.json`` (``--results NAME``: ``benchmarks/results/NAME.json``), and the Table 2
+files and the expert-fusion PNG in OUT.
 """
 
 from __future__ import annotations
@@ -34,10 +34,9 @@ from ges_core.ges_eval.outputs import write_outputs
 from ges_core.objects.splits import SPLITS
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 ROOT = Path(__file__).resolve().parent
-RESULTS = ROOT / "results" / "ges_evaluate.json"
 TINY = Path("runs") / "tiny"
 """Relative, as runs/tiny's matrix names its checkpoints (an expert's settings are its identity): run from the
 repository root."""
@@ -109,13 +108,14 @@ def main() -> None:
     )
     p.add_argument("--verify-accepted", type=int, default=4, metavar="N", help="rerun N accepted cells first")
     p.add_argument("--workers", type=int, default=1)
-    p.add_argument("--results", type=Path, default=RESULTS, help="results JSON to write")
+    p.add_argument("--results", default="ges_evaluate", metavar="NAME", help="benchmarks/results/NAME.json")
     p.add_argument("--oracle-from", type=Path, nargs="+", default=[], metavar="MATRIX",
                    help="matrices the gates were trained on (pooled): the oracle picked on them, scored on this "
                    "run's episodes (the yardstick of 'within 2 points of the oracle' on fresh episodes)")  # fmt: skip
     p.add_argument("--seed", type=int, default=0, help="episode seed (run and randomization): another than the gates' "
                    "matrix's scores them on fresh episodes")  # fmt: skip
     args = p.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the run
     set_torch_threads()
     out = args.out or args.dataset.parent / "ges"
     gates = [parse_gate(g) for g in args.gate] + [parse_gate(g, argmax=True) for g in args.gate_argmax]
@@ -148,7 +148,7 @@ def main() -> None:
             print(f"{gate} {split}: GES {100 * c['ges']:.1f} % | best expert {100 * c['best_expert']:.1f} % | "
                   f"oracle {100 * c['oracle']:.1f} % | above best expert: {c['above_best_expert']} | "
                   f"within 2 points of the oracle: {c['within_2_points_of_oracle']}")  # fmt: skip
-    write_results(args.results, {
+    write_results(results, {
         "what": "ges evaluate: Table 2 (every expert alone, scripted baseline, oracle, GES per gate)",
         "dataset": str(args.dataset), "matrix": str(args.matrix), "experts": [e.label for e in experts],
         "seed": args.seed,
