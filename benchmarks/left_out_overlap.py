@@ -3,9 +3,9 @@
 A pair in the hand's ``self_collision_exclude`` (the Shadow's 170 pairs its MJCF does not list, or pairs a user left
 out after ``ges hand lint``'s contact-load note) is never a contact in either engine, so two such links can pass
 through each other while the hand closes. This measures whether the grasps a dataset stores rely on that: at every
-record's grasp joints, PyBullet's exact closest points (GJK/EPA on the shapes the engine loads) between two copies of
-the hand at the same joints, for every excluded pair of links that both have collision geometry (neighbours, which
-the engines never collide, are not in the list). A negative distance is an overlap.
+record's grasp joints, PyBullet's exact closest points (GJK/EPA on the shapes the engine loads) between the two links
+of every excluded pair that both have collision geometry (neighbours, which the engines never collide, are not in the
+list). A negative distance is an overlap.
 
     python benchmarks/left_out_overlap.py DATASET [DATASET ...] [--hand shadow] [--results left_out_overlap_shadow]
 
@@ -23,6 +23,7 @@ import pybullet as p
 
 from ges_core.dataset import open_dataset
 from ges_core.registry import load_registry
+from ges_plugins.sims.pybullet.scene import link_indices
 
 from _results import code_state, results_path, write_results
 
@@ -32,19 +33,17 @@ SHOWN = 8
 
 def left_out_pairs(hand, body: int, client: int) -> list[tuple[str, str, int, int]]:
     """(link a, link b, PyBullet index a, index b) of every excluded pair whose links the loaded body has."""
-    index = {p.getJointInfo(body, j, physicsClientId=client)[12].decode(): j
-             for j in range(p.getNumJoints(body, physicsClientId=client))}  # fmt: skip
-    index[p.getBodyInfo(body, physicsClientId=client)[0].decode()] = -1  # the base link
+    index = link_indices(body, client)
     pairs = [tuple(pair) for pair in hand.description.self_collision_exclude]
     return [(a, b, index[a], index[b]) for a, b in pairs if a in index and b in index]
 
 
-def deepest_overlap(bodies: tuple[int, int], pairs, client: int) -> tuple[float, tuple[str, str] | None]:
-    """The most negative closest-point distance (m) over ``pairs`` between the two copies, and its pair (0, None:
-    no pair overlaps)."""
+def deepest_overlap(body: int, pairs, client: int) -> tuple[float, tuple[str, str] | None]:
+    """The most negative closest-point distance (m) over ``pairs`` of the body's links, and its pair (0, None: no
+    pair overlaps). PyBullet measures two links of one body whatever its collision filter says."""
     worst, which = 0.0, None
     for a, b, ia, ib in pairs:
-        for c in p.getClosestPoints(bodies[0], bodies[1], 0.0, ia, ib, physicsClientId=client):
+        for c in p.getClosestPoints(body, body, 0.0, ia, ib, physicsClientId=client):
             if c[8] < worst:
                 worst, which = c[8], (a, b)
     return worst, which
@@ -60,10 +59,10 @@ def main() -> None:
     hand = load_registry().build_hand(args.hand)
     d = hand.description
     client = p.connect(p.DIRECT)
-    bodies = tuple(p.loadURDF(str(hand.urdf_path()), useFixedBase=True, physicsClientId=client) for _ in range(2))
-    joints = {p.getJointInfo(bodies[0], j, physicsClientId=client)[1].decode(): j
-              for j in range(p.getNumJoints(bodies[0], physicsClientId=client))}  # fmt: skip
-    pairs = left_out_pairs(hand, bodies[0], client)
+    body = p.loadURDF(str(hand.urdf_path()), useFixedBase=True, physicsClientId=client)
+    joints = {p.getJointInfo(body, j, physicsClientId=client)[1].decode(): j
+              for j in range(p.getNumJoints(body, physicsClientId=client))}  # fmt: skip
+    pairs = left_out_pairs(hand, body, client)
     print(f"{args.hand}: {len(pairs)} excluded link pairs with collision geometry")
     out = {"benchmark": "left_out_overlap", "hand": args.hand, "pairs": len(pairs), "datasets": {}}
     for path in args.datasets:
@@ -72,10 +71,9 @@ def main() -> None:
             if r.grasp is None:
                 continue
             q = d.apply_couplings(np.asarray(r.grasp.q, dtype=np.float64))
-            for body in bodies:
-                for name, value in zip(r.joint_names, q, strict=True):
-                    p.resetJointState(body, joints[name], float(value), physicsClientId=client)
-            depth, pair = deepest_overlap(bodies, pairs, client)
+            for name, value in zip(r.joint_names, q, strict=True):
+                p.resetJointState(body, joints[name], float(value), physicsClientId=client)
+            depth, pair = deepest_overlap(body, pairs, client)
             rows.append({"object_id": r.object_id, "overlap_mm": round(-depth * 1000, 2), "pair": pair})
         rows.sort(key=lambda row: -row["overlap_mm"])
         over = {mm: sum(row["overlap_mm"] > mm for row in rows) for mm in (1, 3)}

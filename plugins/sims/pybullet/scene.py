@@ -29,6 +29,7 @@ __all__ = [
     "create_object",
     "exclude_link_pairs",
     "hand_layout",
+    "link_indices",
     "load_hand_body",
     "new_scene",
     "set_hand_friction",
@@ -181,11 +182,18 @@ def exclude_link_pairs(scene: Scene, pairs: set[frozenset[str]]) -> None:
     Every pair of ``pairs`` is switched off, parent-child ones included, so the rule does not rest
     on the flag alone.
     """
-    count = p.getNumJoints(scene.hand, physicsClientId=scene.cid)
-    index = {p.getJointInfo(scene.hand, j, physicsClientId=scene.cid)[12].decode(): j for j in range(count)}
+    index = link_indices(scene.hand, scene.cid)
     for pair in pairs:
         link_a, link_b = sorted(index[name] for name in pair)
         p.setCollisionFilterPair(scene.hand, scene.hand, link_a, link_b, 0, physicsClientId=scene.cid)
+
+
+def link_indices(body: int, cid: int) -> dict[str, int]:
+    """Link name -> PyBullet link index of a loaded body: each joint's child link by its joint's index, the base
+    link -1."""
+    count = p.getNumJoints(body, physicsClientId=cid)
+    index = {p.getJointInfo(body, j, physicsClientId=cid)[12].decode(): j for j in range(count)}
+    return {p.getBodyInfo(body, physicsClientId=cid)[0].decode(): -1, **index}
 
 
 def hand_layout(scene: Scene, hand: HandModel, config: SceneConfig, floating: bool) -> HandLayout:
