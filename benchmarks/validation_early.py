@@ -1,55 +1,81 @@
-"""Stage 1 with and without the early end of the hold: the same verdicts, fewer physics steps.
+"""Stage 1 with and without the early ends of validation: the same verdicts, fewer physics steps.
 
-Validation (the nominal trial and every robust trial) ends its 200-step hold as soon as the verdict cannot change
+Validation (the nominal trial and every robust trial) ends its lift as soon as a touched object is lost (``lost_lag``
+below the wrist target's rise) and its 200-step hold as soon as the verdict cannot change
 (``ges_core.synthesis.physics.validate``: not lifted but touched, or low once after the lift). This runs the
 Stage 1 pipeline (``run_synthesis``, one process, one torch thread, SAPIEN, robust validation on: the defaults)
-three times over the same objects: with every hold step (``full``), again so (``full_again``: the control, the
-pipeline repeats itself exactly in one process), and as shipped (``early``). It compares record by record the
-verdicts (each step's, the failed step, robust and the robustness score), the placement histories (each
-placement's refinement / validation / robust verdicts) and the seconds of validation and of the robust trials.
-A trial's own verdict does not depend on the early end (the tests check it); a later trial in the same scene can,
-through the physics state the skipped steps would have left (not traced; the scene, hand and table are reused
-from trial to trial), so marginal grasps may get other verdicts: the table counts them. Seconds are CPU seconds of this
-process (``time.process_time``; one process, one torch thread), so a busy machine does not bend the comparison.
+four times over the same objects: with every lift and hold step (``full``), again so (``full_again``: the control,
+the pipeline repeats itself exactly in one process), with the hold's early end only (``hold_early``: as shipped
+before 6 December 2026) and as shipped (``early``). It compares record by record with ``full`` the verdicts (each
+step's, the failed step, robust and the robustness score), the placement histories (each placement's refinement /
+validation / robust verdicts) and the seconds of validation and of the robust trials, and gives per hand the
+issue's total (contacts + retargeting + refinement + validation per object, median). The hold's end is exact (a
+trial's verdict does not depend on it, the tests check it); the lift's is not by construction (a lost object
+could climb back within the hand), so this measures it. Every trial runs in a backend of its own, so a skipped
+step changes nothing in the later trials. Seconds are CPU seconds of this process (``time.process_time``; one
+process, one torch thread), so a busy machine does not bend the comparison.
 
-    python benchmarks/validation_early.py [--procedural N] [--real N] [--hands allegro shadow]
+    python benchmarks/validation_early.py [--procedural N] [--real N] [--hands allegro shadow] [--results NAME]
 
 Procedural objects (object 000 of the first N categories) and real scans (the first N of the ``real`` set)
-are reported apart. Prints a markdown table and writes ``benchmarks/results/validation_early.json``.
+are reported apart. Prints a markdown table and writes ``benchmarks/results/NAME.json`` (default
+``validation_early``).
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 
-from stage1_speed import object_sets, run_pipeline
+from stage1_speed import STEPS, object_sets, run_pipeline
 
 from ges_core.dataset import software_versions
 from ges_core.objects.library import LibraryConfig
+from ges_core.sim import SimBackend
 from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.physics import validate
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "validation_early.json"
-VARIANTS = ("full", "full_again", "early")
+VARIANTS = ("full", "full_again", "hold_early", "early")
 
 
 def run(ids: list[str], hands: list[str], config: SynthesisConfig, folder: Path, variant: str) -> tuple[dict, float]:
     """{(object, hand): record} of one pipeline run and its CPU seconds (``stage1_speed.run_pipeline``, CPU clock:
-    the records' step seconds are CPU seconds of this process); ``full`` runs every hold step."""
+    the records' step seconds are CPU seconds of this process); ``full`` runs every lift and hold step,
+    ``hold_early`` every lift step."""
     settled = validate._settled
     if variant.startswith("full"):
         validate._settled = lambda *_: False  # never settled: the hold runs all its steps
+    if variant != "early":
+        config = config.model_copy(update={"validate_": config.validate_.model_copy(update={"lost_lag": None})})
     try:
         records, seconds = run_pipeline(ids, hands, config, folder, "cpu")
     finally:
         validate._settled = settled
     return {r.key: r for r in records}, seconds["cpu"]
+
+
+@contextlib.contextmanager
+def physics_steps() -> Iterator[list[int]]:
+    """Counts the physics steps every backend takes inside the block (``[n]``, read after it): unlike seconds, a
+    count does not drift with the machine."""
+    count, step = [0], SimBackend.step
+
+    def counting(self, n: int = 1) -> None:
+        count[0] += n
+        step(self, n)
+
+    SimBackend.step = counting
+    try:
+        yield count
+    finally:
+        SimBackend.step = step
 
 
 def options(description: str) -> argparse.Namespace:
@@ -58,7 +84,9 @@ def options(description: str) -> argparse.Namespace:
     parser.add_argument("--procedural", type=int, default=12, help="object 000 of the first N categories")
     parser.add_argument("--real", type=int, default=10, help="the first N real scans (extra [real])")
     parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
+    parser.add_argument("--results", default="validation_early", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results_path(args.results)  # a bad name stops here, not after the runs
     set_torch_threads(1)
     return args
 
@@ -90,35 +118,44 @@ def seconds(record) -> float:
     return (record.steps["validation"].seconds or 0.0) + (record.steps["robust"].seconds or 0.0)
 
 
+def total(record) -> float:
+    """The issue's total: contacts + retargeting + refinement + validation, CPU seconds."""
+    return sum(record.steps[name].seconds or 0.0 for name in STEPS)
+
+
 def compare(runs: dict[str, dict]) -> dict:
-    """Early against full, record by record; ``full_again`` (a second full run) is the control: the pipeline is
-    deterministic in one process, so what differs between full and early comes from the skipped steps."""
+    """Each variant against full, record by record; ``full_again`` (a second full run) is the control: the pipeline
+    is deterministic in one process, so what differs between full and another variant comes from the skipped
+    steps."""
     keys = sorted(runs["full"])
+    hands = sorted({k[1] for k in keys})
 
     def same(a: str, b: str, what) -> list:
         return [k for k in keys if what(runs[a][k]) == what(runs[b][k])]
 
+    out = {"records": len(keys)}
+    for variant in runs:
+        kept = same("full", variant, verdicts)
+        per_record = [seconds(runs[variant][k]) for k in keys]
+        out[variant] = {
+            "identical_verdicts": len(kept),
+            "identical_histories": len(same("full", variant, history)),
+            "differing_verdicts": [
+                {"record": list(k), "full": _short(runs["full"][k]), variant: _short(runs[variant][k])}
+                for k in keys
+                if k not in kept
+            ],
+            "median_seconds": statistics.median(per_record),
+            "sum_seconds": sum(per_record),
+            "median_total_by_hand": {
+                hand: statistics.median(total(runs[variant][k]) for k in keys if k[1] == hand) for hand in hands
+            },
+        }
     full = [seconds(runs["full"][k]) for k in keys]
-    early = [seconds(runs["early"][k]) for k in keys]
-    ratios = [e / f for e, f in zip(early, full, strict=True) if f > 0]
-    kept = same("full", "early", verdicts)
-    return {
-        "records": len(keys),
-        "control_identical_verdicts": len(same("full", "full_again", verdicts)),
-        "control_identical_histories": len(same("full", "full_again", history)),
-        "identical_verdicts": len(kept),
-        "identical_histories": len(same("full", "early", history)),
-        "differing_verdicts": [
-            {"record": list(k), "full": _short(runs["full"][k]), "early": _short(runs["early"][k])}
-            for k in keys
-            if k not in kept
-        ],
-        "median_seconds_full": statistics.median(full),
-        "median_seconds_early": statistics.median(early),
-        "sum_seconds_full": sum(full),
-        "sum_seconds_early": sum(early),
-        "median_ratio_early_to_full": statistics.median(ratios) if ratios else None,
-    }
+    for variant in ("hold_early", "early"):
+        ratios = [seconds(runs[variant][k]) / f for k, f in zip(keys, full, strict=True) if f > 0]
+        out[variant]["median_ratio_to_full"] = statistics.median(ratios) if ratios else None
+    return out
 
 
 def _short(record) -> dict:
@@ -149,24 +186,37 @@ def main() -> None:
     sets, config = object_sets_and_config(args)
     with tempfile.TemporaryDirectory() as tmp:
         warm_up(sets, args.hands, config, Path(tmp))
-        runs, cpu = run_variants(sets, args.hands, config, Path(tmp), VARIANTS, run)
+        steps = {}
+
+        def counted(ids, hands, config, folder, variant):
+            with physics_steps() as count:
+                out = run(ids, hands, config, folder, variant)
+            steps[f"{folder.parent.name}/{variant}"] = count[0]
+            return out
+
+        runs, cpu = run_variants(sets, args.hands, config, Path(tmp), VARIANTS, counted)
     rows = {name: compare(by_variant) for name, by_variant in runs.items()}
     print(
-        "\n| objects | records | same verdicts: full again / early | same placement histories: full again / early "
-        "| validation + robust s, median full / early | median ratio early/full | run CPU s full / early |"
+        "\n| objects | records | variant | same verdicts as full | same placement histories | validation + robust "
+        "s per record, median | ratio to full, median | total s per object by hand, median | run CPU s | physics "
+        "steps |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for name, r in rows.items():
-        print(
-            f"| {name} | {r['records']} | {r['control_identical_verdicts']} / {r['identical_verdicts']} | "
-            f"{r['control_identical_histories']} / {r['identical_histories']} | {r['median_seconds_full']:.2f} / "
-            f"{r['median_seconds_early']:.2f} | {r['median_ratio_early_to_full']:.2f} | "
-            f"{cpu[f'{name}/full']:.1f} / {cpu[f'{name}/early']:.1f} |"
-        )
-        for d in r["differing_verdicts"]:
-            print(f"  {' '.join(d['record'])}: full {d['full']}, early {d['early']}")
-    write_results(RESULTS, {
+        for variant in VARIANTS:
+            v = r[variant]
+            ratio = v.get("median_ratio_to_full")
+            totals = ", ".join(f"{hand} {t:.3f}" for hand, t in v["median_total_by_hand"].items())
+            print(
+                f"| {name} | {r['records']} | {variant} | {v['identical_verdicts']} | {v['identical_histories']} | "
+                f"{v['median_seconds']:.2f} | {'' if ratio is None else f'{ratio:.2f}'} | {totals} | "
+                f"{cpu[f'{name}/{variant}']:.1f} | {steps[f'{name}/{variant}']:,} |"
+            )
+            for d in v["differing_verdicts"]:
+                print(f"  {variant}: {' '.join(d['record'])}: full {d['full']}, {variant} {d[variant]}")
+    write_results(results_path(args.results), {
         "benchmark": "validation_early", "objects": sets, "hands": args.hands, "rows": rows, "cpu_seconds": cpu,
+        "physics_steps": steps,
         "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
         "code": code_state(),
     })  # fmt: skip

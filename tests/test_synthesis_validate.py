@@ -11,6 +11,7 @@ import pytest
 import torch
 from test_synthesis_refine import DOWN, REGISTRY, SIMS, ExplodingBackend, box_object, top_grasp
 
+from ges_core.config import parse_model
 from ges_core.errors import ConfigError
 from ges_core.kinematics import HandKinematics
 from ges_core.sim import SceneConfig
@@ -276,6 +277,50 @@ def test_the_hold_stops_once_the_verdict_is_settled(lifted, touched_before, heig
     assert verdicts[True] == (reason, 10)  # the full hold: every step, the same verdict
 
 
+class _ScriptedLift(_ScriptedHold):
+    """The lift's test double: the object's height per step (m above its rest), the wrist targets it was given."""
+
+    def __init__(self, heights, touches) -> None:
+        super().__init__(heights, touches)
+        self.targets = []
+
+    def set_wrist_targets(self, pose) -> None:
+        self.targets.append(float(pose[0, 2]))
+
+
+@pytest.mark.parametrize(
+    ("follows", "touched_at", "lost_at"),
+    [
+        (10, 1, 16),  # follows the target to 0.10, then stays: 0.06 below the rise at step 16 (> 0.055)
+        (10, 18, 18),  # long behind when first touched: lost at that step
+        (10, None, None),  # never touched: no_contact is not settled by the lift (a later touch would change it)
+        (20, 1, None),  # follows the whole lift
+    ],
+)
+def test_the_lift_ends_once_a_touched_object_is_lost(follows, touched_at, lost_at):
+    """The target rises 0.01 m per step over 20 steps; the object follows it for ``follows`` steps and stays. The
+    lift ends, object lost, at the first step where it was touched and lies more than ``lost_lag`` (0.055 m) below
+    the target's rise; with full_hold it runs every step and reports nothing lost."""
+    from ges_core.synthesis.physics.validate import _lift
+
+    config = ValidateConfig(lift_steps=20, lift_height=0.2, lost_lag=0.055)
+    rises = [0.01 * min(step, follows) for step in range(1, 21)]
+    touches = [touched_at is not None and step >= touched_at for step in range(1, 21)]
+    goal = np.array([0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0])
+    for full in (False, True):
+        double = _ScriptedLift(rises, touches)
+        lost = _lift(double, goal, double, 0.0, config, full)
+        ends = lost_at if lost_at is not None and not full else 20
+        assert (lost, double.steps) == (ends < 20, ends), full
+        assert double.targets == pytest.approx([0.01 * step for step in range(1, ends + 1)])
+
+
+def test_a_lost_lag_within_the_lift_tolerance_is_refused():
+    with pytest.raises(ConfigError, match=r"lost_lag \(0.03 m\) must exceed lift_tolerance \(0.03 m\)"):
+        parse_model(ValidateConfig, {"lost_lag": 0.03}, where="test")
+    assert parse_model(ValidateConfig, {"lost_lag": None}, where="test").lost_lag is None
+
+
 @pytest.mark.parametrize(
     ("steps", "fraction"), [(200, 0.9), (10, 0.9), (7, 0.5), (3, 1 / 3), (10, 1.0), (200, 0.95), (9, 0.7)]
 )
@@ -319,8 +364,9 @@ def test_the_hold_reads_the_fingertip_rule_until_its_share_is_decided(rules, rea
 @pytest.mark.sim
 @pytest.mark.parametrize("sim_name", SIMS)
 def test_an_early_verdict_is_the_full_holds_verdict_in_the_engines(allegro, sim_name):
-    """The controls that fail (not lifted, dropped) take fewer physics steps and give the full hold's verdict
-    and flags; a grasp that holds runs every step either way. Every trial but a ``no_contact`` one reads the
+    """The controls that fail (not lifted, dropped) take fewer physics steps and give the full lift and hold's
+    verdict and flags (the single finger loses the box during the lift); a grasp that holds runs every step either
+    way. Every trial but a ``no_contact`` one reads the
     fingertip forces at fewer steps than it runs, and gives the verdict and flags of reading them at every step."""
     with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
         counted = {"steps": 0}
@@ -341,7 +387,9 @@ def test_an_early_verdict_is_the_full_holds_verdict_in_the_engines(allegro, sim_
         sim.contact_forces = counting_forces
         cases = _cases(allegro)
         good = refine_grasp(sim, allegro, box_object(), cases["good"][0]).grasp
-        shorter = read_less = 0
+        shorter = read_less = lost = 0
+        config = ValidateConfig()
+        before_hold = config.approach_steps + config.close_steps + config.lift_steps
         for name, grasp in [("good", good), *((n, g) for n, (g, refine) in cases.items() if not refine)]:
             pre = pregrasp(allegro, grasp, DOWN)
             runs = []
@@ -361,7 +409,10 @@ def test_an_early_verdict_is_the_full_holds_verdict_in_the_engines(allegro, sim_
             if early in ("not_lifted", "dropped"):
                 assert n_early < n_full, (name, runs)
                 shorter += 1
+            if early == "not_lifted" and not early_flags["lifted"]:
+                lost += n_early < before_hold  # the lift's own early end: the object lost on the way up
             else:
                 assert n_early == n_full, (name, runs)
         assert shorter >= 1  # at least one control was settled before the end of the hold
+        assert lost >= 1  # and one (the single finger) was lost during the lift
         assert read_less >= 2  # the good grasp and a control
