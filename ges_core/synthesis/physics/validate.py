@@ -11,8 +11,8 @@ also requires a *fingertip* grasp through the hold. Phases, all through
    fingertip presses toward the opposing fingers (:mod:`ges_core.synthesis.physics.squeeze`) over ``close_steps``;
 3. lift: the wrist target rises ``lift_height`` (world +z) over ``lift_steps``, ended early (not lifted) once an
    object a fingertip touched is ``lost_lag`` below the target's rise: to pass it would have to climb
-   ``lost_lag - lift_tolerance`` within the rising hand, which no grasp of the measured trials did (the one early
-   end that is measured rather than exact, ``benchmarks/validation_early.py``);
+   ``lost_lag - lift_tolerance`` back within the rising hand, more than any measured trial did (the one early end
+   that is measured rather than exact, ``benchmarks/validation_early.py``);
 4. hold: ``hold_steps`` at the lifted pose, ended early once the verdict cannot change any more (an object not
    lifted that a fingertip touched is ``not_lifted``, an object low at one hold step after the lift is
    ``dropped``, whatever the remaining steps do); ``full_hold=True`` runs every step of the lift and the hold (the
@@ -93,11 +93,12 @@ class ValidateConfig(ConfigModel):
     # 0.03 m: a grasp that lets the object slip 3 cm within the hand over the lift still counts as
     # lifted; a dropped object falls far below (to the table, 0.2 m down).
     lift_tolerance: float = Field(0.03, ge=0, description="how far below lift_height the object may stay, m")
-    # 0.06 m: twice lift_tolerance. In Stage 1 on the Shadow's 28 procedural shapes (487 trials, 2026-12-06) no
-    # lifted object ever lagged the wrist target by more than 3.2 cm during the lift, and the not-lifted ones
-    # passed 6 cm after a median 28 of the 90 lift steps (the object slips out early and stays on the table).
+    # 0.08 m: an object must then climb 5 cm back within the rising hand to pass. In Stage 1 on the Shadow's 28
+    # procedural shapes (487 lift phases, 2026-12-06) no object that ended lifted lagged the wrist target by more
+    # than 3.2 cm during the lift, the largest climb back measured (stop 37, a Shadow trial that swung and was then
+    # dropped) was 3.6 cm, and the not-lifted objects passed 8 cm after a median 37 of the 90 lift steps.
     lost_lag: float | None = Field(
-        0.06,
+        0.08,
         gt=0,
         description="the lift ends, not lifted, once a touched object is this far below the wrist target's rise, m "
         "(null: never)",
