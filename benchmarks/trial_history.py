@@ -9,9 +9,9 @@ SAPIEN, robust validation on) twice over the same objects: with one backend reus
 shipped (``fresh``), and compares record by record the final verdicts and the placement histories (as
 validation_early.py does), with the CPU seconds of each run (``time.process_time``).
 
-    python benchmarks/trial_history.py [--procedural N] [--real N] [--hands allegro shadow]
+    python benchmarks/trial_history.py [--procedural N] [--real N] [--hands allegro shadow] [--results NAME]
 
-Prints a markdown table and writes ``benchmarks/results/trial_history.json``.
+Prints a markdown table and writes ``benchmarks/results/NAME.json`` (default ``trial_history``).
 """
 
 from __future__ import annotations
@@ -25,9 +25,7 @@ from validation_early import history, object_sets_and_config, options, run, verd
 from ges_core.dataset import software_versions
 from ges_core.synthesis.physics import scene
 
-from _results import code_state, write_results
-
-RESULTS = Path(__file__).parent / "results" / "trial_history.json"
+from _results import code_state, results_path, write_results
 
 
 @contextmanager
@@ -58,7 +56,7 @@ def run_variant(ids, hands, config, folder: Path, variant: str) -> tuple[dict, f
 
 
 def main() -> None:
-    args = options(__doc__.splitlines()[0])
+    args = options(__doc__.splitlines()[0], "trial_history")
     sets, config = object_sets_and_config(args)
     rows = {}
     with tempfile.TemporaryDirectory() as tmp:
@@ -86,7 +84,7 @@ def main() -> None:
             f"{old['identical_histories']} / {again['identical_histories']} | "
             f"{c['reused']:.1f} / {c['fresh']:.1f} ({100 * (c['fresh'] / c['reused'] - 1):+.0f} %) |"
         )
-    write_results(RESULTS, {
+    write_results(results_path(args.results), {
         "benchmark": "trial_history", "objects": sets, "hands": args.hands, "rows": rows,
         "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
         "code": code_state(),

@@ -78,13 +78,14 @@ def physics_steps() -> Iterator[list[int]]:
         SimBackend.step = step
 
 
-def options(description: str) -> argparse.Namespace:
-    """The object-set and hand options of this benchmark and ``trial_history.py``; one torch thread set."""
+def options(description: str, results: str) -> argparse.Namespace:
+    """The object-set, hand and ``--results NAME`` (default ``results``) options of this benchmark,
+    ``trial_history.py`` and ``validation_reads.py``; one torch thread set."""
     parser = argparse.ArgumentParser(description=description)
     parser.add_argument("--procedural", type=int, default=12, help="object 000 of the first N categories")
     parser.add_argument("--real", type=int, default=10, help="the first N real scans (extra [real])")
     parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
-    parser.add_argument("--results", default="validation_early", help="benchmarks/results/NAME.json")
+    parser.add_argument("--results", default=results, help="benchmarks/results/NAME.json")
     args = parser.parse_args()
     results_path(args.results)  # a bad name stops here, not after the runs
     set_torch_threads(1)
@@ -170,9 +171,11 @@ def _short(record) -> dict:
 def run_variants(sets: dict[str, list[str]], hands: list[str], config, tmp: Path, variants, run) -> tuple[dict, dict]:
     """Every object set run once per variant, in order, with ``run(ids, hands, config, folder, variant)`` (which
     returns ``({key: record}, CPU s)``): ``({set: {variant: {key: record}}}, {"set/variant": CPU s})``, a line
-    printed per run."""
+    printed per run; an empty set (``--real 0``) is left out."""
     runs, cpu = {}, {}
     for name, ids in sets.items():
+        if not ids:
+            continue
         runs[name] = {}
         for variant in variants:
             label = f"{name}/{variant}"
@@ -182,7 +185,7 @@ def run_variants(sets: dict[str, list[str]], hands: list[str], config, tmp: Path
 
 
 def main() -> None:
-    args = options(__doc__.splitlines()[0])
+    args = options(__doc__.splitlines()[0], "validation_early")
     sets, config = object_sets_and_config(args)
     with tempfile.TemporaryDirectory() as tmp:
         warm_up(sets, args.hands, config, Path(tmp))

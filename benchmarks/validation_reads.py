@@ -8,10 +8,10 @@ objects: reading every step (``every_step``, the code before) and as shipped (``
 record the verdicts, the placement histories, the kept joints and wrist pose, and the CPU seconds of validation plus
 the perturbation trials (``time.process_time``: a busy machine does not bend the comparison).
 
-    python benchmarks/validation_reads.py [--procedural N] [--real N] [--hands allegro shadow]
+    python benchmarks/validation_reads.py [--procedural N] [--real N] [--hands allegro shadow] [--results NAME]
 
 Procedural objects (object 000 of the first N categories) and real scans (the first N of the ``real`` set) are
-reported apart. Prints a markdown table and writes ``benchmarks/results/validation_reads.json``.
+reported apart. Prints a markdown table and writes ``benchmarks/results/NAME.json`` (default ``validation_reads``).
 """
 
 from __future__ import annotations
@@ -27,9 +27,8 @@ from validation_early import history, object_sets_and_config, options, run_varia
 from ges_core.dataset import software_versions
 from ges_core.synthesis.physics import validate
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "validation_reads.json"
 VARIANTS = ("every_step", "as_needed")
 
 
@@ -89,7 +88,7 @@ def compare(runs: dict[str, dict]) -> dict:
 
 
 def main() -> None:
-    args = options(__doc__.splitlines()[0])
+    args = options(__doc__.splitlines()[0], "validation_reads")
     sets, config = object_sets_and_config(args)
     with tempfile.TemporaryDirectory() as tmp:
         run([sets["procedural"][0]], args.hands[:1], config, Path(tmp) / "warm", "as_needed")  # imports, caches
@@ -108,7 +107,7 @@ def main() -> None:
         )
         for key in r["differing"]:
             print(f"  differs: {' '.join(key)}")
-    write_results(RESULTS, {
+    write_results(results_path(args.results), {
         "benchmark": "validation_reads", "objects": sets, "hands": args.hands, "rows": rows, "cpu_seconds": cpu,
         "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
         "code": code_state(),
