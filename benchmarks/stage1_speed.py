@@ -22,20 +22,28 @@ Also measured:
   the solver skipped, at 6 and 20 iterations.
 
     python benchmarks/stage1_speed.py [--procedural N] [--real N] [--hands allegro shadow] [--load 2] [--robust]
+        [--skip-threads] [--results NAME]
 
-Prints markdown tables and writes ``benchmarks/results/stage1_speed.json``. Goal (issue 11): median
+Also counted: the physics steps of each record (every backend's steps while the record's refinement and nominal
+trials ran, and apart those of its perturbation trials): unlike seconds, the count does not drift with the
+machine, whose speed moved by a third within one morning (docs/synthesis/refine_validate.md, "The lift's early
+end").
+
+Prints markdown tables and writes ``benchmarks/results/NAME.json`` (default ``stage1_speed``). Goal (issue 11): median
 contacts + retargeting + refinement + validation <= 0.5 s per object on one core.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import multiprocessing
 import os
 import platform
 import statistics
 import tempfile
 import time
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -45,12 +53,13 @@ from ges_core.dataset import open_dataset, software_versions
 from ges_core.errors import AssetError, SynthesisError
 from ges_core.objects.library import LibraryConfig
 from ges_core.objects.procedural import CATEGORIES
+from ges_core.sim import SimBackend
 from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis.run import worker
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "stage1_speed.json"
 GOAL_SECONDS = 0.5
 """Issue 11: contacts + retargeting + refinement + validation per object on one core."""
 STEPS = ("contacts", "retargeting", "refinement", "validation")
@@ -101,7 +110,56 @@ def run_pipeline(
     return list(open_dataset(folder)), {"wall": wall_clock() - start, "cpu": time.process_time() - cpu}
 
 
-def per_record(record) -> dict:
+# -- physics steps: a count does not drift with the machine ---------------------------------------------------
+@contextlib.contextmanager
+def physics_steps() -> Iterator[list[int]]:
+    """Counts the physics steps every backend of this process takes inside the block (``[n]``, read after it)."""
+    count, step = [0], SimBackend.step
+
+    def counting(self, n: int = 1) -> None:
+        count[0] += n
+        step(self, n)
+
+    SimBackend.step = counting
+    try:
+        yield count
+    finally:
+        SimBackend.step = step
+
+
+@contextlib.contextmanager
+def steps_per_record() -> Iterator[dict[tuple[str, str], dict[str, int]]]:
+    """Physics steps per record of a one-process run inside the block: ``{(object, hand): {"timed": n, "robust":
+    m}}``, ``robust`` the perturbation trials' (``worker.run_trial``) and ``timed`` the rest of the record's steps
+    (refinement with the object's rest check, every placement's nominal trial: the steps the issue's total times)."""
+    out: dict[tuple[str, str], dict[str, int]] = {}
+    finish, trial = worker._finish, worker.run_trial
+    robust = [0]
+
+    def counted_trial(*args, **kwargs):
+        before = count[0]
+        try:
+            return trial(*args, **kwargs)
+        finally:
+            robust[0] += count[0] - before
+
+    def counted_finish(*args, **kwargs):
+        before, robust[0] = count[0], 0
+        record = finish(*args, **kwargs)
+        out[record.key] = {"timed": count[0] - before - robust[0], "robust": robust[0]}
+        return record
+
+    with physics_steps() as count:
+        worker._finish, worker.run_trial = counted_finish, counted_trial
+        try:
+            yield out
+        finally:
+            worker._finish, worker.run_trial = finish, trial
+
+
+def per_record(record, counts: dict[tuple[str, str], dict[str, int]] | None = None) -> dict:
+    """One record's seconds per step (and its physics steps when ``counts``, :func:`steps_per_record`'s, has it)."""
+    counted = (counts or {}).get(record.key, {})
     steps = {name: record.steps[name].seconds for name in STEPS}
     return {
         "object": record.object_id,
@@ -112,6 +170,8 @@ def per_record(record) -> dict:
         "attempts": len(record.attempts),
         "failed_step": record.failed_step,
         "failure": record.steps[record.failed_step].reason if record.failed_step else "",
+        "physics_steps": counted.get("timed"),
+        "robust_physics_steps": counted.get("robust"),
     }
 
 
@@ -130,6 +190,8 @@ def summarize(rows: list[dict], no_collision: set[str]) -> dict:
     out["setup"] = median(r["setup"] for r in physics)
     out["robust"] = median(r["robust"] for r in physics if r["robust"])
     out["attempts"] = median(r["attempts"] for r in physics)
+    out["physics_steps"] = median(r.get("physics_steps") for r in physics)
+    out["robust_physics_steps"] = median(r.get("robust_physics_steps") for r in physics if r["robust"])
     out["records"], out["timed_physics"] = len(rows), len(physics)
     return out
 
@@ -252,18 +314,23 @@ def _s(value) -> str:
     return "-" if value is None else f"{value:.3f}"
 
 
+def _n(value) -> str:
+    return "-" if value is None else f"{value:,.0f}"
+
+
 def print_pipeline_table(summary: dict) -> None:
     print(
         "\n| set | hand | records | contacts | retargeting | refinement | validation | total | goal <= 0.5 s "
-        "| contacts+retargeting | setup | attempts |"
+        "| contacts+retargeting | setup | attempts | physics steps | robust trials' physics steps |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for (group, hand), s in summary.items():
         ok = "met" if s["total"] is not None and s["total"] <= GOAL_SECONDS else "not met"
         print(
             f"| {group} | {hand} | {s['records']} ({s['timed_physics']} with physics) | {_s(s['contacts'])} | "
             f"{_s(s['retargeting'])} | {_s(s['refinement'])} | {_s(s['validation'])} | {_s(s['total'])} | {ok} | "
-            f"{_s(s['contacts+retargeting'])} | {_s(s['setup'])} | {s['attempts']} |"
+            f"{_s(s['contacts+retargeting'])} | {_s(s['setup'])} | {s['attempts']} | {_n(s['physics_steps'])} | "
+            f"{_n(s['robust_physics_steps'])} |"
         )
 
 
@@ -291,6 +358,7 @@ def main() -> None:
     parser.add_argument("--load", type=int, default=2, help="busy processes beside the torch-threads comparison")
     parser.add_argument("--robust", action="store_true", help="also run the robust trials (reported apart)")
     parser.add_argument("--skip-threads", action="store_true", help="skip the torch-threads comparison")
+    parser.add_argument("--results", default="stage1_speed", help="benchmarks/results/NAME.json")
     parser.add_argument(
         "--clock",
         choices=("cpu", "wall"),
@@ -298,6 +366,7 @@ def main() -> None:
         help="seconds of the steps: CPU time of this process (default: one core's cost on a shared machine) or wall",
     )
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
     set_torch_threads(1)
     library_config = LibraryConfig(sources=("procedural", "pybullet", "real"))
     library = library_config.build()
@@ -310,9 +379,12 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         run_pipeline(sets["procedural"][:1], args.hands, config, Path(tmp) / "warm", "wall")  # imports: untimed
         for group, ids in sets.items():
-            got, wall[group] = run_pipeline(ids, args.hands, config, Path(tmp) / group, args.clock)
+            if not ids:
+                continue
+            with steps_per_record() as counts:
+                got, wall[group] = run_pipeline(ids, args.hands, config, Path(tmp) / group, args.clock)
             wall[group]["cpu_per_record"] = wall[group]["cpu"] / len(got)
-            rows = [per_record(r) for r in got]
+            rows = [per_record(r, counts) for r in got]
             records[group] = rows
             for hand in args.hands:
                 summary[(group, hand)] = summarize([r for r in rows if r["hand"] == hand], set(no_collision))
@@ -331,7 +403,7 @@ def main() -> None:
     if no_collision:
         print(f"\nno collision model (left out of refinement/validation): {', '.join(no_collision)}")
     write_results(
-        RESULTS,
+        results,
         {
             "benchmark": "stage1_speed",
             "goal_seconds": GOAL_SECONDS,

@@ -25,17 +25,14 @@ are reported apart. Prints a markdown table and writes ``benchmarks/results/NAME
 from __future__ import annotations
 
 import argparse
-import contextlib
 import statistics
 import tempfile
-from collections.abc import Iterator
 from pathlib import Path
 
-from stage1_speed import STEPS, object_sets, run_pipeline
+from stage1_speed import STEPS, object_sets, physics_steps, run_pipeline
 
 from ges_core.dataset import software_versions
 from ges_core.objects.library import LibraryConfig
-from ges_core.sim import SimBackend
 from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.physics import validate
 from ges_core.threads import set_torch_threads
@@ -59,23 +56,6 @@ def run(ids: list[str], hands: list[str], config: SynthesisConfig, folder: Path,
     finally:
         validate._settled = settled
     return {r.key: r for r in records}, seconds["cpu"]
-
-
-@contextlib.contextmanager
-def physics_steps() -> Iterator[list[int]]:
-    """Counts the physics steps every backend takes inside the block (``[n]``, read after it): unlike seconds, a
-    count does not drift with the machine."""
-    count, step = [0], SimBackend.step
-
-    def counting(self, n: int = 1) -> None:
-        count[0] += n
-        step(self, n)
-
-    SimBackend.step = counting
-    try:
-        yield count
-    finally:
-        SimBackend.step = step
 
 
 def options(description: str, results: str) -> argparse.Namespace:
