@@ -35,7 +35,7 @@ Verdict (:func:`classify`), from what was measured:
 * ``palm_only``: held up through the hold, but not by enough fingertips (palm, phalanges, one tip);
 * ``dropped``: high enough at the end of the lift, then fell below the bar during the hold;
 * ``no_contact``: never high enough and no fingertip ever pushed on the object;
-* ``not_lifted``: never high enough although fingertips touched it.
+* ``not_lifted``: never high enough although fingertips touched it (or lost during the lift: phase 3).
 
 Flags: ``reached_grasp`` (base within ``reach_tolerance`` of the grasp pose after closing),
 ``fingertips_touching`` (the fingertip rule holds after closing), ``lifted`` (high enough at the end
