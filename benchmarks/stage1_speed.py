@@ -69,10 +69,19 @@ CHUNK = 8
 
 # -- object sets ---------------------------------------------------------------------------------------
 def object_sets(library, procedural: int, real: int) -> dict[str, list[str]]:
-    """{"procedural": object 000 of the first N categories, "real": the first N real objects}."""
+    """{"procedural": object 000 of the first N categories, "real": the first N real objects}, an empty set left out
+    (``--real 0``); SystemExit when both are empty."""
     procedural_ids = [f"procedural/{c}/000" for c in list(CATEGORIES)[:procedural]]
     real_ids = [e.object_id for e in library.entries(source="real")][:real]
-    return {"procedural": procedural_ids, "real": real_ids}
+    sets = {name: ids for name, ids in (("procedural", procedural_ids), ("real", real_ids)) if ids}
+    if not sets:
+        raise SystemExit("no objects to run: give --procedural N or --real N above 0")
+    return sets
+
+
+def first_object(sets: dict[str, list[str]]) -> str:
+    """The first object of the first set (:func:`object_sets`): the untimed warm-up run's."""
+    return next(iter(sets.values()))[0]
 
 
 def warm_up(library, ids: list[str]) -> tuple[dict[str, float], list[str]]:
@@ -377,10 +386,8 @@ def main() -> None:
     )
     summary, records, wall = {}, {}, {}
     with tempfile.TemporaryDirectory() as tmp:
-        run_pipeline(sets["procedural"][:1], args.hands, config, Path(tmp) / "warm", "wall")  # imports: untimed
+        run_pipeline([first_object(sets)], args.hands, config, Path(tmp) / "warm", "wall")  # imports: untimed
         for group, ids in sets.items():
-            if not ids:
-                continue
             with steps_per_record() as counts:
                 got, wall[group] = run_pipeline(ids, args.hands, config, Path(tmp) / group, args.clock)
             wall[group]["cpu_per_record"] = wall[group]["cpu"] / len(got)
@@ -391,7 +398,7 @@ def main() -> None:
     print(f"\nmedian seconds per object ({args.clock} clock), one process, one torch thread:")
     print_pipeline_table(summary)
     threads = None
-    if not args.skip_threads:
+    if not args.skip_threads and "real" in sets:  # the comparison retargets real scans
         threads = threads_under_load(library, sets["real"], args.hands, args.load)
     solver = solver_active_set()
     print_tables(threads, solver)

@@ -20,12 +20,9 @@ import tempfile
 from contextlib import contextmanager
 from pathlib import Path
 
-from validation_early import history, object_sets_and_config, options, run, verdicts, warm_up
+from validation_early import history, object_sets_and_config, options, run, verdicts, warm_up, write_run_results
 
-from ges_core.dataset import software_versions
 from ges_core.synthesis.physics import scene
-
-from _results import code_state, results_path, write_results
 
 
 @contextmanager
@@ -84,11 +81,7 @@ def main() -> None:
             f"{old['identical_histories']} / {again['identical_histories']} | "
             f"{c['reused']:.1f} / {c['fresh']:.1f} ({100 * (c['fresh'] / c['reused'] - 1):+.0f} %) |"
         )
-    write_results(results_path(args.results), {
-        "benchmark": "trial_history", "objects": sets, "hands": args.hands, "rows": rows,
-        "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
-        "code": code_state(),
-    })  # fmt: skip
+    write_run_results(args, "trial_history", sets, rows)
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ import statistics
 import tempfile
 from pathlib import Path
 
-from stage1_speed import STEPS, object_sets, physics_steps, run_pipeline
+from stage1_speed import STEPS, first_object, object_sets, physics_steps, run_pipeline
 
 from ges_core.dataset import software_versions
 from ges_core.objects.library import LibraryConfig
@@ -72,6 +72,18 @@ def options(description: str, results: str) -> argparse.Namespace:
     return args
 
 
+def write_run_results(
+    args: argparse.Namespace, benchmark: str, sets: dict[str, list[str]], rows: dict, **extra
+) -> None:
+    """``benchmarks/results/NAME.json`` (``args.results``) of a benchmark built on :func:`options`: its object sets,
+    hands and rows, ``extra`` after them, the clock, software versions and code state."""
+    write_results(results_path(args.results), {
+        "benchmark": benchmark, "objects": sets, "hands": args.hands, "rows": rows, **extra,
+        "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
+        "code": code_state(),
+    })  # fmt: skip
+
+
 def object_sets_and_config(args: argparse.Namespace) -> tuple[dict[str, list[str]], SynthesisConfig]:
     """``stage1_speed.object_sets`` of the options, and Stage 1's default config over that library."""
     library = LibraryConfig(sources=("procedural", "real"), decompose=True)
@@ -80,7 +92,7 @@ def object_sets_and_config(args: argparse.Namespace) -> tuple[dict[str, list[str
 
 def warm_up(sets: dict[str, list[str]], hands: list[str], config: SynthesisConfig, tmp: Path) -> None:
     """One object with one hand, so imports and caches are not in the first timed run."""
-    run([sets["procedural"][0]], hands[:1], config, tmp / "warm", "early")
+    run([first_object(sets)], hands[:1], config, tmp / "warm", "early")
 
 
 def verdicts(record) -> tuple:
@@ -151,11 +163,9 @@ def _short(record) -> dict:
 def run_variants(sets: dict[str, list[str]], hands: list[str], config, tmp: Path, variants, run) -> tuple[dict, dict]:
     """Every object set run once per variant, in order, with ``run(ids, hands, config, folder, variant)`` (which
     returns ``({key: record}, CPU s)``): ``({set: {variant: {key: record}}}, {"set/variant": CPU s})``, a line
-    printed per run; an empty set (``--real 0``) is left out."""
+    printed per run."""
     runs, cpu = {}, {}
     for name, ids in sets.items():
-        if not ids:
-            continue
         runs[name] = {}
         for variant in variants:
             label = f"{name}/{variant}"
@@ -197,12 +207,7 @@ def main() -> None:
             )
             for d in v["differing_verdicts"]:
                 print(f"  {variant}: {' '.join(d['record'])}: full {d['full']}, {variant} {d[variant]}")
-    write_results(results_path(args.results), {
-        "benchmark": "validation_early", "objects": sets, "hands": args.hands, "rows": rows, "cpu_seconds": cpu,
-        "physics_steps": steps,
-        "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
-        "code": code_state(),
-    })  # fmt: skip
+    write_run_results(args, "validation_early", sets, rows, cpu_seconds=cpu, physics_steps=steps)
 
 
 if __name__ == "__main__":

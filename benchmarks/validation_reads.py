@@ -21,13 +21,18 @@ import tempfile
 from pathlib import Path
 
 import numpy as np
-from stage1_speed import run_pipeline
-from validation_early import history, object_sets_and_config, options, run_variants, seconds, verdicts
+from stage1_speed import first_object, run_pipeline
+from validation_early import (
+    history,
+    object_sets_and_config,
+    options,
+    run_variants,
+    seconds,
+    verdicts,
+    write_run_results,
+)
 
-from ges_core.dataset import software_versions
 from ges_core.synthesis.physics import validate
-
-from _results import code_state, results_path, write_results
 
 VARIANTS = ("every_step", "as_needed")
 
@@ -91,7 +96,7 @@ def main() -> None:
     args = options(__doc__.splitlines()[0], "validation_reads")
     sets, config = object_sets_and_config(args)
     with tempfile.TemporaryDirectory() as tmp:
-        run([sets["procedural"][0]], args.hands[:1], config, Path(tmp) / "warm", "as_needed")  # imports, caches
+        run([first_object(sets)], args.hands[:1], config, Path(tmp) / "warm", "as_needed")  # imports, caches
         runs, cpu = run_variants(sets, args.hands, config, Path(tmp), VARIANTS, run)
     rows = {name: compare(by_variant) for name, by_variant in runs.items()}
     print(
@@ -107,11 +112,7 @@ def main() -> None:
         )
         for key in r["differing"]:
             print(f"  differs: {' '.join(key)}")
-    write_results(results_path(args.results), {
-        "benchmark": "validation_reads", "objects": sets, "hands": args.hands, "rows": rows, "cpu_seconds": cpu,
-        "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
-        "code": code_state(),
-    })  # fmt: skip
+    write_run_results(args, "validation_reads", sets, rows, cpu_seconds=cpu)
 
 
 if __name__ == "__main__":
