@@ -123,6 +123,11 @@ class HandDescription:
     """(K,) largest torque (N·m; N for a prismatic joint) each joint's real actuator gives, ``joint_names``
     order; () when the hand declares none. Simulators apply them on request
     (:meth:`ges_core.sim.SimBackend.set_drive_limits`); robust validation runs its trials with them."""
+    armature: tuple[float, ...] = ()
+    """(K,) reflected inertia of each joint's actuator (kg·m²; kg for a prismatic joint), ``joint_names`` order; ()
+    when the hand declares none. SAPIEN adds it to the joint's inertia (PhysX joint armature); PyBullet has no
+    armature and leaves it out. On a light finger link it is most of what the drive moves: the Shadow MJCF's
+    0.001 kg·m² is 100-1000x its distal links' inertia (docs/hands/shadow.md, "Armature")."""
     slot_fill: dict[str, str] = field(default_factory=dict, hash=False)
     """Slot -> finger name for slots no physical finger fills (e.g. Allegro's little finger)."""
     couplings: tuple[JointCoupling, ...] = ()
@@ -147,6 +152,11 @@ class HandDescription:
     def limits_array(self) -> np.ndarray:
         """(K, 2) float64 joint limits."""
         return np.asarray(self.joint_limits, dtype=np.float64).reshape(-1, 2)
+
+    @property
+    def armature_array(self) -> np.ndarray:
+        """(K,) float64 :attr:`armature`, zeros when the hand declares none."""
+        return np.asarray(self.armature or (0.0,) * self.num_joints, dtype=np.float64)
 
     @property
     def effort_limits_array(self) -> np.ndarray | None:

@@ -22,6 +22,7 @@ The format, field by field with units and frames and the built-in hands as examp
     pd_stiffness: {default: 400.0}
     pd_damping: {default: 10.0}
     effort_limit: {default: 0.5}     # optional: the real actuators' torque limits, N·m
+    armature: {default: 0.0}         # optional: the actuators' reflected inertia, kg·m² (0: none)
     couplings: []                    # optional: {follower, leader, ratio, offset}
     self_collision_exclude: []       # optional: [[link_a, link_b], ...] pairs that never collide
     settings: {}                     # optional: the hand's own Stage 1 settings (ges_core.hand_settings)
@@ -92,6 +93,7 @@ class _HandFile(ConfigModel):
     pd_stiffness: PerJoint
     pd_damping: PerJoint
     effort_limit: PerJoint | None = None
+    armature: PerJoint | None = None
     couplings: list[_Coupling] = Field(default_factory=list)
     self_collision_exclude: list[tuple[str, str]] = Field(default_factory=list)
     settings: dict[str, Any] = Field(default_factory=dict)
@@ -203,6 +205,21 @@ def _effort_limits(data: _HandFile, names: list[str]) -> tuple[float, ...]:
     return limits
 
 
+def _armature(data: _HandFile, names: list[str]) -> tuple[float, ...]:
+    """(K,) ``armature`` per joint, kg·m² (kg), or () when the file gives none; AssetError unless each is finite and
+    >= 0."""
+    if data.armature is None:
+        return ()
+    values = expand_per_joint(data.armature, names, f"{data.name}.armature")
+    bad = [f"{n}={v}" for n, v in zip(names, values, strict=True) if not (v >= 0 and v < float("inf"))]
+    if bad:
+        raise AssetError(
+            f"hand '{data.name}': armature must be a finite inertia >= 0 kg·m² per joint, got {', '.join(bad)}; "
+            "give the actuator's reflected inertia (the asset's value) or leave armature out"
+        )
+    return values
+
+
 def description_from_yaml(
     yaml_text: str, urdf_text: str, *, strict: bool = True, source: str | None = None, **overrides: Any
 ) -> HandDescription:
@@ -250,6 +267,7 @@ def description_from_yaml(
         pd_stiffness=expand_per_joint(data.pd_stiffness, names, f"{data.name}.pd_stiffness"),
         pd_damping=expand_per_joint(data.pd_damping, names, f"{data.name}.pd_damping"),
         effort_limits=_effort_limits(data, names),
+        armature=_armature(data, names),
         slot_fill=dict(data.slot_fill),
         couplings=tuple(JointCoupling(**c.model_dump()) for c in data.couplings),
         self_collision_exclude=tuple(tuple(sorted(pair)) for pair in data.self_collision_exclude),

@@ -98,6 +98,35 @@ def test_an_effort_limit_must_be_a_finite_torque(bad):
         describe(effort_limit={"th_j1": float("inf"), "default": 1.0})
 
 
+def test_armature_is_optional_and_expanded_per_joint():
+    d = describe()
+    assert d.armature == ()  # the file gives none: every engine keeps its default, 0
+    np.testing.assert_array_equal(d.armature_array, np.zeros(4))
+    d = describe(armature={"ff_.*": 0.001, "default": 0.0})  # kg·m²
+    assert d.armature == (0.001, 0.001, 0.0, 0.0)
+
+
+@pytest.mark.parametrize("bad", [-0.001, -1.0])
+def test_an_armature_must_be_a_finite_inertia_not_below_zero(bad):
+    with pytest.raises(AssetError, match=rf"hand 'mini': armature must be a finite inertia >= 0 kg·m² per joint, "
+                       rf"got th_j1={bad}; give the actuator's reflected inertia"):  # fmt: skip
+        describe(armature={"th_j1": bad, "default": 0.0})
+    with pytest.raises(AssetError, match=r"armature.dict\[str,float\].th_j1: Input should be a finite number"):
+        describe(armature={"th_j1": float("nan"), "default": 0.0})
+
+
+def test_a_hand_without_armature_keeps_its_dataset_identity_and_one_with_it_names_it():
+    """describe_hand adds ``armature[J]`` keys only for a hand that declares armature: a dataset of a hand without
+    (the Allegro's, written before the field existed) still matches its hand."""
+    from ges_core.dataset.hands import describe_hand
+
+    assert not any(k.startswith("armature[") for k in describe_hand(describe()))
+    fields = describe_hand(describe(armature={"default": 0.002}))
+    assert {k: v for k, v in fields.items() if k.startswith("armature[")} == {
+        f"armature[{j}]": 0.002 for j in ("ff_j1", "ff_j2", "th_j1", "th_j2")
+    }
+
+
 def test_the_built_in_hands_declare_their_actuators():
     """Allegro: Isaac Lab's 0.5 N·m everywhere; Shadow: the MJCF actuators' forcerange, J0 as its leader J1."""
     from ges_core.registry import load_registry

@@ -49,10 +49,14 @@ def format_hand(d: HandDescription) -> str:
         via = "" if finger.slot == slot else f"  (filled by rule: {slot} -> {finger.name})"
         lines.append(f"    {slot:<7} {finger.name:<8} tip {finger.tip_link}{via}")
     width = max(14, *(len(name) + 1 for name in d.joint_names))  # long names (the Inspire's) keep the columns
-    lines.append(f"  {'joint':<{width}}{'lower':>9}{'upper':>9}{'open':>9}{'kp':>10}{'kd':>9}")
-    rows = zip(d.joint_names, d.joint_limits, d.open_pose, d.pd_stiffness, d.pd_damping, strict=True)
-    for name, (lo, hi), q0, kp, kd in rows:
-        lines.append(f"  {name:<{width}}{lo:>9.3f}{hi:>9.3f}{q0:>9.3f}{kp:>10.3g}{kd:>9.3g}")
+    head = f"{'lower':>9}{'upper':>9}{'open':>9}{'kp':>10}{'kd':>9}{'effort':>9}{'armature':>10}"
+    lines.append(f"  {'joint':<{width}}{head}")
+    effort = d.effort_limits or (None,) * d.num_joints  # -: no cap declared
+    rows = zip(d.joint_names, d.joint_limits, d.open_pose, d.pd_stiffness, d.pd_damping, effort, strict=True)
+    for (name, (lo, hi), q0, kp, kd, cap), arm in zip(rows, d.armature_array, strict=True):
+        cap_text = "-" if cap is None else f"{cap:.3g}"
+        lines.append(f"  {name:<{width}}{lo:>9.3f}{hi:>9.3f}{q0:>9.3f}{kp:>10.3g}{kd:>9.3g}{cap_text:>9}{arm:>10.3g}")
+    lines.append("  units: rad, N·m/rad, N·m·s/rad, N·m (effort: the actuator's torque cap), kg·m² (armature)")
     lines.extend(f"  coupling: {c.follower} = {c.ratio:g} x {c.leader} + {c.offset:g} rad" for c in d.couplings)
     lines.extend(f"  self-collision left out: {a} / {b}" for a, b in d.self_collision_exclude)
     lines.append(f"  settings (over the run config's, docs/hands/format.md): {d.settings or 'none'}")

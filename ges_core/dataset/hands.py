@@ -4,7 +4,8 @@ The manifest's ``hands`` maps each hand name to ``{"hash": 16 hex digits, "descr
 description is flat so that a change is named in one line (``pd_stiffness[FFJ1]: 1.0 -> 2.0``):
 
 * every :class:`~ges_core.hand.HandDescription` field, per-joint values keyed by joint name
-  (``joint_limits[J]``, ``open_pose[J]``, ``pd_stiffness[J]``, ``pd_damping[J]``, ``effort_limit[J]``), fingers by
+  (``joint_limits[J]``, ``open_pose[J]``, ``pd_stiffness[J]``, ``pd_damping[J]``, ``effort_limit[J]``;
+  ``armature[J]`` only for a hand that declares armature, so a hand without keeps its hash), fingers by
   finger name (``fingers[ff].tip_offset``), couplings by follower, ``slot_fill[slot]``, each excluded link pair
   (``self_collision_exclude[a, b]``; a hand without any has no such key), the YAML's settings by
   dotted path (``settings.validate.min_squeeze``) but its ``train`` section (Stage 2 training values: they change
@@ -110,6 +111,8 @@ def describe_hand(d: HandDescription) -> dict[str, object]:
         spec = {"slot": f.slot, "joints": list(f.joints), "tip_link": f.tip_link, "tip_offset": list(f.tip_offset)}
         spec |= {"pad_normal": None if f.pad_normal is None else list(f.pad_normal)}
         out |= {f"fingers[{f.name}].{k}": v for k, v in (spec | {"keypoint_links": list(f.keypoint_links)}).items()}
+    if d.armature:  # a hand without armature has no such key (its hash as before the field existed)
+        out |= {f"armature[{j}]": v for j, v in zip(d.joint_names, d.armature, strict=True)}
     out |= {f"slot_fill[{slot}]": finger for slot, finger in sorted(d.slot_fill.items())}
     out |= {f"couplings[{c.follower}]": [c.leader, c.ratio, c.offset] for c in d.couplings}
     out |= {f"self_collision_exclude[{a}, {b}]": True for a, b in d.self_collision_exclude}  # none: no key

@@ -111,8 +111,9 @@ DAMPED = 0.02
 """s: a finger whose drives' Kd/Kp is longer than this is told to lower its damping first. Measured with this probe
 (2026-12-04): the blocked tip's force falls about as 1/Kd at a fixed Kp in both engines, e.g. the Inspire hand
 (Kp 1000) 0.46 / 2.0 N at Kd/Kp 0.1 s and 5.8 / 8.4 N at 0.01 s (SAPIEN / PyBullet index finger), the example
-gripper (Kp 20) 0.30 / 1.6 N at 0.1 s and 5.3 / 2.9 N at 0.0025 s, the built-in Shadow (Kp 1) 1.1-2.3 / 3.5-6.4 N at
-0.1 s and 2.0-4.5 / 1.8-5.9 N at 0.01 s. Lower damping is not always better in every engine: the Shadow at 0.01 s
+gripper (Kp 20) 0.30 / 1.6 N at 0.1 s and 5.3 / 2.9 N at 0.0025 s, the built-in Shadow (Kp 1; then without its
+MJCF's armature, which SAPIEN now applies: 4.5-6.8 N there at 0.1 s) 1.1-2.3 / 3.5-6.4 N at 0.1 s and 2.0-4.5 /
+1.8-5.9 N at 0.01 s. Lower damping is not always better in every engine: the Shadow at 0.01 s
 held 15 of the 20 real scans robustly in SAPIEN (13 at 0.1 s) but 4 in PyBullet (15), so the built-in keeps its
 MJCF's damping and the advice says to check both."""
 

@@ -125,6 +125,7 @@ class MujocoBackend(SimBackend):
             joint_names=tuple(d.joint_names),
             stiffness=tuple(float(v) for v in d.pd_stiffness),
             damping=tuple(float(v) for v in d.pd_damping),
+            armature=tuple(float(v) for v in d.armature_array),
             base_link=d.base_link or root_link(text),
             excluded=tuple(pairs),
         )

@@ -71,6 +71,9 @@ class HandSetup:
     """The hand's joints, ``HandDescription.joint_names`` order."""
     stiffness: tuple[float, ...]
     damping: tuple[float, ...]
+    armature: tuple[float, ...]
+    """(K,) each hand joint's armature, kg·m² (``HandDescription.armature_array``; zeros when the hand declares none):
+    MuJoCo's own joint ``armature``, as the MJCF the Shadow comes from sets it."""
     base_link: str
     excluded: tuple[tuple[str, str], ...]
     """Link pairs that never collide (``HandModel.excluded_link_pairs``), used when self-collision is on."""
@@ -163,13 +166,16 @@ def _contact_classes(config: SceneConfig) -> dict[str, dict]:
 
 
 def _hand_physics(spec: mujoco.MjSpec, config: SceneConfig, hand: HandSetup, bodies: HandBodies) -> None:
-    """Gravity compensation, neighbour exclusions and one PD actuator per driven joint (wrist first)."""
+    """Gravity compensation, neighbour exclusions, each hand joint's armature and one PD actuator per driven joint
+    (wrist first)."""
     if not config.hand_gravity:
         for name in bodies.links:
             spec.body(name).gravcomp = 1.0
     if config.self_collision:
         for a, b in hand.excluded:
             spec.add_exclude(bodyname1=a, bodyname2=b)
+    for joint, armature in zip(hand.joint_names, hand.armature, strict=True):
+        spec.joint(joint).armature = armature
     wrist = WRIST_JOINTS if hand.floating else ()
     gains = [(config.wrist_stiffness, config.wrist_damping)] * len(wrist) + list(
         zip(hand.stiffness, hand.damping, strict=True)

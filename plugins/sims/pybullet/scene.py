@@ -212,6 +212,9 @@ def hand_layout(scene: Scene, hand: HandModel, config: SceneConfig, floating: bo
     damping = [config.wrist_damping] * len(wrist) + list(d.pd_damping)
     drive_ids = wrist + [joint_ids[name] for name in d.joint_names]
     start = [0.0] * len(wrist) + list(d.open_pose)
+    # Bullet has no joint armature (HandDescription.armature): its joints keep their links' inertia, and the drive's
+    # model of them does too (adding the armature there only, measured on the Shadow, made a blocked tip press 2.5-4.7
+    # N where SAPIEN with the armature presses 4.5-6.8 and Bullet without it 3.4-6.4; docs/hands/shadow.md, "Armature").
     inertia = _joint_inertia(scene, drive_ids, start)
     return HandLayout(
         floating=floating,

@@ -247,13 +247,17 @@ def set_drives(
     idx_sim_to_hand: np.ndarray,
     config: SceneConfig,
 ) -> None:
-    """Force-mode PD drives: wrist joints from the scene config, hand joints from the description."""
+    """Force-mode PD drives: wrist joints from the scene config, hand joints from the description, and each hand
+    joint's armature (``HandDescription.armature``; PhysX's own default, 0, where the hand declares none)."""
     n_wrist = len(joints) - description.num_joints
     for joint in joints[:n_wrist]:
         joint.set_drive_property(config.wrist_stiffness, config.wrist_damping)
+    armature = description.armature_array
     for k, sim_index in enumerate(idx_sim_to_hand):
         joint = joints[n_wrist + int(sim_index)]
         joint.set_drive_property(description.pd_stiffness[k], description.pd_damping[k])
+        if description.armature:
+            joint.set_armature(np.array([armature[k]], dtype=np.float32))
 
 
 NO_FORCE_LIMIT = 3.4028234663852886e38
