@@ -206,6 +206,7 @@ def test_tip_force_probe_flags_a_weak_hand(capsys, tmp_path, sim):
     found = [ln for ln in lines if ln.startswith("[tip-force]")]
     assert code == 1 and len(found) == 2 and all(f"in {sim} under validation's squeeze (asks 5 N" in ln for ln in found)
     assert all(re.search(r"(pressed only [0-9.]+ N|did not touch)", ln) for ln in found)
+    assert all("declare the actuators' armature" in ln for ln in found)  # the gripper declares none
 
 
 @pytest.mark.sim

@@ -101,7 +101,7 @@ def check_tip_forces(
                 "tip-force",
                 f"finger '{finger.name}' {how} in {sim_name} under validation's squeeze (asks {asked:g} N per tip; "
                 f"below {PROBE_SHARE * asked:g} N two tips do not hold the heavier demo objects)",
-                _tip_force_fix(drive_time_constant(d, finger.joints)),
+                _tip_force_fix(drive_time_constant(d, finger.joints), armature=bool(d.armature)),
             )
         )
     return out
@@ -126,11 +126,17 @@ def drive_time_constant(d: HandDescription, joints: Sequence[str]) -> float:
     return float(taus.max()) if taus.size else 0.0
 
 
-def _tip_force_fix(tau: float) -> str:
+def _tip_force_fix(tau: float, armature: bool = True) -> str:
     stiffness = (
         "raise pd_stiffness of its joints (a drive presses Kp x the angle its target lies past contact, and the "
         "squeeze goes at most 0.6 rad past), check effort limits, and make its tip link collide (see tip-collision)"
     )
+    if not armature:  # first: light links without their actuators' inertia chatter against a contact (SAPIEN)
+        stiffness = (
+            "declare the actuators' armature (reflected inertia, kg·m²) if the hand's source gives one (an MJCF's "
+            "armature; docs/hands/format.md): without it a light finger link can chatter against the object and "
+            f"press a fraction of its drive's force, as the Shadow did in SAPIEN (1.1-2.3 N of 5 N); else {stiffness}"
+        )
     if tau <= DAMPED:
         return stiffness
     return (
