@@ -8,6 +8,7 @@ meshes are decomposed on the fly (CoACD, cached by mesh hash; near-convex scans 
 
     python benchmarks/stage1_dataset.py [--out runs/stage1_dataset] [--workers 2] [--limit N] [--fresh]
     python benchmarks/stage1_dataset.py --sources procedural     # part of the library (its own results file)
+    python benchmarks/stage1_dataset.py --hands shadow           # one hand (its own results file and folder)
     python benchmarks/stage1_dataset.py --summary-only          # count what is stored, run nothing
 
 Per split and per category (and per hand): records, validated (the paper's single trial), robust (every
@@ -16,8 +17,10 @@ nominal trial; robust trials apart). Prints markdown and writes ``benchmarks/res
 (also after ``--summary-only``, marked incomplete while pairs are missing); with ``--sources`` naming part of
 the library, ``stage1_dataset_<sources>.json`` instead, and the dataset folder defaults to
 ``runs/stage1_dataset_<sources>``: the splits are drawn over the objects listed (the unseen categories are about
-10 % of them), so a part's split labels differ from the whole library's and the two must not share a folder. The
-wall time is the sum over the runs that wrote the folder (each run appends itself to ``<out>.runs.json`` beside it).
+10 % of them), so a part's split labels differ from the whole library's and the two must not share a folder. With
+``--hands`` naming one hand, ``_<hand>`` is added to both names; the splits do not depend on the hands, so its rows
+compare with the whole run's. The wall time is the sum over the runs that wrote the folder (each run appends itself
+to ``<out>.runs.json`` beside it).
 
 Paper: 773 objects in 82 categories (563 train, 132 unseen-object, 78 unseen-category).
 """
@@ -60,10 +63,12 @@ def main() -> None:
         "--allow-config-change", action="store_true", help="resume --out although it was written with other settings"
     )
     parser.add_argument("--sources", nargs="+", choices=SOURCES, default=list(SOURCES), help="library sources")
+    parser.add_argument("--hands", nargs="+", choices=HANDS, default=list(HANDS), help="hands")
     args = parser.parse_args()
     set_torch_threads(1)
     sources = tuple(s for s in SOURCES if s in args.sources)
-    part = "" if sources == SOURCES else "_" + "-".join(sources)
+    hands = tuple(h for h in HANDS if h in args.hands)
+    part = ("" if sources == SOURCES else "_" + "-".join(sources)) + ("" if hands == HANDS else "_" + "-".join(hands))
     results = RESULTS.with_name(f"stage1_dataset{part}.json")
     args.out = args.out or Path(f"runs/stage1_dataset{part}")
     config = SynthesisConfig(library=LibraryConfig(sources=sources, decompose=True))
@@ -78,14 +83,14 @@ def main() -> None:
         try:  # a stopped run (Ctrl-C) keeps its records and logs its time too; a SIGKILL loses only the time
             ids = [o.object_id for o in objects]
             run_synthesis(
-                ids, HANDS, config, args.out, workers=args.workers, progress=True, on_record=written.append,
+                ids, hands, config, args.out, workers=args.workers, progress=True, on_record=written.append,
                 allow_config_change=args.allow_config_change,
             )  # fmt: skip
         finally:
             _log_run(args.out, time.perf_counter() - start, args.workers, len(written))
     runs = _runs(args.out)
     wall = sum(r["seconds"] for r in runs)
-    wanted = {(o.object_id, h) for o in objects for h in HANDS}
+    wanted = {(o.object_id, h) for o in objects for h in hands}
     records = [r for r in open_dataset(args.out) if r.key in wanted]
     tables = {by: count(records, by) for by in ("split", "category")}
     for by, rows in tables.items():
@@ -156,7 +161,7 @@ def _data(objects, records, wanted, tables, runs, args) -> dict:
         "categories": len(categories),
         "category_names": categories,
         "objects_per_split": dict(splits),
-        "hands": list(HANDS),
+        "hands": sorted({hand for _, hand in wanted}),
         "records_stored": len(records),
         "records_wanted": len(wanted),
         "complete": len(records) == len(wanted),
