@@ -144,3 +144,31 @@ def test_a_blown_env_is_reported_alone_and_restored(run) -> None:
     assert "others True" in lines and "restored True" in lines, done.stdout
     assert "WARNING" not in done.stdout + done.stderr, done.stdout + done.stderr  # MuJoCo's own print
     assert not (REPO / "MUJOCO_LOG.TXT").exists()
+
+
+ARMATURE = """
+import numpy as np
+from ges_core.registry import load_registry
+from ges_core.sim import SceneConfig
+from ges_plugins.hands.shadow.assets import compile_model
+
+registry = load_registry()
+hand = registry.build_hand("shadow")
+sim = registry.build_sim("mujoco", SceneConfig())
+sim.load_hand(hand)
+scene = sim._scenes[0]  # engine internals: a test
+ours = scene.model.dof_armature[scene.hand_dof]
+source = compile_model()  # the MJCF the Shadow is converted from, compiled by MuJoCo itself
+theirs = [source.dof_armature[source.joint("robot0:" + n).dofadr[0]] for n in hand.description.joint_names]
+print("same", bool(np.array_equal(ours, theirs)), sorted(set(ours.tolist())))
+print("wrist", scene.model.dof_armature[scene.wrist_dof].tolist())
+"""
+
+
+def test_the_shadow_in_mujoco_has_its_mjcfs_armature(run) -> None:
+    """The scene the plugin builds from the converted URDF gives each hand joint the armature MuJoCo compiles from
+    the Shadow's own MJCF (docs/hands/shadow.md, "Armature"); the floating wrist's virtual joints get none."""
+    done = run("-c", ARMATURE)
+    assert done.returncode == 0, done.stdout + done.stderr
+    assert "same True [0.001, 0.005]" in done.stdout, done.stdout
+    assert "wrist [0.0, 0.0, 0.0, 0.0, 0.0, 0.0]" in done.stdout, done.stdout
