@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import re
 import xml.etree.ElementTree as ET
+from collections.abc import Callable
 from typing import Any
 
 import yaml
@@ -193,30 +194,33 @@ def _check_exclusions(data: _HandFile, urdf_text: str) -> None:
 
 def _effort_limits(data: _HandFile, names: list[str]) -> tuple[float, ...]:
     """(K,) ``effort_limit`` per joint, N·m (N), or () when the file gives none; AssetError unless each is > 0."""
-    if data.effort_limit is None:
-        return ()
-    limits = expand_per_joint(data.effort_limit, names, f"{data.name}.effort_limit")
-    bad = [f"{n}={v}" for n, v in zip(names, limits, strict=True) if not (v > 0 and v < float("inf"))]
-    if bad:
-        raise AssetError(
-            f"hand '{data.name}': effort_limit must be a finite torque > 0 N·m per joint, got {', '.join(bad)}; "
-            "give the actuator's data-sheet value or leave effort_limit out"
-        )
-    return limits
+    return _actuator_values(
+        data, names, "effort_limit", lambda v: 0 < v < float("inf"), "a finite torque > 0 N·m",
+        "give the actuator's data-sheet value or leave effort_limit out",
+    )  # fmt: skip
 
 
 def _armature(data: _HandFile, names: list[str]) -> tuple[float, ...]:
     """(K,) ``armature`` per joint, kg·m² (kg), or () when the file gives none; AssetError unless each is finite and
     >= 0."""
-    if data.armature is None:
+    return _actuator_values(
+        data, names, "armature", lambda v: 0 <= v < float("inf"), "a finite inertia >= 0 kg·m²",
+        "give the actuator's reflected inertia (the asset's value) or leave armature out",
+    )  # fmt: skip
+
+
+def _actuator_values(
+    data: _HandFile, names: list[str], key: str, ok: Callable[[float], bool], rule: str, fix: str
+) -> tuple[float, ...]:
+    """The optional per-joint actuator table ``key`` expanded to (K,), or () when the file gives none; one AssetError
+    naming every joint whose value breaks ``rule``."""
+    value = getattr(data, key)
+    if value is None:
         return ()
-    values = expand_per_joint(data.armature, names, f"{data.name}.armature")
-    bad = [f"{n}={v}" for n, v in zip(names, values, strict=True) if not (v >= 0 and v < float("inf"))]
+    values = expand_per_joint(value, names, f"{data.name}.{key}")
+    bad = [f"{n}={v}" for n, v in zip(names, values, strict=True) if not ok(v)]
     if bad:
-        raise AssetError(
-            f"hand '{data.name}': armature must be a finite inertia >= 0 kg·m² per joint, got {', '.join(bad)}; "
-            "give the actuator's reflected inertia (the asset's value) or leave armature out"
-        )
+        raise AssetError(f"hand '{data.name}': {key} must be {rule} per joint, got {', '.join(bad)}; {fix}")
     return values
 
 

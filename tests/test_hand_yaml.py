@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pytest
 
@@ -89,13 +91,24 @@ def test_effort_limits_are_optional_and_expanded_per_joint():
     np.testing.assert_array_equal(d.effort_limits_array, [0.5, 0.5, 1.5, 20.0])
 
 
-@pytest.mark.parametrize("bad", [0.0, -1.0])
-def test_an_effort_limit_must_be_a_finite_torque(bad):
-    with pytest.raises(AssetError, match=rf"hand 'mini': effort_limit must be a finite torque > 0 N·m per joint, "
-                       rf"got th_j1={bad}; give the actuator's data-sheet value"):  # fmt: skip
-        describe(effort_limit={"th_j1": bad, "default": 1.0})
-    with pytest.raises(AssetError, match=r"effort_limit.dict\[str,float\].th_j1: Input should be a finite number"):
-        describe(effort_limit={"th_j1": float("inf"), "default": 1.0})
+@pytest.mark.parametrize(
+    ("key", "bad", "says"),
+    [
+        ("effort_limit", 0.0, "a finite torque > 0 N·m per joint, got th_j1=0.0; give the actuator's data-sheet value"),
+        ("effort_limit", -1.0, "a finite torque > 0 N·m per joint, got th_j1=-1.0; give the actuator's data-sheet"),
+        ("armature", -0.001, "a finite inertia >= 0 kg·m² per joint, got th_j1=-0.001; give the actuator's reflected"),
+        ("armature", -1.0, "a finite inertia >= 0 kg·m² per joint, got th_j1=-1.0; give the actuator's reflected"),
+    ],
+)
+def test_an_actuator_value_out_of_range_names_the_joint(key, bad, says):
+    with pytest.raises(AssetError, match=re.escape(f"hand 'mini': {key} must be {says}")):
+        describe(**{key: {"th_j1": bad, "default": 1.0}})
+
+
+@pytest.mark.parametrize(("key", "bad"), [("effort_limit", float("inf")), ("armature", float("nan"))])
+def test_a_non_finite_actuator_value_is_refused_where_the_file_is_read(key, bad):
+    with pytest.raises(AssetError, match=rf"{key}.dict\[str,float\].th_j1: Input should be a finite number"):
+        describe(**{key: {"th_j1": bad, "default": 1.0}})
 
 
 def test_armature_is_optional_and_expanded_per_joint():
@@ -104,15 +117,6 @@ def test_armature_is_optional_and_expanded_per_joint():
     np.testing.assert_array_equal(d.armature_array, np.zeros(4))
     d = describe(armature={"ff_.*": 0.001, "default": 0.0})  # kg·m²
     assert d.armature == (0.001, 0.001, 0.0, 0.0)
-
-
-@pytest.mark.parametrize("bad", [-0.001, -1.0])
-def test_an_armature_must_be_a_finite_inertia_not_below_zero(bad):
-    with pytest.raises(AssetError, match=rf"hand 'mini': armature must be a finite inertia >= 0 kg·m² per joint, "
-                       rf"got th_j1={bad}; give the actuator's reflected inertia"):  # fmt: skip
-        describe(armature={"th_j1": bad, "default": 0.0})
-    with pytest.raises(AssetError, match=r"armature.dict\[str,float\].th_j1: Input should be a finite number"):
-        describe(armature={"th_j1": float("nan"), "default": 0.0})
 
 
 def test_a_hand_without_armature_keeps_its_dataset_identity_and_one_with_it_names_it():
