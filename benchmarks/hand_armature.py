@@ -2,11 +2,12 @@
 
 For each hand and armature variant, in each simulator, two probes of validation's squeeze (5 N asked per tip):
 
-* **all fingers**: ``ges hand lint --probe``'s probe (``ges_core.lint.checks_probe.probe_tip_forces``): one scene
+* **all fingers**: ``ges hand lint --probe``'s probe (``ges_core.lint.checks_probe.probe_fingers``): one scene
   per finger, every finger closing under the squeeze targets, finger ``f``'s tip force on its fixed cube;
 * **one finger**: the same cubes, but in scene ``f`` only finger ``f`` gets its squeeze targets (the others stay at
-  the probe's start pose, so no neighbour touches the cube), its tip force and the largest joint speed of the hand
-  after the 60 squeeze steps (a blocked finger that chatters moves; a still one does not).
+  the probe's start pose, so no neighbour touches the cube; ``probe_fingers(..., alone=True)``), its tip force and
+  the largest joint speed of the hand after the 60 squeeze steps (a blocked finger that chatters moves; a still one
+  does not).
 
 Variants: ``declared`` (the hand as built), ``none`` (``armature`` left out), and each ``--try LABEL=KG_M2`` (that
 armature on every joint, e.g. ``hora=0.001``, the Allegro's in HORA's Isaac Gym task). PyBullet has no joint
@@ -21,8 +22,6 @@ Prints a markdown table and writes ``benchmarks/results/NAME.json`` (default ``h
 from __future__ import annotations
 
 import argparse
-
-import numpy as np
 
 from ges_core.cli.args import positive_float
 
@@ -72,39 +71,15 @@ def _variant(text: str) -> tuple[str, float]:
 
 
 def _probes(hand, registry, sim: str) -> dict:
-    from ges_core.lint.checks_probe import probe_tip_forces
+    from ges_core.lint.checks_probe import probe_fingers
 
-    every, asked = probe_tip_forces(hand, registry.build_sim, sim)
-    one, speed = _one_finger(hand, registry, sim)
-    return {"all_fingers": every.round(3).tolist(), "one_finger": one.round(3).tolist(), "one_finger_speed": speed}
-
-
-def _one_finger(hand, registry, sim_name: str) -> tuple[np.ndarray, float]:
-    """(F,) each finger's tip force on its cube with only that finger squeezing, and the largest joint speed."""
-    from ges_core.lint import checks_probe as probe
-    from ges_core.sim import SceneConfig
-    from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
-
-    d = hand.description
-    q = d.closed_pose(0.5)
-    targets = squeeze_targets(hand, q, force=SQUEEZE_FORCE, min_squeeze=MIN_SQUEEZE, max_squeeze=MAX_SQUEEZE)
-    start, n = d.closed_pose(probe.START), len(d.fingers)
-    per_scene = np.tile(start, (n, 1))
-    for f, finger in enumerate(d.fingers):
-        joints = d.joint_index(finger.joints)
-        per_scene[f, joints] = targets[joints]
-    cubes = probe._cube_poses(hand, q)
-    with registry.build_sim(sim_name, SceneConfig(num_envs=n, gravity=0.0)) as sim:
-        sim.load_hand(hand, floating=True)
-        sim.set_hand_state(np.tile(start, (n, 1)), np.tile(probe.HOVER, (n, 1)))
-        for f in range(n):
-            sim.load_object(probe._cube(), cubes[f], env_ids=[f], fixed=True)
-        sim.set_wrist_targets(np.tile(probe.HOVER, (n, 1)))
-        sim.set_joint_targets(per_scene)
-        sim.step(probe.SQUEEZE_STEPS)
-        forces = np.linalg.norm(sim.contact_forces(list(d.tip_links), "object"), axis=-1)  # (n, F)
-        _, speed = sim.joint_state()
-    return forces[np.arange(n), np.arange(n)], float(np.abs(speed).max())
+    every = probe_fingers(hand, registry.build_sim, sim)
+    one = probe_fingers(hand, registry.build_sim, sim, alone=True)
+    return {
+        "all_fingers": every.forces.round(3).tolist(),
+        "one_finger": one.forces.round(3).tolist(),
+        "one_finger_speed": one.joint_speed,
+    }
 
 
 def _fmt(values: list[float]) -> str:

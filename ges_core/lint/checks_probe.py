@@ -14,6 +14,7 @@ that nothing touches through. Run by ``ges hand lint --probe`` (1-3 s per simula
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,7 +22,16 @@ from ges_core.hand import HandDescription, HandModel
 from ges_core.lint.problems import LintProblem
 from ges_core.sim import SceneConfig, SimBackend
 
-__all__ = ["DAMPED", "PROBE_SHARE", "SQUEEZE_STEPS", "check_tip_forces", "drive_time_constant", "probe_tip_forces"]
+__all__ = [
+    "DAMPED",
+    "PROBE_SHARE",
+    "SQUEEZE_STEPS",
+    "ProbeReading",
+    "check_tip_forces",
+    "drive_time_constant",
+    "probe_fingers",
+    "probe_tip_forces",
+]
 
 PROBE_SHARE = 0.5
 """A fingertip pressing less than this share of the squeeze force is reported: with two tips at mu = 1, half
@@ -40,23 +50,51 @@ CUBE_HALF = 0.01
 
 def probe_tip_forces(hand: HandModel, make_sim: Callable[[str, SceneConfig], SimBackend], sim_name: str):
     """(F,) each finger's tip force on its cube after the squeeze, N, and the force asked, N (module docs)."""
+    reading = probe_fingers(hand, make_sim, sim_name)
+    return reading.forces, reading.asked
+
+
+@dataclass(frozen=True)
+class ProbeReading:
+    """What :func:`probe_fingers` measured after the squeeze."""
+
+    forces: np.ndarray
+    """(F,) finger f's tip force on its own cube (scene f), N."""
+    asked: float
+    """The tip force the squeeze targets ask for, N."""
+    joint_speed: float
+    """The largest hand joint speed in any scene, rad/s (m/s): a blocked finger that chatters moves, a still one
+    does not."""
+
+
+def probe_fingers(
+    hand: HandModel, make_sim: Callable[[str, SceneConfig], SimBackend], sim_name: str, *, alone: bool = False
+) -> ProbeReading:
+    """The probe (module docs). ``alone``: in scene f only finger f gets its squeeze targets, the others stay at the
+    start pose, so no neighbour presses on f's cube (the lint squeezes every finger in every scene)."""
     from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 
     d = hand.description
     q = d.closed_pose(0.5)
     targets = squeeze_targets(hand, q, force=SQUEEZE_FORCE, min_squeeze=MIN_SQUEEZE, max_squeeze=MAX_SQUEEZE)
+    start, n = d.closed_pose(START), len(d.fingers)
+    per_scene = np.tile(start if alone else targets, (n, 1))
+    if alone:
+        for f, finger in enumerate(d.fingers):
+            joints = d.joint_index(finger.joints)
+            per_scene[f, joints] = targets[joints]
     cubes = _cube_poses(hand, q)
-    n = len(d.fingers)
     with make_sim(sim_name, SceneConfig(num_envs=n, gravity=0.0)) as sim:
         sim.load_hand(hand, floating=True)
-        sim.set_hand_state(np.tile(d.closed_pose(START), (n, 1)), np.tile(HOVER, (n, 1)))
+        sim.set_hand_state(np.tile(start, (n, 1)), np.tile(HOVER, (n, 1)))
         for f in range(n):
             sim.load_object(_cube(), cubes[f], env_ids=[f], fixed=True)
         sim.set_wrist_targets(np.tile(HOVER, (n, 1)))
-        sim.set_joint_targets(np.tile(targets, (n, 1)))
+        sim.set_joint_targets(per_scene)
         sim.step(SQUEEZE_STEPS)
         forces = np.linalg.norm(sim.contact_forces(list(d.tip_links), "object"), axis=-1)  # (n, F)
-    return forces[np.arange(n), np.arange(n)], SQUEEZE_FORCE
+        _, speed = sim.joint_state()
+    return ProbeReading(forces[np.arange(n), np.arange(n)], SQUEEZE_FORCE, float(np.abs(speed).max()))
 
 
 def _cube():
@@ -126,7 +164,7 @@ def drive_time_constant(d: HandDescription, joints: Sequence[str]) -> float:
     return float(taus.max()) if taus.size else 0.0
 
 
-def _tip_force_fix(tau: float, armature: bool = True) -> str:
+def _tip_force_fix(tau: float, *, armature: bool) -> str:
     stiffness = (
         "raise pd_stiffness of its joints (a drive presses Kp x the angle its target lies past contact, and the "
         "squeeze goes at most 0.6 rad past), check effort limits, and make its tip link collide (see tip-collision)"

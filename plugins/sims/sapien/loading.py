@@ -252,12 +252,11 @@ def set_drives(
     n_wrist = len(joints) - description.num_joints
     for joint in joints[:n_wrist]:
         joint.set_drive_property(config.wrist_stiffness, config.wrist_damping)
-    armature = description.armature_array
     for k, sim_index in enumerate(idx_sim_to_hand):
         joint = joints[n_wrist + int(sim_index)]
         joint.set_drive_property(description.pd_stiffness[k], description.pd_damping[k])
         if description.armature:
-            joint.set_armature(np.array([armature[k]], dtype=np.float32))
+            joint.set_armature(np.array([description.armature[k]], dtype=np.float32))
 
 
 NO_FORCE_LIMIT = 3.4028234663852886e38
