@@ -492,3 +492,21 @@ def test_with_the_mjcf_armature_a_blocked_finger_is_still_in_sapien(hand):
     chatter = probe_fingers(build_hand(armature=None), registry.build_sim, "sapien", alone=True)
     assert still.forces.min() >= 3.0 and still.joint_speed < 0.1, still
     assert chatter.joint_speed > 0.1, chatter
+
+
+def test_a_thumb_asked_for_twice_the_squeeze_presses_harder_and_no_other_finger_changes(hand):
+    """The Shadow's thumb asks for up to twice the squeeze on a heavy object (``settings.validate.thumb_force_per_kg``,
+    ``ValidateConfig.thumb_force``). Through the probe, one finger closing at a time, in both engines: asked for 10 N
+    instead of 5 N, the thumb's tip presses at least 1.4 times harder (measured 4.7 -> 7.4 N in SAPIEN, 4.9 -> 8.5 N
+    in PyBullet), and every other finger presses exactly what it did (its targets and scene are the same)."""
+    from ges_core.lint.checks_probe import probe_fingers
+    from ges_core.registry import load_registry
+
+    registry = load_registry()
+    d = hand.description
+    thumb = [f.name for f in d.fingers].index(d.finger_for_slot("thumb").name)
+    for sim in ("sapien", "pybullet"):
+        plain = probe_fingers(hand, registry.build_sim, sim, alone=True)
+        harder = probe_fingers(hand, registry.build_sim, sim, alone=True, thumb_force=10.0)
+        assert harder.forces[thumb] >= 1.4 * plain.forces[thumb], (sim, plain, harder)
+        np.testing.assert_array_equal(np.delete(harder.forces, thumb), np.delete(plain.forces, thumb), err_msg=sim)

@@ -122,6 +122,36 @@ def test_a_trial_moves_the_object_and_lifts_its_caps_afterwards(sim_name):
     sim.close()
 
 
+def test_every_trial_squeezes_for_the_nominal_objects_mass(monkeypatch):
+    """The hand is told of the object, not of the perturbation: each trial validates the perturbed object (twice or
+    half the mass) but sizes the squeeze (``squeeze_mass``, the thumb's force) for the nominal one."""
+    from contextlib import contextmanager
+
+    import ges_core.synthesis.physics.robust as robust
+    from ges_core.synthesis.types import ValidationResult
+
+    seen = []
+
+    def fake_validate(sim, hand, asset, grasp, pre, config, **kw):
+        seen.append((asset.mass, kw["squeeze_mass"]))
+        return ValidationResult(True, "success")
+
+    class Scenes:  # the one attribute and method robust_validate reads, beside the hand
+        hand = load_registry().build_hand("shadow")
+        config = SceneConfig()
+
+        @contextmanager
+        def open(self):
+            yield None
+
+    monkeypatch.setattr(robust, "validate_grasp", fake_validate)
+    obj = replace(_asset(), mass=0.6)
+    config = RobustConfig(mass_scales=(0.5, 2.0), friction_floor=None, pose_trials=1, limits_trial=False)
+    result = robust_validate(Scenes(), obj, None, None, ValidateConfig(), config, seed=0)
+    assert [t.name for t in result.trials] == ["mass_x0.5", "mass_x2", "pose_1"]
+    assert seen == [(pytest.approx(0.3), 0.6), (pytest.approx(1.2), 0.6), (0.6, 0.6)]
+
+
 def test_switched_off_needs_no_trial():
     off = {"enabled": False, "mass_scales": [], "friction_floor": None, "pose_trials": 0, "limits_trial": False}
     assert not parse_model(SynthesisConfig, {"robust": off}, where="test").robust.enabled

@@ -106,6 +106,47 @@ def test_squeeze_floor_and_cap(allegro):
     assert close[ffj1 + 1] == pytest.approx(min(1.141844 * close[ffj1], 1.571), abs=1e-4)  # FFJ0 follows FFJ1
 
 
+def test_a_thumb_force_scales_the_thumbs_squeeze_and_its_cap_alone():
+    """``squeeze_targets(thumb_force=...)``: the thumb's extra angles grow by thumb_force / force and so does its
+    joints' cap; every other joint gets exactly the targets of the plain squeeze. (1 N and 2 N: small enough that no
+    thumb joint reaches its limit, where the targets are clipped.)"""
+    shadow = REGISTRY.build_hand("shadow")
+    d = shadow.description
+    q = d.apply_couplings(d.closed_pose(0.5))
+    thumb = d.joint_index(d.finger_for_slot("thumb").joints)
+    others = np.setdiff1d(np.arange(d.num_joints), thumb)
+    plain = squeeze_targets(shadow, q, force=1.0, min_squeeze=0.0, max_squeeze=10.0)
+    double = squeeze_targets(shadow, q, force=1.0, min_squeeze=0.0, max_squeeze=10.0, thumb_force=2.0)
+    np.testing.assert_array_equal(double[others], plain[others])
+    np.testing.assert_allclose(double[thumb] - q[thumb], 2.0 * (plain[thumb] - q[thumb]), rtol=1e-9)
+    assert np.abs(plain[thumb] - q[thumb]).max() > 0.01  # the thumb is pushed at all
+    capped = squeeze_targets(shadow, q, force=7.0, min_squeeze=0.0, max_squeeze=0.05, thumb_force=14.0)
+    leaders = [i for i in others if d.joint_names[i] not in {c.follower for c in d.couplings}]
+    assert np.abs(capped - q)[thumb].max() == pytest.approx(0.1)  # the thumb's cap doubled with its force
+    assert np.abs(capped - q)[leaders].max() == pytest.approx(0.05)
+    same = squeeze_targets(shadow, q, force=7.0, min_squeeze=0.0, max_squeeze=0.05, thumb_force=7.0)
+    np.testing.assert_array_equal(same, squeeze_targets(shadow, q, force=7.0, min_squeeze=0.0, max_squeeze=0.05))
+
+
+@pytest.mark.parametrize(
+    ("mass", "expected"),
+    [(0.0, 7.0), (0.2, 7.0), (0.4, 9.8), (0.5, 12.25), (0.6, 14.0), (5.0, 14.0)],
+)
+def test_the_thumbs_force_follows_the_objects_mass_between_the_squeeze_and_its_cap(mass, expected):
+    config = ValidateConfig(squeeze_force=7.0, thumb_force_per_kg=24.5, thumb_max_scale=2.0)
+    assert config.thumb_force(mass) == pytest.approx(expected)
+    assert ValidateConfig(squeeze_force=7.0).thumb_force(mass) == 7.0  # off by default: the thumb asks what all ask
+
+
+def test_the_thumb_settings_are_stored_only_when_set():
+    """Added after datasets were written: a config that leaves them at their defaults stores what it stored before,
+    so those datasets still match; one that sets them stores them."""
+    from ges_core.config import stored_dump
+
+    assert not {"thumb_force_per_kg", "thumb_max_scale"} & set(stored_dump(ValidateConfig()))
+    assert stored_dump(ValidateConfig(thumb_force_per_kg=24.5))["thumb_force_per_kg"] == 24.5
+
+
 def test_press_directions_oppose_the_thumb():
     d = REGISTRY.build_hand("allegro").description
     tips = np.zeros((4, 3))

@@ -68,15 +68,24 @@ class ProbeReading:
 
 
 def probe_fingers(
-    hand: HandModel, make_sim: Callable[[str, SceneConfig], SimBackend], sim_name: str, *, alone: bool = False
+    hand: HandModel,
+    make_sim: Callable[[str, SceneConfig], SimBackend],
+    sim_name: str,
+    *,
+    alone: bool = False,
+    thumb_force: float | None = None,
 ) -> ProbeReading:
     """The probe (module docs). ``alone``: in scene f only finger f gets its squeeze targets, the others stay at the
-    start pose, so no neighbour presses on f's cube (the lint squeezes every finger in every scene)."""
+    start pose, so no neighbour presses on f's cube (the lint squeezes every finger in every scene). ``thumb_force``:
+    N the thumb's targets ask for instead of the squeeze force (``squeeze_targets``' own; ``asked`` stays the
+    fingers')."""
     from ges_core.synthesis.physics.squeeze import MAX_SQUEEZE, MIN_SQUEEZE, SQUEEZE_FORCE, squeeze_targets
 
     d = hand.description
     q = d.closed_pose(0.5)
-    targets = squeeze_targets(hand, q, force=SQUEEZE_FORCE, min_squeeze=MIN_SQUEEZE, max_squeeze=MAX_SQUEEZE)
+    targets = squeeze_targets(
+        hand, q, force=SQUEEZE_FORCE, min_squeeze=MIN_SQUEEZE, max_squeeze=MAX_SQUEEZE, thumb_force=thumb_force
+    )
     start, n = d.closed_pose(START), len(d.fingers)
     per_scene = np.tile(start if alone else targets, (n, 1))
     if alone:

@@ -276,6 +276,7 @@ def run_trial(
             validate_config,
             object_shift=perturbation.shift,
             drive_limits=limits,
+            squeeze_mass=obj.mass,  # the nominal object's: the hand is not told of the perturbation
         )
         return TrialResult(perturbation.name, result.success, result.reason, time.perf_counter() - start)
 

@@ -59,16 +59,32 @@ MAX_RETRACT_ANGLE = 1.0
 
 
 def squeeze_targets(
-    hand: HandModel, q_grasp: np.ndarray, *, force: float, min_squeeze: float, max_squeeze: float
+    hand: HandModel,
+    q_grasp: np.ndarray,
+    *,
+    force: float,
+    min_squeeze: float,
+    max_squeeze: float,
+    thumb_force: float | None = None,
 ) -> np.ndarray:
-    """(K,) closing targets past ``q_grasp`` (K,) so each fingertip presses with about ``force`` N (module docs)."""
+    """(K,) closing targets past ``q_grasp`` (K,) so each fingertip presses with about ``force`` N (module docs).
+
+    thumb_force: N the thumb asks for instead of ``force`` (None: ``force``); its joints' cap ``max_squeeze`` grows
+    in the same ratio, so a thumb asked for twice the force may also go twice as far past the grasp
+    (:meth:`ges_core.synthesis.physics.validate.ValidateConfig.thumb_force`, which sizes it by the object's mass).
+    """
     d = hand.description
     q = d.apply_couplings(np.asarray(q_grasp, dtype=np.float64))
     extra = force * press_torques(hand, q) / np.asarray(d.pd_stiffness, dtype=np.float64)
+    cap = np.full(d.num_joints, float(max_squeeze))
+    if thumb_force is not None and force > 0.0 and thumb_force != force:
+        thumb = d.joint_index(d.finger_for_slot("thumb").joints)
+        extra[thumb] *= thumb_force / force
+        cap[thumb] *= thumb_force / force
     largest = float(np.abs(extra).max())
     if 0.0 < largest < min_squeeze:
         extra *= min_squeeze / largest
-    return d.apply_couplings(q + np.clip(extra, -max_squeeze, max_squeeze))
+    return d.apply_couplings(q + np.clip(extra, -cap, cap))
 
 
 def press_torques(hand: HandModel, q: np.ndarray) -> np.ndarray:

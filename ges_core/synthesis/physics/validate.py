@@ -111,6 +111,21 @@ class ValidateConfig(ConfigModel):
     squeeze_force: float = Field(SQUEEZE_FORCE, ge=0, description="fingertip force the closing targets ask for, N")
     min_squeeze: float = Field(MIN_SQUEEZE, ge=0, description="floor on the largest extra target angle, rad")
     max_squeeze: float = Field(MAX_SQUEEZE, ge=0, description="cap on the extra target angle per joint, rad")
+    # The thumb opposes the other fingers alone, so it bounds the grip: off by default; the Shadow's YAML sets it
+    # (docs/synthesis/refine_validate.md, "The thumb's force by the object's mass").
+    thumb_force_per_kg: float = Field(
+        0.0,
+        ge=0,
+        description="the thumb asks for this many N per kg of the object's nominal mass when that is more than "
+        "squeeze_force, up to thumb_max_scale x squeeze_force (0: squeeze_force, like every finger)",
+        json_schema_extra=STORED_WHEN_SET,
+    )
+    thumb_max_scale: float = Field(
+        2.0,
+        ge=1,
+        description="cap on the thumb's force as a multiple of squeeze_force (its joints' max_squeeze grows alike)",
+        json_schema_extra=STORED_WHEN_SET,
+    )
     # 0.05 N: the foundation sim check's 'touching with force' bar (ges_core.sim_check.MIN_TIP_FORCE_N).
     min_tip_force: float = Field(0.05, ge=0, description="a fingertip pushing harder than this touches, N")
     min_tips: int = Field(2, ge=1, description="fingertips that must touch during the hold")
@@ -124,6 +139,12 @@ class ValidateConfig(ConfigModel):
     drive_limits: bool = Field(
         False, description="cap the hand's drives at HandDescription.effort_limits in the nominal trial too"
     )
+
+    def thumb_force(self, mass: float) -> float:
+        """N the thumb's squeeze asks for on an object of nominal ``mass`` kg: ``thumb_force_per_kg * mass``, no
+        less than ``squeeze_force`` and no more than ``thumb_max_scale * squeeze_force``."""
+        low = self.squeeze_force
+        return float(min(max(self.thumb_force_per_kg * mass, low), self.thumb_max_scale * low))
 
     @model_validator(mode="after")
     def _lost_beyond_tolerance(self) -> ValidateConfig:
@@ -160,6 +181,7 @@ def validate_grasp(
     object_shift: np.ndarray | None = None,
     drive_limits: np.ndarray | None = None,
     full_hold: bool = False,
+    squeeze_mass: float | None = None,
 ) -> ValidationResult:
     """Approach, close, lift and hold ``obj`` with ``hand`` in ``sim``; success or failure with a reason.
 
@@ -172,7 +194,9 @@ def validate_grasp(
     hand's drives are capped there (:meth:`ges_core.sim.SimBackend.set_drive_limits`) for this trial only; None
     with ``config.drive_limits`` caps them at the hand's effort limits. full_hold: run every lift and hold step even
     after the verdict is settled and read the fingertip forces at every step (module docs; the reference run: a
-    blow-up in the skipped steps would have said ``unstable`` instead).
+    blow-up in the skipped steps would have said ``unstable`` instead). squeeze_mass: kg the thumb's squeeze is
+    sized for (:meth:`ValidateConfig.thumb_force`); None: ``obj.mass``. A perturbation trial passes the nominal
+    object's: the hand squeezes for the object it was told of, not for the perturbed one.
     """
     config = config or ValidateConfig()
     start = time.perf_counter()
@@ -185,7 +209,10 @@ def validate_grasp(
     shift = None if object_shift is None else checked_poses(object_shift, None, "validate_grasp object_shift")
     capped: list[bool] = []
     try:
-        record = _run(sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped, full_hold)
+        thumb = config.thumb_force(obj.mass if squeeze_mass is None else squeeze_mass)
+        record = _run(
+            sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped, thumb, full_hold
+        )
     except (SimulationError, ArrayError):  # a blow-up, or a NaN command computed from a blown-up state
         return ValidationResult(False, "unstable", flags, time.perf_counter() - start)
     finally:
@@ -228,6 +255,7 @@ def _run(
     shift: np.ndarray | None = None,
     limits: np.ndarray | None = None,
     capped: list[bool] | None = None,
+    thumb_force: float | None = None,
     full_hold: bool = False,
 ) -> HoldRecord:
     """The four phases; fills ``flags`` as it goes and returns the measurements (``capped`` gets an entry once
@@ -248,7 +276,12 @@ def _run(
         sim.set_wrist_targets(interpolate_pose(start, goal, i / config.approach_steps)[None])
         probe.step()
     q_close = squeeze_targets(
-        hand, grasp.q, force=config.squeeze_force, min_squeeze=config.min_squeeze, max_squeeze=config.max_squeeze
+        hand,
+        grasp.q,
+        force=config.squeeze_force,
+        min_squeeze=config.min_squeeze,
+        max_squeeze=config.max_squeeze,
+        thumb_force=thumb_force,
     )
     for i in range(1, config.close_steps + 1):
         sim.set_joint_targets((q_pre + (q_close - q_pre) * i / config.close_steps)[None])
