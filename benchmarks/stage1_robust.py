@@ -9,9 +9,10 @@ say it exactly (``robust_primary_if_stopped_at_first_nominal_pass``: the first n
 robust verdict; the attempts before it ran the same way), so one run is enough when the code does not change
 between two. ``--dataset DIR`` summarizes an
 existing run instead (e.g. ``ges demo -o "synthesis.validate_sims=[sapien,pybullet]"``'s ``DIR/dataset``).
-Prints a table and writes ``benchmarks/results/stage1_robust.json``.
+Prints a table and writes ``benchmarks/results/NAME.json`` (``--results``, default ``stage1_robust``).
 
     python benchmarks/stage1_robust.py [--objects N] [--workers 2] [--retry on|both] [--dataset DIR ...]
+        [--note TEXT] [--results NAME]
 """
 
 from __future__ import annotations
@@ -29,9 +30,7 @@ from ges_core.dataset.summary import agreement, sim_stats
 from ges_core.synthesis import SynthesisConfig, run_synthesis
 from ges_core.synthesis.run.demo import DEMO_OBJECTS
 
-from _results import code_state, write_results
-
-RESULTS = Path(__file__).parent / "results" / "stage1_robust.json"
+from _results import code_state, results_path, write_results
 
 
 def main() -> None:
@@ -42,7 +41,9 @@ def main() -> None:
     parser.add_argument("--retry", choices=["on", "both"], default="on")
     parser.add_argument("--dataset", nargs="+", type=Path, help="summarize these finished runs (no new run)")
     parser.add_argument("--note", default="", help="how the --dataset runs were made (command, commit), stored")
+    parser.add_argument("--results", default="stage1_robust", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
     runs = {}
     if args.dataset:
         for folder in args.dataset:
@@ -57,7 +58,7 @@ def main() -> None:
     machine = {"platform": platform.platform(), "workers": args.workers}
     versions = software_versions("sapien", "pybullet")
     write_results(
-        RESULTS, {"runs": runs, "note": args.note, "machine": machine, "versions": versions, "code": code_state()}
+        results, {"runs": runs, "note": args.note, "machine": machine, "versions": versions, "code": code_state()}
     )
 
 
