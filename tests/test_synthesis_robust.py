@@ -136,7 +136,7 @@ def test_every_trial_squeezes_for_the_nominal_objects_mass(monkeypatch):
         seen.append((asset.mass, kw["squeeze_mass"]))
         return ValidationResult(True, "success")
 
-    class Scenes:  # the one attribute and method robust_validate reads, beside the hand
+    class Scenes:  # what robust_validate reads of its TrialScenes: the hand, the scene config, open()
         hand = load_registry().build_hand("shadow")
         config = SceneConfig()
 

@@ -192,6 +192,33 @@ def test_a_nan_command_inside_the_run_is_unstable_not_raised(allegro, monkeypatc
     assert sim.steps == ValidateConfig().approach_steps  # stopped at the first closing target
 
 
+@pytest.mark.parametrize(("squeeze_mass", "thumb"), [(None, 10.0), (0.1, 5.0), (0.3, 7.35)])
+def test_validation_sizes_the_thumbs_squeeze_for_the_objects_mass_or_the_one_given(
+    allegro, monkeypatch, squeeze_mass, thumb
+):
+    """validate_grasp hands ``squeeze_targets`` the thumb force of ``ValidateConfig.thumb_force``: for the object's
+    own mass (0.6 kg here: 24.5 N/kg is capped at twice the 5 N), or for ``squeeze_mass`` when given (what a
+    perturbation trial passes). The closing target is made NaN to end the run there (reason ``unstable``)."""
+    from dataclasses import replace
+
+    asked = []
+
+    def nan_targets(hand, q, **kw):
+        asked.append(kw)
+        return np.full_like(q, np.nan)
+
+    monkeypatch.setattr("ges_core.synthesis.physics.validate.squeeze_targets", nan_targets)
+    grasp = top_grasp(allegro)
+    config = ValidateConfig(thumb_force_per_kg=24.5)
+    obj = replace(box_object(), mass=0.6)
+    pre = pregrasp(allegro, grasp, DOWN)
+    result = validate_grasp(
+        ExplodingBackend(explode_after=10**6), allegro, obj, grasp, pre, config, squeeze_mass=squeeze_mass
+    )
+    assert result.reason == "unstable"
+    assert [(a["force"], a["thumb_force"]) for a in asked] == [(5.0, pytest.approx(thumb))]
+
+
 def test_validation_rejects_a_grasp_of_another_hand(allegro):
     grasp = top_grasp(allegro)
     foreign = Grasp(hand="shadow", wrist_pose=grasp.wrist_pose, q=grasp.q)
