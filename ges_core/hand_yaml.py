@@ -227,7 +227,9 @@ def _actuator_values(
 def description_from_yaml(
     yaml_text: str, urdf_text: str, *, strict: bool = True, source: str | None = None, **overrides: Any
 ) -> HandDescription:
-    """Build a HandDescription; ``overrides`` replace top-level YAML keys (registry settings).
+    """Build a HandDescription; ``overrides`` replace top-level YAML keys (registry settings), except ``settings``,
+    which merges into the YAML's key by key (:func:`ges_core.hand_settings.merge_settings`): ``ges --set
+    settings.hand.NAME.settings.validate.max_squeeze=1.0`` changes that one key and keeps the hand's others.
 
     strict: reject joints without limits (the hand linter passes False to report every problem).
     source: the YAML file's name, for messages (e.g. ``"shadow.yaml"``).
@@ -238,6 +240,10 @@ def description_from_yaml(
         raise AssetError(f"hand description is not valid YAML: {exc}") from exc
     if not isinstance(raw, dict):
         raise AssetError("hand description must be a YAML mapping")
+    if isinstance(overrides.get("settings"), dict) and isinstance(raw.get("settings"), dict):
+        from ges_core.hand_settings import merge_settings
+
+        overrides = {**overrides, "settings": merge_settings(raw["settings"], overrides["settings"])}
     raw.update(overrides)
     try:
         data = _HandFile.model_validate(raw)

@@ -51,6 +51,18 @@ def describe(yaml_text: str = YAML, urdf_text: str = URDF, **overrides):
     return description_from_yaml(yaml_text, urdf_text, **overrides)
 
 
+def test_a_settings_override_merges_into_the_yamls_settings_key_by_key():
+    """``ges --set settings.hand.NAME.settings.validate.KEY=V`` reaches the YAML as a ``settings`` override: it changes
+    that key and keeps the hand's others (before, it replaced the YAML's whole ``settings:``, and a hand's squeeze force
+    went back to the run default); every other override still replaces its key."""
+    own = YAML + "settings: {validate: {squeeze_force: 7.0, min_tips: 3}, thumb_keep: 1}\n"
+    merged = describe(own, settings={"validate": {"max_squeeze": 1.0}}, scale=1.0).settings
+    assert merged == {"validate": {"squeeze_force": 7.0, "min_tips": 3, "max_squeeze": 1.0}, "thumb_keep": 1}
+    assert describe(own, settings={"validate": {"squeeze_force": 5.0}}).settings["validate"]["squeeze_force"] == 5.0
+    assert describe(own).settings == {"validate": {"squeeze_force": 7.0, "min_tips": 3}, "thumb_keep": 1}
+    assert describe(own, scale=1.0).scale == 1.0 and describe(own).scale == 0.8  # a plain key: replaced
+
+
 # -- per-joint values ---------------------------------------------------------------------
 def test_regex_keys_expand_per_joint():
     assert expand_per_joint({"ff_.*": 1.0, "default": 0.5}, JOINTS, "x") == (1.0, 1.0, 0.5, 0.5)
