@@ -208,8 +208,8 @@ def validate_grasp(
     flags = dict.fromkeys(("reached_grasp", "fingertips_touching", "lifted", "held"), False)
     shift = None if object_shift is None else checked_poses(object_shift, None, "validate_grasp object_shift")
     capped: list[bool] = []
+    thumb = config.thumb_force(obj.mass if squeeze_mass is None else squeeze_mass)
     try:
-        thumb = config.thumb_force(obj.mass if squeeze_mass is None else squeeze_mass)
         record = _run(
             sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped, thumb, full_hold
         )
