@@ -1,12 +1,13 @@
 """The Ability hand package (examples/ges-ability-hand) on the 20 demo objects, both engines, and from contacts
 retargeted off an Allegro and a Shadow dataset of the same objects: each step's success, validated (single
-trial) and robust counts per simulator. Results: ``benchmarks/results/ability_hand.json``.
+trial) and robust counts per simulator. Results: ``benchmarks/results/NAME.json`` (``--results NAME``, default
+``ability_hand``).
 
 Runs the commands of docs/tutorials/new-hand.md (``ges hand prepare ability`` first, so the decomposed
 palm and phalanx are used), single process::
 
-    python benchmarks/ability_hand.py --work /tmp/ability_bench          # ~10 min on 2 loaded cores
-    python benchmarks/ability_hand.py --work /tmp/ability_bench --summarize-only   # re-read the datasets
+    python benchmarks/ability_hand.py --work /tmp/ability_bench [--results NAME]   # ~10 min on 2 loaded cores
+    python benchmarks/ability_hand.py --work /tmp/ability_bench --summarize-only [--results NAME]   # re-read
 
 Needs the package installed (``pip install -e examples/ges-ability-hand``).
 """
@@ -25,7 +26,7 @@ import numpy as np
 from ges_core.synthesis.run.demo import DEMO_OBJECTS
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _results import code_state, write_results  # noqa: E402
+from _results import code_state, results_path, write_results  # noqa: E402
 
 SIMS = ("sapien", "pybullet")
 STEPS = ("contacts", "retargeting", "refinement")
@@ -64,7 +65,9 @@ def main() -> None:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--work", type=Path, required=True, help="folder for the datasets (created)")
     p.add_argument("--summarize-only", action="store_true", help="only re-read the datasets in --work")
+    p.add_argument("--results", default="ability_hand", help="benchmarks/results/NAME.json")
     args = p.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
     w, seconds = args.work, {}
     own, source = w / "ability", w / "source"
     run = ("-o", "validate_sims=[sapien,pybullet]", "--no-progress")
@@ -92,7 +95,7 @@ def main() -> None:
         sims = "  ".join(f"{row['sims'][s]['validated']:>7}/{row['sims'][s]['robust']:<8}" for s in SIMS)
         print(f"{name:24} {steps}  {sims}")
     write_results(
-        Path(__file__).resolve().parent / "results" / "ability_hand.json",
+        results,
         {"code": code_state(), "objects": list(DEMO_OBJECTS), "seconds": seconds, "runs": rows},
     )
 

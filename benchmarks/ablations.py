@@ -14,9 +14,12 @@ the asked iterations: rerunning the script resumes), each evaluation ``ges eval-
 
     python benchmarks/ablations.py --study reward [--iterations 150] [--action-mode residual] [--episodes 4]
         [--scr-scale 4 10]   # more TSR+SCR arms, both penalty weights times each factor (tsr_scr_x4, ...)
+        [--results NAME]
     python benchmarks/ablations.py --study prior [--iterations 150] [--action-mode absolute] [--warm-start]
+        [--results NAME]
 
-Results: ``benchmarks/results/ablation_<study>.json`` (+ ``ablation_prior.png``); runs under
+Results: ``benchmarks/results/NAME.json`` (+ ``NAME.png`` for the prior study), NAME by default
+``ablation_<study>`` and its suffixes below (``--results NAME`` replaces the whole name); runs under
 ``runs/ablations/<study>/``. ``--seed N`` (N > 0) trains and evaluates in folders of their own (``<arm>-seedN``,
 ``eval-seedN``) and writes ``ablation_<study>_seedN.json``: another seed never reuses seed 0's runs. The
 scripted expert needs the goal in the observation, so the residual action mode cannot run the NoGoal arms of the
@@ -47,10 +50,9 @@ from ges_core.experts.matrix import load_matrix
 from ges_core.experts.table import split_rates
 from ges_core.objects.splits import SPLITS
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 ROOT = Path(__file__).resolve().parent.parent
-RESULTS = Path(__file__).resolve().parent / "results"
 REWARD_ARMS = {"udgr": ["reward_preset=udgr"], "tsr": ["reward_preset=tsr"], "tsr_scr": ["reward_preset=tsr_scr"]}
 PRIOR_ARMS = {
     "init_goal": ["env.init_prior=true", "env.goal_prior=true"],
@@ -166,10 +168,10 @@ def run_reward(args: argparse.Namespace) -> dict:
     return {"rows": rows, "curves": curves, "matrix": str(out / "matrix-allegro-sapien.json")}
 
 
-def run_prior(args: argparse.Namespace) -> dict:
+def run_prior(args: argparse.Namespace, results: Path) -> dict:
     runs = {arm: train("prior", arm, o, args) for arm, o in PRIOR_ARMS.items()}
     curves = {arm: bins(history(run), 10) for arm, run in runs.items()}
-    picture = RESULTS / f"ablation_prior{_suffix(args).replace('-', '_')}.png"
+    picture = results.with_suffix(".png")  # beside the results JSON, named after it
     _plot(curves, picture, args)
     print(f"\n{'arm':<14} {'env steps':>10} {'episodes':>9} {'success (last 20 %)':>20} {'best bin':>9}")
     for arm, c in curves.items():
@@ -243,6 +245,12 @@ def main() -> None:
     parser.add_argument(
         "--tag", default="", help="a name for runs with other -o overrides: runs and results get '-TAG'"
     )
+    parser.add_argument(
+        "--results",
+        default=None,
+        help="benchmarks/results/NAME.json (and NAME.png for the prior study); default "
+        "ablation_<study>[_warm][_<tag>][_seed<N>]",
+    )
     args = parser.parse_args()  # fmt: skip
     if args.override and not args.tag:
         parser.error(
@@ -253,14 +261,14 @@ def main() -> None:
     args.action_mode = args.action_mode or ("residual" if args.study == "reward" else "absolute")
     if args.warm_start and args.action_mode == "residual":
         parser.error("--warm-start is for absolute actions (a residual run already starts at its base expert)")
+    path = results_path(args.results or f"ablation_{args.study}{_suffix(args).replace('-', '_')}")  # before the runs
     start = time.perf_counter()
     dataset = dataset_fingerprint(args.dataset)  # before the runs: a folder without a manifest stops here, not after
-    body = run_reward(args) if args.study == "reward" else run_prior(args)
+    body = run_reward(args) if args.study == "reward" else run_prior(args, path)
     settings = {k: str(v) if isinstance(v, Path) else v for k, v in vars(args).items()}
     result = {"benchmark": f"ablation_{args.study}", "settings": settings, "dataset": dataset, **body,
               "wall_seconds": round(time.perf_counter() - start, 1), "load_after": os.getloadavg()[0],
               "code": code_state()}  # fmt: skip
-    path = RESULTS / f"ablation_{args.study}{_suffix(args).replace('-', '_')}.json"
     write_results(path, result)
     print(f"\nwrote {path} ({result['wall_seconds']} s)")
 

@@ -1,9 +1,9 @@
 """Geometry clustering (``ges cluster``) on real datasets: feature time, cluster sizes, where categories go, and
 how stable the clusters are.
 
-Run: ``python benchmarks/clustering.py [DATASET ...] [--reuse CLUSTERS_JSON ...]``; writes
-``benchmarks/results/clustering.json`` and prints a table. Default datasets: ``runs/demo/dataset`` and
-``/work/ds_run`` where they exist. Per dataset:
+Run: ``python benchmarks/clustering.py [DATASET ...] [--reuse CLUSTERS_JSON ...] [--results NAME]``; writes
+``benchmarks/results/NAME.json`` (default NAME ``clustering``) and prints a table. Default datasets:
+``runs/demo/dataset`` and ``/work/ds_run`` where they exist. Per dataset:
 
 - features: seconds per object (mean, max) and in all, single process (other load on the machine shows);
 - k = 3, seed 0: training objects per cluster, the categories of each, and the share of training objects the
@@ -31,9 +31,8 @@ from ges_core.clustering import ClusterConfig, ObjectShape, cluster_objects, loa
 from ges_core.clustering.run import dataset_objects
 from ges_core.errors import AssetError
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-OUT = Path(__file__).parent / "results" / "clustering.json"
 DEFAULTS = (Path("runs/demo/dataset"), Path("/work/ds_run"))
 SEEDS = (0, 1, 2, 3, 4)
 KS = (2, 3, 4, 5)
@@ -107,14 +106,16 @@ def main() -> None:
     parser.add_argument("datasets", nargs="*", type=Path, help="dataset folders (default: demo and /work/ds_run)")
     parser.add_argument("--reuse", nargs="*", type=Path, default=[], help="clusters files whose features to reuse")
     parser.add_argument("--points", type=int, default=ClusterConfig().points)
+    parser.add_argument("--results", default="clustering", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    out = results_path(args.results)  # a bad name stops here, not after the features
     results = {"code": code_state(), "points": args.points, "datasets": {}}
     for path in args.datasets or [p for p in DEFAULTS if p.is_dir()]:
         shapes, times, failed = compute_shapes(path, args.points)
         results["datasets"][str(path)] = {"features": times, "failed": failed, **analyse(shapes)}
     for path in args.reuse:
         results["datasets"][f"{path} (reused features)"] = analyse(reused_shapes(path))
-    write_results(OUT, results)
+    write_results(out, results)
     print_table(results)
 
 

@@ -2,8 +2,9 @@
 first (after: one hull when the surface lies within ``decompose.hull_tolerance`` of it, otherwise CoACD with
 ``decompose.settings_for``: a lower threshold on objects longer than 15 cm).
 
-Run: ``python benchmarks/coacd_real.py [--ids ...]`` (needs the ``[real]`` extra); writes
-``benchmarks/results/coacd_real.json`` and prints a table. Per object: faces, hull depth (mm) and the
+Run: ``python benchmarks/coacd_real.py [--ids ...] [--results NAME]`` (needs the ``[real]`` extra); writes
+``benchmarks/results/NAME.json`` (default NAME ``coacd_real``; ``--out PATH``, the older flag, writes that
+path instead) and prints a table. Per object: faces, hull depth (mm) and the
 tolerance, the choice, the hull test's seconds, CoACD's (``FAST`` settings) seconds and parts, and the fit
 (precision: share of the collision volume inside the mesh, 1 = no false volume) of the CoACD parts and of the
 hull. "after" seconds = hull test + CoACD only where it is still run (the same run as "before" where the
@@ -27,10 +28,9 @@ from coacd_settings import measure
 
 from ges_core.objects.decompose import FAST, hull_depth, hull_tolerance, settings_for
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 EXTRA = ("pybullet/classic/bunny", "pybullet/classic/duck", "pybullet/classic/torus")
-OUT = Path(__file__).parent / "results" / "coacd_real.json"
 FIT_POINTS = 4000  # Monte-Carlo points of the CoACD parts' precision (trimesh's inside test: ~2 ms a point here)
 
 
@@ -77,8 +77,11 @@ def table(rows: list[dict]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--ids", nargs="+", help="object ids (default: the real set and three pybullet classics)")
-    parser.add_argument("--out", type=Path, default=OUT)
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--results", default="coacd_real", help="benchmarks/results/NAME.json")
+    where.add_argument("--out", type=Path, help="write this path instead (older flag; --results is preferred)")
     args = parser.parse_args()
+    out = args.out or results_path(args.results)  # a bad name stops here, not after the decompositions
     os.environ.setdefault("GES_CACHE_DIR", tempfile.mkdtemp(prefix="ges-bench-"))
     from ges_core.objects.library import LibraryConfig, ObjectLibrary
     from ges_core.objects.real import REAL_OBJECTS
@@ -100,7 +103,7 @@ def main() -> None:
         "total_seconds": total,
         "median_parts": {k: float(np.median([r[k]["parts"] for r in rows if r[k]])) for k in ("before", "after")},
     }
-    write_results(args.out, result)
+    write_results(out, result)
 
 
 if __name__ == "__main__":

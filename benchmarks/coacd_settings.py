@@ -1,7 +1,8 @@
 """CoACD settings: seconds per object and fit, default vs tuned, on five concave library meshes.
 
-Run: ``python benchmarks/coacd_settings.py [--settings default fast ...] [--ids ...]``; writes
-``benchmarks/results/coacd_settings.json``. Fit is measured by Monte-Carlo points in the mesh's
+Run: ``python benchmarks/coacd_settings.py [--settings default fast ...] [--ids ...] [--results NAME]``; writes
+``benchmarks/results/NAME.json`` (default NAME ``coacd_settings``; ``--out PATH``, the older flag, writes that
+path instead). Fit is measured by Monte-Carlo points in the mesh's
 bounding box: ``precision`` = share of the convex parts' volume that is inside the mesh (1 = the
 parts add no false volume, e.g. across a mug's opening), ``recall`` = share of the mesh's volume
 covered by parts (CoACD covers everything: ~1.0). Single process; the machine's other load shows in
@@ -23,6 +24,8 @@ import numpy as np
 
 from ges_core.objects.decompose import DEFAULT, FAST
 
+from _results import results_path
+
 IDS = (
     "pybullet/classic/bunny",
     "pybullet/classic/duck",
@@ -36,7 +39,6 @@ CANDIDATES = {
     "faster": replace(FAST, threshold=0.15, max_convex_hull=12, resolution=500, mcts_iterations=40),
     "fast_capped": replace(FAST, threshold=0.1, max_convex_hull=16),
 }
-OUT = Path(__file__).parent / "results" / "coacd_settings.json"
 CONTAINS_BLOCK = 200
 
 
@@ -76,8 +78,11 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--settings", nargs="+", default=list(CANDIDATES), choices=list(CANDIDATES))
     parser.add_argument("--ids", nargs="+", default=list(IDS))
-    parser.add_argument("--out", type=Path, default=OUT)
+    where = parser.add_mutually_exclusive_group()
+    where.add_argument("--results", default="coacd_settings", help="benchmarks/results/NAME.json")
+    where.add_argument("--out", type=Path, help="write this path instead (older flag; --results is preferred)")
     args = parser.parse_args()
+    out = args.out or results_path(args.results)  # a bad name stops here, not after the decompositions
     os.environ.setdefault("GES_CACHE_DIR", tempfile.mkdtemp(prefix="ges-bench-"))
     from ges_core.objects.library import LibraryConfig, ObjectLibrary
 
@@ -102,8 +107,8 @@ def main() -> None:
         "rows": rows,
         "summary": summary,
     }
-    args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_text(json.dumps(result, indent=1) + "\n")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(result, indent=1) + "\n")
     print(json.dumps(summary, indent=1))
 
 

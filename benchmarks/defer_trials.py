@@ -14,9 +14,9 @@ way, in one process with one torch thread, and prints per set and hand:
 The two sets are run as the docs run them: the procedural shapes (object 000 of each category) validated in
 SAPIEN, the real scans in SAPIEN and PyBullet. The order of the two ways alternates between sets.
 
-    python benchmarks/defer_trials.py [--procedural N] [--real N] [--hands allegro shadow]
+    python benchmarks/defer_trials.py [--procedural N] [--real N] [--hands allegro shadow] [--results NAME]
 
-Writes ``benchmarks/results/defer_trials.json``.
+Writes ``benchmarks/results/NAME.json`` (default NAME ``defer_trials``).
 """
 
 from __future__ import annotations
@@ -36,9 +36,8 @@ from ges_core.synthesis import SynthesisConfig, run_synthesis
 from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "defer_trials.json"
 SETS = {"procedural": ["sapien"], "real": ["sapien", "pybullet"]}
 """Each set's validating simulators (as docs/synthesis/pipeline.md and refine_validate.md run them)."""
 
@@ -106,7 +105,9 @@ def main() -> None:
     parser.add_argument("--procedural", type=int, default=len(CATEGORIES), help="procedural categories (object 000)")
     parser.add_argument("--real", type=int, default=20, help="real objects (the first N of the real set)")
     parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
+    parser.add_argument("--results", default="defer_trials", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
     set_torch_threads(1)
     library_config = LibraryConfig(sources=("procedural", "pybullet", "real"))
     library = library_config.build()
@@ -150,7 +151,7 @@ def main() -> None:
                 )
                 print_row(rows[-1])
     write_results(
-        RESULTS,
+        results,
         {
             "benchmark": "defer_trials",
             "rows": rows,

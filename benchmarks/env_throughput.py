@@ -25,7 +25,9 @@ With ``--profile`` (or when a ratio exceeds 2) the worst row is profiled with cP
 split reported. The machine is shared: the load average before and after each row is recorded.
 
     python benchmarks/env_throughput.py [--sims sapien pybullet] [--hands allegro shadow] [--envs 1 8 32]
-        [--steps 200] [--repeats 3] [--profile]
+        [--steps 200] [--repeats 3] [--profile] [--results NAME]
+
+Writes ``benchmarks/results/NAME.json`` (default NAME ``env_throughput``).
 """
 
 from __future__ import annotations
@@ -52,9 +54,8 @@ from ges_core.sim import SceneConfig
 from ges_core.sim_check import grasp_start_pose
 from ges_core.transforms_torch import quat_mul, rotvec_to_quat
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).resolve().parent / "results" / "env_throughput.json"
 GOAL = 2.0
 """The issue's goal: the environment costs at most 2x the raw physics per physics step."""
 
@@ -257,7 +258,9 @@ def main() -> None:
     parser.add_argument("--steps", type=int, default=200, help="env steps per timed window (default: one episode)")
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--profile", action="store_true", help="profile the worst row even if its ratio is <= 2")
+    parser.add_argument("--results", default="env_throughput", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the rows
     torch.set_num_threads(1)
     registry = load_registry()
     cfg = EnvConfig(episode_length=args.steps)
@@ -272,7 +275,7 @@ def main() -> None:
     if args.profile or worst["ratio"] > GOAL:
         profile = profile_row(registry, worst["sim"], worst["hand"], worst["envs"], args.steps, cfg)
         print_profile(profile)
-    _write(args, cfg, rows, profile)
+    _write(results, args, cfg, rows, profile)
 
 
 def print_row(r: dict) -> None:
@@ -301,7 +304,7 @@ def print_profile(p: dict) -> None:
         print(f"    {100 * t['own_share']:5.1f} %  {t['calls']:7d}  {t['function']}")
 
 
-def _write(args, cfg: EnvConfig, rows: list[dict], profile: dict | None) -> None:
+def _write(results: Path, args, cfg: EnvConfig, rows: list[dict], profile: dict | None) -> None:
     meta = {
         "steps": args.steps, "repeats": args.repeats, "env_config": cfg.model_dump(mode="json"),
         "actions": "uniform random in [-1, 1], seeded", "torch_threads": 1, "cpus": os.cpu_count(),
@@ -310,7 +313,7 @@ def _write(args, cfg: EnvConfig, rows: list[dict], profile: dict | None) -> None
         "note": "one process, one thread: figures are per core; the 2-core machine was shared with other jobs "
         "(see loadavg_before/after per row)",
     }  # fmt: skip
-    write_results(RESULTS, {"meta": meta, "goal_ratio": GOAL, "rows": rows, "profile": profile})
+    write_results(results, {"meta": meta, "goal_ratio": GOAL, "rows": rows, "profile": profile})
 
 
 if __name__ == "__main__":

@@ -8,10 +8,10 @@ then 100 control steps of hold): measured 0/32 paper, 32/32 peers on the demo da
 Per hand x randomization on/off: the matrix (resumed from ``--out``), its Table 2-style rows under both protocols,
 the wall time of this run's cells and the mean time per cell.
 
-    python benchmarks/eval_experts.py                                   # runs/demo/dataset, both hands, sapien
-    python benchmarks/eval_experts.py DATASET --hand shadow --episodes 4 --workers 2
+    python benchmarks/eval_experts.py [--results NAME]                  # runs/demo/dataset, both hands, sapien
+    python benchmarks/eval_experts.py DATASET --hand shadow --episodes 4 --workers 2 [--results NAME]
 
-Writes ``benchmarks/results/eval_experts.json`` and prints one table per run.
+Writes ``benchmarks/results/NAME.json`` (default NAME ``eval_experts``) and prints one table per run.
 """
 
 from __future__ import annotations
@@ -30,10 +30,9 @@ from ges_core.experts.table import expert_table, split_rates
 from ges_core.objects.splits import SPLITS
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 ROOT = Path(__file__).resolve().parent
-RESULTS = ROOT / "results" / "eval_experts.json"
 EXPERTS = ("scripted", "fast=scripted:close_steps=15", "gentle=scripted:squeeze_force=2.0")
 
 
@@ -79,10 +78,12 @@ def main() -> None:
     p.add_argument("--select", default="validated")
     p.add_argument("--workers", type=int, default=1)
     p.add_argument("--out", type=Path, default=ROOT.parent / "runs" / "eval_experts")
+    p.add_argument("--results", default="eval_experts", help="benchmarks/results/NAME.json")
     args = p.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the evaluations
     set_torch_threads(1)
     runs = [run(args, hand, randomized) for hand in args.hand or ["allegro", "shadow"] for randomized in (True, False)]
-    write_results(RESULTS, {"code": code_state(), "dataset": str(args.dataset), "runs": runs})
+    write_results(results, {"code": code_state(), "dataset": str(args.dataset), "runs": runs})
 
 
 if __name__ == "__main__":

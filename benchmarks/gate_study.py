@@ -9,11 +9,12 @@ exp(-((L - 0.105) / 0.025)^2). It tests that each gate learns a geometric prefer
 
 For each gate (curvenet, pointnet2, centroid) and input size (1024, 4096): ``gate.fit`` with the same
 seeded split (25 % validation), epochs and augmentation; train / validation gate accuracy and time. Writes
-benchmarks/results/gate_study.json and benchmarks/results/gate_curves.png (loss and validation accuracy
-per epoch, per backbone, at the smallest size).
+benchmarks/results/NAME.json and benchmarks/results/NAME_curves.png (loss and validation accuracy per epoch,
+per backbone, at the smallest size); default NAME gate_study, whose PNG is gate_curves.png. ``--out NAME``
+(the older flag) is the same as ``--results NAME``.
 
 Usage: python benchmarks/gate_study.py [--per-category 3] [--epochs 20] [--sizes 1024 4096] [--replot]
-       [--gates curvenet ...] [--settings '{"curvenet": {"k": 10}}'] [--out NAME]
+       [--gates curvenet ...] [--settings '{"curvenet": {"k": 10}}'] [--results NAME]
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ from ges_core.gating import GateData, SuccessRates, TrainConfig, fit_cloud, libr
 from ges_core.objects.library import LibraryConfig, ObjectLibrary  # noqa: E402
 from ges_core.registry import load_registry  # noqa: E402
 
-from _results import code_state, write_results  # noqa: E402
+from _results import code_state, results_path, write_results  # noqa: E402
 
 OUT = Path(__file__).resolve().parent / "results"
 EXPERTS = ("small", "medium", "large")
@@ -137,10 +138,18 @@ def main() -> None:
     parser.add_argument(
         "--settings", default="{}", help='JSON: per gate, settings replacing the defaults, e.g. {"curvenet": {"k": 10}}'
     )
-    parser.add_argument("--out", default="gate_study", help="results name: OUT/<name>.json and OUT/<name>_curves.png")
+    parser.add_argument(
+        "--results",
+        "--out",
+        dest="results",
+        default="gate_study",
+        help="benchmarks/results/NAME.json and NAME_curves.png (gate_curves.png for gate_study); "
+        "--out NAME is an older alias",
+    )
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the fits
     if args.replot:
-        plot(json.loads((OUT / f"{args.out}.json").read_text())["curves"], OUT / _png(args.out))
+        plot(json.loads(results.read_text())["curves"], OUT / _png(args.results))
         return
     overrides = json.loads(args.settings)
     torch.set_num_threads(1)
@@ -149,7 +158,7 @@ def main() -> None:
 
     def save(rows: list[dict], curves: dict) -> None:
         write_results(
-            OUT / f"{args.out}.json",
+            results,
             {
                 "benchmark": "gate_study",
                 "rates": "size rule on real object extents (module docstring), not expert evaluations",
@@ -165,7 +174,7 @@ def main() -> None:
 
     rows, curves = run(load_registry(), data, args.epochs, save, args.gates, overrides)
     print(table(rows))
-    plot(curves, OUT / _png(args.out))
+    plot(curves, OUT / _png(args.results))
 
 
 def _png(out: str) -> str:

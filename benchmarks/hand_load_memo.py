@@ -12,9 +12,9 @@ once per process (``ges_core.hand_prep.engine_files.engine_file_memo``: SAPIEN's
   categories with both hands, validated in SAPIEN and PyBullet, both ways, comparing every record (verdicts,
   placement histories, joints and wrist pose) and the whole run's CPU seconds and the records' ``setup_seconds``.
 
-    python benchmarks/hand_load_memo.py [--procedural N] [--repeats N]
+    python benchmarks/hand_load_memo.py [--procedural N] [--repeats N] [--results NAME]
 
-Prints markdown tables and writes ``benchmarks/results/hand_load_memo.json``.
+Prints markdown tables and writes ``benchmarks/results/NAME.json`` (default NAME ``hand_load_memo``).
 """
 
 from __future__ import annotations
@@ -39,9 +39,8 @@ from ges_core.threads import set_torch_threads
 from ges_plugins.sims.pybullet import hand_urdf, scene
 from ges_plugins.sims.sapien import loading
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "hand_load_memo.json"
 HANDS = ("allegro", "shadow")
 SIMS = ("sapien", "pybullet")
 
@@ -120,7 +119,9 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--procedural", type=int, default=12, help="object 000 of the first N categories")
     parser.add_argument("--repeats", type=int, default=15, help="rounds of the per-backend timing")
+    parser.add_argument("--results", default="hand_load_memo", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the timings
     set_torch_threads(1)
     backends = per_backend(args.repeats)
     print("\n| hand / engine | backend + hand load, ms: made and parsed every time / once per process | ratio |")
@@ -137,7 +138,7 @@ def main() -> None:
         f"(ratio {cpu['once'] / cpu['every_time']:.2f}); setup seconds summed over records "
         f"{setup['every_time']:.1f} / {setup['once']:.1f}"
     )
-    write_results(RESULTS, {
+    write_results(results, {
         "benchmark": "hand_load_memo", "per_backend_ms": backends, "pipeline": run, "objects": ids,
         "clock": "time.process_time (one process, one torch thread)", "software": software_versions(),
         "code": code_state(),

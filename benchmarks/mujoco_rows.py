@@ -13,10 +13,10 @@ Both halves run the code paths of the existing benchmarks, one process, one thre
    ``evaluate_baseline`` with the scripted expert in each simulator, ``--envs`` episodes per object, records
    chosen by each ``--select`` rule.
 
-Prints both tables and writes ``benchmarks/results/mujoco_rows.json``.
+Prints both tables and writes ``benchmarks/results/NAME.json`` (``--results NAME``, default ``mujoco_rows``).
 
     python benchmarks/mujoco_rows.py [--objects 20] [--hands shadow allegro] [--sims sapien pybullet mujoco]
-        [--per-split 8] [--select refined validated] [--envs 1] [--skip-table1] [--skip-baseline]
+        [--per-split 8] [--select refined validated] [--envs 1] [--skip-table1] [--skip-baseline] [--results NAME]
 """
 
 from __future__ import annotations
@@ -38,9 +38,7 @@ from ges_core.synthesis import SynthesisConfig, run_synthesis
 from ges_core.synthesis.run.demo import DEMO_OBJECTS
 from ges_core.synthesis.run.table import table_rows
 
-from _results import code_state, write_results
-
-RESULTS = Path(__file__).parent / "results" / "mujoco_rows.json"
+from _results import code_state, results_path, write_results
 
 
 def table1(ids: list[str], hands: list[str], sims: list[str], robust: bool) -> tuple[list[dict], dict]:
@@ -94,7 +92,9 @@ def main() -> None:
     parser.add_argument("--out", type=Path, default=DEFAULT_RUN / "results", help="per-object results (resumable)")
     parser.add_argument("--skip-table1", action="store_true")
     parser.add_argument("--skip-baseline", action="store_true")
+    parser.add_argument("--results", default="mujoco_rows", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
     if "mujoco" in args.sims and "mujoco" not in load_registry().names("sim"):
         sys.exit("the 'mujoco' simulator is not registered: pip install -e examples/ges-mujoco-sim")
     torch.set_num_threads(1)
@@ -115,7 +115,7 @@ def main() -> None:
         "loadavg_end": os.getloadavg(), "cpus": os.cpu_count(), "machine": platform.platform(),
         "versions": software_versions(*args.sims), "code": code_state(), "command": " ".join(sys.argv),
     }  # fmt: skip
-    write_results(RESULTS, data)
+    write_results(results, data)
 
 
 def baseline(args: argparse.Namespace) -> dict:

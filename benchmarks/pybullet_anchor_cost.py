@@ -7,11 +7,11 @@ Stage 1 runs it), with ``true`` and with ``on_touch``, alternating, ``--repeats`
 median CPU seconds of a trial (``time.process_time``, one process, one torch thread), the ratio, and in how many
 trials the two settings gave the same verdict.
 
-    python benchmarks/pybullet_anchor_cost.py DATASET [--hands allegro shadow] [--repeats 3]
+    python benchmarks/pybullet_anchor_cost.py DATASET [--hands allegro shadow] [--repeats 3] [--results NAME]
 
 ``DATASET``: a Stage 1 dataset with both engines' grasps, e.g. ``ges demo -o "synthesis.validate_sims=[sapien,
 pybullet]"``'s ``runs/demo/dataset``. Prints a markdown table and writes
-``benchmarks/results/pybullet_anchor_cost.json``.
+``benchmarks/results/NAME.json`` (default NAME ``pybullet_anchor_cost``).
 """
 
 from __future__ import annotations
@@ -29,9 +29,8 @@ from ges_core.synthesis.physics.validate import validate_grasp
 from ges_core.synthesis.types import Grasp
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "pybullet_anchor_cost.json"
 MODES = ("true", "on_touch")
 
 
@@ -40,7 +39,9 @@ def main() -> None:
     parser.add_argument("dataset", type=Path)
     parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--results", default="pybullet_anchor_cost", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the trials
     set_torch_threads(1)
     dataset = open_dataset(args.dataset)
     base, library = SynthesisConfig.of_dataset(dataset), library_for(dataset)
@@ -73,7 +74,7 @@ def main() -> None:
         m = r["median_seconds"]
         print(f"| {r['hand']} | {r['trials']} | {m['true']:.3f} / {m['on_touch']:.3f} | {r['ratio']:.3f} | "
               f"{r['same_verdict']}/{r['trials']} |")  # fmt: skip
-    write_results(RESULTS, {"dataset": str(args.dataset), "rows": rows, "versions": software_versions(),
+    write_results(results, {"dataset": str(args.dataset), "rows": rows, "versions": software_versions(),
                             "code": code_state()})  # fmt: skip
 
 

@@ -22,8 +22,8 @@ start table off (``seeds=0``: pure cold start, like dex) and on (default, 512 se
 256 and 1024; then ours alone on the Shadow hand at batch 1024 (its targets drawn the same way with
 the wrist joints at the open pose; not part of the comparison). One torch thread. Time per grasp =
 wall time of the batch / batch size, best of ``--repeats``; dex: mean time per call. Prints a
-markdown table, writes benchmarks/results/retargeting.json.
-Usage: python benchmarks/retargeting.py [--grasps 1024] [--dex-grasps 256] [--repeats 3]
+markdown table, writes benchmarks/results/NAME.json (default NAME retargeting).
+Usage: python benchmarks/retargeting.py [--grasps 1024] [--dex-grasps 256] [--repeats 3] [--results NAME]
 """
 
 from __future__ import annotations
@@ -45,7 +45,8 @@ from ges_core.kinematics import HandKinematics
 from ges_core.registry import load_registry
 from ges_core.synthesis.retarget.solver import VectorRetargetConfig, VectorRetargeter
 
-RESULTS = Path(__file__).resolve().parent / "results" / "retargeting.json"
+from _results import results_path
+
 DEX_NORM_DELTA = 4e-3
 """dex-retargeting's default weight of ||q - q_last||^2 (RetargetingConfig.normal_delta); also run at 0,
 since from a cold start it pulls the solution back toward the open pose."""
@@ -221,7 +222,9 @@ def main() -> None:
     parser.add_argument("--dex-grasps", type=int, default=256, help="the first N targets, one dex call each")
     parser.add_argument("--single", type=int, default=64, help="the first N targets for our batch-1 runs")
     parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--results", default="retargeting", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the solves
     torch.set_num_threads(1)
     hand = load_registry().build_hand("allegro")
     kin = HandKinematics.from_hand(hand)
@@ -241,7 +244,7 @@ def main() -> None:
     met = any(r["mean_error_mm"] <= GOAL_MM and r["ms_per_grasp"] <= GOAL_MS for r in best)
     print(f"\ngoal (<= {GOAL_MM} mm mean error at <= {GOAL_MS} ms per grasp, batched): {'met' if met else 'NOT met'}")
     print(f"pinocchio vs our FK at dex's solutions: {fk_gap * 1e3:.2e} mm apart at most (joint-name mapping check)")
-    write_results(rows, met, fk_gap, args)
+    write_results(results, rows, met, fk_gap, args)
 
 
 def print_table(rows: list[dict]) -> None:
@@ -256,7 +259,7 @@ def print_table(rows: list[dict]) -> None:
         )
 
 
-def write_results(rows: list[dict], met: bool, fk_gap: float, args: argparse.Namespace) -> None:
+def write_results(path: Path, rows: list[dict], met: bool, fk_gap: float, args: argparse.Namespace) -> None:
     meta = {
         "hand": "allegro",
         "objective": "fingertip position error (tip_link + tip_offset), mm, measured with ges_core.kinematics",
@@ -273,9 +276,9 @@ def write_results(rows: list[dict], met: bool, fk_gap: float, args: argparse.Nam
         "processor": platform.processor(),
         "time": time.strftime("%Y-%m-%d %H:%M"),
     }
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
-    RESULTS.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
-    print(f"wrote {RESULTS}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    print(f"wrote {path}")
 
 
 if __name__ == "__main__":

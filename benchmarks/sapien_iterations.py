@@ -9,9 +9,9 @@
    robust cross-engine agreement, median seconds of a perturbation trial.
 
     python benchmarks/sapien_iterations.py [--hands allegro shadow] [--iterations 10 20 50 100] \\
-        [--datasets real20=runs/real real50=runs/real_it50 ...]
+        [--datasets real20=runs/real real50=runs/real_it50 ...] [--results NAME]
 
-Prints both tables; writes ``benchmarks/results/sapien_iterations.json``.
+Prints both tables; writes ``benchmarks/results/NAME.json`` (default NAME ``sapien_iterations``).
 """
 
 from __future__ import annotations
@@ -21,9 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _results import code_state, write_results
-
-RESULTS = Path(__file__).parent / "results" / "sapien_iterations.json"
+from _results import code_state, results_path, write_results
 
 
 def main() -> None:
@@ -31,7 +29,9 @@ def main() -> None:
     parser.add_argument("--hands", nargs="+", default=["allegro", "shadow"])
     parser.add_argument("--iterations", nargs="+", type=int, default=[10, 20, 50, 100])
     parser.add_argument("--datasets", nargs="*", default=[], help="NAME=DIR of finished Stage 1 runs")
+    parser.add_argument("--results", default="sapien_iterations", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the probes
     import torch
 
     torch.set_num_threads(1)
@@ -62,7 +62,7 @@ def main() -> None:
             for row in rows:
                 print(f"| {label} | {row['hand']} | {row['simulator']} | {row['validated']}/{row['records']} | "
                       f"{row['robust']}/{row['records']} | {row['trial_s']} | {row['agreement']} |")  # fmt: skip
-    write_results(RESULTS, {"probe": probe, "runs": runs, "datasets": args.datasets, "code": code_state()})
+    write_results(results, {"probe": probe, "runs": runs, "datasets": args.datasets, "code": code_state()})
 
 
 def _range(forces: np.ndarray) -> str:

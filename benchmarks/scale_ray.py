@@ -22,9 +22,9 @@ is apart, as in the first table).
 The machine is shared (2 cores): the 1-minute load average before and after each row is in the table and the
 JSON. Typical use (a few minutes)::
 
-    python benchmarks/scale_ray.py [--objects 6] [--hand allegro] [--tasks 300]
+    python benchmarks/scale_ray.py [--objects 6] [--hand allegro] [--tasks 300] [--results NAME]
 
-Prints markdown tables and writes ``benchmarks/results/scale_ray.json``.
+Prints markdown tables and writes ``benchmarks/results/NAME.json`` (default NAME ``scale_ray``).
 """
 
 from __future__ import annotations
@@ -41,12 +41,11 @@ from pathlib import Path
 from ges_core.executors import LocalExecutor, make_executor
 from ges_core.executors.ray_cluster import OBJECT_STORE_BYTES, import_ray
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 # Stage 1 (torch, the engines) is imported inside the functions that run it: a spawned pool worker imports this
 # script again as its main module, and the overhead rows should time a worker's start, not this script's imports.
 
-RESULTS = Path(__file__).parent / "results" / "scale_ray.json"
 OBJECTS = ["procedural/cube/000", "procedural/box/000", "procedural/can/000", "procedural/sphere/000"]
 OBJECTS += ["procedural/capsule/000", "procedural/cone/000", "procedural/ellipsoid/000", "procedural/wedge/000"]
 SETTINGS = ["robust.enabled=false", "chunk_size=1", "library.sources=[procedural]", "library.procedural_count=1"]
@@ -159,7 +158,9 @@ def main() -> None:
     parser.add_argument("--objects", type=int, default=6, help="procedural objects per row (at most 8)")
     parser.add_argument("--hand", default="allegro")
     parser.add_argument("--tasks", type=int, default=300, help="tasks of the overhead measurement (>= 2)")
+    parser.add_argument("--results", default="scale_ray", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
     from ges_core.config import load_config
     from ges_core.synthesis import SynthesisConfig
 
@@ -177,7 +178,7 @@ def main() -> None:
     kinds = (("local-here", 1), ("local", 1), ("local", 2), ("ray", 1), ("ray", 2))
     overhead = [overhead_row(name, workers, args.tasks, payload) for name, workers in kinds]
     _print(rows, overhead, payload, args.hand)
-    write_results(RESULTS, _summary(args, rows, overhead, payload))
+    write_results(results, _summary(args, rows, overhead, payload))
 
 
 def _print(rows: list[dict], overhead: list[dict], payload: int, hand: str) -> None:

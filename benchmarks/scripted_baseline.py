@@ -11,10 +11,11 @@ The floor the learned experts must beat (paper, Table 2). Steps:
    episodes per object, records chosen by each ``--select`` rule (default ``refined`` then ``validated``:
    the Shadow hand validates few grasps; an object's episodes run once and serve every rule).
 
-One thread (``torch.set_num_threads(1)``). Prints the tables, writes benchmarks/results/scripted_baseline.json.
+One thread (``torch.set_num_threads(1)``). Prints the tables, writes benchmarks/results/NAME.json (``--results
+NAME``, default ``scripted_baseline``).
 
     python benchmarks/scripted_baseline.py [--per-split 8] [--hands shadow allegro] [--sims sapien pybullet]
-        [--select refined validated] [--envs 1] [--dataset runs/scripted_baseline/dataset]
+        [--select refined validated] [--envs 1] [--dataset runs/scripted_baseline/dataset] [--results NAME]
 """
 
 from __future__ import annotations
@@ -37,10 +38,9 @@ from ges_core.errors import AssetError
 from ges_core.objects.splits import SPLITS
 from ges_core.synthesis import SynthesisConfig, run_synthesis
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 ROOT = Path(__file__).resolve().parent
-RESULTS = ROOT / "results" / "scripted_baseline.json"
 DEFAULT_RUN = ROOT.parent / "runs" / "scripted_baseline"
 PAPER_EXPERTS = {"Expert1": [93.9, 93.9, 89.1], "Expert2": [95.4, 93.0, 93.4], "GES-UniGrasp": [99.4, 96.3, 96.3]}
 """Paper, Table 2: success % on train / unseen objects / unseen categories (Shadow-like hand, Isaac Gym)."""
@@ -96,7 +96,9 @@ def main() -> None:
     parser.add_argument("--envs", type=int, default=1)
     parser.add_argument("--dataset", type=Path, default=DEFAULT_RUN / "dataset")
     parser.add_argument("--out", type=Path, default=DEFAULT_RUN / "results", help="per-object results (resumable)")
+    parser.add_argument("--results", default="scripted_baseline", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
     torch.set_num_threads(1)
     start = time.perf_counter()
     config = SynthesisConfig()
@@ -109,7 +111,7 @@ def main() -> None:
     runs = [_evaluate(args, h, s, rule) for rule in args.select for h in args.hands for s in args.sims]
     for run in runs:
         print("\n" + run.pop("table"))
-    _write(args, objects, counts, runs, report, stage1_s, time.perf_counter() - start)
+    _write(results, args, objects, counts, runs, report, stage1_s, time.perf_counter() - start)
 
 
 def _evaluate(args, hand: str, sim: str, rule: str) -> dict:
@@ -136,7 +138,7 @@ def _evaluate(args, hand: str, sim: str, rule: str) -> dict:
     }
 
 
-def _write(args, objects, counts, runs, report, stage1_s, wall_s) -> None:
+def _write(results: Path, args, objects, counts, runs, report, stage1_s, wall_s) -> None:
     data = {
         "objects": objects,
         "selections": {rule: SELECTIONS[rule] for rule in args.select},
@@ -154,7 +156,7 @@ def _write(args, objects, counts, runs, report, stage1_s, wall_s) -> None:
         },
     }  # fmt: skip
     print(f"\nStage 1 records per hand and split (records / validated / refined / any): {json.dumps(counts)}")
-    write_results(RESULTS, data)
+    write_results(results, data)
     print(f"({wall_s:.0f} s)")
 
 

@@ -9,8 +9,8 @@ contacts exist. Then, in one run, side by side:
 * ratio = interface time per step / raw time per step (goal: <= 1.5);
 * batched forward kinematics of every fingertip through ``ges_core.kinematics`` at batch 1024.
 
-Timings are medians over repeats. Prints a table, writes benchmarks/results/sim_throughput.json.
-Usage: python benchmarks/sim_throughput.py [--steps 500] [--repeats 5] [--hand H] [--sim S]
+Timings are medians over repeats. Prints a table, writes benchmarks/results/NAME.json (default NAME sim_throughput).
+Usage: python benchmarks/sim_throughput.py [--steps 500] [--repeats 5] [--hand H] [--sim S] [--results NAME]
 """
 
 from __future__ import annotations
@@ -20,7 +20,6 @@ import json
 import platform
 import statistics
 import time
-from pathlib import Path
 
 import numpy as np
 import torch
@@ -30,7 +29,7 @@ from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import SimCheckConfig, run_sim_check
 
-RESULTS = Path(__file__).resolve().parent / "results" / "sim_throughput.json"
+from _results import results_path
 
 
 def time_raw(sim, steps: int) -> float:
@@ -108,7 +107,9 @@ def main() -> None:
     parser.add_argument("--fk-batch", type=int, default=1024)
     parser.add_argument("--hand", action="append")
     parser.add_argument("--sim", action="append")
+    parser.add_argument("--results", default="sim_throughput", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the rows
     torch.set_num_threads(1)
     registry = load_registry()
     hands = args.hand or ["shadow", "allegro"]
@@ -118,7 +119,7 @@ def main() -> None:
     for row in rows:
         row["fk_configs_per_s"] = fk[row["hand"]]
     print_table(rows, args.fk_batch)
-    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    results.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "steps": args.steps,
         "repeats": args.repeats,
@@ -128,8 +129,8 @@ def main() -> None:
         "processor": platform.processor(),
         "time": time.strftime("%Y-%m-%d %H:%M"),
     }
-    RESULTS.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
-    print(f"wrote {RESULTS}")
+    results.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
+    print(f"wrote {results}")
 
 
 def print_table(rows: list[dict], fk_batch: int) -> None:

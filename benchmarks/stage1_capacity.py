@@ -27,9 +27,7 @@ from ges_core.synthesis.physics.capacity import NEAR
 from ges_core.synthesis.run.capacity import bound_counts, bounds_table, counts_table, trial_bounds
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
-
-RESULTS = Path(__file__).parent / "results"
+from _results import code_state, results_path, write_results
 
 
 def main() -> None:
@@ -39,6 +37,7 @@ def main() -> None:
     parser.add_argument("--results", default="stage1_capacity", help="name of the JSON under benchmarks/results/")
     parser.add_argument("--no-records", action="store_true", help="store the counts only (a whole-library run)")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the datasets
     set_torch_threads(1)
     registry = load_registry()
     out = {"near": args.near, "datasets": {}, "code": code_state()}
@@ -52,7 +51,7 @@ def main() -> None:
         out["datasets"][str(folder)] = entry if args.no_records else {"records": rows, **entry}
         table = "" if args.no_records else bounds_table(rows) + "\n\n"
         print(f"\n{folder}\n" + table + counts_table(counts))
-    write_results(RESULTS / f"{args.results}.json", out)
+    write_results(results, out)
 
 
 if __name__ == "__main__":

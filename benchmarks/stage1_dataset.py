@@ -7,20 +7,21 @@ it goes on where it stopped (stored (object, hand) pairs are skipped); ``--fresh
 meshes are decomposed on the fly (CoACD, cached by mesh hash; near-convex scans use their hull).
 
     python benchmarks/stage1_dataset.py [--out runs/stage1_dataset] [--workers 2] [--limit N] [--fresh]
+        [--results NAME]
     python benchmarks/stage1_dataset.py --sources procedural     # part of the library (its own results file)
     python benchmarks/stage1_dataset.py --hands shadow           # one hand (its own results file and folder)
     python benchmarks/stage1_dataset.py --summary-only          # count what is stored, run nothing
 
 Per split and per category (and per hand): records, validated (the paper's single trial), robust (every
 perturbation trial held), median seconds per object (contacts + retargeting + refinement + validation, the
-nominal trial; robust trials apart). Prints markdown and writes ``benchmarks/results/stage1_dataset.json``
-(also after ``--summary-only``, marked incomplete while pairs are missing); with ``--sources`` naming part of
-the library, ``stage1_dataset_<sources>.json`` instead, and the dataset folder defaults to
+nominal trial; robust trials apart). Prints markdown and writes ``benchmarks/results/NAME.json``, by default
+NAME ``stage1_dataset`` (also after ``--summary-only``, marked incomplete while pairs are missing); with ``--sources``
+naming part of the library, ``stage1_dataset_<sources>.json`` instead, and the dataset folder defaults to
 ``runs/stage1_dataset_<sources>``: the splits are drawn over the objects listed (the unseen categories are about
 10 % of them), so a part's split labels differ from the whole library's and the two must not share a folder. With
 ``--hands`` naming one hand, ``_<hand>`` is added to both names; the splits do not depend on the hands, so its rows
-compare with the whole run's. The wall time is the sum over the runs that wrote the folder (each run appends itself
-to ``<out>.runs.json`` beside it).
+compare with the whole run's. ``--results NAME`` replaces the results file's name (not the folder's). The wall
+time is the sum over the runs that wrote the folder (each run appends itself to ``<out>.runs.json`` beside it).
 
 Paper: 773 objects in 82 categories (563 train, 132 unseen-object, 78 unseen-category).
 """
@@ -42,9 +43,8 @@ from ges_core.paths import atomic_write_text
 from ges_core.synthesis import SynthesisConfig, run_synthesis
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "stage1_dataset.json"
 HANDS = ("allegro", "shadow")
 SOURCES = ("procedural", "pybullet", "real")
 RUNS_SUFFIX = ".runs.json"
@@ -64,12 +64,15 @@ def main() -> None:
     )
     parser.add_argument("--sources", nargs="+", choices=SOURCES, default=list(SOURCES), help="library sources")
     parser.add_argument("--hands", nargs="+", choices=HANDS, default=list(HANDS), help="hands")
+    parser.add_argument(
+        "--results", default=None, help="benchmarks/results/NAME.json (default stage1_dataset[_<sources>][_<hand>])"
+    )
     args = parser.parse_args()
     set_torch_threads(1)
     sources = tuple(s for s in SOURCES if s in args.sources)
     hands = tuple(h for h in HANDS if h in args.hands)
     part = ("" if sources == SOURCES else "_" + "-".join(sources)) + ("" if hands == HANDS else "_" + "-".join(hands))
-    results = RESULTS.with_name(f"stage1_dataset{part}.json")
+    results = results_path(args.results or f"stage1_dataset{part}")  # a bad name stops here, not after the run
     args.out = args.out or Path(f"runs/stage1_dataset{part}")
     config = SynthesisConfig(library=LibraryConfig(sources=sources, decompose=True))
     objects = config.library.build().list()

@@ -7,9 +7,10 @@ signs, the same ``pose_shift`` and ``pose_turn_deg``, the hand's drive limits on
 counts the grasps that hold all of them. Mass, friction and the limits-only trial are deterministic, so rerunning
 them would only repeat their verdicts; they are left out.
 
-Prints one row per hand x simulator and writes ``benchmarks/results/stage1_heldout.json``.
+Prints one row per hand x simulator and writes ``benchmarks/results/NAME.json`` (default NAME ``stage1_heldout``).
 
     python benchmarks/stage1_heldout.py --dataset DIR [--sims sapien pybullet] [--seeds 1 2 3] [--label TEXT]
+        [--results NAME]
 """
 
 from __future__ import annotations
@@ -26,9 +27,7 @@ from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.types import Grasp
 from ges_core.threads import set_torch_threads
 
-from _results import code_state, write_results
-
-RESULTS = Path(__file__).parent / "results" / "stage1_heldout.json"
+from _results import code_state, results_path, write_results
 
 
 def heldout(dataset: Path, sims: list[str], seeds: list[int]) -> list[dict]:
@@ -78,12 +77,14 @@ def main() -> None:
     parser.add_argument("--sims", nargs="+", default=["sapien"], help="simulators to re-run in (default: sapien)")
     parser.add_argument("--seeds", nargs="+", type=int, default=[1, 2, 3], help="robust.seed of the held-out trials")
     parser.add_argument("--label", default="", help="what the dataset is (command, commit), stored with the results")
+    parser.add_argument("--results", default="stage1_heldout", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the trials
     set_torch_threads()
     if 0 in args.seeds:
         parser.error("seed 0 is the trials the grasps were chosen on; give other seeds")
     rows = heldout(args.dataset, args.sims, args.seeds)
-    write_results(RESULTS, {"benchmark": "stage1_heldout", "dataset": str(args.dataset), "label": args.label,
+    write_results(results, {"benchmark": "stage1_heldout", "dataset": str(args.dataset), "label": args.label,
                             "seeds": args.seeds, "rows": rows, "code": code_state()})  # fmt: skip
 
 

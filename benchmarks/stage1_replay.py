@@ -29,9 +29,7 @@ import numpy as np
 
 from ges_core.dataset import open_dataset, software_versions
 
-from _results import code_state, write_results
-
-RESULTS = Path(__file__).parent / "results"
+from _results import code_state, results_path, write_results
 
 
 def main() -> None:
@@ -44,8 +42,9 @@ def main() -> None:
     parser.add_argument("--categories", nargs="+", help="only these categories")
     parser.add_argument("--seed", type=int, default=0, help="seed of the control draw")
     parser.add_argument("--workers", type=int, default=1)
-    parser.add_argument("--results", default="stage1_replay")
+    parser.add_argument("--results", default="stage1_replay", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the replays
     if not args.overrides:
         parser.error("give at least one -o KEY=VALUE: the change to measure")
     dataset = open_dataset(args.dataset)
@@ -63,7 +62,7 @@ def main() -> None:
     for hand, s in summary.items():
         print(f"\n{hand}:\n" + _format(s))
     write_results(
-        RESULTS / f"{args.results}.json",
+        results,
         {
             "dataset": str(args.dataset), "overrides": args.overrides, "controls": args.controls, "all": args.all,
             "categories": args.categories, "seed": args.seed, "seconds": round(time.perf_counter() - start, 1),

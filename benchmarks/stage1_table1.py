@@ -3,12 +3,14 @@
 Runs the pipeline on the built-in demo objects (``ges_core.synthesis.run.demo.DEMO_OBJECTS``, all
 convex or pre-decomposed: no CoACD run) for each hand, refining in each simulator and validating every
 grasp in both simulators (cross-simulator agreement). One thread (``torch.set_num_threads(1)``, one
-process). Prints markdown and writes ``benchmarks/results/stage1_table1.json``.
+process). Prints markdown and writes ``benchmarks/results/NAME.json`` (default NAME ``stage1_table1``).
 
     python benchmarks/stage1_table1.py [--objects N] [--hands shadow allegro] [--sims sapien pybullet] [--attempts K]
+        [--results NAME]
 
 ``--attempts`` (default: ``SynthesisConfig.attempts``, 3) is how many wrist placements each object may
-try (``--attempts 1``: the paper's single pass, written to ``stage1_table1_attempts1.json``).
+try (``--attempts 1``: the paper's single pass, written to ``stage1_table1_attempts1.json`` unless ``--results``
+names the file).
 
 Paper (Table 1, A100): contacts 87.7 %, retargeting 88.9 %, refinement 91.5 %; 0.15 / 0.03 / 5.15 s.
 """
@@ -28,9 +30,8 @@ from ges_core.synthesis import SynthesisConfig, run_synthesis
 from ges_core.synthesis.run.demo import DEMO_OBJECTS
 from ges_core.synthesis.run.table import agreement_rates, format_table, table_rows
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "stage1_table1.json"
 PAPER = {"contacts": 0.877, "retargeting": 0.889, "refinement": 0.915, "seconds": [0.15, 0.03, 5.15]}
 
 
@@ -40,7 +41,12 @@ def main() -> None:
     parser.add_argument("--hands", nargs="+", default=["shadow", "allegro"])
     parser.add_argument("--sims", nargs="+", default=["sapien", "pybullet"])
     parser.add_argument("--attempts", type=int, default=SynthesisConfig().attempts, help="placements per object")
+    parser.add_argument(
+        "--results", default=None, help="benchmarks/results/NAME.json (default stage1_table1[_attempts<K>])"
+    )
     args = parser.parse_args()
+    default = args.attempts == SynthesisConfig().attempts
+    results = results_path(args.results or ("stage1_table1" if default else f"stage1_table1_attempts{args.attempts}"))
     torch.set_num_threads(1)
     ids = list(DEMO_OBJECTS[: args.objects])
     rows, agreement, wall = [], {}, {}
@@ -60,10 +66,10 @@ def main() -> None:
     for where, per_hand in agreement.items():
         for hand, a in per_hand.items():
             print(f"  {where}, {hand}: {a['agree']}/{a['grasps']} = {100 * a['rate']:.1f} % ({' vs '.join(a['sims'])})")
-    _write(ids, args, rows, agreement, wall)
+    _write(results, ids, args, rows, agreement, wall)
 
 
-def _write(ids, args, rows, agreement, wall) -> None:
+def _write(results: Path, ids, args, rows, agreement, wall) -> None:
     data = {
         "objects": ids,
         "hands": args.hands,
@@ -79,8 +85,7 @@ def _write(ids, args, rows, agreement, wall) -> None:
         "versions": software_versions(*args.sims),
         "code": code_state(),
     }
-    default = args.attempts == SynthesisConfig().attempts
-    write_results(RESULTS if default else RESULTS.with_stem(f"{RESULTS.stem}_attempts{args.attempts}"), data)
+    write_results(results, data)
 
 
 if __name__ == "__main__":

@@ -27,9 +27,8 @@ from ges_core.experts.table import split_rates
 from ges_core.objects.splits import SPLITS
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _results import code_state, write_results  # noqa: E402
+from _results import code_state, results_path, write_results  # noqa: E402
 
-RESULTS = Path(__file__).resolve().parent / "results"
 PROTOCOL = "paper"
 
 
@@ -82,6 +81,7 @@ def main() -> None:
     parser.add_argument("--set", action="append", required=True, metavar="LABEL=M1[,M2...]", help="a row")
     parser.add_argument("--results", default="stage2_sets", help="results file name (no .json)")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the matrices
     rows = []
     for item in args.set:
         label, _, paths = item.partition("=")
@@ -90,8 +90,8 @@ def main() -> None:
         rows.append(measure_set(label, [Path(p) for p in paths.split(",")]))
     print(table(rows))
     print(f"\nsuccess: {PROTOCOL} protocol, % of episodes; objects per row and grasp group in the JSON")
-    write_results(RESULTS / f"{args.results}.json", {"benchmark": "stage2_sets", "protocol": PROTOCOL,
-                                                       "rows": rows, "code": code_state()})  # fmt: skip
+    write_results(results, {"benchmark": "stage2_sets", "protocol": PROTOCOL,
+                            "rows": rows, "code": code_state()})  # fmt: skip
 
 
 if __name__ == "__main__":

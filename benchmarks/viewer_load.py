@@ -16,8 +16,8 @@ dataset in turn (read the record, build its scene, send what changed), and the h
 
 The dataset: ``--dataset`` (default runs/demo/dataset, what ``ges demo`` writes: 20 objects x 2 hands); when it is
 missing, ``--make`` runs ``ges demo`` to write it (about 3-10 minutes on 2 cores).
-Prints a table, writes benchmarks/results/viewer_load.json.
-Usage: python benchmarks/viewer_load.py [--dataset DIR] [--make] [--repeats 3] [--size 960 600]
+Prints a table, writes benchmarks/results/NAME.json (default NAME viewer_load).
+Usage: python benchmarks/viewer_load.py [--dataset DIR] [--make] [--repeats 3] [--size 960 600] [--results NAME]
 """
 
 from __future__ import annotations
@@ -34,10 +34,9 @@ from pathlib import Path
 
 from ges_core.viewer.chromium import HeadlessPage, canvas_pixels
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 REPO = Path(__file__).resolve().parent.parent
-RESULTS = Path(__file__).resolve().parent / "results" / "viewer_load.json"
 SHOWN = {"object": 300, "hand": 3000}
 """Pixels of the object's and the hand's colours that mean 'the scene is drawn' (the test's thresholds)."""
 
@@ -129,7 +128,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--size", type=int, nargs=2, default=(960, 600), metavar=("W", "H"))
     parser.add_argument("--timeout", type=float, default=180.0, help="seconds to wait for the scene per repeat")
+    parser.add_argument("--results", default="viewer_load", help="benchmarks/results/NAME.json")
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the loads
     load_before = os.getloadavg()[0]  # the machine is shared: the figures scale with its load
     if not (args.dataset / "manifest.json").is_file():
         if not args.make:
@@ -143,7 +144,7 @@ def main() -> None:
     }
     print_table(loads, median, switches)
     write_results(
-        RESULTS,
+        results,
         {
             "what": "ges view: server start to URL, and to the first headless-Chromium screenshot showing the scene",
             "dataset": str(args.dataset.relative_to(REPO) if args.dataset.is_relative_to(REPO) else args.dataset),
