@@ -24,7 +24,7 @@ import numpy as np
 
 from ges_core.objects.decompose import DEFAULT, FAST
 
-from _results import results_path
+from _results import results_path, write_results
 
 IDS = (
     "pybullet/classic/bunny",
@@ -108,7 +108,7 @@ def main() -> None:
         "summary": summary,
     }
     out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps(result, indent=1) + "\n")
+    write_results(out, result)
     print(json.dumps(summary, indent=1))
 
 

@@ -30,7 +30,6 @@ from __future__ import annotations
 
 import argparse
 import importlib.metadata as md
-import json
 import os
 import platform
 import tempfile
@@ -45,7 +44,7 @@ from ges_core.kinematics import HandKinematics
 from ges_core.registry import load_registry
 from ges_core.synthesis.retarget.solver import VectorRetargetConfig, VectorRetargeter
 
-from _results import results_path
+from _results import results_path, write_results
 
 DEX_NORM_DELTA = 4e-3
 """dex-retargeting's default weight of ||q - q_last||^2 (RetargetingConfig.normal_delta); also run at 0,
@@ -244,7 +243,7 @@ def main() -> None:
     met = any(r["mean_error_mm"] <= GOAL_MM and r["ms_per_grasp"] <= GOAL_MS for r in best)
     print(f"\ngoal (<= {GOAL_MM} mm mean error at <= {GOAL_MS} ms per grasp, batched): {'met' if met else 'NOT met'}")
     print(f"pinocchio vs our FK at dex's solutions: {fk_gap * 1e3:.2e} mm apart at most (joint-name mapping check)")
-    write_results(results, rows, met, fk_gap, args)
+    _save(results, rows, met, fk_gap, args)
 
 
 def print_table(rows: list[dict]) -> None:
@@ -259,7 +258,7 @@ def print_table(rows: list[dict]) -> None:
         )
 
 
-def write_results(path: Path, rows: list[dict], met: bool, fk_gap: float, args: argparse.Namespace) -> None:
+def _save(path: Path, rows: list[dict], met: bool, fk_gap: float, args: argparse.Namespace) -> None:
     meta = {
         "hand": "allegro",
         "objective": "fingertip position error (tip_link + tip_offset), mm, measured with ges_core.kinematics",
@@ -276,9 +275,7 @@ def write_results(path: Path, rows: list[dict], met: bool, fk_gap: float, args: 
         "processor": platform.processor(),
         "time": time.strftime("%Y-%m-%d %H:%M"),
     }
-    path.parent.mkdir(parents=True, exist_ok=True)
-    path.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
-    print(f"wrote {path}")
+    write_results(path, {"meta": meta, "rows": rows})
 
 
 if __name__ == "__main__":

@@ -16,7 +16,6 @@ Usage: python benchmarks/sim_throughput.py [--steps 500] [--repeats 5] [--hand H
 from __future__ import annotations
 
 import argparse
-import json
 import platform
 import statistics
 import time
@@ -29,7 +28,7 @@ from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import SimCheckConfig, run_sim_check
 
-from _results import results_path
+from _results import results_path, write_results
 
 
 def time_raw(sim, steps: int) -> float:
@@ -119,7 +118,6 @@ def main() -> None:
     for row in rows:
         row["fk_configs_per_s"] = fk[row["hand"]]
     print_table(rows, args.fk_batch)
-    results.parent.mkdir(parents=True, exist_ok=True)
     meta = {
         "steps": args.steps,
         "repeats": args.repeats,
@@ -129,8 +127,7 @@ def main() -> None:
         "processor": platform.processor(),
         "time": time.strftime("%Y-%m-%d %H:%M"),
     }
-    results.write_text(json.dumps({"meta": meta, "rows": rows}, indent=2))
-    print(f"wrote {results}")
+    write_results(results, {"meta": meta, "rows": rows})
 
 
 def print_table(rows: list[dict], fk_batch: int) -> None:
