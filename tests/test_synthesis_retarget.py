@@ -157,7 +157,14 @@ def test_finger_serving_two_slots_aims_at_their_mean(hands, solvers):
     q, residual = solver.solve(split)
     tips = solver.fingertips(q)
     torch.testing.assert_close(tips[:, ring], targets[:, ring], atol=1e-4, rtol=0)
-    torch.testing.assert_close(residual, torch.full((4,), 0.2 * 0.02, dtype=residual.dtype), atol=1e-4, rtol=0)
+    # The residual measures each fingertip against the point its finger aims at (here the ring and little
+    # targets' mean), so a contact layout with more contacts than the hand has fingers is not "unreachable"
+    # for that alone; measured against each slot's own target it would be 2 x 1 cm / 5 slots = 4 mm.
+    aims = split.clone()
+    aims[:, ring] = aims[:, little] = (split[:, ring] + split[:, little]) / 2
+    torch.testing.assert_close(residual, (tips - aims).norm(dim=-1).mean(dim=1), atol=1e-12, rtol=0)
+    assert residual.max() < 1e-4
+    assert ((tips - split).norm(dim=-1).mean(dim=1) > 0.2 * 0.02 - 1e-4).all()
 
 
 def pad_normals(kin: HandKinematics, hand: HandModel, q: torch.Tensor) -> torch.Tensor:

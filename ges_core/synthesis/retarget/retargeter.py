@@ -82,7 +82,10 @@ class RetargetConfig(ConfigModel):
         0.0, ge=0, le=1, description="start of the joint solve: this fraction of the way open -> closed_pose()"
     )
     max_residual: float = Field(
-        0.01, gt=0, description="metres: mean fingertip-to-contact distance up to which meta['reached'] is True"
+        0.01,
+        gt=0,
+        description="metres: mean fingertip-to-aim distance (a contact, or the mean of the contacts one finger "
+        "serves) up to which meta['reached'] is True",
     )
     solver: VectorRetargetConfig = Field(default_factory=VectorRetargetConfig)
     wrist_search: WristSearchConfig = Field(default_factory=WristSearchConfig)

@@ -200,7 +200,10 @@ class VectorRetargeter:
             ``config.pad_weight`` > 0), fingers with a declared ``pad_normal`` also turn their pad to
             face the surface (the pad term, see :class:`VectorRetargetConfig`).
         Returns ``q`` (B, K) within limits, couplings applied, and the residual (B,): the mean over
-            slots of the fingertip-to-target distance, metres.
+            slots of the distance from the serving fingertip to the point that finger aims at, metres: the
+            slot's target, or for a finger serving several slots (Allegro's ring) the mean of their targets,
+            the best it can do (measured to each target, two contacts d apart would add at least 2 d / 5
+            to the mean whatever the hand does).
         """
         tgt = self._check_targets(targets) * self.config.alpha
         batch = tgt.shape[0]
@@ -209,7 +212,8 @@ class VectorRetargeter:
         problem = self._problem(tgt, normals)
         q = self._start(self._couple(q0)[0], problem, prev)
         q, points = self._levenberg_marquardt(q, problem, prev)
-        residual = (points[:, self.layout.slot_finger, 0] - tgt).norm(dim=-1).mean(dim=1)
+        aims = problem.targets[:, self.layout.slot_finger, 0]  # (B, S, 3): a slot's target, or its finger's mean
+        residual = (points[:, self.layout.slot_finger, 0] - aims).norm(dim=-1).mean(dim=1)
         return q, residual
 
     def objective(
