@@ -29,8 +29,9 @@ REASON_HELP: dict[str, str] = {
     "failed": "synthesis stopped on this object; the record's `errors` say why",
     # retargeting
     "degenerate_contacts": "the five contacts do not span a plane, so no wrist frame follows from them",
-    "unreachable": "the hand cannot put its fingertips on the contacts within retarget.max_residual (the object is "
-    "too large or too small for this hand)",
+    "unreachable": "the hand cannot put its fingertips on the contacts within retarget.max_residual (a finger that "
+    "serves two slots, the Allegro's ring, is measured against their mean; the object is too large or too small for "
+    "this hand)",
     # refinement
     "penetration": "the closed hand sinks into the object deeper than refine.max_penetration",
     "table_contact": "the closed hand presses on the table (the placement sits too low; common on thin lying objects)",
