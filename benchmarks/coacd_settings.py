@@ -107,7 +107,6 @@ def main() -> None:
         "rows": rows,
         "summary": summary,
     }
-    out.parent.mkdir(parents=True, exist_ok=True)
     write_results(out, result)
     print(json.dumps(summary, indent=1))
 
