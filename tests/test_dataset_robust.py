@@ -115,3 +115,25 @@ def test_info_counts_the_pairs_that_tried_the_other_strategy(tmp_path, capsys):
     out = capsys.readouterr().out
     row = "allegro             tried 3 of 4, kept 1; not kept: contacts: no_graspable_width x1, held no better x1"
     assert row in out
+    assert summary.balanced == {} and "balanced" not in out
+
+
+def test_info_counts_the_pairs_that_tried_a_balanced_thumb(tmp_path, capsys):
+    from dataclasses import replace
+
+    notes = [
+        {"first_attempt": 16, "kept": True},
+        {"first_attempt": 16, "kept": False,
+         "reason": "held no better: merit [2, 0.5] against the first contacts' [2, 0.75]"},
+    ]  # fmt: skip
+    with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
+        for i, note in enumerate(notes):
+            writer.add(replace(make_record(f"procedural/box/00{i}", "shadow"), extra={"balanced_thumb": note}))
+    summary = summarize(open_dataset(tmp_path / "ds"))
+    assert summary.other == {}
+    assert summary.balanced == {"shadow": {"records": 2, "tried": 2, "kept": 1, "reasons": {"held no better": 1}}}
+    assert cli.main(["dataset", "info", str(tmp_path / "ds")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    at = lines.index("contacts with the thumb balancing the squeeze's torque (pairs that went on to it; why a second "
+                     "pass was not kept):")  # fmt: skip
+    assert lines[at + 1] == "  shadow              tried 2 of 2, kept 1; not kept: held no better x1"

@@ -351,6 +351,48 @@ def test_the_thumb_leaves_the_pinch_only_where_the_squeeze_would_not_balance(mes
         np.testing.assert_array_equal(balanced.contacts.positions, pinch.contacts.positions)
 
 
+def test_squeeze_imbalance_with_points_adds_the_torque_of_a_thumb_off_the_fingers_middle():
+    """Flat faces, the thumb pushing 4 units and each finger 1 across them: the net force is 0 wherever the thumb is,
+    and with the points the torque counts, written out by hand: the thumb at x = -3 cm against fingers centred at
+    x = 0 turns the object about z by 4 x 0.03 N·m per unit force; opposite their middle, nothing. A balanced force
+    leaves the torque the same about any point, so the centre does not matter."""
+    normals = np.array([[0, 1.0, 0]] + [[0, -1.0, 0]] * 4)
+    fingers = [[x, -0.01, 0.02] for x in (-0.03, -0.01, 0.01, 0.03)]
+    at_end = np.array([[-0.03, 0.01, 0.02], *fingers])
+    middle = np.array([[0.0, 0.01, 0.02], *fingers])
+    radius = 0.05
+    assert squeeze_imbalance(normals) == 0.0
+    torque_z = 4 * 0.03  # thumb force (0, -4, 0) at x = -0.03: (r x f)_z = -0.03 * -4; the fingers' cancel about x=0
+    expected = torque_z / radius / 8
+    for center in (np.zeros(3), np.array([0.02, -0.04, 0.05])):
+        assert squeeze_imbalance(normals, at_end, center=center, radius=radius) == pytest.approx(expected)
+        assert squeeze_imbalance(normals, middle, center=center, radius=radius) == pytest.approx(0.0, abs=1e-12)
+
+
+def test_a_balanced_torque_moves_the_thumb_off_the_pinch_on_a_long_flat_box():
+    """A long box lying flat, grasped from above across its width: the pinch puts the thumb opposite the index, at
+    one end of the finger row, and the flat faces balance the force there (the default keeps it); counting the torque
+    too, the thumb moves toward the middle of the row and the squeeze's wrench balances better."""
+    mesh = trimesh.creation.box([0.10, 0.04, 0.03])
+    mesh.apply_translation([0.0, 0.0, -mesh.bounds[0, 2]])
+    points, faces = trimesh.sample.sample_surface(mesh, 1024, seed=0)
+    normals = mesh.face_normals[faces]
+    pinch = generate_contacts(points, normals, CFG, object_id="t")
+    torque = generate_contacts(points, normals, ContactConfig(thumb_balance_torque=True), object_id="t")
+    center, radius = points.mean(axis=0), float(np.linalg.norm(points - points.mean(axis=0), axis=1).max())
+
+    def wrench(r):
+        return squeeze_imbalance(r.contacts.normals, r.contacts.positions, center=center, radius=radius)
+
+    s_pinch = pinch.contacts.positions @ np.asarray(pinch.contacts.meta["spread_axis"])
+    s_torque = torque.contacts.positions @ np.asarray(torque.contacts.meta["spread_axis"])
+    spacing = torque.contacts.meta["finger_spacing"]
+    assert abs(s_pinch[THUMB] - s_pinch[1]) < 0.5 * spacing  # the default: the pinch
+    assert s_torque[THUMB] - s_torque[1] > 0.5 * spacing  # moved toward the row
+    assert abs(s_torque[THUMB] - s_torque[FINGERS].mean()) < abs(s_pinch[THUMB] - s_pinch[FINGERS].mean())
+    assert wrench(torque) < wrench(pinch)
+
+
 @pytest.mark.parametrize("oid", ids("box/000 bottle/000"))  # grasped from above / from the side
 def test_thumb_shift_moves_the_thumb_toward_the_finger_row_in_both_strategies(clouds, oid):
     """thumb_shift = 1 puts the thumb about one spacing from the index toward the little finger (before, a side

@@ -1,5 +1,6 @@
 """The other grasp strategy: contacts of a forced strategy, and the pipeline's second pass when none of the PCA
-strategy's placements passes, or none holds every perturbation trial (``SynthesisConfig.other_strategy``)."""
+strategy's placements passes, or none holds every perturbation trial (``SynthesisConfig.other_strategy``); the
+pass of contacts whose thumb balances the squeeze's torque too (``SynthesisConfig.balanced_thumb``)."""
 
 from __future__ import annotations
 
@@ -38,22 +39,24 @@ ROBUST = {"limits_trial": False, "mass_scales": [2.0], "pose_trials": 2}
 
 
 def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = None, trial_fails=None) -> dict:
-    """Test doubles: refinement's verdict is ``table_contact`` for placements of a strategy in ``fails``; every
+    """Test doubles: refinement's verdict is ``table_contact`` for placements of a strategy in ``fails`` (a strategy
+    is named with ``+thumb`` where its contacts' thumb balances the torque too); every
     validation holds; of the four perturbation trials (:data:`TRIALS`), a strategy in ``fragile`` fails that many
     (from the last), the others none; or, given ``trial_fails(placement, simulator, trial) -> bool`` (placement:
     0, 1, ... in the order refined), the trials it says. Returns the strategies generated, each refinement's seconds
-    and the trials run (strategy, placement, simulator, trial name)."""
+    and the trials run (strategy, placement, simulator, trial name), and the contacts generated."""
     from ges_core.synthesis.physics.robust import TrialResult
     from ges_core.synthesis.run import worker
     from ges_core.synthesis.types import ValidationResult
 
-    seen: dict[str, list] = {"strategies": [], "refined": [], "setup": [], "trials": []}
+    seen: dict[str, list] = {"strategies": [], "contacts": [], "refined": [], "setup": [], "trials": []}
     placement_of: dict[int, int] = {}  # id of a refined grasp -> its placement
     real_generate, real_refine, real_verdict = worker.generate_contacts, worker.refine_grasp, worker.refine_verdict
 
     def generate(*args, **kwargs):
         result = real_generate(*args, **kwargs)
-        seen["strategies"].append(result.strategy)
+        seen["strategies"].append(result.strategy + ("+thumb" if args[2].thumb_balance_torque else ""))
+        seen["contacts"].append(result.contacts.positions)
         return result
 
     def refine(*args, **kwargs):
@@ -92,7 +95,9 @@ def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = N
 
 
 def _run(tmp_path, **settings):
+    """The pipeline on :data:`OID` with the Allegro; the balanced thumb's pass only where ``settings`` ask for it."""
     library = {"sources": ["procedural"], "procedural_count": 1}
+    settings = {"balanced_thumb": "never", **settings}
     config = SynthesisConfig.model_validate({"library": library, "attempts": 3, "robust": ROBUST, **settings})
     run_synthesis([OID], ["allegro"], config, tmp_path / "ds")
     (record,) = open_dataset(tmp_path / "ds")
@@ -286,3 +291,53 @@ def test_a_backend_that_fails_for_deferred_trials_makes_that_placement_unstable(
     record = _run(tmp_path, other_strategy="never")
     assert [a.validation for a in record.attempts] == ["unstable", "ok", "ok"]
     assert record.attempt == 1 and [a.robustness for a in record.attempts] == [None, 0.75, 0.75]
+
+
+@pytest.mark.sim
+def test_where_no_placement_is_robust_contacts_with_a_balanced_thumb_are_tried_and_kept(tmp_path, monkeypatch):
+    seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
+    record = _run(tmp_path, other_strategy="never", balanced_thumb="not_robust")
+    assert seen["strategies"] == ["horizontal", "horizontal+thumb"]
+    assert [a.robust for a in record.attempts] == ["pose_2"] * 3 + ["ok"]
+    assert record.attempt == 3 and record.robust and record.strategy == "horizontal"
+    assert record.extra["balanced_thumb"] == {"first_attempt": 3, "kept": True}
+    first, balanced = seen["contacts"]
+    assert (first != balanced).any()  # the thumb moved
+    assert (record.contacts.positions == balanced).all()  # and the record keeps the pass it chose
+
+
+@pytest.mark.sim
+def test_after_the_other_strategy_the_balanced_thumb_pass_starts_from_the_pass_kept(tmp_path, monkeypatch):
+    """The grasp from above holds worse than the side grasp: the side grasp's contacts are kept, and the balanced
+    thumb is tried on them (the can's rim from above balances its thumb already: the same contacts there)."""
+    seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 2, "vertical": 3})
+    record = _run(tmp_path, balanced_thumb="not_robust")
+    assert seen["strategies"] == ["horizontal", "vertical", "horizontal+thumb"]
+    assert len(record.attempts) == 7 and record.attempt == 6 and record.robust and record.strategy == "horizontal"
+    assert record.extra["other_strategy"] == {
+        "strategy": "vertical", "first_attempt": 3, "kept": False,
+        "reason": "held no better: merit [2, 0.25] against the first strategy's [2, 0.5]",
+    }  # fmt: skip
+    assert record.extra["balanced_thumb"] == {"first_attempt": 6, "kept": True}
+
+
+@pytest.mark.sim
+def test_no_balanced_thumb_pass_where_a_placement_is_robust_or_the_thumb_does_not_move(tmp_path, monkeypatch):
+    seen = _doubles(monkeypatch, fails=set())
+    record = _run(tmp_path / "robust", balanced_thumb="not_robust")
+    assert seen["strategies"] == ["horizontal"] and record.robust and "balanced_thumb" not in record.extra
+    from ges_core.synthesis.run import worker
+
+    real = worker.generate_contacts  # the doubles' wrapper: its thumb-balanced contacts are the first ones
+    monkeypatch.setattr(worker, "generate_contacts", lambda p, n, c, **k: real(p, n, type(c)(), **k))
+    seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
+    record = _run(tmp_path / "same", other_strategy="never", balanced_thumb="not_robust")
+    assert seen["strategies"] == ["horizontal", "horizontal+thumb"]  # asked for, the same contacts: no second pass
+    assert len(record.attempts) == 3 and not record.robust and "balanced_thumb" not in record.extra
+
+
+def test_balanced_thumb_settings() -> None:
+    assert SynthesisConfig().balanced_thumb == "not_robust"
+    assert SynthesisConfig().dump()["balanced_thumb"] == "not_robust"  # stored: a folder written without it is refused
+    with pytest.raises(ValueError, match="'never' or 'not_robust'"):
+        SynthesisConfig(balanced_thumb="always")

@@ -103,6 +103,9 @@ class DatasetSummary:
     """Per hand, cross-engine agreement (:func:`agreement`)."""
     other: dict[str, dict] = field(default_factory=dict)
     """Per hand, the pairs that tried the other grasp strategy (:func:`other_strategy_stats`)."""
+    balanced: dict[str, dict] = field(default_factory=dict)
+    """Per hand, the pairs that tried contacts with a balanced thumb (:func:`other_strategy_stats` of
+    ``"balanced_thumb"``)."""
 
     def format(self) -> str:
         """Human-readable text, one table row per group."""
@@ -118,6 +121,7 @@ class DatasetSummary:
         lines.append("failure reasons per step (each record counted at its first failed step):")
         lines += [f"  {g.label:<20}{format_failures(g.failures)}" for g in self.groups]
         lines += format_other_strategy(self.other)
+        lines += format_other_strategy(self.balanced, "balanced_thumb")
         if self.sims:
             lines += ["", format_sim_stats(self.sims, self.agreement)]
         lines += reason_meanings([r for g in self.groups for step in g.failures.values() for r in step], self.sims)
@@ -157,18 +161,27 @@ def summarize(dataset: Dataset) -> DatasetSummary:
         sim_stats(records),
         agreement(records),
         other_strategy_stats(records),
+        other_strategy_stats(records, "balanced_thumb"),
     )
 
 
-def other_strategy_stats(records: Iterable[GraspRecord]) -> dict[str, dict]:
-    """Per hand, over the records whose pair went on to the other grasp strategy (``extra["other_strategy"]``, the
-    Stage 1 pipeline's note): ``{"records", "tried", "kept", "reasons"}``, ``reasons`` counting why a second pass
-    was not kept (``step: reason``; "held no better" without its figures). Hands with no such record are left out."""
+SECOND_PASSES = {
+    "other_strategy": "the other grasp strategy",
+    "balanced_thumb": "contacts with the thumb balancing the squeeze's torque",
+}
+"""The Stage 1 pipeline's second passes by the ``extra`` key of their note, and what each tried."""
+
+
+def other_strategy_stats(records: Iterable[GraspRecord], key: str = "other_strategy") -> dict[str, dict]:
+    """Per hand, over the records whose pair went on to a second pass (``extra[key]``, the Stage 1 pipeline's note:
+    ``other_strategy`` or ``balanced_thumb``, :data:`SECOND_PASSES`): ``{"records", "tried", "kept", "reasons"}``,
+    ``reasons`` counting why a second pass was not kept (``step: reason``; "held no better" without its figures).
+    Hands with no such record are left out."""
     out: dict[str, dict] = {}
     seen: Counter[str] = Counter()
     for record in records:
         seen[record.hand] += 1
-        note = record.extra.get("other_strategy")
+        note = record.extra.get(key)
         if not isinstance(note, dict):
             continue
         row = out.setdefault(record.hand, {"records": 0, "tried": 0, "kept": 0, "reasons": Counter()})
@@ -183,11 +196,11 @@ def other_strategy_stats(records: Iterable[GraspRecord]) -> dict[str, dict]:
     return out
 
 
-def format_other_strategy(stats: dict[str, dict]) -> list[str]:
-    """:func:`other_strategy_stats` as text lines, a heading and one per hand; none when no pair went on."""
+def format_other_strategy(stats: dict[str, dict], key: str = "other_strategy") -> list[str]:
+    """:func:`other_strategy_stats` of ``key`` as text lines, a heading and one per hand; none when no pair went on."""
     if not stats:
         return []
-    lines = ["the other grasp strategy (pairs that went on to it; why a second pass was not kept):"]
+    lines = [f"{SECOND_PASSES[key]} (pairs that went on to it; why a second pass was not kept):"]
     for hand, row in sorted(stats.items()):
         reasons = ", ".join(f"{k} x{n}" for k, n in row["reasons"].items()) or "-"
         lines.append(f"  {hand:<20}tried {row['tried']} of {row['records']}, kept {row['kept']}; not kept: {reasons}")

@@ -42,7 +42,7 @@ from ges_core.synthesis.contacts.frame import (
     symmetry_score,
 )
 from ges_core.synthesis.contacts.lift_friction import lift_capacity
-from ges_core.synthesis.contacts.optimize import SLOT_WEIGHTS, optimize_contacts
+from ges_core.synthesis.contacts.optimize import SLOT_WEIGHTS, optimize_contacts, unit_wrenches
 from ges_core.synthesis.types import STRATEGIES, ContactResult, Strategy, other_strategy
 
 __all__ = ["LIBRARY_CENTER_OF_MASS", "ContactConfig", "generate_contacts", "squeeze_imbalance"]
@@ -87,6 +87,12 @@ class ContactConfig(ConfigModel):
         ge=0.0,
         description="net normal force of the squeeze (thumb = the four fingers together) per unit of the total "
         "that the pinch may leave; above it the offsets are tried and the smallest within this of the best kept",
+    )
+    thumb_balance_torque: bool = Field(
+        False,
+        description="thumb balance also counts the squeeze's torque about the cloud's centroid (the local "
+        "optimization's wrench), not only its net force",
+        json_schema_extra=STORED_WHEN_SET,
     )
     top_margin: float = Field(
         0.1, ge=0.0, lt=0.5, description="fraction of the height kept free at the top (side grasps, rim contacts)"
@@ -444,13 +450,19 @@ def _balanced(pts, nrm, ctx: _Context, axes, layout: sl.Layout, allowed: np.ndar
     pinch = _picked(pts, nrm, ctx, axes, sl.thumb_moved(layout, cfg.thumb_shift), allowed, openings)
     if pinch is None:
         return None
-    tried = [(squeeze_imbalance(nrm[pinch.optimized]), pinch)]
+
+    def imbalance(plan: _Plan) -> float:
+        if not cfg.thumb_balance_torque:
+            return squeeze_imbalance(nrm[plan.optimized])
+        return squeeze_imbalance(nrm[plan.optimized], pts[plan.optimized], center=ctx.center, radius=ctx.radius)
+
+    tried = [(imbalance(pinch), pinch)]
     if tried[0][0] <= cfg.thumb_balance_tol:
         return pinch
     for shift in cfg.thumb_balance_shifts:  # a moved thumb whose picks do not fit is just not a candidate
         plan = _picked(pts, nrm, ctx, axes, sl.thumb_moved(layout, cfg.thumb_shift + shift), allowed, [])
         if plan is not None:
-            tried.append((squeeze_imbalance(nrm[plan.optimized]), plan))
+            tried.append((imbalance(plan), plan))
     best = min(imbalance for imbalance, _ in tried)
     return next(plan for imbalance, plan in tried if imbalance <= best + cfg.thumb_balance_tol)
 
@@ -469,11 +481,25 @@ def _picked(pts, nrm, ctx: _Context, axes, layout: sl.Layout, allowed: np.ndarra
     return _optimized(pts, nrm, ctx, axes, layout, picks, allowed)
 
 
-def squeeze_imbalance(normals: np.ndarray) -> float:
+def squeeze_imbalance(
+    normals: np.ndarray,
+    points: np.ndarray | None = None,
+    *,
+    center: np.ndarray | None = None,
+    radius: float | None = None,
+) -> float:
     """Net force of a squeeze of contacts with outward unit normals ``normals`` (5, 3), thumb first, pressing with
     the thumb as hard as the four fingers together (``optimize.SLOT_WEIGHTS``), per unit of the total normal force:
-    0 when the normal forces cancel, up to 1. What friction must carry before the object's weight."""
-    return float(np.linalg.norm(SLOT_WEIGHTS @ np.asarray(normals, dtype=np.float64)) / SLOT_WEIGHTS.sum())
+    0 when the normal forces cancel, up to 1. What friction must carry before the object's weight.
+
+    With ``points`` (5, 3) (and ``center`` (3,), ``radius`` m), the net wrench instead: the force and its torque
+    about ``center`` over ``radius`` (``optimize.unit_wrenches``, what the local optimization balances), so a
+    thumb that pushes against the fingers' face at one end of their row counts as out of balance."""
+    n = np.asarray(normals, dtype=np.float64)
+    if points is None:
+        return float(np.linalg.norm(SLOT_WEIGHTS @ n) / SLOT_WEIGHTS.sum())
+    wrench = unit_wrenches(np.asarray(points, dtype=np.float64), n, np.asarray(center, dtype=np.float64), radius)
+    return float(np.linalg.norm(SLOT_WEIGHTS @ wrench) / SLOT_WEIGHTS.sum())
 
 
 def _optimized(pts, nrm, ctx: _Context, axes, layout: sl.Layout, picks: np.ndarray, allowed: np.ndarray) -> _Plan:

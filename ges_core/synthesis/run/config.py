@@ -65,6 +65,22 @@ class SynthesisConfig(ConfigModel):
         "robust.enabled and robust.retry), 'never'; true and false mean 'failed' and 'never'",
     )
 
+    # balanced_thumb: the contacts' thumb sits opposite the index (the paper's pinch) unless the squeeze's net normal
+    # force is out of balance (contacts.thumb_balance_shifts). On flat faces that balances wherever the thumb is, so
+    # on a long object the thumb can end up at one end of the finger row and the object hangs from a thumb-index axis
+    # far from its centre of mass. Where no placement held every trial, this pass generates contacts whose thumb
+    # also balances the squeeze's torque and tries their placements; the better pass is kept. Measured (2026-12-06,
+    # every fifth random_urdf, SAPIEN): Allegro robust 155 -> 173 of 200, none lost (docs/synthesis/pipeline.md).
+    # Stored in every dataset's config: a run resuming a folder written before it existed is refused (it would mix
+    # records made with and without the pass).
+    balanced_thumb: Literal["never", "not_robust"] = Field(
+        "not_robust",
+        description="when to generate contacts whose thumb balances the squeeze's torque too "
+        "(contacts.thumb_balance_torque, the strategy of the contacts kept so far) and try their placements: "
+        "'not_robust' (no placement so far held every perturbation trial in every validating simulator, or none "
+        "passed), 'never'",
+    )
+
     @field_validator("other_strategy", mode="before")
     @classmethod
     def _other_strategy_from_bool(cls, value: Any) -> Any:

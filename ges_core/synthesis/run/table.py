@@ -150,6 +150,7 @@ def format_table(rows: list[TableRow]) -> str:
         lines.append(f"  {r.hand} / {r.simulator}: {format_failures(failure_reasons(failed))}")
         reasons += [reason for _, reason in failed]
     lines += format_other_strategy(other_strategy_stats(records))
+    lines += format_other_strategy(other_strategy_stats(records, "balanced_thumb"), "balanced_thumb")
     lines += reason_meanings(reasons, sims)
     return "\n".join(lines)
 

@@ -24,6 +24,8 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
+
 from ges_core.dataset import (
     HELD_NO_BETTER,
     NOT_RUN,
@@ -212,11 +214,26 @@ def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[lis
 # -- steps 3-5: refinement, pre-grasp, validation ---------------------------------------------
 def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> GraspRecord:
     """The record of ``(work.object_id, hand)``: steps 3-5 on ``result`` (the retargeted placements), and on the
-    other strategy's placements too when these fell short (:func:`_wants_other_strategy`, :func:`_other_strategy`)."""
+    other strategy's placements and then a balanced thumb's too when these fell short (:func:`_wants_other_strategy`,
+    :func:`_wants_balanced_thumb`, :func:`_second_pass`)."""
     pair = _pair(state, sims, hand, work, result)
-    if not _wants_other_strategy(state, hand, work, pair):
-        return build_record(state, hand, work, pair)
-    return _other_strategy(state, sims, hand, work, pair)
+    notes: dict[str, dict] = {}
+    if _wants_other_strategy(state, hand, work, pair):
+        strategy = other_strategy(work.result.strategy)
+        other = _contacts(state, work.object_id, state.config(hand).contacts, strategy=strategy, cloud=work.cloud)
+        work, pair, notes["other_strategy"] = _second_pass(state, sims, hand, work, pair, other, "the first strategy's")
+        notes["other_strategy"] = {"strategy": strategy, **notes["other_strategy"]}
+    if _wants_balanced_thumb(state, hand, work, pair):
+        contacts = state.config(hand).contacts.model_copy(update={"thumb_balance_torque": True})
+        other = _contacts(state, work.object_id, contacts, strategy=work.result.strategy, cloud=work.cloud)
+        if other.result is not None and not np.array_equal(
+            other.result.contacts.positions, work.result.contacts.positions
+        ):
+            work, pair, notes["balanced_thumb"] = _second_pass(
+                state, sims, hand, work, pair, other, "the first contacts'"
+            )
+    record = build_record(state, hand, work, pair)
+    return replace(record, extra={**record.extra, **notes}) if notes else record
 
 
 def _pair(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> PairResult:
@@ -252,32 +269,46 @@ def _wants_other_strategy(state: _State, hand: str, work: ObjectWork, pair: Pair
     return cfg.other_strategy == "not_robust" and fragile and _friction_out_of_reach(cfg, work)[0] is None
 
 
-def _other_strategy(state: _State, sims: _Sims, hand: str, work: ObjectWork, first: PairResult) -> GraspRecord:
-    """Contacts of the strategy ``work``'s are not (``generate_contacts(strategy=...)``), retargeted and taken
-    through steps 3-5 like the first ones. The record keeps the other strategy's contacts and outcome when its chosen
-    placement held better (:attr:`PairResult.merit`), else the first strategy's; either way its ``attempts`` list
-    both strategies' placements (the first's first), every step's seconds are the two passes' sums, and
-    ``extra["other_strategy"]`` says what was tried (``strategy``, ``first_attempt``: the index of its first
-    attempt, ``kept``, ``reason`` when not kept: :func:`_why_not_kept`).
-    """
-    strategy = other_strategy(work.result.strategy)
-    other = _contacts(state, work.object_id, state.config(hand).contacts, strategy=strategy, cloud=work.cloud)
+def _wants_balanced_thumb(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
+    """Whether the pair goes on to contacts whose thumb balances the squeeze's torque too (``balanced_thumb``
+    'not_robust'): as :func:`_wants_other_strategy`'s 'not_robust', for the contacts kept so far, and only where
+    validation runs (without it no pass can hold better than another)."""
+    cfg = state.config(hand)
+    if cfg.balanced_thumb == "never" or state.source is not None or work.result is None:
+        return False
+    if cfg.contacts.thumb_balance_torque or pair.steps["refinement"].reason == UNSTABLE_REST:
+        return False
+    if pair.attempt is None:
+        return True
+    fragile = pair.merit[0] < _HOLDS_EVERYWHERE and cfg.robust.enabled and cfg.robust.retry and bool(cfg.validate_sims)
+    return fragile and _friction_out_of_reach(cfg, work)[0] is None
+
+
+def _second_pass(
+    state: _State, sims: _Sims, hand: str, work: ObjectWork, first: PairResult, other: ObjectWork, first_name: str
+) -> tuple[ObjectWork, PairResult, dict]:
+    """``other``'s contacts (another strategy's, or a balanced thumb's) retargeted and taken through steps 3-5 like
+    ``work``'s. Returns the work and pass kept (``other``'s when its chosen placement held better,
+    :attr:`PairResult.merit`, else ``work``'s; its ``attempts`` list both passes' placements, the first's first, and
+    every step's seconds are the two passes' sums) and the note the record keeps: ``first_attempt`` (the index of
+    the second pass's first attempt), ``kept``, ``reason`` when not kept (:func:`_why_not_kept`, which names the
+    first pass ``first_name``)."""
     second = _pair(state, sims, hand, other, _retarget(state, hand, [other])[0] if other.result else None)
     kept = second.merit > first.merit
     pair = replace(_joined(first, second, kept), setup_seconds=sims.setup_seconds())  # every backend of both passes
-    note = {"strategy": strategy, "first_attempt": len(first.attempts), "kept": kept}
+    note = {"first_attempt": len(first.attempts), "kept": kept}
     if not kept:
-        note["reason"] = _why_not_kept(first, second)
-    record = build_record(state, hand, other if kept else work, pair)
-    return replace(record, extra={**record.extra, "other_strategy": note})
+        note["reason"] = _why_not_kept(first, second, first_name)
+    return (other if kept else work), pair, note
 
 
-def _why_not_kept(first: PairResult, second: PairResult) -> str:
-    """``step: reason`` of the second pass's first failed step; when it passed, how it held no better."""
+def _why_not_kept(first: PairResult, second: PairResult, first_name: str) -> str:
+    """``step: reason`` of the second pass's first failed step; when it passed, how it held no better than
+    ``first_name`` (the first pass, named in the note)."""
     if second.attempt is None:
         failed = next((n for n, o in second.steps.items() if not o.ok), "contacts")
         return f"{failed}: {second.steps[failed].reason}"
-    return f"{HELD_NO_BETTER}: merit {list(second.merit)} against the first strategy's {list(first.merit)}"
+    return f"{HELD_NO_BETTER}: merit {list(second.merit)} against {first_name} {list(first.merit)}"
 
 
 def _joined(first: PairResult, second: PairResult, second_kept: bool) -> PairResult:
