@@ -10,7 +10,8 @@ from ges_core.dataset import open_dataset
 from ges_core.errors import ConfigError
 from ges_core.objects.library import ObjectLibrary
 from ges_core.synthesis import SynthesisConfig, run_synthesis
-from ges_core.synthesis.contacts.generate import generate_contacts
+from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS, generate_contacts
+from ges_core.synthesis.run.tasks import object_seed
 
 OID = "procedural/can/000"  # upright and tall: PCA chooses the side grasp (horizontal)
 
@@ -341,3 +342,26 @@ def test_balanced_thumb_settings() -> None:
     assert SynthesisConfig().dump()["balanced_thumb"] == "not_robust"  # stored: a folder written without it is refused
     with pytest.raises(ValueError, match="'never' or 'not_robust'"):
         SynthesisConfig(balanced_thumb="always")
+
+
+@pytest.mark.sim
+def test_the_balanced_thumb_pass_runs_for_real_where_no_placement_can_hold(tmp_path) -> None:
+    """No double: every placement of the can faces a trial at 100 times its mass, which no placement holds, so after
+    the first contacts' placements the pipeline generates the balanced thumb's (the side grasp's thumb moves on this
+    can) and takes them through the same steps; the note says where its placements begin, and the record keeps one
+    pass's contacts."""
+    library = {"sources": ["procedural"], "procedural_count": 1}
+    robust = {"limits_trial": False, "mass_scales": [100.0], "friction_floor": None, "pose_trials": 0}
+    config = SynthesisConfig.model_validate(
+        {"library": library, "attempts": 2, "robust": robust, "other_strategy": "never"}
+    )  # the default balanced_thumb: not_robust
+    run_synthesis([OID], ["allegro"], config, tmp_path / "ds")
+    (record,) = open_dataset(tmp_path / "ds")
+    note = record.extra["balanced_thumb"]
+    assert not record.robust and note["first_attempt"] == 2 and len(record.attempts) == 4
+    first = generate_contacts(
+        *config.library.build().point_cloud(OID, config.points, seed=object_seed(config.seed, OID)),
+        config.contacts, object_id=OID, seed=object_seed(config.seed, OID), center_of_mass=LIBRARY_CENTER_OF_MASS,
+    ).contacts.positions  # fmt: skip
+    assert (record.contacts.positions == first).all() != note["kept"]
+    assert note["kept"] or note["reason"].startswith(("held no better", "refinement", "validation", "retargeting"))
