@@ -8,7 +8,7 @@ import trimesh
 from pydantic import ValidationError
 
 from ges_core.dataset.layout import config_differences
-from ges_core.errors import SynthesisError
+from ges_core.errors import ConfigError, SynthesisError
 from ges_core.objects.library import LibraryConfig, ObjectLibrary
 from ges_core.synthesis import SynthesisConfig
 from ges_core.synthesis.contacts.force_closure import ForceClosureConfig, ferrari_canny
@@ -367,6 +367,8 @@ def test_squeeze_imbalance_with_points_adds_the_torque_of_a_thumb_off_the_finger
     for center in (np.zeros(3), np.array([0.02, -0.04, 0.05])):
         assert squeeze_imbalance(normals, at_end, center=center, radius=radius) == pytest.approx(expected)
         assert squeeze_imbalance(normals, middle, center=center, radius=radius) == pytest.approx(0.0, abs=1e-12)
+    with pytest.raises(ConfigError, match="give center"):
+        squeeze_imbalance(normals, at_end)
 
 
 def test_a_balanced_torque_moves_the_thumb_off_the_pinch_on_a_long_flat_box():

@@ -498,6 +498,8 @@ def squeeze_imbalance(
     n = np.asarray(normals, dtype=np.float64)
     if points is None:
         return float(np.linalg.norm(SLOT_WEIGHTS @ n) / SLOT_WEIGHTS.sum())
+    if center is None or radius is None or not radius > 0:
+        raise ConfigError(f"squeeze_imbalance: with points, give center (3,) and radius > 0 (got {center}, {radius})")
     wrench = unit_wrenches(np.asarray(points, dtype=np.float64), n, np.asarray(center, dtype=np.float64), radius)
     return float(np.linalg.norm(SLOT_WEIGHTS @ wrench) / SLOT_WEIGHTS.sum())
 
