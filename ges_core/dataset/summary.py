@@ -23,13 +23,14 @@ __all__ = [
     "DatasetSummary",
     "GroupStats",
     "SimStats",
+    "SECOND_PASSES",
     "StepStats",
     "agreement",
     "failure_reasons",
     "format_failures",
-    "format_other_strategy",
+    "format_second_pass",
     "format_sim_stats",
-    "other_strategy_stats",
+    "second_pass_stats",
     "reason_meanings",
     "sim_stats",
     "step_stats",
@@ -102,9 +103,9 @@ class DatasetSummary:
     agreement: dict[str, dict] = field(default_factory=dict)
     """Per hand, cross-engine agreement (:func:`agreement`)."""
     other: dict[str, dict] = field(default_factory=dict)
-    """Per hand, the pairs that tried the other grasp strategy (:func:`other_strategy_stats`)."""
+    """Per hand, the pairs that tried the other grasp strategy (:func:`second_pass_stats`)."""
     balanced: dict[str, dict] = field(default_factory=dict)
-    """Per hand, the pairs that tried contacts with a balanced thumb (:func:`other_strategy_stats` of
+    """Per hand, the pairs that tried contacts with a balanced thumb (:func:`second_pass_stats` of
     ``"balanced_thumb"``)."""
 
     def format(self) -> str:
@@ -120,8 +121,8 @@ class DatasetSummary:
         lines += [_row(g) for g in self.groups]
         lines.append("failure reasons per step (each record counted at its first failed step):")
         lines += [f"  {g.label:<20}{format_failures(g.failures)}" for g in self.groups]
-        lines += format_other_strategy(self.other)
-        lines += format_other_strategy(self.balanced, "balanced_thumb")
+        for key, stats in (("other_strategy", self.other), ("balanced_thumb", self.balanced)):
+            lines += format_second_pass(stats, key)
         if self.sims:
             lines += ["", format_sim_stats(self.sims, self.agreement)]
         lines += reason_meanings([r for g in self.groups for step in g.failures.values() for r in step], self.sims)
@@ -160,8 +161,8 @@ def summarize(dataset: Dataset) -> DatasetSummary:
         dataset.notes,
         sim_stats(records),
         agreement(records),
-        other_strategy_stats(records),
-        other_strategy_stats(records, "balanced_thumb"),
+        second_pass_stats(records, "other_strategy"),
+        second_pass_stats(records, "balanced_thumb"),
     )
 
 
@@ -172,7 +173,7 @@ SECOND_PASSES = {
 """The Stage 1 pipeline's second passes by the ``extra`` key of their note, and what each tried."""
 
 
-def other_strategy_stats(records: Iterable[GraspRecord], key: str = "other_strategy") -> dict[str, dict]:
+def second_pass_stats(records: Iterable[GraspRecord], key: str) -> dict[str, dict]:
     """Per hand, over the records whose pair went on to a second pass (``extra[key]``, the Stage 1 pipeline's note:
     ``other_strategy`` or ``balanced_thumb``, :data:`SECOND_PASSES`): ``{"records", "tried", "kept", "reasons"}``,
     ``reasons`` counting why a second pass was not kept (``step: reason``; "held no better" without its figures).
@@ -196,8 +197,8 @@ def other_strategy_stats(records: Iterable[GraspRecord], key: str = "other_strat
     return out
 
 
-def format_other_strategy(stats: dict[str, dict], key: str = "other_strategy") -> list[str]:
-    """:func:`other_strategy_stats` of ``key`` as text lines, a heading and one per hand; none when no pair went on."""
+def format_second_pass(stats: dict[str, dict], key: str) -> list[str]:
+    """:func:`second_pass_stats` of ``key`` as text lines, a heading and one per hand; none when no pair went on."""
     if not stats:
         return []
     lines = [f"{SECOND_PASSES[key]} (pairs that went on to it; why a second pass was not kept):"]

@@ -19,15 +19,16 @@ import numpy as np
 
 from ges_core.dataset import NOT_RUN, TOTAL_STEPS, GraspRecord
 from ges_core.dataset.summary import (
+    SECOND_PASSES,
     TOTAL_TIME,
     StepStats,
     agreement,
     failure_reasons,
     format_failures,
-    format_other_strategy,
+    format_second_pass,
     format_sim_stats,
-    other_strategy_stats,
     reason_meanings,
+    second_pass_stats,
     sim_stats,
     step_stats,
 )
@@ -149,8 +150,8 @@ def format_table(rows: list[TableRow]) -> str:
         failed = [(rec.failed_step, rec.steps[rec.failed_step].reason) for rec in r.records if rec.failed_step]
         lines.append(f"  {r.hand} / {r.simulator}: {format_failures(failure_reasons(failed))}")
         reasons += [reason for _, reason in failed]
-    lines += format_other_strategy(other_strategy_stats(records))
-    lines += format_other_strategy(other_strategy_stats(records, "balanced_thumb"), "balanced_thumb")
+    for key in SECOND_PASSES:
+        lines += format_second_pass(second_pass_stats(records, key), key)
     lines += reason_meanings(reasons, sims)
     return "\n".join(lines)
 

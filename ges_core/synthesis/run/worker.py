@@ -253,35 +253,39 @@ def _pair(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> Pa
 
 
 def _wants_other_strategy(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
-    """Whether the pair goes on to the other strategy: ``other_strategy`` is not 'never', contacts were generated
-    here (not taken from a stored record), the object rests in the refining engine, and no placement passed
-    refinement and the nominal validation (or retargeting failed); with 'not_robust' (and ``robust.retry``) also
-    when placements passed but none held every trial in every validating simulator, unless the friction trial is out
-    of any placement's reach (:func:`_friction_out_of_reach`: it is the cloud's, so the other strategy's too)."""
+    """Whether the pair goes on to the other strategy: ``other_strategy`` is not 'never' and :func:`_may_do_better`
+    ('failed': only where no placement passed refinement and the nominal validation, or retargeting failed)."""
     cfg = state.config(hand)
-    if cfg.other_strategy == "never" or state.source is not None or work.result is None:
+    if cfg.other_strategy == "never":
+        return False
+    return _may_do_better(state, cfg, work, pair, fragile_too=cfg.other_strategy == "not_robust")
+
+
+def _wants_balanced_thumb(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
+    """Whether the pair goes on to contacts whose thumb balances the squeeze's torque too: ``balanced_thumb``
+    'not_robust', the run's contacts not already balanced so, and :func:`_may_do_better` for the contacts kept so
+    far, fragile pairs only where validation runs (without it no pass can hold better than another)."""
+    cfg = state.config(hand)
+    if cfg.balanced_thumb == "never" or cfg.contacts.thumb_balance_torque:
+        return False
+    return _may_do_better(state, cfg, work, pair, fragile_too=bool(cfg.validate_sims))
+
+
+def _may_do_better(state: _State, cfg, work: ObjectWork, pair: PairResult, *, fragile_too: bool) -> bool:
+    """Whether a second pass of other contacts could give the pair a better placement: contacts were generated here
+    (not taken from a stored record), the object rests in the refining engine, and no placement passed refinement
+    and the nominal validation (or retargeting failed); with ``fragile_too`` (and ``robust.enabled``,
+    ``robust.retry``) also when placements passed but none held every trial in every validating simulator, unless
+    the friction trial is out of any placement's reach (:func:`_friction_out_of_reach`: it is the cloud's, so any
+    contacts')."""
+    if state.source is not None or work.result is None:
         return False
     if pair.steps["refinement"].reason == UNSTABLE_REST:  # the object moves on its own: no grasp can refine
         return False
     if pair.attempt is None:
         return True
     fragile = pair.merit[0] < _HOLDS_EVERYWHERE and cfg.robust.enabled and cfg.robust.retry
-    return cfg.other_strategy == "not_robust" and fragile and _friction_out_of_reach(cfg, work)[0] is None
-
-
-def _wants_balanced_thumb(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
-    """Whether the pair goes on to contacts whose thumb balances the squeeze's torque too (``balanced_thumb``
-    'not_robust'): as :func:`_wants_other_strategy`'s 'not_robust', for the contacts kept so far, and only where
-    validation runs (without it no pass can hold better than another)."""
-    cfg = state.config(hand)
-    if cfg.balanced_thumb == "never" or state.source is not None or work.result is None:
-        return False
-    if cfg.contacts.thumb_balance_torque or pair.steps["refinement"].reason == UNSTABLE_REST:
-        return False
-    if pair.attempt is None:
-        return True
-    fragile = pair.merit[0] < _HOLDS_EVERYWHERE and cfg.robust.enabled and cfg.robust.retry and bool(cfg.validate_sims)
-    return fragile and _friction_out_of_reach(cfg, work)[0] is None
+    return fragile_too and fragile and _friction_out_of_reach(cfg, work)[0] is None
 
 
 def _second_pass(
