@@ -4,6 +4,8 @@ pass of contacts whose thumb balances the squeeze's torque too (``SynthesisConfi
 
 from __future__ import annotations
 
+import time
+
 import pytest
 
 from ges_core.dataset import open_dataset
@@ -324,17 +326,41 @@ def test_after_the_other_strategy_the_balanced_thumb_pass_starts_from_the_pass_k
 
 @pytest.mark.sim
 def test_no_balanced_thumb_pass_where_a_placement_is_robust_or_the_thumb_does_not_move(tmp_path, monkeypatch):
+    """Where a placement is robust the pass is not asked for (no note); where the balanced thumb's contacts are the
+    first ones, or cannot be made, it is asked for and has nothing to retarget: the note says why, and the contact
+    step's seconds count both generations."""
+    from ges_core.errors import SynthesisError
+    from ges_core.synthesis.run import worker
+
     seen = _doubles(monkeypatch, fails=set())
     record = _run(tmp_path / "robust", balanced_thumb="not_robust")
     assert seen["strategies"] == ["horizontal"] and record.robust and "balanced_thumb" not in record.extra
-    from ges_core.synthesis.run import worker
 
-    real = worker.generate_contacts  # the doubles' wrapper: its thumb-balanced contacts are the first ones
-    monkeypatch.setattr(worker, "generate_contacts", lambda p, n, c, **k: real(p, n, type(c)(), **k))
+    real = worker.generate_contacts
+
+    def same(points, normals, config, **kwargs):  # the first contacts again, half a second later
+        if config.thumb_balance_torque:
+            time.sleep(0.5)
+        return real(points, normals, type(config)(), **kwargs)
+
+    monkeypatch.setattr(worker, "generate_contacts", same)
     seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
     record = _run(tmp_path / "same", other_strategy="never", balanced_thumb="not_robust")
     assert seen["strategies"] == ["horizontal", "horizontal+thumb"]  # asked for, the same contacts: no second pass
-    assert len(record.attempts) == 3 and not record.robust and "balanced_thumb" not in record.extra
+    assert len(record.attempts) == 3 and not record.robust
+    assert record.extra["balanced_thumb"] == {"kept": False, "reason": "contacts: same contacts"}
+    assert record.steps["contacts"].seconds >= 0.5  # the second generation counted
+
+    def unbalanceable(points, normals, config, **kwargs):
+        if config.thumb_balance_torque:
+            raise SynthesisError("no thumb placement balances it", reason="no_thumb_site")
+        return real(points, normals, config, **kwargs)
+
+    monkeypatch.setattr(worker, "generate_contacts", unbalanceable)
+    seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
+    record = _run(tmp_path / "failed", other_strategy="never", balanced_thumb="not_robust")
+    assert seen["strategies"] == ["horizontal"] and len(record.attempts) == 3
+    assert record.extra["balanced_thumb"] == {"kept": False, "reason": "contacts: no_thumb_site"}
 
 
 def test_balanced_thumb_settings() -> None:

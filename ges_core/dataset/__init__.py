@@ -11,6 +11,7 @@ from ges_core.dataset.layout import DATASET_FORMAT, DATASET_VERSION, record_relp
 from ges_core.dataset.record import (
     HELD_NO_BETTER,
     NOT_RUN,
+    SAME_CONTACTS,
     SKIPPED,
     STEPS,
     TOTAL_STEPS,
@@ -33,6 +34,7 @@ __all__ = [
     "DATASET_VERSION",
     "HELD_NO_BETTER",
     "NOT_RUN",
+    "SAME_CONTACTS",
     "SKIPPED",
     "STEPS",
     "TOTAL_STEPS",

@@ -77,6 +77,9 @@ NOT_RUN = "not_run"
 HELD_NO_BETTER = "held no better"
 """How ``extra["other_strategy"]["reason"]`` begins when the Stage 1 pipeline's second strategy passed but was not
 kept (its chosen placement held no better than the first strategy's; docs/synthesis/pipeline.md)."""
+SAME_CONTACTS = "same contacts"
+"""Why ``extra["balanced_thumb"]`` was not kept when the balanced thumb's contacts are the first contacts (the torque
+rule moved no contact), so there was nothing to retarget: its reason is ``contacts: same contacts``."""
 
 JSON_KEY = "record_json"
 """Name of the npz entry holding the record's scalars as JSON text (a 0-d unicode array)."""

@@ -29,6 +29,7 @@ import numpy as np
 from ges_core.dataset import (
     HELD_NO_BETTER,
     NOT_RUN,
+    SAME_CONTACTS,
     AttemptVerdict,
     GraspRecord,
     SimVerdict,
@@ -226,9 +227,11 @@ def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> 
     if _wants_balanced_thumb(state, hand, work, pair):
         contacts = state.config(hand).contacts.model_copy(update={"thumb_balance_torque": True})
         other = _contacts(state, work.object_id, contacts, strategy=work.result.strategy, cloud=work.cloud)
-        if other.result is not None and not np.array_equal(
-            other.result.contacts.positions, work.result.contacts.positions
-        ):
+        unchanged = _no_new_contacts(work, other)
+        if unchanged:  # nothing to retarget: the note says why, the contact step counts the seconds spent
+            notes["balanced_thumb"] = {"kept": False, "reason": f"contacts: {unchanged}"}
+            pair = _with_contact_seconds(pair, other.step.seconds)
+        else:
             work, pair, notes["balanced_thumb"] = _second_pass(
                 state, sims, hand, work, pair, other, "the first contacts'"
             )
@@ -286,6 +289,24 @@ def _may_do_better(state: _State, cfg, work: ObjectWork, pair: PairResult, *, fr
         return True
     fragile = pair.merit[0] < _HOLDS_EVERYWHERE and cfg.robust.enabled and cfg.robust.retry
     return fragile_too and fragile and _friction_out_of_reach(cfg, work)[0] is None
+
+
+def _no_new_contacts(work: ObjectWork, other: ObjectWork) -> str:
+    """Why ``other``'s contacts give a second pass nothing to try ('' when they do): their step's failure reason, or
+    :data:`SAME_CONTACTS` when they are ``work``'s own."""
+    if other.result is None:
+        return other.step.reason
+    if np.array_equal(other.result.contacts.positions, work.result.contacts.positions):
+        return SAME_CONTACTS
+    return ""
+
+
+def _with_contact_seconds(pair: PairResult, seconds: float | None) -> PairResult:
+    """``pair`` with ``seconds`` more in its contact step (another set of contacts generated and not used)."""
+    step = pair.steps["contacts"]
+    if seconds is None or step.seconds is None:
+        return pair
+    return replace(pair, steps={**pair.steps, "contacts": replace(step, seconds=step.seconds + seconds)})
 
 
 def _second_pass(
