@@ -174,6 +174,20 @@ def test_failed_tries_the_other_strategy_only_where_nothing_passed(tmp_path, mon
     assert "other_strategy" not in record.extra
 
 
+@pytest.mark.sim
+def test_without_validation_only_a_pair_with_nothing_refined_tries_the_other_strategy(tmp_path, monkeypatch):
+    """With ``validate_sims: []`` a placement that refined holds everywhere there is to hold (merit level 4: no
+    trial can tell one pass's placement from another's), so 'not_robust' sends on only the pairs whose placements all
+    failed refinement."""
+    seen = _doubles(monkeypatch, fails=set())
+    record = _run(tmp_path / "refined", validate_sims=[])
+    assert seen["strategies"] == ["horizontal"] and "other_strategy" not in record.extra
+    assert record.attempt == 0 and record.steps["validation"].reason == "not_run"
+    seen = _doubles(monkeypatch, fails={"horizontal"})
+    record = _run(tmp_path / "none_refined", validate_sims=[])
+    assert seen["strategies"] == ["horizontal", "vertical"] and record.extra["other_strategy"]["kept"]
+
+
 def test_other_strategy_settings() -> None:
     assert SynthesisConfig().other_strategy == "not_robust"
     assert SynthesisConfig(other_strategy=True).other_strategy == "failed"  # the bool of datasets before 12-04
