@@ -107,7 +107,7 @@ def test_info_counts_the_pairs_that_tried_the_other_strategy(tmp_path, capsys):
             writer.add(record if note is None else replace(record, extra={"other_strategy": note}))
         writer.add(make_record("procedural/box/000", "shadow"))
     summary = summarize(open_dataset(tmp_path / "ds"))
-    assert summary.other == {  # shadow never went on: left out
+    assert summary.second_passes["other_strategy"] == {  # shadow never went on: left out
         "allegro": {"records": 4, "tried": 3, "kept": 1,
                     "reasons": {"contacts: no_graspable_width": 1, "held no better": 1}},
     }  # fmt: skip
@@ -115,25 +115,34 @@ def test_info_counts_the_pairs_that_tried_the_other_strategy(tmp_path, capsys):
     out = capsys.readouterr().out
     row = "allegro             tried 3 of 4, kept 1; not kept: contacts: no_graspable_width x1, held no better x1"
     assert row in out
-    assert summary.balanced == {} and "balanced" not in out
+    assert summary.second_passes["balanced_thumb"] == {} and "balanced" not in out
 
 
-def test_info_counts_the_pairs_that_tried_a_balanced_thumb(tmp_path, capsys):
+def test_info_counts_the_pairs_that_tried_a_balanced_thumb_or_a_lower_raise(tmp_path, capsys):
     from dataclasses import replace
 
     notes = [
-        {"first_attempt": 16, "kept": True},
-        {"first_attempt": 16, "kept": False,
-         "reason": "held no better: merit [2, 0.5] against the first contacts' [2, 0.75]"},
+        {"balanced_thumb": {"first_attempt": 16, "kept": True}},
+        {"balanced_thumb": {"first_attempt": 16, "kept": False,
+                            "reason": "held no better: merit [2, 0.5] against the first contacts' [2, 0.75]"},
+         "low_raise": {"kept": False, "reason": "contacts: none lower"}},
     ]  # fmt: skip
     with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
-        for i, note in enumerate(notes):
-            writer.add(replace(make_record(f"procedural/box/00{i}", "shadow"), extra={"balanced_thumb": note}))
+        for i, extra in enumerate(notes):
+            writer.add(replace(make_record(f"procedural/box/00{i}", "shadow"), extra=extra))
     summary = summarize(open_dataset(tmp_path / "ds"))
-    assert summary.other == {}
-    assert summary.balanced == {"shadow": {"records": 2, "tried": 2, "kept": 1, "reasons": {"held no better": 1}}}
+    assert summary.second_passes["other_strategy"] == {}
+    assert summary.second_passes["balanced_thumb"] == {
+        "shadow": {"records": 2, "tried": 2, "kept": 1, "reasons": {"held no better": 1}}
+    }
+    assert summary.second_passes["low_raise"] == {
+        "shadow": {"records": 2, "tried": 1, "kept": 0, "reasons": {"contacts: none lower": 1}}
+    }
     assert cli.main(["dataset", "info", str(tmp_path / "ds")]) == 0
     lines = capsys.readouterr().out.splitlines()
     at = lines.index("contacts with the thumb balancing the squeeze's torque (pairs that went on to it; why a second "
                      "pass was not kept):")  # fmt: skip
     assert lines[at + 1] == "  shadow              tried 2 of 2, kept 1; not kept: held no better x1"
+    at = lines.index("the kept contacts retargeted with a lower raise (pairs that went on to it; why a second pass was "
+                     "not kept):")  # fmt: skip
+    assert lines[at + 1] == "  shadow              tried 1 of 2, kept 0; not kept: contacts: none lower x1"

@@ -4,6 +4,7 @@ pass of contacts whose thumb balances the squeeze's torque too (``SynthesisConfi
 
 from __future__ import annotations
 
+import dataclasses
 import time
 
 import pytest
@@ -98,9 +99,10 @@ def _doubles(monkeypatch, *, fails: set[str], fragile: dict[str, int] | None = N
 
 
 def _run(tmp_path, **settings):
-    """The pipeline on :data:`OID` with the Allegro; the balanced thumb's pass only where ``settings`` ask for it."""
+    """The pipeline on :data:`OID` with the Allegro; the balanced thumb's and the lower raise's passes only where
+    ``settings`` ask for them."""
     library = {"sources": ["procedural"], "procedural_count": 1}
-    settings = {"balanced_thumb": "never", **settings}
+    settings = {"balanced_thumb": "never", "low_raise": "never", **settings}
     config = SynthesisConfig.model_validate({"library": library, "attempts": 3, "robust": ROBUST, **settings})
     run_synthesis([OID], ["allegro"], config, tmp_path / "ds")
     (record,) = open_dataset(tmp_path / "ds")
@@ -377,11 +379,84 @@ def test_no_balanced_thumb_pass_where_a_placement_is_robust_or_the_thumb_does_no
     assert record.extra["balanced_thumb"] == {"kept": False, "reason": "contacts: no_thumb_site"}
 
 
+def _raises(monkeypatch) -> list[float]:
+    """Each retargeting call's raise (``min_contact_height``, metres), in order; its placements' strategy in the
+    doubles' list gains ``+low`` where the raise is below the run's (:func:`_doubles` reads the last one)."""
+    from ges_core.synthesis.retarget.retargeter import GraspRetargeter
+
+    raises, real = [], GraspRetargeter.retarget_ranked
+
+    def ranked(self, *args, **kwargs):
+        raises.append(self.config.min_contact_height)
+        return real(self, *args, **kwargs)
+
+    monkeypatch.setattr(GraspRetargeter, "retarget_ranked", ranked)
+    return raises
+
+
+@pytest.mark.sim
+def test_where_no_placement_is_robust_the_kept_contacts_are_retargeted_with_a_lower_raise(tmp_path, monkeypatch):
+    """The can's side contacts lie partly below the 25 mm raise: the pass retargets the very contacts at 15 mm and
+    keeps its placement that holds better; the contacts' seconds are counted once."""
+    from ges_core.synthesis.run import worker
+
+    raises = _raises(monkeypatch)
+    real_generate = worker.generate_contacts
+
+    def slow(*args, **kwargs):  # contacts that take half a second
+        time.sleep(0.5)
+        return real_generate(*args, **kwargs)
+
+    monkeypatch.setattr(worker, "generate_contacts", slow)
+    seen = _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
+    real_trial = worker.run_trial
+
+    def trial(scenes, asset, grasp, pre, config, perturbation, limits):  # the lower raise's placements all hold
+        result = real_trial(scenes, asset, grasp, pre, config, perturbation, limits)
+        return dataclasses.replace(result, success=True, reason="success") if raises[-1] < 0.025 else result
+
+    monkeypatch.setattr(worker, "run_trial", trial)
+    record = _run(tmp_path, other_strategy="never", low_raise="not_robust")
+    assert 0.5 <= record.steps["contacts"].seconds < 1.0
+    assert raises == [0.025, 0.015] and seen["strategies"] == ["horizontal"]  # one generation, two retargetings
+    assert seen["contacts"][0][:, 2].min() < 0.025  # a contact the first raise moved up
+    assert [a.robust for a in record.attempts] == ["pose_2"] * 3 + ["ok"]
+    assert record.attempt == 3 and record.robust
+    assert record.extra["low_raise"] == {"first_attempt": 3, "kept": True}
+    assert (record.contacts.positions == seen["contacts"][0]).all()  # the same contacts
+
+
+@pytest.mark.sim
+def test_the_lower_raise_has_nothing_to_try_where_no_contact_lies_between_the_raises(tmp_path, monkeypatch):
+    raises = _raises(monkeypatch)
+    _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
+    record = _run(
+        tmp_path / "same", other_strategy="never", low_raise="not_robust", retarget={"low_raise_height": 0.03}
+    )
+    assert raises == [0.025] and len(record.attempts) == 3  # not lower than the run's raise: nothing to try
+    assert record.extra["low_raise"] == {"kept": False, "reason": "contacts: none lower"}
+    _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
+    record = _run(tmp_path / "never", other_strategy="never")
+    assert raises == [0.025, 0.025] and "low_raise" not in record.extra
+
+
 def test_balanced_thumb_settings() -> None:
     assert SynthesisConfig().balanced_thumb == "not_robust"
     assert SynthesisConfig().dump()["balanced_thumb"] == "not_robust"  # stored: a folder written without it is refused
     with pytest.raises(ValueError, match="'never' or 'not_robust'"):
         SynthesisConfig(balanced_thumb="always")
+
+
+def test_low_raise_settings() -> None:
+    config = SynthesisConfig()
+    assert (config.low_raise, config.retarget.low_raise_height) == ("not_robust", 0.015)
+    assert config.retarget.low_raise_height < config.retarget.min_contact_height
+    stored = config.dump()  # stored: a folder written without them is refused
+    assert stored["low_raise"] == "not_robust" and stored["retarget"]["low_raise_height"] == 0.015
+    shadow = SynthesisConfig(hand_settings={"shadow": {"retarget": {"low_raise_height": 0.02}}}).for_hand("shadow")
+    assert shadow.retarget.low_raise_height == 0.02  # per hand, like any step's setting
+    with pytest.raises(ValueError, match="greater than or equal to 0"):
+        SynthesisConfig(retarget={"low_raise_height": -0.01})
 
 
 @pytest.mark.sim
@@ -393,7 +468,7 @@ def test_the_balanced_thumb_pass_runs_for_real_where_no_placement_can_hold(tmp_p
     library = {"sources": ["procedural"], "procedural_count": 1}
     robust = {"limits_trial": False, "mass_scales": [100.0], "friction_floor": None, "pose_trials": 0}
     config = SynthesisConfig.model_validate(
-        {"library": library, "attempts": 2, "robust": robust, "other_strategy": "never"}
+        {"library": library, "attempts": 2, "robust": robust, "other_strategy": "never", "low_raise": "never"}
     )  # the default balanced_thumb: not_robust
     run_synthesis([OID], ["allegro"], config, tmp_path / "ds")
     (record,) = open_dataset(tmp_path / "ds")
@@ -405,3 +480,19 @@ def test_the_balanced_thumb_pass_runs_for_real_where_no_placement_can_hold(tmp_p
     ).contacts.positions  # fmt: skip
     assert (record.contacts.positions == first).all() != note["kept"]
     assert note["kept"] or note["reason"].startswith(("held no better", "refinement", "validation", "retargeting"))
+
+
+@pytest.mark.sim
+def test_the_lower_raise_pass_runs_for_real_where_no_placement_can_hold(tmp_path) -> None:
+    """No double: no placement holds the can at 100 times its mass, so after the first placements the pipeline
+    retargets the same contacts with the lower raise and takes those placements through the same steps."""
+    library = {"sources": ["procedural"], "procedural_count": 1}
+    robust = {"limits_trial": False, "mass_scales": [100.0], "friction_floor": None, "pose_trials": 0}
+    settings = {"attempts": 2, "robust": robust, "other_strategy": "never", "balanced_thumb": "never"}
+    config = SynthesisConfig.model_validate({"library": library, **settings})  # the default low_raise: not_robust
+    run_synthesis([OID], ["allegro"], config, tmp_path / "ds")
+    (record,) = open_dataset(tmp_path / "ds")
+    note = record.extra["low_raise"]
+    assert not record.robust and note["first_attempt"] == 2 and len(record.attempts) == 4
+    assert note["kept"] or note["reason"].startswith(("held no better", "refinement", "validation", "retargeting"))
+    assert record.steps["retargeting"].ok

@@ -258,7 +258,14 @@ def test_thumb_keep_reaches_every_step(tmp_path, monkeypatch):
     monkeypatch.setattr(worker, "pregrasp", spy("pregrasp", worker.pregrasp))
     library = {"sources": ["procedural"], "procedural_count": 1}
     config = SynthesisConfig.model_validate(
-        {"library": library, "validate_sims": [], "attempts": 1, "thumb_keep": 1, "balanced_thumb": "never"}
+        {
+            "library": library,
+            "validate_sims": [],
+            "attempts": 1,
+            "thumb_keep": 1,
+            "balanced_thumb": "never",
+            "low_raise": "never",
+        }
     )  # one pass: the balanced thumb's would refine a second time
     run_synthesis(["procedural/cube/000"], ["allegro"], config, tmp_path / "ds")
     assert seen == {"retarget": [1], "refine": [1], "pregrasp": [1]}
@@ -309,6 +316,7 @@ def test_a_failed_attempt_moves_on_to_the_next_wrist_placement(tmp_path, monkeyp
             "validate_sims": ["sapien"] if failing == "validation" else [],
             "attempts": attempts,
             "balanced_thumb": "never",  # the attempts of one set of contacts
+            "low_raise": "never",
         }
     )
     oid = "procedural/cube/000"
@@ -417,6 +425,7 @@ def test_retry_goes_on_until_a_placement_holds_in_every_engine(tmp_path, monkeyp
             "attempts": 3,
             "robust": {"enabled": robust},
             "balanced_thumb": "never",  # the attempts of one set of contacts
+            "low_raise": "never",
         }
     )
     run_synthesis(["procedural/cube/000"], ["allegro"], config, tmp_path / "ds")

@@ -104,7 +104,13 @@ def test_the_rest_check_runs_once_per_object_and_counts_in_refinement(tmp_path, 
     monkeypatch.setattr(worker, "refine_verdict", lambda *args, **kwargs: "few_contacts")  # every placement fails
     library = {"sources": ["procedural"], "procedural_count": 1}
     config = SynthesisConfig.model_validate(
-        {"library": library, "validate_sims": ["sapien"], "attempts": 3, "balanced_thumb": "never"}
+        {
+            "library": library,
+            "validate_sims": ["sapien"],
+            "attempts": 3,
+            "balanced_thumb": "never",
+            "low_raise": "never",
+        }
     )  # one set of contacts' three placements (the balanced thumb's pass would refine three more)
     run_synthesis([OID], ["allegro"], config, tmp_path / "ds")
     (record,) = open_dataset(tmp_path / "ds")

@@ -10,6 +10,7 @@ from __future__ import annotations
 from ges_core.dataset.layout import DATASET_FORMAT, DATASET_VERSION, record_relpath
 from ges_core.dataset.record import (
     HELD_NO_BETTER,
+    NONE_LOWER,
     NOT_RUN,
     SAME_CONTACTS,
     SKIPPED,
@@ -33,6 +34,7 @@ __all__ = [
     "DATASET_FORMAT",
     "DATASET_VERSION",
     "HELD_NO_BETTER",
+    "NONE_LOWER",
     "NOT_RUN",
     "SAME_CONTACTS",
     "SKIPPED",

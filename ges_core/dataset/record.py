@@ -77,6 +77,9 @@ NOT_RUN = "not_run"
 HELD_NO_BETTER = "held no better"
 """How ``extra["other_strategy"]["reason"]`` begins when the Stage 1 pipeline's second strategy passed but was not
 kept (its chosen placement held no better than the first strategy's; docs/synthesis/pipeline.md)."""
+NONE_LOWER = "none lower"
+"""Why ``extra["low_raise"]`` was not kept when no contact lies between the run's raise and the lower one (the lower
+raise would aim every fingertip where the first pass did): its reason is ``contacts: none lower``."""
 SAME_CONTACTS = "same contacts"
 """Why ``extra["balanced_thumb"]`` was not kept when the balanced thumb's contacts are the first contacts (the torque
 rule moved no contact), so there was nothing to retarget: its reason is ``contacts: same contacts``."""

@@ -102,11 +102,9 @@ class DatasetSummary:
     """Per hand and validating simulator: single-trial and robust counts (:func:`sim_stats`)."""
     agreement: dict[str, dict] = field(default_factory=dict)
     """Per hand, cross-engine agreement (:func:`agreement`)."""
-    other: dict[str, dict] = field(default_factory=dict)
-    """Per hand, the pairs that tried the other grasp strategy (:func:`second_pass_stats`)."""
-    balanced: dict[str, dict] = field(default_factory=dict)
-    """Per hand, the pairs that tried contacts with a balanced thumb (:func:`second_pass_stats` of
-    ``"balanced_thumb"``)."""
+    second_passes: dict[str, dict[str, dict]] = field(default_factory=dict)
+    """Per second pass (:data:`SECOND_PASSES`' keys), per hand, the pairs that went on to it
+    (:func:`second_pass_stats`)."""
 
     def format(self) -> str:
         """Human-readable text, one table row per group."""
@@ -121,7 +119,7 @@ class DatasetSummary:
         lines += [_row(g) for g in self.groups]
         lines.append("failure reasons per step (each record counted at its first failed step):")
         lines += [f"  {g.label:<20}{format_failures(g.failures)}" for g in self.groups]
-        for key, stats in (("other_strategy", self.other), ("balanced_thumb", self.balanced)):
+        for key, stats in self.second_passes.items():
             lines += format_second_pass(stats, key)
         if self.sims:
             lines += ["", format_sim_stats(self.sims, self.agreement)]
@@ -161,21 +159,21 @@ def summarize(dataset: Dataset) -> DatasetSummary:
         dataset.notes,
         sim_stats(records),
         agreement(records),
-        second_pass_stats(records, "other_strategy"),
-        second_pass_stats(records, "balanced_thumb"),
+        {key: second_pass_stats(records, key) for key in SECOND_PASSES},
     )
 
 
 SECOND_PASSES = {
     "other_strategy": "the other grasp strategy",
     "balanced_thumb": "contacts with the thumb balancing the squeeze's torque",
+    "low_raise": "the kept contacts retargeted with a lower raise",
 }
 """The Stage 1 pipeline's second passes by the ``extra`` key of their note, and what each tried."""
 
 
 def second_pass_stats(records: Iterable[GraspRecord], key: str) -> dict[str, dict]:
     """Per hand, over the records whose pair went on to a second pass (``extra[key]``, the Stage 1 pipeline's note:
-    ``other_strategy`` or ``balanced_thumb``, :data:`SECOND_PASSES`): ``{"records", "tried", "kept", "reasons"}``,
+    a key of :data:`SECOND_PASSES`): ``{"records", "tried", "kept", "reasons"}``,
     ``reasons`` counting why a second pass was not kept (``step: reason``; "held no better" without its figures).
     Hands with no such record are left out."""
     out: dict[str, dict] = {}

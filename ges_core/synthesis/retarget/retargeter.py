@@ -78,6 +78,12 @@ class RetargetConfig(ConfigModel):
     min_contact_height: float = Field(
         0.025, ge=0, description="metres: a contact lower than this above the table (z = 0) is raised to it first"
     )
+    low_raise_height: float = Field(
+        0.015,
+        ge=0,
+        description="metres: min_contact_height of the Stage 1 pipeline's low_raise pass (SynthesisConfig.low_raise); "
+        "where it is not below min_contact_height the pass has nothing to try",
+    )
     init_closure: float = Field(
         0.0, ge=0, le=1, description="start of the joint solve: this fraction of the way open -> closed_pose()"
     )

@@ -28,6 +28,7 @@ import numpy as np
 
 from ges_core.dataset import (
     HELD_NO_BETTER,
+    NONE_LOWER,
     NOT_RUN,
     SAME_CONTACTS,
     AttemptVerdict,
@@ -51,7 +52,7 @@ from ges_core.synthesis.physics.robust import (
 )
 from ges_core.synthesis.physics.scene import TrialScenes
 from ges_core.synthesis.physics.validate import validate_grasp
-from ges_core.synthesis.retarget.retargeter import GraspRetargeter
+from ges_core.synthesis.retarget.retargeter import GraspRetargeter, raise_contacts
 from ges_core.synthesis.retarget.search import ObjectCloud
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.run.records import ObjectWork, PairResult, build_record, contacts_from_record
@@ -111,11 +112,20 @@ class _State:
             self.configs[name] = self.context.config.for_hand(name, self.hand(name).description.settings)
         return self.configs[name]
 
-    def retargeter(self, name: str) -> GraspRetargeter:
-        if name not in self.retargeters:
+    def retargeter(self, name: str, *, low_raise: bool = False) -> GraspRetargeter:
+        """Hand ``name``'s retargeter; ``low_raise``: the one whose raise is ``retarget.low_raise_height`` (the same
+        kinematics)."""
+        key = (name, low_raise)
+        if key not in self.retargeters:
             cfg = self.config(name)
-            self.retargeters[name] = GraspRetargeter(self.hand(name), cfg.retarget, thumb_keep=cfg.thumb_keep)
-        return self.retargeters[name]
+            settings, kinematics = cfg.retarget, None
+            if low_raise:
+                settings = settings.model_copy(update={"min_contact_height": settings.low_raise_height})
+                kinematics = self.retargeter(name).kinematics
+            self.retargeters[key] = GraspRetargeter(
+                self.hand(name), settings, kinematics=kinematics, thumb_keep=cfg.thumb_keep
+            )
+        return self.retargeters[key]
 
 
 def _state(context: RunContext) -> _State:
@@ -196,13 +206,15 @@ def _contacts(
 
 
 # -- step 2: retargeting (one batch per hand and chunk) ----------------------------------------
-def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[list[Grasp] | SynthesisError | None]:
+def _retarget(
+    state: _State, hand: str, works: Sequence[ObjectWork], retargeter: GraspRetargeter | None = None
+) -> list[list[Grasp] | SynthesisError | None]:
     """One result per work: its grasps best first (the attempts of :func:`_attempts`), a SynthesisError,
-    or None (no contacts to retarget)."""
+    or None (no contacts to retarget); by ``retargeter``, else the hand's."""
     ready = [i for i, w in enumerate(works) if w.result is not None]
     out: list = [None] * len(works)
     if ready:
-        solved = state.retargeter(hand).retarget_ranked(
+        solved = (retargeter or state.retargeter(hand)).retarget_ranked(
             [works[i].result.contacts for i in ready],
             [works[i].cloud for i in ready],
             keep=state.context.config.attempts,
@@ -215,8 +227,9 @@ def _retarget(state: _State, hand: str, works: Sequence[ObjectWork]) -> list[lis
 # -- steps 3-5: refinement, pre-grasp, validation ---------------------------------------------
 def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> GraspRecord:
     """The record of ``(work.object_id, hand)``: steps 3-5 on ``result`` (the retargeted placements), and on the
-    other strategy's placements and then a balanced thumb's too when these fell short (:func:`_wants_other_strategy`,
-    :func:`_wants_balanced_thumb`, :func:`_second_pass`)."""
+    other strategy's placements, then a balanced thumb's, then the kept contacts' with a lower raise, each when the
+    passes before fell short (:func:`_wants_other_strategy`, :func:`_wants_balanced_thumb`, :func:`_wants_low_raise`,
+    :func:`_second_pass`)."""
     pair = _pair(state, sims, hand, work, result)
     notes: dict[str, dict] = {}
     if _wants_other_strategy(state, hand, work, pair):
@@ -234,6 +247,15 @@ def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> 
         else:
             work, pair, notes["balanced_thumb"] = _second_pass(
                 state, sims, hand, work, pair, other, "the first contacts'"
+            )
+    if _wants_low_raise(state, hand, work, pair):
+        low = state.retargeter(hand, low_raise=True)
+        if _raised_alike(state.retargeter(hand), low, work):  # no contact the lower raise would place lower
+            notes["low_raise"] = {"kept": False, "reason": f"contacts: {NONE_LOWER}"}
+        else:
+            again = replace(work, step=replace(work.step, seconds=0.0))  # the same contacts: their time counted once
+            work, pair, notes["low_raise"] = _second_pass(
+                state, sims, hand, work, pair, again, "the raised contacts'", retargeter=low
             )
     record = build_record(state, hand, work, pair)
     return replace(record, extra={**record.extra, **notes}) if notes else record
@@ -274,6 +296,27 @@ def _wants_balanced_thumb(state: _State, hand: str, work: ObjectWork, pair: Pair
     return _may_do_better(state, cfg, work, pair, fragile_too=bool(cfg.validate_sims))
 
 
+def _wants_low_raise(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
+    """Whether the pair's kept contacts are retargeted again with a lower raise (``low_raise`` 'not_robust',
+    :func:`_may_do_better` as for the balanced thumb)."""
+    cfg = state.config(hand)
+    if cfg.low_raise == "never":
+        return False
+    return _may_do_better(state, cfg, work, pair, fragile_too=bool(cfg.validate_sims))
+
+
+def _raised_alike(raised: GraspRetargeter, low: GraspRetargeter, work: ObjectWork) -> bool:
+    """Whether ``work``'s contacts aim both retargeters' fingertips at the same points (no contact between the two
+    raises' heights; or the "lower" raise is not lower)."""
+    if low.config.min_contact_height >= raised.config.min_contact_height:
+        return True
+    positions = work.result.contacts.positions[None]
+    return np.array_equal(
+        raise_contacts(positions, raised.config.min_contact_height),
+        raise_contacts(positions, low.config.min_contact_height),
+    )
+
+
 def _may_do_better(state: _State, cfg, work: ObjectWork, pair: PairResult, *, fragile_too: bool) -> bool:
     """Whether a second pass of other contacts could give the pair a better placement: contacts were generated here
     (not taken from a stored record), the object rests in the refining engine, and no placement passed refinement
@@ -310,15 +353,23 @@ def _with_contact_seconds(pair: PairResult, seconds: float | None) -> PairResult
 
 
 def _second_pass(
-    state: _State, sims: _Sims, hand: str, work: ObjectWork, first: PairResult, other: ObjectWork, first_name: str
+    state: _State,
+    sims: _Sims,
+    hand: str,
+    work: ObjectWork,
+    first: PairResult,
+    other: ObjectWork,
+    first_name: str,
+    retargeter: GraspRetargeter | None = None,
 ) -> tuple[ObjectWork, PairResult, dict]:
-    """``other``'s contacts (another strategy's, or a balanced thumb's) retargeted and taken through steps 3-5 like
-    ``work``'s. Returns the work and pass kept (``other``'s when its chosen placement held better,
-    :attr:`PairResult.merit`, else ``work``'s; its ``attempts`` list both passes' placements, the first's first, and
-    every step's seconds are the two passes' sums) and the note the record keeps: ``first_attempt`` (the index of
-    the second pass's first attempt), ``kept``, ``reason`` when not kept (:func:`_why_not_kept`, which names the
-    first pass ``first_name``)."""
-    second = _pair(state, sims, hand, other, _retarget(state, hand, [other])[0] if other.result else None)
+    """``other``'s contacts (another strategy's, a balanced thumb's, or ``work``'s own) retargeted (by
+    ``retargeter``, else the hand's) and taken through steps 3-5 like ``work``'s. Returns the work and pass kept
+    (``other``'s when its chosen placement held better, :attr:`PairResult.merit`, else ``work``'s; its ``attempts``
+    list both passes' placements, the first's first, and every step's seconds are the two passes' sums) and the
+    note the record keeps: ``first_attempt`` (the index of the second pass's first attempt), ``kept``, ``reason``
+    when not kept (:func:`_why_not_kept`, which names the first pass ``first_name``)."""
+    solved = _retarget(state, hand, [other], retargeter)[0] if other.result else None
+    second = _pair(state, sims, hand, other, solved)
     kept = second.merit > first.merit
     pair = replace(_joined(first, second, kept), setup_seconds=sims.setup_seconds())  # every backend of both passes
     note = {"first_attempt": len(first.attempts), "kept": kept}
