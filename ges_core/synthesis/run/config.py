@@ -82,7 +82,7 @@ class SynthesisConfig(ConfigModel):
     )
 
     # low_raise: retargeting raises every contact below retarget.min_contact_height (25 mm) to it, so a fingertip on
-    # a side wall keeps its pad off the table. On low, rounded objects lying down (a marker, a rod, a hammer's
+    # a side wall keeps its pad off the table. On low, rounded objects lying down (a marker, a rod, the YCB hammer's
     # handle) that puts the pads on top of the object, where they push it into the table. A lower raise as the run's
     # setting won some objects and lost more (the Shadow at 15 mm on 916 library objects: robust 766 -> 739,
     # docs/synthesis/retargeting.md); as a last pass where no placement held every trial, the better pass is kept,
