@@ -396,8 +396,8 @@ def _raises(monkeypatch) -> list[float]:
 
 @pytest.mark.sim
 def test_where_no_placement_is_robust_the_kept_contacts_are_retargeted_with_a_lower_raise(tmp_path, monkeypatch):
-    """The can's side contacts lie partly below the 25 mm raise: the pass retargets the very contacts at 15 mm and
-    keeps its placement that holds better; the contacts' seconds are counted once."""
+    """The can's side contacts lie partly below the 25 mm raise: the pass retargets the very contacts at 20 mm (the
+    Allegro's own height) and keeps its placement that holds better; the contacts' seconds are counted once."""
     from ges_core.synthesis.run import worker
 
     raises = _raises(monkeypatch)
@@ -418,7 +418,7 @@ def test_where_no_placement_is_robust_the_kept_contacts_are_retargeted_with_a_lo
     monkeypatch.setattr(worker, "run_trial", trial)
     record = _run(tmp_path, other_strategy="never", low_raise="not_robust")
     assert 0.5 <= record.steps["contacts"].seconds < 1.0
-    assert raises == [0.025, 0.015] and seen["strategies"] == ["horizontal"]  # one generation, two retargetings
+    assert raises == [0.025, 0.02] and seen["strategies"] == ["horizontal"]  # one generation, two retargetings
     assert seen["contacts"][0][:, 2].min() < 0.025  # a contact the first raise moved up
     assert [a.robust for a in record.attempts] == ["pose_2"] * 3 + ["ok"]
     assert record.attempt == 3 and record.robust
@@ -426,13 +426,15 @@ def test_where_no_placement_is_robust_the_kept_contacts_are_retargeted_with_a_lo
     assert (record.contacts.positions == seen["contacts"][0]).all()  # the same contacts
 
 
+HIGHER = {"allegro": {"retarget": {"low_raise_height": 0.03}}}
+"""A "lower" raise above the run's 25 mm (per hand: it wins over the hand's own YAML)."""
+
+
 @pytest.mark.sim
 def test_the_lower_raise_has_nothing_to_try_where_no_contact_lies_between_the_raises(tmp_path, monkeypatch):
     raises = _raises(monkeypatch)
     _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
-    record = _run(
-        tmp_path / "same", other_strategy="never", low_raise="not_robust", retarget={"low_raise_height": 0.03}
-    )
+    record = _run(tmp_path / "same", other_strategy="never", low_raise="not_robust", hand_settings=HIGHER)
     assert raises == [0.025] and len(record.attempts) == 3  # not lower than the run's raise: nothing to try
     assert record.extra["low_raise"] == {"kept": False, "reason": "contacts: none lower"}
     _doubles(monkeypatch, fails=set(), fragile={"horizontal": 1})
@@ -457,6 +459,18 @@ def test_low_raise_settings() -> None:
     assert shadow.retarget.low_raise_height == 0.02  # per hand, like any step's setting
     with pytest.raises(ValueError, match="greater than or equal to 0"):
         SynthesisConfig(retarget={"low_raise_height": -0.01})
+
+
+def test_the_built_in_hands_lower_raise_heights() -> None:
+    """The Allegro's YAML sets its own height (its 12 mm fingertips); the Shadow runs the default."""
+    from ges_core.registry import load_registry
+
+    registry = load_registry()
+    heights = {
+        name: SynthesisConfig().for_hand(name, registry.build_hand(name).description.settings).retarget.low_raise_height
+        for name in ("allegro", "shadow")
+    }
+    assert heights == {"allegro": 0.02, "shadow": 0.015}
 
 
 @pytest.mark.sim
