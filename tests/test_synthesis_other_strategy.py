@@ -380,8 +380,8 @@ def test_no_balanced_thumb_pass_where_a_placement_is_robust_or_the_thumb_does_no
 
 
 def _raises(monkeypatch) -> list[float]:
-    """Each retargeting call's raise (``min_contact_height``, metres), in order; its placements' strategy in the
-    doubles' list gains ``+low`` where the raise is below the run's (:func:`_doubles` reads the last one)."""
+    """Each retargeting call's raise (``min_contact_height``, metres), in order, read from the retargeter that
+    solves it."""
     from ges_core.synthesis.retarget.retargeter import GraspRetargeter
 
     raises, real = [], GraspRetargeter.retarget_ranked
