@@ -344,11 +344,10 @@ def _no_new_contacts(work: ObjectWork, other: ObjectWork) -> str:
     return ""
 
 
-def _with_contact_seconds(pair: PairResult, seconds: float | None) -> PairResult:
-    """``pair`` with ``seconds`` more in its contact step (another set of contacts generated and not used)."""
+def _with_contact_seconds(pair: PairResult, seconds: float) -> PairResult:
+    """``pair`` with ``seconds`` more in its contact step (another set of contacts generated and not used; both are
+    timed here, never None)."""
     step = pair.steps["contacts"]
-    if seconds is None or step.seconds is None:
-        return pair
     return replace(pair, steps={**pair.steps, "contacts": replace(step, seconds=step.seconds + seconds)})
 
 
