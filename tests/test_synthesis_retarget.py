@@ -627,3 +627,41 @@ def test_object_cloud_keeps_the_hand_body_out_of_the_object(hands, kins):
         depth[with_cloud] = float(sum((x**2).sum() for x in inside))
     print(f"{name}: body depth^2 sum without cloud {depth[False]:.2e}, with {depth[True]:.2e}")
     assert depth[False] > 1e-5 and depth[True] < 0.5 * depth[False], depth
+
+
+def _press_score(hand: HandModel, grasp: Grasp, contacts: ContactSet) -> float:
+    """press_alignment of one grasp, computed apart: its own joints and wrist pose, the Jacobian path's fingertips."""
+    from ges_core.synthesis.physics.squeeze import press_directions, tips_and_jacobians
+
+    d = hand.description
+    tips, _ = tips_and_jacobians(hand, d.apply_couplings(grasp.q))
+    u = press_directions(d, tips)
+    rotation = pose_to_matrix(grasp.wrist_pose)[:3, :3]  # base frame -> object frame
+    names = [f.name for f in d.fingers]
+    first_slot = {}
+    for s, slot in enumerate(FINGER_SLOTS):
+        first_slot.setdefault(names.index(d.finger_for_slot(slot).name), s)
+    cos = [float((rotation @ u[f]) @ -contacts.normals[first_slot[f]]) for f in range(len(names))]
+    thumb = names.index(d.finger_for_slot("thumb").name)
+    return min(cos[thumb], float(np.mean([c for f, c in enumerate(cos) if f != thumb])))
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_press_order_ranks_the_same_placements_by_press_alignment(hands, kins, retargeters, name):
+    fit = retargeters[name]
+    press = GraspRetargeter(
+        hands[name], fit.config.model_copy(update={"placement_order": "press"}), kinematics=kins[name]
+    )
+    contacts = box_contact_sets()
+    by_fit, by_press = fit.retarget_ranked(contacts, keep=6), press.retarget_ranked(contacts, keep=6)
+    reordered = 0
+    for c, a, b in zip(contacts, by_fit, by_press, strict=True):
+        placements = [tuple(np.round(g.wrist_pose, 9)) for g in a], [tuple(np.round(g.wrist_pose, 9)) for g in b]
+        assert sorted(placements[0]) == sorted(placements[1])  # the same placements, the same joints
+        score = [_press_score(hands[name], g, c) for g in b]
+        assert all(x >= y - 1e-9 for x, y in zip(score, score[1:], strict=False)), score
+        reordered += placements[0] != placements[1]
+    assert reordered  # the order moved on some contact set: the setting is read
+    one = press.retarget_ranked(contacts, keep=1)  # a single placement is the fit's best
+    for a, b in zip(by_fit, one, strict=True):
+        np.testing.assert_allclose(a[0].wrist_pose, b[0].wrist_pose, atol=1e-12)
