@@ -665,3 +665,11 @@ def test_press_order_ranks_the_same_placements_by_press_alignment(hands, kins, r
     one = press.retarget_ranked(contacts, keep=1)  # a single placement is the fit's best
     for a, b in zip(by_fit, one, strict=True):
         np.testing.assert_allclose(a[0].wrist_pose, b[0].wrist_pose, atol=1e-12)
+
+
+def test_the_placement_order_is_stored_only_when_set():
+    """Added after datasets were written (in the fit order): a config at the default stores what it stored before."""
+    from ges_core.config import stored_dump
+
+    assert "placement_order" not in stored_dump(RetargetConfig())
+    assert stored_dump(RetargetConfig(placement_order="press"))["placement_order"] == "press"

@@ -24,7 +24,7 @@ import torch
 from pydantic import Field
 
 from ges_core.collision_points import collision_points
-from ges_core.config import ConfigModel
+from ges_core.config import STORED_WHEN_SET, ConfigModel
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
@@ -105,6 +105,7 @@ class RetargetConfig(ConfigModel):
         description="order of the ranked wrist placements: fit (lowest retargeting objective first) or press (the same "
         "placements, the squeeze pushing most squarely into its contacts first: ges_core.synthesis.physics.squeeze."
         "press_alignment; the fit breaks ties)",
+        json_schema_extra=STORED_WHEN_SET,  # datasets written before it (fit order) still match their configs
     )
     solver: VectorRetargetConfig = Field(default_factory=VectorRetargetConfig)
     wrist_search: WristSearchConfig = Field(default_factory=WristSearchConfig)
