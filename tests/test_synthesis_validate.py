@@ -12,14 +12,13 @@ import torch
 from test_synthesis_refine import DOWN, REGISTRY, SIMS, ExplodingBackend, box_object, top_grasp
 
 from ges_core.config import parse_model
-from ges_core.contact import FINGER_SLOTS
 from ges_core.errors import ConfigError
 from ges_core.kinematics import HandKinematics
 from ges_core.sim import SceneConfig
 from ges_core.synthesis.physics.pregrasp import pregrasp
 from ges_core.synthesis.physics.refine import refine_grasp, refine_verdict
 from ges_core.synthesis.physics.scene import tip_rule
-from ges_core.synthesis.physics.squeeze import press_alignment, press_directions, squeeze_targets, tips_and_jacobians
+from ges_core.synthesis.physics.squeeze import press_directions, squeeze_targets
 from ges_core.synthesis.physics.validate import (
     HoldRecord,
     ValidateConfig,
@@ -484,50 +483,3 @@ def test_an_early_verdict_is_the_full_holds_verdict_in_the_engines(allegro, sim_
         assert shorter >= 1  # at least one control was settled before the end of the hold
         assert lost >= 1  # and one (the single finger) was lost during the lift
         assert read_less >= 2  # the good grasp and a control
-
-
-def _slot_fingers(d) -> list[int]:
-    """Per contact slot, the position in ``d.fingers`` of the finger serving it (read from the slot, not the order)."""
-    names = [f.name for f in d.fingers]
-    return [names.index(d.finger_for_slot(slot).name) for slot in FINGER_SLOTS]
-
-
-def test_press_directions_of_a_batch_are_those_of_each_row():
-    d = REGISTRY.build_hand("shadow").description
-    tips = np.random.default_rng(3).normal(scale=0.05, size=(4, len(d.fingers), 3))
-    batch = press_directions(d, tips)
-    for row, got in zip(tips, batch, strict=True):
-        np.testing.assert_allclose(got, press_directions(d, row), atol=1e-15)
-
-
-@pytest.mark.parametrize("name", ["allegro", "shadow"])
-def test_press_alignment_scores_each_finger_against_the_contact_it_serves(name):
-    """Contacts facing each finger's push score 1; the thumb's turned back -1; one finger's turned square to its push
-    costs that finger's share of the fingers' mean. The tips come from the Jacobian path (tips_and_jacobians), the
-    score from a forward-kinematics pass of the fingertips alone."""
-    hand = REGISTRY.build_hand(name)
-    d = hand.description
-    q = d.apply_couplings(d.closed_pose(0.5))
-    tips, _ = tips_and_jacobians(hand, q)
-    u = press_directions(d, tips)  # (F, 3)
-    serving = _slot_fingers(d)
-    facing = np.stack([-u[f] for f in serving])[None]  # (1, 5, 3): every contact's outward normal against its push
-    assert press_alignment(hand, q[None], facing)[0] == pytest.approx(1.0)
-    back = facing.copy()
-    back[0, 0] *= -1.0  # slot 0: the thumb's
-    assert press_alignment(hand, q[None], back)[0] == pytest.approx(-1.0)
-    index = serving[1]
-    square = np.cross(u[index], [0.0, 0.0, 1.0])
-    turned = facing.copy()
-    turned[0, 1] = square / np.linalg.norm(square)
-    assert press_alignment(hand, q[None], turned)[0] == pytest.approx(1.0 - 1.0 / (len(d.fingers) - 1))
-    # a finger serving two slots reads its first: the Allegro's ring serves ring and little
-    little = facing.copy()
-    little[0, 4] *= -1.0
-    shared = serving[4] == serving[3]
-    expected = 1.0 if shared else 1.0 - 2.0 / (len(d.fingers) - 1)
-    assert press_alignment(hand, q[None], little)[0] == pytest.approx(expected)
-    assert shared == (name == "allegro")
-    # rows of a batch are scored apart
-    both = press_alignment(hand, np.stack([q, q]), np.concatenate([facing, back]))
-    np.testing.assert_allclose(both, [1.0, -1.0], atol=1e-12)

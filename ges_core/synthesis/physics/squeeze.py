@@ -23,7 +23,6 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-from ges_core.contact import FINGER_SLOTS
 from ges_core.hand import HandDescription, HandModel
 from ges_core.kinematics import shared_kinematics
 
@@ -32,7 +31,6 @@ __all__ = [
     "MAX_SQUEEZE",
     "MIN_SQUEEZE",
     "SQUEEZE_FORCE",
-    "press_alignment",
     "press_directions",
     "press_torques",
     "retract_joints",
@@ -106,48 +104,17 @@ def press_torques(hand: HandModel, q: np.ndarray) -> np.ndarray:
 
 
 def press_directions(d: HandDescription, tips: np.ndarray) -> np.ndarray:
-    """(..., F, 3) unit directions each fingertip presses: thumb -> mean of the other tips, others -> thumb tip.
+    """(F, 3) unit directions each fingertip presses: thumb -> mean of the other tips, others -> thumb tip.
 
-    tips: (..., F, 3) fingertip points in one frame, ``d.fingers`` order. A finger at its target's spot gets 0.
+    tips: (F, 3) fingertip points in one frame, ``d.fingers`` order. A finger at its target's spot gets 0.
     """
-    tips = np.asarray(tips, dtype=np.float64)
-    thumb = _thumb_index(d)
-    others = np.delete(np.arange(tips.shape[-2]), thumb)
-    aims = np.repeat(tips[..., thumb : thumb + 1, :], tips.shape[-2], axis=-2)
-    aims[..., thumb, :] = tips[..., others, :].mean(axis=-2)
+    thumb = [f.name for f in d.fingers].index(d.finger_for_slot("thumb").name)
+    others = np.delete(np.arange(len(tips)), thumb)
+    aims = np.repeat(tips[thumb][None], len(tips), axis=0)
+    aims[thumb] = tips[others].mean(axis=0)
     u = aims - tips
-    norm = np.linalg.norm(u, axis=-1, keepdims=True)
+    norm = np.linalg.norm(u, axis=1, keepdims=True)
     return np.divide(u, norm, out=np.zeros_like(u), where=norm > 1e-9)
-
-
-def press_alignment(hand: HandModel, q: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """(P,) how squarely the squeeze pushes into the contacts at joints ``q`` (P, K), in [-1, 1].
-
-    Per finger, the cosine between its press direction (:func:`press_directions`) and the inward normal of the
-    contact it serves (``normals`` (P, 5, 3): outward, FINGER_SLOTS order, the hand's base frame; a finger serving
-    two slots, the Allegro's ring, reads its first); the score is the lower of the thumb's cosine and the other
-    fingers' mean. 1: every tip pushes straight into its contact; lower: the squeeze pushes across the contacts
-    and slides them (retargeting's ``placement_order: press``, docs/synthesis/retargeting.md). Couplings are
-    applied to ``q`` first; only the fingertips' positions are needed (one forward-kinematics pass).
-    """
-    d = hand.description
-    q = d.apply_couplings(np.asarray(q, dtype=np.float64))
-    offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
-    tips = shared_kinematics(hand).points(torch.as_tensor(q), list(d.tip_links), offsets).numpy()  # (P, F, 3)
-    names = [f.name for f in d.fingers]
-    served = {}
-    for s, slot in enumerate(FINGER_SLOTS):
-        served.setdefault(d.finger_for_slot(slot).name, s)
-    inward = -np.asarray(normals, dtype=np.float64)[:, [served[n] for n in names]]  # (P, F, 3)
-    cos = np.einsum("pfi,pfi->pf", press_directions(d, tips), inward)
-    thumb = _thumb_index(d)
-    others = np.delete(np.arange(len(names)), thumb)
-    return np.minimum(cos[:, thumb], cos[:, others].mean(axis=1))
-
-
-def _thumb_index(d: HandDescription) -> int:
-    """Position of the thumb in ``d.fingers``."""
-    return [f.name for f in d.fingers].index(d.finger_for_slot("thumb").name)
 
 
 def retract_joints(

@@ -17,21 +17,19 @@ from __future__ import annotations
 
 import time
 from collections.abc import Sequence
-from typing import Literal
 
 import numpy as np
 import torch
 from pydantic import Field
 
 from ges_core.collision_points import collision_points
-from ges_core.config import STORED_WHEN_SET, ConfigModel
+from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
 from ges_core.hand_prep.engine_urdf import engine_urdf
 from ges_core.kinematics import HandKinematics
 from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, open_joint_mask
-from ges_core.synthesis.physics.squeeze import press_alignment
 from ges_core.synthesis.retarget.search import (
     ObjectCloud,
     WristSearchConfig,
@@ -94,18 +92,6 @@ class RetargetConfig(ConfigModel):
         gt=0,
         description="metres: mean fingertip-to-aim distance (a contact, or the mean of the contacts one finger "
         "serves) up to which meta['reached'] is True",
-    )
-    # The order of the ranked placements (the Stage 1 pipeline's attempts). On 135 library, demo and real objects
-    # (SAPIEN, the first 8 placements of each taken through refinement, validation and the perturbation trials;
-    # docs/synthesis/retargeting.md, "The order of the placements") the Shadow's placements held every trial about
-    # equally often at every rank of the fit (22-37 %), and ordered by press alignment its first robust placement came
-    # sooner (mean placements tried until it 2.8 -> 2.4); the Allegro's fit order was the better one (1.4 against 2.3).
-    placement_order: Literal["fit", "press"] = Field(
-        "fit",
-        description="order of the ranked wrist placements: fit (lowest retargeting objective first) or press (the same "
-        "placements, the squeeze pushing most squarely into its contacts first: ges_core.synthesis.physics.squeeze."
-        "press_alignment; the fit breaks ties)",
-        json_schema_extra=STORED_WHEN_SET,  # datasets written before it (fit order) still match their configs
     )
     solver: VectorRetargetConfig = Field(default_factory=VectorRetargetConfig)
     wrist_search: WristSearchConfig = Field(default_factory=WristSearchConfig)
@@ -246,26 +232,11 @@ class GraspRetargeter:
             [g * m + k for k in distinct_ranking(cost[g], wrists[g], reached[g], keep, c.wrist_search)]
             for g in range(b)
         ]
-        if c.placement_order == "press":
-            picks = self._by_press(picks, q.numpy(), normals_base.numpy(), reached.reshape(-1))
         rows = torch.as_tensor([r for p in picks for r in p])
         tip_err = (self.solver.fingertips(q[rows]) - targets[rows]).norm(dim=-1).numpy()
         err_of = dict(zip(rows.tolist(), tip_err, strict=True))
         q_np, residual_np = q.numpy(), residual.numpy()
         return [[(base[r], q_np[r], float(residual_np[r]), err_of[r]) for r in p] for p in picks]
-
-    def _by_press(
-        self, picks: list[list[int]], q: np.ndarray, normals: np.ndarray, reached: np.ndarray
-    ) -> list[list[int]]:
-        """``picks`` (rows of ``q`` (R, K), per grasp in fit order) reordered per grasp by :func:`press_alignment`
-        at those joints, highest first (stable: the fit breaks ties); ``normals`` (R, 5, 3) in each row's base frame.
-        A grasp whose best fit does not reach its contacts (``reached`` (R,)) keeps its order: the retargeting
-        step's verdict stays the fit's (every later pick reaches them, :func:`distinct_ranking`)."""
-        rows = [r for p in picks for r in p if reached[p[0]]]
-        if not rows:
-            return picks
-        score = dict(zip(rows, press_alignment(self.hand, q[rows], normals[rows]).tolist(), strict=True))
-        return [sorted(p, key=lambda r: -score[r]) if reached[p[0]] else p for p in picks]
 
     def _hand_points(self, q: torch.Tensor, base: np.ndarray) -> np.ndarray:
         """(B, N, 3) the hand's collision points (:mod:`ges_core.collision_points`), object frame, for q (B, K)."""
