@@ -1,0 +1,212 @@
+"""Does the order of the wrist placements matter: how often each rank of the fit holds, and what an order by press
+alignment would meet instead.
+
+Retargeting ranks up to ``attempts`` distinct wrist placements per object by fit (the retargeting objective); the
+Stage 1 pipeline tries them in that order until one holds every trial (docs/synthesis/pipeline.md, "Attempts"). This
+script takes each of the first ``--placements`` placements through refinement, the nominal validation and the
+perturbation trials, in SAPIEN, and scores each by its **press alignment** at its retargeted joints: per finger the
+cosine between the direction validation's squeeze pushes its tip (``squeeze.press_directions``: the thumb toward the
+other tips, each finger toward the thumb) and the inward normal of the contact it serves (a finger serving two
+slots reads its first), the score the lower of the thumb's cosine and the other fingers' mean. Then, per hand, from
+the same verdicts (nothing is re-run; a placement's verdict does not depend on when it is tried): the share of
+placements robust at each rank of the fit, the objects whose first placement is robust, and how many placements
+each order tries until the first robust one (among the objects with one in the first ``--placements``).
+
+Objects: the 20 demo objects, the 20 real scans and ``--library N`` procedural / pybullet_data objects drawn with
+``--sample-seed`` (default 40, seed 58). The fallback passes (other strategy, balanced thumb, lower raise) are off:
+only the first contacts' placements are measured. One engine (SAPIEN), ``--workers`` processes, one torch thread
+each. Measured and discussed: docs/synthesis/retargeting.md, "The order of the placements".
+
+    python benchmarks/placement_order.py [--hands shadow allegro] [--placements 8] [--library 40] [--sample-seed 58]
+        [--limit N] [--workers 2] [--results NAME]
+
+Prints a table and writes ``benchmarks/results/NAME.json`` (default ``placement_order``), every placement's row in it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import random
+import statistics
+import tempfile
+import time
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+from ges_core.cli.args import non_negative_int, positive_int
+from ges_core.dataset import software_versions
+from ges_core.objects.library import LibraryConfig, ObjectLibrary
+from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis.run.demo import DEMO_OBJECTS
+
+from _results import code_state, results_path, write_results
+
+ROBUST_LEVEL = 3
+"""The attempt merit level of a placement robust in the primary simulator (worker._Attempt.merit)."""
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--hands", nargs="+", default=["shadow", "allegro"])
+    parser.add_argument("--placements", type=positive_int, default=8, help="first N placements of the fit order")
+    parser.add_argument(
+        "--library", type=non_negative_int, default=40, help="library objects drawn besides the demo and real sets"
+    )
+    parser.add_argument("--sample-seed", type=int, default=58)
+    parser.add_argument("--limit", type=positive_int, help="only the first N of those objects (a quick check)")
+    parser.add_argument("--workers", type=positive_int, default=2)
+    parser.add_argument("--results", default="placement_order", help="benchmarks/results/NAME.json")
+    args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, not after the runs
+    ids = object_ids(args.library, args.sample_seed)[: args.limit]
+    start = time.perf_counter()
+    rows: list[dict] = []
+    for hand in args.hands:
+        parts = [ids[w :: args.workers] for w in range(args.workers)]
+        with ProcessPoolExecutor(args.workers) as pool:
+            for part in pool.map(_probe, [hand] * len(parts), parts, [args.placements] * len(parts)):
+                rows += part
+        print(f"{hand}: {sum(r['hand'] == hand for r in rows)} placements in {time.perf_counter() - start:.0f} s")
+    summary = {hand: summarize([r for r in rows if r["hand"] == hand], args.placements) for hand in args.hands}
+    print(table(summary))
+    write_results(
+        results,
+        {
+            "benchmark": "placement_order",
+            "summary": summary,
+            "objects": ids,
+            "placements": args.placements,
+            "wall_seconds": time.perf_counter() - start,
+            "rows": rows,
+            "machine": {"platform": platform.platform(), "workers": args.workers},
+            "software": software_versions("sapien"),
+            "code": code_state(),
+        },
+    )
+
+
+def object_ids(library: int, seed: int) -> list[str]:
+    """The demo objects, the real scans and ``library`` other procedural / pybullet_data objects (seeded draw)."""
+    real = [o.object_id for o in ObjectLibrary(LibraryConfig(sources=("real",))).list()]
+    others = [o.object_id for o in ObjectLibrary(LibraryConfig(sources=("procedural", "pybullet"))).list()]
+    demo = list(DEMO_OBJECTS)
+    pool = [i for i in others if i not in demo]
+    return demo + real + random.Random(seed).sample(pool, min(library, len(pool)))
+
+
+def _probe(hand: str, ids: list[str], placements: int) -> list[dict]:
+    """Every one of the first ``placements`` placements of ``hand`` on ``ids`` through refinement, validation and the
+    perturbation trials (this process: one torch thread; the pipeline in it with the attempt loop wrapped)."""
+    from ges_core.synthesis.run import worker
+    from ges_core.threads import set_torch_threads
+    from ges_core.transforms import pose_to_matrix
+
+    set_torch_threads(1)
+    rows: list[dict] = []
+    loop = worker._attempts
+
+    def every_placement(state, sims, hand_name, work, grasps, steps):
+        model = state.hand(hand_name)
+        normals = np.asarray(work.result.contacts.normals)
+        for k, grasp in enumerate(grasps[:placements]):
+            tried = worker._attempt(state, sims, hand_name, work, grasp)
+            if any(tried.pending.values()):
+                tried = worker._completed(state, sims, hand_name, work, tried)
+            rotation = pose_to_matrix(grasp.wrist_pose)[:3, :3]  # base frame -> object frame
+            press = press_alignment(model, np.asarray(grasp.q), normals @ rotation)
+            rows.append(
+                {
+                    "object": work.object_id,
+                    "hand": hand_name,
+                    "fit_rank": k,
+                    "press_alignment": float(press),
+                    "refinement": tried.refinement.reason or "ok",
+                    "validation": tried.validation.reason or "ok",
+                    "robust": tried.robust.reason or "ok",
+                    "merit": list(tried.merit),
+                }
+            )
+        sims.reset()
+        return loop(state, sims, hand_name, work, grasps[:1], steps)  # the record itself is not measured
+
+    worker._attempts = every_placement
+    config = SynthesisConfig(
+        library=LibraryConfig(sources=("procedural", "pybullet", "real"), decompose=True),
+        attempts=placements,
+        other_strategy="never",
+        balanced_thumb="never",
+        low_raise="never",
+    )
+    with tempfile.TemporaryDirectory() as out:
+        run_synthesis(ids, (hand,), config, Path(out) / "dataset", workers=1, progress=False)
+    return rows
+
+
+def press_alignment(hand, q: np.ndarray, normals: np.ndarray) -> float:
+    """The press alignment (module docs) of joints ``q`` (K,) against contact normals (5, 3): outward, FINGER_SLOTS
+    order, the hand's base frame."""
+    from ges_core.contact import FINGER_SLOTS
+    from ges_core.synthesis.physics.squeeze import press_directions, tips_and_jacobians
+
+    d = hand.description
+    tips, _ = tips_and_jacobians(hand, d.apply_couplings(q))
+    push = press_directions(d, tips)  # (F, 3), d.fingers order
+    names = [f.name for f in d.fingers]
+    first_slot: dict[int, int] = {}
+    for s, slot in enumerate(FINGER_SLOTS):
+        first_slot.setdefault(names.index(d.finger_for_slot(slot).name), s)
+    cos = [float(push[f] @ -normals[first_slot[f]]) for f in range(len(names))]
+    thumb = names.index(d.finger_for_slot("thumb").name)
+    return min(cos[thumb], statistics.mean(c for f, c in enumerate(cos) if f != thumb))
+
+
+def summarize(rows: list[dict], placements: int) -> dict:
+    """Per rank of the fit, the share of placements robust; per order, what it meets first (module docs)."""
+    by_object: dict[str, list[dict]] = {}
+    for row in rows:
+        by_object.setdefault(row["object"], []).append(row)
+
+    def held(order) -> dict[str, list[bool]]:  # per object, robust or not, in that order
+        return {o: [r["merit"][0] >= ROBUST_LEVEL for r in sorted(v, key=order)] for o, v in by_object.items()}
+
+    robust = held(lambda r: r["fit_rank"])
+    press = held(lambda r: (-r["press_alignment"], r["fit_rank"]))
+    by_rank = [[h[k] for h in robust.values() if len(h) > k] for k in range(placements)]
+    out = {
+        "objects": len(by_object),
+        "placements": len(rows),
+        "robust_share_by_fit_rank": [round(sum(r) / len(r), 3) if r else None for r in by_rank],
+    }
+    for name, order in (("fit", robust), ("press", press)):
+        tries = [h.index(True) + 1 for h in order.values() if any(h)]
+        out[name] = {
+            "first_robust": sum(h[0] for h in order.values()),
+            "with_a_robust_one": len(tries),
+            "mean_tried_until_robust": round(statistics.mean(tries), 2) if tries else None,
+            "median_tried_until_robust": statistics.median(tries) if tries else None,
+        }
+    return out
+
+
+def table(summary: dict) -> str:
+    lines = [
+        "| hand | objects | robust share at fit rank 1..N | order | first placement robust | objects with one robust "
+        "| placements tried until it (mean / median) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for hand, s in summary.items():
+        shares = " ".join(f"{100 * x:.0f}" for x in s["robust_share_by_fit_rank"] if x is not None)
+        for name in ("fit", "press"):
+            o = s[name]
+            lines.append(
+                f"| {hand} | {s['objects']} | {shares} % | {name} | {o['first_robust']} | {o['with_a_robust_one']} "
+                f"| {o['mean_tried_until_robust']} / {o['median_tried_until_robust']} |"
+            )
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    main()
