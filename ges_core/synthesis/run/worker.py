@@ -268,13 +268,29 @@ def _pair(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> Pa
     if isinstance(result, SynthesisError):
         steps["retargeting"] = StepOutcome.failed(result.reason)
         return PairResult(steps | _skipped("refinement", "validation", "robust"), errors={"retargeting": str(result)})
+    result = _reaching(result)
     best = result[0]
     seconds = float(best.meta.get("seconds", 0.0))
-    if not bool(best.meta.get("reached", True)):
+    if not _reached(best):
         steps["retargeting"] = StepOutcome.failed("unreachable", seconds)
         return PairResult(steps | _skipped("refinement", "validation", "robust"), grasp=best, stage="retargeting")
     steps["retargeting"] = StepOutcome(ok=True, seconds=seconds)
     return _attempts(state, sims, hand, work, result, steps)
+
+
+def _reached(grasp: Grasp) -> bool:
+    return bool(grasp.meta.get("reached", True))
+
+
+def _reaching(grasps: list[Grasp]) -> list[Grasp]:
+    """The ranked placements the attempts take: all of them, but without the best fit when it does not reach its
+    contacts and a later one does. The ranking's first placement is the lowest objective whether it reaches or not,
+    every later one reaches (:func:`ges_core.synthesis.retarget.search.distinct_ranking`): on the Ability hand's mug
+    the best fit missed by 18 mm while 15 placements reached, and the pair stopped at ``unreachable``; now those are
+    tried (docs/synthesis/pipeline.md, "Attempts")."""
+    if _reached(grasps[0]) or not any(_reached(g) for g in grasps[1:]):
+        return grasps
+    return [g for g in grasps if _reached(g)]
 
 
 def _wants_other_strategy(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
