@@ -29,7 +29,8 @@ REASON_HELP: dict[str, str] = {
     "failed": "synthesis stopped on this object; the record's `errors` say why",
     # retargeting
     "degenerate_contacts": "the five contacts do not span a plane, so no wrist frame follows from them",
-    "unreachable": "the hand cannot put its fingertips on the contacts within retarget.max_residual (a finger that "
+    "unreachable": "from none of its ranked wrist placements can the hand put its fingertips on the contacts within "
+    "retarget.max_residual (a finger that "
     "serves two slots, the Allegro's ring, is measured against their mean; the object is too large or too small for "
     "this hand)",
     # refinement
