@@ -71,9 +71,10 @@ def test_the_pipeline_refines_the_first_placement_that_reaches(tmp_path, monkeyp
     assert record.steps["retargeting"].ok and record.steps["refinement"].ok
     assert tried[0] is placements[1]  # the missing best fit was never refined
     assert all(g is not placements[0] for g in tried)
-    np.testing.assert_allclose(
-        record.grasp.wrist_pose, placements[1].wrist_pose, atol=0.05
-    )  # refinement moves it a little
+    # the record's grasp is the refined second placement (refinement moves a placement by millimetres; placements
+    # differ by at least 15 degrees or 2 cm)
+    kept = np.asarray(record.grasp.wrist_pose)
+    assert np.abs(kept - placements[1].wrist_pose).max() < np.abs(kept - placements[0].wrist_pose).max()
 
 
 @pytest.mark.sim
