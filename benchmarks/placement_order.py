@@ -37,9 +37,11 @@ from pathlib import Path
 import numpy as np
 
 from ges_core.cli.args import non_negative_int, positive_int
+from ges_core.contact import FINGER_SLOTS
 from ges_core.dataset import software_versions
 from ges_core.objects.library import LibraryConfig, ObjectLibrary
 from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis.physics.squeeze import press_directions, tips_and_jacobians
 from ges_core.synthesis.run.demo import DEMO_OBJECTS
 
 from _results import code_state, results_path, write_results
@@ -148,9 +150,6 @@ def _probe(hand: str, ids: list[str], placements: int) -> list[dict]:
 def press_alignment(hand, q: np.ndarray, normals: np.ndarray) -> float:
     """The press alignment (module docs) of joints ``q`` (K,) against contact normals (5, 3): outward, FINGER_SLOTS
     order, the hand's base frame."""
-    from ges_core.contact import FINGER_SLOTS
-    from ges_core.synthesis.physics.squeeze import press_directions, tips_and_jacobians
-
     d = hand.description
     tips, _ = tips_and_jacobians(hand, d.apply_couplings(q))
     push = press_directions(d, tips)  # (F, 3), d.fingers order

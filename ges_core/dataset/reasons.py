@@ -30,9 +30,8 @@ REASON_HELP: dict[str, str] = {
     # retargeting
     "degenerate_contacts": "the five contacts do not span a plane, so no wrist frame follows from them",
     "unreachable": "from none of its ranked wrist placements can the hand put its fingertips on the contacts within "
-    "retarget.max_residual (a finger that "
-    "serves two slots, the Allegro's ring, is measured against their mean; the object is too large or too small for "
-    "this hand)",
+    "retarget.max_residual (a finger that serves two slots, the Allegro's ring, is measured against their mean; the "
+    "object is too large or too small for this hand)",
     # refinement
     "penetration": "the closed hand sinks into the object deeper than refine.max_penetration",
     "table_contact": "the closed hand presses on the table (the placement sits too low; common on thin lying objects)",

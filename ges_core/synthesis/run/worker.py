@@ -288,9 +288,9 @@ def _reaching(grasps: list[Grasp]) -> list[Grasp]:
     every later one reaches (:func:`ges_core.synthesis.retarget.search.distinct_ranking`): on the Ability hand's mug
     the best fit missed by 18 mm while 15 placements reached, and the pair stopped at ``unreachable``; now those are
     tried (docs/synthesis/pipeline.md, "Attempts")."""
-    if _reached(grasps[0]) or not any(_reached(g) for g in grasps[1:]):
+    if _reached(grasps[0]):
         return grasps
-    return [g for g in grasps if _reached(g)]
+    return [g for g in grasps if _reached(g)] or grasps
 
 
 def _wants_other_strategy(state: _State, hand: str, work: ObjectWork, pair: PairResult) -> bool:
