@@ -74,9 +74,11 @@ def test_the_run_and_the_library_default_choose_too(folder):
 
 def test_an_unknown_rest_is_refused_naming_the_choices(folder):
     (folder / "objects.yaml").write_text("objects:\n  box/tall: {rest: sideways}\n")
-    with pytest.raises(ConfigError, match=r"objects\.box/tall\.rest: Input should be 'stable' or 'as_authored'"):
+    with pytest.raises(
+        ConfigError, match=r"objects\.box/tall\.rest: Input should be 'stable', 'graspable' or 'as_authored'"
+    ):
         ObjectLibrary(sources=("user",), user_dir=folder).list()
-    with pytest.raises(ConfigError, match=r"rest: Input should be 'stable' or 'as_authored'"):
+    with pytest.raises(ConfigError, match=r"rest: Input should be 'stable', 'graspable' or 'as_authored'"):
         from ges_core.config import parse_model
 
         parse_model(LibraryConfig, {"rest": "upside_down"}, where="library")
@@ -113,7 +115,10 @@ def test_cli_rest_option(folder, capsys):
     standing = next(line for line in capsys.readouterr().out.splitlines() if line.startswith("user/box/tall"))
     assert " 5.0 cm  min width" in lying and " 16.0 cm  min width" in standing
     assert main([*base, "--rest", "box/tall=upright"]) == 1
-    assert "object_properties.user/box/tall.rest: Input should be 'stable' or 'as_authored'" in capsys.readouterr().err
+    assert (
+        "object_properties.user/box/tall.rest: Input should be 'stable', 'graspable' or 'as_authored'"
+        in capsys.readouterr().err
+    )
     assert main([*base, "--rest", "box/tall"]) == 1
     assert "--rest 'box/tall': write OBJECT_ID=VALUE" in capsys.readouterr().err
 

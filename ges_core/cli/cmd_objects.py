@@ -52,7 +52,8 @@ def add_user_options(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--rest", action="append", default=[], metavar="ID=MODE",
         help="how one object rests on the table, over objects.yaml (repeatable): stable (its most probable pose, the "
-        "default) or as_authored (its file's +z up, e.g. a scan that stands); every object: -o library.rest=MODE",
+        "default), graspable (the most probable pose a hand can squeeze across: 12 cm or less) or "
+        "as_authored (its file's +z up, e.g. a scan that stands); every object: -o library.rest=MODE",
     )  # fmt: skip
 
 

@@ -22,7 +22,7 @@ REASON_HELP: dict[str, str] = {
     "too_low": "the object is lower than contacts.min_height: fingertips cannot get under or beside it",
     "no_graspable_width": "no slice above contacts.min_height is between contacts.min_width and max_width wide as "
     "the object rests (too wide for a hand's opening, or only thin spikes): rest it another way "
-    "(--rest ID=as_authored) or scale it",
+    "(--rest ID=graspable, or as_authored) or scale it",
     "no_contact_surface": "no surface point faces the thumb or a finger from above",
     "no_more_layouts": "contacts.layout_rank asks for a contact layout beyond the object's candidates; lower it",
     "bad_mesh": "the mesh cannot be loaded (empty, flat or broken); `ges objects prepare --objects ID` says why",

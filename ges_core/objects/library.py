@@ -70,13 +70,15 @@ class LibraryConfig(ConfigModel):
     rest: Rest = Field(
         "stable",
         description="how every object rests on the table unless its own rest says otherwise: stable (its most "
-        "probable resting pose) or as_authored (its file's +z up; procedural shapes are built upright either way)",
+        "probable resting pose), graspable (the most probable one a hand can squeeze across, 12 cm or "
+        "less, if the most probable is not) or as_authored (its file's +z up; procedural shapes are built upright "
+        "either way)",
         json_schema_extra=STORED_WHEN_SET,  # added after datasets were written: stored only when set
     )
     object_properties: dict[str, ObjectProperties] = Field(
         default_factory=dict,
-        description="per object id: mass (kg) or density (kg/m^3), friction, rest (stable or as_authored); over the "
-        "source's and objects.yaml's",
+        description="per object id: mass (kg) or density (kg/m^3), friction, rest (stable, graspable or as_authored); "
+        "over the source's and objects.yaml's",
     )
 
     @field_validator("sources")

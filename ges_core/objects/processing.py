@@ -29,7 +29,7 @@ from ges_core.objects.decompose import (
     mesh_to_obj_bytes,
     settings_for,
 )
-from ges_core.objects.placement import place_on_table, transform_primitive
+from ges_core.objects.placement import GRASPABLE_WIDTH, place_on_table, transform_primitive
 from ges_core.objects.procedural import build_shape, shape_seed
 from ges_core.objects.processed_cache import cache_key, load_processed, store_processed
 from ges_core.objects.sources import ObjectEntry
@@ -107,7 +107,11 @@ def process_entry(
 def _process(entry: ObjectEntry, *, normalize_size: float | None, max_faces: int) -> ProcessedObject:
     mesh, kind, primitives = _raw_geometry(entry, max_faces=max_faces, check_size=normalize_size is None)
     # procedural shapes are built upright; a file mesh takes its most probable resting pose unless told otherwise
-    placed, transform = place_on_table(mesh, rotate=entry.source != "procedural" and entry.rest != "as_authored")
+    placed, transform = place_on_table(
+        mesh,
+        rotate=entry.source != "procedural" and entry.rest != "as_authored",
+        max_width=GRASPABLE_WIDTH if entry.rest == "graspable" else None,
+    )
     primitives = tuple(transform_primitive(p, transform) for p in primitives)
     if normalize_size is not None:  # after placement: scaling about the origin keeps the rest pose
         factor = normalize_size / float(np.max(placed.extents))

@@ -14,8 +14,11 @@ that every simulator (which computes mass from density and collision shapes) get
       mug/blue:   {mass: 0.35}          # kg
       fruit/pear: {density: 900, friction: 0.5}
       box/cereal: {rest: as_authored}   # stands as the file has it (z up), not in its most probable pose
+      box/tray:   {rest: graspable}     # its most probable pose a hand can grasp across
 
-``rest``: ``stable`` (the default: the most probable resting pose of :func:`.placement.stable_rotation`) or
+``rest``: ``stable`` (the default: the most probable resting pose of :func:`.placement.stable_rotation`),
+``graspable`` (the same, unless no squeeze across that pose is as narrow as :data:`.placement.GRASPABLE_WIDTH`,
+12 cm: then the most probable pose with one that does not tip over; a flat cracker box stands on its side) or
 ``as_authored`` (the file's own orientation, its +z up; only moved so its lowest point is on the table and its
 centre of mass above the origin). Scans are usually authored standing (the YCB boxes and bottles are), while their
 most probable pose lies them flat. Stage 1 checks in both engines that the pose is stable before grasping.
@@ -44,7 +47,7 @@ __all__ = [
 
 OBJECTS_FILE = "objects.yaml"
 
-Rest = Literal["stable", "as_authored"]
+Rest = Literal["stable", "graspable", "as_authored"]
 """How an object is set on the table (module docs)."""
 
 
@@ -56,7 +59,8 @@ class ObjectProperties(ConfigModel):
     friction: float | None = Field(None, ge=0, description="Coulomb friction coefficient of the object's surface")
     rest: Rest | None = Field(
         None,
-        description="stable (most probable resting pose, the default) or as_authored (the file's +z up)",
+        description="stable (most probable resting pose, the default), graspable (the most probable one a hand can "
+        "squeeze across: 12 cm or less) or as_authored (the file's +z up)",
         json_schema_extra=STORED_WHEN_SET,  # added after datasets were written: stored only when set
     )
 
