@@ -74,7 +74,7 @@ def stable_rotation(mesh: trimesh.Trimesh, *, max_width: float | None = None) ->
     does not tip over (:data:`GRASPABLE_TILT_DEG`) instead (the box on its side); none such: the pose above. None: no
     width rule.
 
-    The pose depends on the convex hull and the centre of mass only. A hull of more than
+    Without ``max_width`` the pose depends on the convex hull and the centre of mass only. A hull of more than
     :data:`.bounds.HULL_FACES` faces is simplified to that many first (the cost grows with the square of the
     hull's faces). A centre of mass not strictly inside the hull (a degenerate mesh) keeps the orientation:
     trimesh would look for a centre of mass inside it forever.
@@ -98,17 +98,12 @@ def stable_rotation(mesh: trimesh.Trimesh, *, max_width: float | None = None) ->
     return out
 
 
-def _rise(transform: np.ndarray, hull_vertices: np.ndarray, com: np.ndarray) -> float:
-    """:func:`tilt_rise` of the hull in the pose ``transform`` (4, 4)."""
-    rotation, shift = transform[:3, :3], transform[:3, 3]
-    return tilt_rise(hull_vertices @ rotation.T + shift, rotation @ com + shift)
-
-
 def _steadiest(transforms: np.ndarray, probs: np.ndarray, hull_vertices: np.ndarray, com: np.ndarray) -> int:
     """Index of the pose :func:`stable_rotation` takes among ``transforms`` (P, 4, 4), sorted by ``probs`` (P,)."""
 
     def rise(i: int) -> float:
-        return _rise(transforms[i], hull_vertices, com)
+        rotation, shift = transforms[i][:3, :3], transforms[i][:3, 3]
+        return tilt_rise(hull_vertices @ rotation.T + shift, rotation @ com + shift)
 
     first = rise(0)
     if first >= ROLL_FLOOR:
@@ -130,31 +125,28 @@ def _narrow_enough(
     max_width: float,
 ) -> int:
     """``chosen`` if that pose has a squeeze at most ``max_width`` wide (:func:`narrowest_squeeze` of the surface
-    ``samples`` (N, 3)), else the first (most probable) pose of ``transforms`` (P, 4, 4) that has
-    one and tips over only past :data:`GRASPABLE_TILT_DEG`, else ``chosen``."""
+    ``samples`` (N, 3)), else the first (most probable) pose of ``transforms`` (P, 4, 4) that has one and tips over
+    only past :data:`GRASPABLE_TILT_DEG`, else ``chosen``."""
 
     def width(i: int) -> float:
         return narrowest_squeeze(samples @ transforms[i][:3, :3].T)
 
     if width(chosen) <= max_width:
         return chosen
-    for i in range(len(transforms)):
+
+    def stands(i: int) -> bool:
         rotation = transforms[i][:3, :3]
-        if (
-            i != chosen
-            and width(i) <= max_width
-            and tip_angle(hull_vertices @ rotation.T, rotation @ com) >= (GRASPABLE_TILT_DEG)
-        ):
-            return i
-    return chosen
+        return tip_angle(hull_vertices @ rotation.T, rotation @ com) >= GRASPABLE_TILT_DEG
+
+    return next((i for i in range(len(transforms)) if i != chosen and width(i) <= max_width and stands(i)), chosen)
 
 
 def tip_angle(vertices: np.ndarray, com: np.ndarray, *, tol: float = SUPPORT_TOL) -> float:
     """Degrees an object resting on the lowest of ``vertices`` (V, 3; its convex hull, z up, m) tilts about the
     nearest edge of its support polygon before its centre of mass ``com`` (3,) passes over that edge and it tips
     over: ``atan(support margin / height of the centre of mass)``, the support being the vertices within ``tol`` of
-    the lowest. 0 on a point or line support, negative when the
-    centre of mass is outside the support (it is not at rest)."""
+    the lowest. 0 on a point or line support, negative when the centre of mass is outside the support (it is not at
+    rest)."""
     vertices = np.asarray(vertices, dtype=np.float64)
     floor = vertices[:, 2].min()
     margin = _support_margin(vertices[vertices[:, 2] <= floor + tol][:, :2], np.asarray(com, dtype=np.float64)[:2])
