@@ -92,8 +92,8 @@ def test_cache_keys_and_stored_configs(folder):
     from dataclasses import replace
 
     keys = {rest: cache_key(replace(entry, rest=rest), normalize_size=None, max_faces=20_000) for rest in
-            (None, "stable", "as_authored")}  # fmt: skip
-    assert keys[None] == keys["stable"] != keys["as_authored"]
+            (None, "stable", "graspable", "as_authored")}  # fmt: skip
+    assert keys[None] == keys["stable"] and len({keys["stable"], keys["graspable"], keys["as_authored"]}) == 3
     plain = stored_dump(SynthesisConfig.model_validate({"library": {"object_properties": {"a/b/c": {"mass": 1}}}}))
     assert "rest" not in plain["library"] and plain["library"]["object_properties"]["a/b/c"] == {
         "mass": 1.0, "density": None, "friction": None}  # fmt: skip

@@ -26,14 +26,7 @@ from ges_core.paths import atomic_write_bytes, cache_dir, file_sha256
 
 __all__ = ["cache_key", "code_hash", "load_processed", "store_processed"]
 
-_MODULES = (
-    "processing.py",
-    "placement.py",
-    "validate.py",
-    "bounds.py",
-    "decompose.py",
-    "processed_cache.py",
-)
+_MODULES = ("processing.py", "placement.py", "validate.py", "bounds.py", "decompose.py", "processed_cache.py")
 """Modules (in this folder) whose code is part of every key: the code that produces a processed object."""
 
 
