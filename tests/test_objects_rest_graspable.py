@@ -117,3 +117,25 @@ def test_the_scanned_cracker_box_stands_and_gets_contacts(tmp_path, monkeypatch)
     points, normals = library.point_cloud(oid, 1024, seed=object_seed(0, oid))
     width = generate_contacts(points, normals, ContactConfig(), object_id=oid).contacts.meta["grasp_width"]
     assert width == pytest.approx(0.072, abs=0.01)  # across its 7.2 cm thickness, within the hand's opening
+
+
+def test_the_command_line_rests_one_object_graspable(tmp_path, monkeypatch, capsys):
+    """``--rest ID=graspable`` on ``ges objects list --sizes``: the wide box is listed standing, the narrow one as
+    before."""
+    from ges_core.cli import main
+
+    monkeypatch.setenv("GES_CACHE_DIR", str(tmp_path / "cache"))
+    root = tmp_path / "mine" / "box"
+    root.mkdir(parents=True)
+    trimesh.creation.box(extents=WIDE).export(root / "wide.stl")
+    trimesh.creation.box(extents=(0.05, 0.08, 0.03)).export(root / "narrow.stl")
+    base = ["objects", "list", "--user-dir", str(tmp_path / "mine"), "--sizes"]
+
+    def listed(args: list[str]) -> dict[str, str]:
+        assert main(args) == 0
+        return {line.split()[0]: line for line in capsys.readouterr().out.splitlines() if line.startswith("user/")}
+
+    before, after = listed(base), listed([*base, "--rest", "box/wide=graspable"])
+    assert "x   5.0 cm  min width" in before["user/box/wide"]  # lying flat: 5 cm tall
+    assert "x  18.0 cm  min width" in after["user/box/wide"] or "x  14.0 cm  min width" in after["user/box/wide"]
+    assert after["user/box/narrow"] == before["user/box/narrow"]
