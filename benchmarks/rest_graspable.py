@@ -1,7 +1,7 @@
 """Which file meshes ``rest: graspable`` moves, and what it costs: every object of the given sources processed both
 ways (``stable``, the default, and ``graspable``), side by side.
 
-Per object: the narrowest squeeze (``ges_core.objects.placement.narrowest_squeeze``, 4,096 surface samples, seed 0)
+Per object: the narrowest squeeze (``ges_core.objects.placement.narrowest_squeeze`` of ``squeeze_samples``)
 in the stable pose, whether the graspable pose differs (the processed meshes' content hashes), the squeeze and the
 extents there, and the processing seconds both ways (a fresh cache: repair, resting pose, hull test). Prints the
 objects with no squeeze of ``GRASPABLE_WIDTH`` or less in their stable pose (moved or not), a summary per source,
@@ -27,17 +27,20 @@ import numpy as np
 import trimesh
 
 from ges_core.objects.library import LibraryConfig, ObjectLibrary
-from ges_core.objects.placement import GRASPABLE_WIDTH, narrowest_squeeze
+from ges_core.objects.placement import GRASPABLE_WIDTH, narrowest_squeeze, squeeze_samples
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _results import code_state, results_path, write_results  # noqa: E402
 
-SAMPLES = 4096
-
 
 def squeeze(mesh: trimesh.Trimesh) -> float:
-    """The mesh's :func:`narrowest_squeeze` (m, inf for none) on the samples :func:`stable_rotation` uses."""
-    return narrowest_squeeze(trimesh.sample.sample_surface(mesh, SAMPLES, seed=0)[0])
+    """The mesh's :func:`narrowest_squeeze` as it rests (m, inf for none), on the samples the rule reads."""
+    return narrowest_squeeze(squeeze_samples(mesh))
+
+
+def too_wide(row: dict) -> bool:
+    """Whether a row's object has no squeeze of :data:`GRASPABLE_WIDTH` or less in its stable pose."""
+    return row["squeeze_stable_m"] is None or row["squeeze_stable_m"] > GRASPABLE_WIDTH
 
 
 def row_for(stable, graspable, oid: str) -> dict:
@@ -82,7 +85,7 @@ def main() -> None:
                     failed.append({"object": oid, "error": str(exc)[:200]})
                     continue
                 rows.append(row)
-                if row["moved"] or row["squeeze_stable_m"] is None or row["squeeze_stable_m"] > GRASPABLE_WIDTH:
+                if row["moved"] or too_wide(row):
                     after = row["squeeze_graspable_m"]
                     print(
                         f"{oid:40s} stable squeeze {row['squeeze_stable_m']} m -> "
@@ -100,7 +103,7 @@ def main() -> None:
         mine = [r for r in rows if r["source"] == source]
         if not mine:
             continue
-        wide = sum(r["squeeze_stable_m"] is None or r["squeeze_stable_m"] > GRASPABLE_WIDTH for r in mine)
+        wide = sum(map(too_wide, mine))
         entry = {
             "source": source,
             "objects": len(mine),

@@ -18,6 +18,7 @@ __all__ = [
     "GRASPABLE_WIDTH",
     "narrowest_squeeze",
     "place_on_table",
+    "squeeze_samples",
     "stable_rotation",
     "support_margin",
     "tilt_rise",
@@ -91,8 +92,7 @@ def stable_rotation(mesh: trimesh.Trimesh, *, max_width: float | None = None) ->
     vertices = np.asarray(hull.vertices)
     chosen = _steadiest(transforms, probs, vertices, com)
     if max_width is not None:
-        samples = trimesh.sample.sample_surface(surface, SQUEEZE_POINTS, seed=0)[0]
-        chosen = _narrow_enough(transforms, vertices, com, samples, chosen, max_width)
+        chosen = _narrow_enough(transforms, vertices, com, squeeze_samples(surface), chosen, max_width)
     out = np.eye(4)
     out[:3, :3] = transforms[chosen][:3, :3]
     return out
@@ -151,6 +151,12 @@ def tip_angle(vertices: np.ndarray, com: np.ndarray, *, tol: float = SUPPORT_TOL
     floor = vertices[:, 2].min()
     margin = _support_margin(vertices[vertices[:, 2] <= floor + tol][:, :2], np.asarray(com, dtype=np.float64)[:2])
     return float(np.degrees(np.arctan2(margin, float(com[2]) - floor)))
+
+
+def squeeze_samples(mesh: trimesh.Trimesh) -> np.ndarray:
+    """(:data:`SQUEEZE_POINTS`, 3) seeded surface samples of ``mesh`` in its own frame, m: what
+    :func:`stable_rotation` turns into each candidate pose for :func:`narrowest_squeeze`."""
+    return trimesh.sample.sample_surface(mesh, SQUEEZE_POINTS, seed=0)[0]
 
 
 def narrowest_squeeze(
