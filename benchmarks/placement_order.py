@@ -1,5 +1,5 @@
 """Does the order of the wrist placements matter: how often each rank of the fit holds, and what an order by press
-alignment would meet instead.
+alignment or by the fingertips' load bound would meet instead.
 
 Retargeting ranks up to ``attempts`` distinct wrist placements per object by fit (the retargeting objective); the
 Stage 1 pipeline tries them in that order until one holds every trial (docs/synthesis/pipeline.md, "Attempts"). This
@@ -7,10 +7,17 @@ script takes each of the first ``--placements`` placements through refinement, t
 perturbation trials, in SAPIEN, and scores each by its **press alignment** at its retargeted joints: per finger the
 cosine between the direction validation's squeeze pushes its tip (``squeeze.press_directions``: the thumb toward the
 other tips, each finger toward the thumb) and the inward normal of the contact it serves (a finger serving two
-slots reads its first), the score the lower of the thumb's cosine and the other fingers' mean. Then, per hand, from
-the same verdicts (nothing is re-run; a placement's verdict does not depend on when it is tried): the share of
-placements robust at each rank of the fit, the objects whose first placement is robust, and how many placements
-each order tries until the first robust one (among the objects with one in the first ``--placements``).
+slots reads its first), the score the lower of the thumb's cosine and the other fingers' mean; and by its **load
+margin**: the fingertips' quasi-static capacity at the retargeted joints within the hand's actuator limits
+(:func:`ges_core.synthesis.physics.capacity.fingertip_capacity`, the bound ``ges dataset capacity`` reads off a kept
+grasp) over what the drive-limited trials ask of it, the lower of the capacity at the friction trial's coefficient
+over the weight and the capacity at the nominal coefficient over the heaviest mass trial's weight (1 or more: no trial
+that changes the load is beyond the bound). Then, per hand, from the same verdicts (nothing is re-run; a placement's
+verdict does not depend on when it is tried): the share of placements robust at each rank of the fit, the objects
+whose first placement is robust, and how many placements each order tries until the first robust one (among the
+objects with one in the first ``--placements``). Orders: ``fit`` (the pipeline's), ``press`` (press alignment,
+highest first), ``margin`` (load margin, highest first) and ``bound`` (the placements within the bound first, each
+group in fit order: the fit's order kept where the bound does not object).
 
 Objects: the 20 demo objects, the 20 real scans and ``--library N`` procedural / pybullet_data objects drawn with
 ``--sample-seed`` (default 40, seed 58). The fallback passes (other strategy, balanced thumb, lower raise) are off:
@@ -20,7 +27,8 @@ each. Measured and discussed: docs/synthesis/retargeting.md, "The order of the p
     python benchmarks/placement_order.py [--hands shadow allegro] [--placements 8] [--library 40] [--sample-seed 58]
         [--limit N] [--workers 2] [--results NAME]
 
-Prints a table and writes ``benchmarks/results/NAME.json`` (default ``placement_order``), every placement's row in it.
+Prints a table and writes ``benchmarks/results/NAME.json`` (default ``placement_order``), every placement's row in it,
+after each hand (a killed run keeps the hands it finished).
 """
 
 from __future__ import annotations
@@ -41,6 +49,9 @@ from ges_core.contact import FINGER_SLOTS
 from ges_core.dataset import software_versions
 from ges_core.objects.library import LibraryConfig, ObjectLibrary
 from ges_core.synthesis import SynthesisConfig, run_synthesis
+from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS
+from ges_core.synthesis.physics.capacity import fingertip_capacity
+from ges_core.synthesis.physics.robust import effective_friction
 from ges_core.synthesis.physics.squeeze import press_directions, tips_and_jacobians
 from ges_core.synthesis.run.demo import DEMO_OBJECTS
 
@@ -48,6 +59,9 @@ from _results import code_state, results_path, write_results
 
 ROBUST_LEVEL = 3
 """The attempt merit level of a placement robust in the primary simulator (worker._Attempt.merit)."""
+CLOUD_POINTS = 4096
+"""Surface samples for the load margin's touching test and normals (as ``ges dataset capacity``)."""
+ORDERS = ("fit", "press", "margin", "bound")
 
 
 def main() -> None:
@@ -66,28 +80,29 @@ def main() -> None:
     ids = object_ids(args.library, args.sample_seed)[: args.limit]
     start = time.perf_counter()
     rows: list[dict] = []
+    summary: dict[str, dict] = {}
     for hand in args.hands:
         parts = [ids[w :: args.workers] for w in range(args.workers)]
         with ProcessPoolExecutor(args.workers) as pool:
             for part in pool.map(_probe, [hand] * len(parts), parts, [args.placements] * len(parts)):
                 rows += part
         print(f"{hand}: {sum(r['hand'] == hand for r in rows)} placements in {time.perf_counter() - start:.0f} s")
-    summary = {hand: summarize([r for r in rows if r["hand"] == hand], args.placements) for hand in args.hands}
+        summary[hand] = summarize([r for r in rows if r["hand"] == hand], args.placements)
+        write_results(
+            results,
+            {
+                "benchmark": "placement_order",
+                "summary": summary,
+                "objects": ids,
+                "placements": args.placements,
+                "wall_seconds": time.perf_counter() - start,
+                "rows": rows,
+                "machine": {"platform": platform.platform(), "workers": args.workers},
+                "software": software_versions("sapien"),
+                "code": code_state(),
+            },
+        )
     print(table(summary))
-    write_results(
-        results,
-        {
-            "benchmark": "placement_order",
-            "summary": summary,
-            "objects": ids,
-            "placements": args.placements,
-            "wall_seconds": time.perf_counter() - start,
-            "rows": rows,
-            "machine": {"platform": platform.platform(), "workers": args.workers},
-            "software": software_versions("sapien"),
-            "code": code_state(),
-        },
-    )
 
 
 def object_ids(library: int, seed: int) -> list[str]:
@@ -113,7 +128,11 @@ def _probe(hand: str, ids: list[str], placements: int) -> list[dict]:
     def every_placement(state, sims, hand_name, work, grasps, steps):
         model = state.hand(hand_name)
         normals = np.asarray(work.result.contacts.normals)
+        load = LoadMargin(state, hand_name, work)
         for k, grasp in enumerate(grasps[:placements]):
+            t0 = time.perf_counter()
+            margin = load(grasp)
+            margin_seconds = time.perf_counter() - t0
             tried = worker._attempt(state, sims, hand_name, work, grasp)
             if any(tried.pending.values()):
                 tried = worker._completed(state, sims, hand_name, work, tried)
@@ -125,6 +144,8 @@ def _probe(hand: str, ids: list[str], placements: int) -> list[dict]:
                     "hand": hand_name,
                     "fit_rank": k,
                     "press_alignment": float(press),
+                    "load_margin": margin,
+                    "load_margin_seconds": margin_seconds,
                     "refinement": tried.refinement.reason or "ok",
                     "validation": tried.validation.reason or "ok",
                     "robust": tried.robust.reason or "ok",
@@ -145,6 +166,33 @@ def _probe(hand: str, ids: list[str], placements: int) -> list[dict]:
     with tempfile.TemporaryDirectory() as out:
         run_synthesis(ids, (hand,), config, Path(out) / "dataset", workers=1, progress=False)
     return rows
+
+
+class LoadMargin:
+    """The load margin (module docs) of one object's placements for one hand: capacity over ask, the lower of the
+    friction trial's and the heaviest mass trial's; inf when the hand declares no effort limits or the run's trials
+    are uncapped (no bound), 0 when fewer than two fingertips touch."""
+
+    def __init__(self, state, hand_name: str, work) -> None:
+        cfg = state.config(hand_name)
+        asset = state.library.get(work.object_id)
+        self.hand, self.contacts = state.hand(hand_name), work.result.contacts
+        self.cloud = state.library.point_cloud(work.object_id, CLOUD_POINTS, seed=0)
+        self.weight = asset.mass * abs(cfg.scene.gravity)
+        nominal = effective_friction(cfg.scene.hand_friction, asset.friction)
+        asks = [(nominal, max(cfg.robust.mass_scales, default=1.0))]  # (friction, weight multiple)
+        if cfg.robust.friction_floor is not None:
+            asks.append((min(cfg.robust.friction_floor, nominal), 1.0))
+        self.asks = asks if cfg.robust.drive_limits and self.hand.description.effort_limits_array is not None else []
+
+    def __call__(self, grasp) -> float:
+        margins = [
+            fingertip_capacity(
+                self.hand, grasp, *self.cloud, mu, center=LIBRARY_CENTER_OF_MASS, contacts=self.contacts
+            ).weight / (scale * self.weight)
+            for mu, scale in self.asks
+        ]  # fmt: skip
+        return float(min(margins, default=float("inf")))
 
 
 def press_alignment(hand, q: np.ndarray, normals: np.ndarray) -> float:
@@ -171,15 +219,23 @@ def summarize(rows: list[dict], placements: int) -> dict:
     def held(order) -> dict[str, list[bool]]:  # per object, robust or not, in that order
         return {o: [r["merit"][0] >= ROBUST_LEVEL for r in sorted(v, key=order)] for o, v in by_object.items()}
 
-    robust = held(lambda r: r["fit_rank"])
-    press = held(lambda r: (-r["press_alignment"], r["fit_rank"]))
+    orders = {
+        "fit": held(lambda r: r["fit_rank"]),
+        "press": held(lambda r: (-r["press_alignment"], r["fit_rank"])),
+        "margin": held(lambda r: (-r["load_margin"], r["fit_rank"])),
+        "bound": held(lambda r: (r["load_margin"] < 1.0, r["fit_rank"])),
+    }
+    robust = orders["fit"]
     by_rank = [[h[k] for h in robust.values() if len(h) > k] for k in range(placements)]
     out = {
         "objects": len(by_object),
         "placements": len(rows),
         "robust_share_by_fit_rank": [round(sum(r) / len(r), 3) if r else None for r in by_rank],
+        "robust_share_within_bound": _share([r["merit"][0] >= ROBUST_LEVEL for r in rows if r["load_margin"] >= 1]),
+        "robust_share_beyond_bound": _share([r["merit"][0] >= ROBUST_LEVEL for r in rows if r["load_margin"] < 1]),
+        "load_margin_seconds_median": statistics.median(r["load_margin_seconds"] for r in rows) if rows else None,
     }
-    for name, order in (("fit", robust), ("press", press)):
+    for name, order in orders.items():
         tries = [h.index(True) + 1 for h in order.values() if any(h)]
         out[name] = {
             "first_robust": sum(h[0] for h in order.values()),
@@ -190,6 +246,10 @@ def summarize(rows: list[dict], placements: int) -> dict:
     return out
 
 
+def _share(held: list[bool]) -> dict:
+    return {"placements": len(held), "robust": round(sum(held) / len(held), 3) if held else None}
+
+
 def table(summary: dict) -> str:
     lines = [
         "| hand | objects | robust share at fit rank 1..N | order | first placement robust | objects with one robust "
@@ -198,12 +258,21 @@ def table(summary: dict) -> str:
     ]
     for hand, s in summary.items():
         shares = " ".join(f"{100 * x:.0f}" for x in s["robust_share_by_fit_rank"] if x is not None)
-        for name in ("fit", "press"):
+        for name in ORDERS:
             o = s[name]
             lines.append(
                 f"| {hand} | {s['objects']} | {shares} % | {name} | {o['first_robust']} | {o['with_a_robust_one']} "
                 f"| {o['mean_tried_until_robust']} / {o['median_tried_until_robust']} |"
             )
+    lines += [
+        "",
+        "| hand | placements within the load bound: robust | beyond it: robust | load margin, s / placement (median) |",
+        "|---|---|---|---|",
+    ]
+    for hand, s in summary.items():
+        cells = [s[k] for k in ("robust_share_within_bound", "robust_share_beyond_bound")]
+        text = [f"{c['placements']}: {100 * c['robust']:.0f} %" if c["robust"] is not None else "0" for c in cells]
+        lines.append(f"| {hand} | {text[0]} | {text[1]} | {s['load_margin_seconds_median']:.4f} |")
     return "\n".join(lines)
 
 
