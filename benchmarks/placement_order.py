@@ -180,7 +180,7 @@ class LoadMargin:
         self.cloud = state.library.point_cloud(work.object_id, CLOUD_POINTS, seed=0)
         self.weight = asset.mass * abs(cfg.scene.gravity)
         nominal = effective_friction(cfg.scene.hand_friction, asset.friction)
-        asks = [(nominal, max(cfg.robust.mass_scales, default=1.0))]  # (friction, weight multiple)
+        asks = [(nominal, max(1.0, *cfg.robust.mass_scales))]  # (friction, weight multiple): limits, heaviest mass
         if cfg.robust.friction_floor is not None:
             asks.append((min(cfg.robust.friction_floor, nominal), 1.0))
         self.asks = asks if cfg.robust.drive_limits and self.hand.description.effort_limits_array is not None else []
