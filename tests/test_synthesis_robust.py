@@ -244,6 +244,19 @@ def test_the_fingertips_bound_lies_between_the_trial_that_held_and_the_one_that_
 
 
 @pytest.mark.sim
+def test_capacity_of_a_hand_the_dataset_does_not_hold_names_the_hands_it_does(weak_box_run, capsys):
+    """``--hand shadow`` on a dataset of Allegro records is an error naming the hands it holds, not an empty
+    table (a typo read as "no record with trials" before); ``--hand allegro`` still gives the table."""
+    _, _, folder = weak_box_run
+    assert cli.main(["dataset", "capacity", str(folder), "--hand", "shadow"]) == 1
+    captured = capsys.readouterr()
+    assert captured.out == ""
+    assert "holds no record of hand shadow; its records are of: allegro" in captured.err
+    assert cli.main(["dataset", "capacity", str(folder), "--hand", "allegro"]) == 0
+    assert "| allegro | procedural/box/000 |" in capsys.readouterr().out
+
+
+@pytest.mark.sim
 def test_deferred_trials_keep_the_record_and_skip_a_failed_placements_other_trials(tmp_path, monkeypatch):
     """Allegro, ``procedural/box/000``, SAPIEN: its first placement passes the nominal trial and every perturbation
     trial with margin, and so does its second. The first placement's first trial (the drive limits) is made to fail
