@@ -90,8 +90,8 @@ def run_capacity(args: argparse.Namespace) -> int:
 
 
 def _check_hands_held(path: Path, hands: list[str] | None) -> None:
-    """ConfigError naming the hands ``path``'s records are of when ``hands`` names one of none of them (a typo or
-    another dataset's hand would otherwise read as "no record with trials")."""
+    """ConfigError naming the hands of ``path``'s records when ``hands`` names one that no record is of (a typo, or
+    another dataset's hand, would otherwise read as "no record with trials")."""
     if not hands:
         return
     from ges_core.dataset import open_dataset
