@@ -17,7 +17,9 @@ verdict does not depend on when it is tried): the share of placements robust at 
 whose first placement is robust, and how many placements each order tries until the first robust one (among the
 objects with one in the first ``--placements``). Orders: ``fit`` (the pipeline's), ``press`` (press alignment,
 highest first), ``margin`` (load margin, highest first) and ``bound`` (the placements within the bound first, each
-group in fit order: the fit's order kept where the bound does not object).
+group in fit order: the fit's order kept where the bound does not object). Each row also holds the load margin at the
+pose refinement reached (``refined_load_margin``; None when refinement gave none): the closing's own pads, which the
+retargeted joints only aim at.
 
 Objects: the 20 demo objects, the 20 real scans and ``--library N`` procedural / pybullet_data objects drawn with
 ``--sample-seed`` (default 40, seed 58). The fallback passes (other strategy, balanced thumb, lower raise) are off:
@@ -136,6 +138,7 @@ def _probe(hand: str, ids: list[str], placements: int) -> list[dict]:
             tried = worker._attempt(state, sims, hand_name, work, grasp)
             if any(tried.pending.values()):
                 tried = worker._completed(state, sims, hand_name, work, tried)
+            refined = load(tried.refined.grasp) if tried.refined is not None else None
             rotation = pose_to_matrix(grasp.wrist_pose)[:3, :3]  # base frame -> object frame
             press = press_alignment(model, np.asarray(grasp.q), normals @ rotation)
             rows.append(
@@ -146,6 +149,7 @@ def _probe(hand: str, ids: list[str], placements: int) -> list[dict]:
                     "press_alignment": float(press),
                     "load_margin": margin,
                     "load_margin_seconds": margin_seconds,
+                    "refined_load_margin": refined,
                     "refinement": tried.refinement.reason or "ok",
                     "validation": tried.validation.reason or "ok",
                     "robust": tried.robust.reason or "ok",
