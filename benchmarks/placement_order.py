@@ -10,16 +10,16 @@ other tips, each finger toward the thumb) and the inward normal of the contact i
 slots reads its first), the score the lower of the thumb's cosine and the other fingers' mean; and by its **load
 margin**: the fingertips' quasi-static capacity at the retargeted joints within the hand's actuator limits
 (:func:`ges_core.synthesis.physics.capacity.fingertip_capacity`, the bound ``ges dataset capacity`` reads off a kept
-grasp) over what the drive-limited trials ask of it, the lower of the capacity at the friction trial's coefficient
-over the weight and the capacity at the nominal coefficient over the heaviest mass trial's weight (1 or more: no trial
-that changes the load is beyond the bound). Then, per hand, from the same verdicts (nothing is re-run; a placement's
-verdict does not depend on when it is tried): the share of placements robust at each rank of the fit, the objects
-whose first placement is robust, and how many placements each order tries until the first robust one (among the
-objects with one in the first ``--placements``). Orders: ``fit`` (the pipeline's), ``press`` (press alignment,
-highest first), ``margin`` (load margin, highest first) and ``bound`` (the placements within the bound first, each
-group in fit order: the fit's order kept where the bound does not object). Each row also holds the load margin at the
-pose refinement reached (``refined_load_margin``; None when refinement gave none): the closing's own pads, which the
-retargeted joints only aim at.
+grasp) over what the drive-limited trials ask of it, the lowest over those trials (``trial_asks``: the limits trial
+asks the weight at the nominal coefficient, ``mass_xS`` S times it, the friction trial the weight at its coefficient;
+1 or more: no trial that changes the load is beyond the bound). Then, per hand, from the same verdicts (nothing is
+re-run; a placement's verdict does not depend on when it is tried): the share of placements robust at each rank of
+the fit, the objects whose first placement is robust, and how many placements each order tries until the first
+robust one (among the objects with one in the first ``--placements``). Orders: ``fit`` (the pipeline's), ``press``
+(press alignment, highest first), ``margin`` (load margin, highest first) and ``bound`` (the placements within the
+bound first, each group in fit order: the fit's order kept where the bound does not object). Each row also holds the
+load margin at the pose refinement reached (``refined_load_margin``; None when refinement gave none): the closing's
+own pads, which the retargeted joints only aim at.
 
 Objects: the 20 demo objects, the 20 real scans and ``--library N`` procedural / pybullet_data objects drawn with
 ``--sample-seed`` (default 40, seed 58). The fallback passes (other strategy, balanced thumb, lower raise) are off:
@@ -53,16 +53,14 @@ from ges_core.objects.library import LibraryConfig, ObjectLibrary
 from ges_core.synthesis import SynthesisConfig, run_synthesis
 from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS
 from ges_core.synthesis.physics.capacity import fingertip_capacity
-from ges_core.synthesis.physics.robust import effective_friction
 from ges_core.synthesis.physics.squeeze import press_directions, tips_and_jacobians
+from ges_core.synthesis.run.capacity import CLOUD_POINTS, trial_asks
 from ges_core.synthesis.run.demo import DEMO_OBJECTS
 
 from _results import code_state, results_path, write_results
 
 ROBUST_LEVEL = 3
 """The attempt merit level of a placement robust in the primary simulator (worker._Attempt.merit)."""
-CLOUD_POINTS = 4096
-"""Surface samples for the load margin's touching test and normals (as ``ges dataset capacity``)."""
 ORDERS = ("fit", "press", "margin", "bound")
 
 
@@ -173,8 +171,9 @@ def _probe(hand: str, ids: list[str], placements: int) -> list[dict]:
 
 
 class LoadMargin:
-    """The load margin (module docs) of one object's placements for one hand: capacity over ask, the lower of the
-    friction trial's and the heaviest mass trial's; inf when the hand declares no effort limits or the run's trials
+    """The load margin (module docs) of one object's placements for one hand: the lowest, over the trials that change
+    the load (``trial_asks``, what ``ges dataset capacity`` bounds: limits, mass and friction trials), of the capacity
+    at the trial's friction over the weight it asks; inf when the hand declares no effort limits or the run's trials
     are uncapped (no bound), 0 when fewer than two fingertips touch."""
 
     def __init__(self, state, hand_name: str, work) -> None:
@@ -183,20 +182,17 @@ class LoadMargin:
         self.hand, self.contacts = state.hand(hand_name), work.result.contacts
         self.cloud = state.library.point_cloud(work.object_id, CLOUD_POINTS, seed=0)
         self.weight = asset.mass * abs(cfg.scene.gravity)
-        nominal = effective_friction(cfg.scene.hand_friction, asset.friction)
-        asks = [(nominal, max(1.0, *cfg.robust.mass_scales))]  # (friction, weight multiple): limits, heaviest mass
-        if cfg.robust.friction_floor is not None:
-            asks.append((min(cfg.robust.friction_floor, nominal), 1.0))
-        self.asks = asks if cfg.robust.drive_limits and self.hand.description.effort_limits_array is not None else []
+        bounded = cfg.robust.drive_limits and self.hand.description.effort_limits_array is not None
+        self.asks = set(trial_asks(cfg, asset, work.seed).values()) if bounded else set()  # (weight multiple, mu)
 
     def __call__(self, grasp) -> float:
-        margins = [
-            fingertip_capacity(
+        capacity = {
+            mu: fingertip_capacity(
                 self.hand, grasp, *self.cloud, mu, center=LIBRARY_CENTER_OF_MASS, contacts=self.contacts
-            ).weight / (scale * self.weight)
-            for mu, scale in self.asks
-        ]  # fmt: skip
-        return float(min(margins, default=float("inf")))
+            ).weight
+            for mu in {mu for _, mu in self.asks}
+        }  # fmt: skip
+        return float(min((capacity[mu] / (scale * self.weight) for scale, mu in self.asks), default=float("inf")))
 
 
 def press_alignment(hand, q: np.ndarray, normals: np.ndarray) -> float:

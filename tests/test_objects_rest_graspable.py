@@ -58,19 +58,17 @@ def _rested(extents, max_width):
 
 def test_a_flat_wide_box_stands_on_a_side_and_a_plate_stays_flat():
     """The wide box: most probable flat (14 cm across), with the limit on a side (5 cm across, tips over only past
-    15 degrees). The plate: on an edge it is 1 cm across but would tip over, so it stays flat. A narrow box is not
+    19.7 degrees). The plate: on an edge it is 1 cm across but would tip over, so it stays flat. A narrow box is not
     moved."""
     flat, _ = _rested(WIDE, None)
     assert np.ptp(flat[:, 2]) == pytest.approx(0.05, abs=1e-9)
     assert narrowest_squeeze(flat) == pytest.approx(0.14, abs=0.004)
     standing, com = _rested(WIDE, GRASPABLE_WIDTH)
-    assert np.ptp(standing[:, 2]) == pytest.approx(0.18, abs=1e-9) or np.ptp(standing[:, 2]) == pytest.approx(0.14)
+    # on its 18 x 5 cm side, the more probable of the two sides (trimesh's stable poses with sigma 0: 0.086 against
+    # 0.053 for the 14 x 5 cm one), so 14 cm tall; it tips over its 5 cm side only past atan(2.5 / 7 cm), 19.7 degrees
+    assert np.ptp(standing[:, 2]) == pytest.approx(0.14, abs=1e-9)
     assert narrowest_squeeze(standing) == pytest.approx(0.05, abs=0.004)
-    # it tips over its 5 cm side only past atan(2.5 / 7 or 9 cm): 15.5 degrees or more
-    assert tip_angle(standing, com) in (
-        pytest.approx(np.degrees(np.arctan(2.5 / 9))),
-        pytest.approx(np.degrees(np.arctan(2.5 / 7))),
-    )
+    assert tip_angle(standing, com) == pytest.approx(np.degrees(np.arctan(2.5 / 7)))
     on_edge = trimesh.creation.box(extents=(0.20, 0.01, 0.20))  # the plate stood on an edge: 1 cm wide...
     assert tip_angle(on_edge.vertices, on_edge.center_mass) == pytest.approx(np.degrees(np.arctan(0.5 / 10)))
     assert tip_angle(on_edge.vertices, on_edge.center_mass) < GRASPABLE_TILT_DEG  # ...but tips over at 2.9 degrees
@@ -137,5 +135,5 @@ def test_the_command_line_rests_one_object_graspable(tmp_path, monkeypatch, caps
 
     before, after = listed(base), listed([*base, "--rest", "box/wide=graspable"])
     assert "x   5.0 cm  min width" in before["user/box/wide"]  # lying flat: 5 cm tall
-    assert "x  18.0 cm  min width" in after["user/box/wide"] or "x  14.0 cm  min width" in after["user/box/wide"]
+    assert "x  14.0 cm  min width" in after["user/box/wide"]  # on its 18 x 5 cm side, as the pose test above says
     assert after["user/box/narrow"] == before["user/box/narrow"]

@@ -78,7 +78,6 @@ def run_capacity(args: argparse.Namespace) -> int:
     from ges_core.threads import set_torch_threads
 
     set_torch_threads()
-    _check_hands_held(args.path, args.hand)
     rows = trial_bounds(args.path, registry_from_args(args), near=args.near or NEAR, hands=args.hand)
     if not rows:
         whose = f" of hand {', '.join(args.hand)}" if args.hand else ""
@@ -87,19 +86,3 @@ def run_capacity(args: argparse.Namespace) -> int:
         return 0
     print(bounds_table(rows) + "\n\n" + counts_table(bound_counts(rows)))
     return 0
-
-
-def _check_hands_held(path: Path, hands: list[str] | None) -> None:
-    """ConfigError naming the hands of ``path``'s records when ``hands`` names one that no record is of (a typo, or
-    another dataset's hand, would otherwise read as "no record with trials")."""
-    if not hands:
-        return
-    from ges_core.dataset import open_dataset
-    from ges_core.errors import ConfigError
-
-    held = sorted({record.hand for record in open_dataset(path).records()})
-    missing = [hand for hand in hands if hand not in held]
-    if missing:
-        raise ConfigError(
-            f"{path} holds no record of hand {', '.join(missing)}; its records are of: {', '.join(held) or 'none'}"
-        )

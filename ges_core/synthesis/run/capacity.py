@@ -14,13 +14,14 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
+from ges_core.errors import ConfigError
 from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS
 from ges_core.synthesis.physics.capacity import NEAR, fingertip_capacity
 from ges_core.synthesis.physics.robust import effective_friction, perturbations
 from ges_core.synthesis.run.config import SynthesisConfig
 from ges_core.synthesis.types import Grasp
 
-__all__ = ["CLOUD_POINTS", "bound_counts", "bounds_table", "counts_table", "trial_bounds"]
+__all__ = ["CLOUD_POINTS", "bound_counts", "bounds_table", "counts_table", "trial_asks", "trial_bounds"]
 
 CLOUD_POINTS = 4096
 """Surface samples per object for the touching test and the normals (about 2 mm apart on a 10 cm object)."""
@@ -31,11 +32,13 @@ def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str]
     only theirs): hand, object, mass (kg), fingers touching, the capacity over the weight per friction coefficient,
     and per drive-limited trial and simulator whether it passed and whether its ask is within the bound. Each trial's
     ask comes from the trial itself as the run made it (:func:`~ges_core.synthesis.physics.robust.perturbations` under
-    the hand's settings of the dataset's config): its density factor at the friction it ran with."""
+    the hand's settings of the dataset's config): its density factor at the friction it ran with. A name in ``hands``
+    that no record is of is a ConfigError naming the hands the dataset holds."""
     from ges_core.dataset import open_dataset
     from ges_core.env.grasp_source import library_for
 
     dataset = open_dataset(folder)
+    _check_hands_held(dataset, hands)
     config = SynthesisConfig.of_dataset(dataset)
     library = library_for(dataset)
     models, configs, clouds, rows = {}, {}, {}, []
@@ -53,7 +56,7 @@ def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str]
             clouds[record.object_id] = library.point_cloud(record.object_id, CLOUD_POINTS, seed=0)
         asset = library.get(record.object_id)
         nominal = effective_friction(cfg.scene.hand_friction, asset.friction)
-        asks = _asks(cfg, asset, record.seed)
+        asks = trial_asks(cfg, asset, record.seed)
         grasp = Grasp(record.hand, record.grasp.wrist_pose, record.grasp.q)
         ratio, fingers = {}, 0
         for mu in sorted({nominal} | {mu for _, mu in asks.values()}):
@@ -75,7 +78,7 @@ def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str]
     return rows
 
 
-def _asks(cfg: SynthesisConfig, asset, seed: int) -> dict[str, tuple[float, float]]:
+def trial_asks(cfg: SynthesisConfig, asset, seed: int) -> dict[str, tuple[float, float]]:
     """Trial name -> (weight multiple, effective friction) of each trial of ``cfg.robust`` that changes the load
     (limits, mass, friction), as :func:`~ges_core.synthesis.physics.robust.perturbations` makes them."""
     hand_mu = cfg.scene.hand_friction
@@ -84,6 +87,17 @@ def _asks(cfg: SynthesisConfig, asset, seed: int) -> dict[str, tuple[float, floa
         for p in perturbations(cfg.robust, hand_mu, asset, seed)
         if p.shift is None
     }
+
+
+def _check_hands_held(dataset, hands: list[str] | None) -> None:
+    """ConfigError naming the hands of ``dataset``'s records (read off its index, no record loaded) when ``hands``
+    names one that no record is of: a typo, or another dataset's hand, would otherwise read as "no record with
+    trials"."""
+    held = sorted({entry["hand"] for entry in dataset.entries})
+    missing = [hand for hand in hands or () if hand not in held]
+    if missing:
+        of = ", ".join(held) or "none"
+        raise ConfigError(f"{dataset.root} holds no record of hand {', '.join(missing)}; its records are of: {of}")
 
 
 def bound_counts(rows: list[dict]) -> dict[str, dict[str, int]]:
