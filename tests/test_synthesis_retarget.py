@@ -205,6 +205,9 @@ def test_objective_is_the_squared_fingertip_distance_without_normals(hands, solv
     targets = solver.fingertips(random_finger_q(hand, 5, seed=13))
     expected = ((solver.fingertips(q) - targets) ** 2).sum(dim=(1, 2))
     torch.testing.assert_close(solver.objective(q, targets), expected, atol=1e-12, rtol=0)
+    thumb = FINGER_SLOTS.index("thumb")  # the Shadow's fingers are its slots, in slot order
+    expected_thumb = ((solver.fingertips(q)[:, thumb] - targets[:, thumb]) ** 2).sum(-1)
+    torch.testing.assert_close(solver.finger_objective(q, targets)[:, solver.thumb_finger], expected_thumb)
 
 
 # -- topology descriptors ------------------------------------------------------------------------
@@ -289,14 +292,19 @@ def test_box_grasp_puts_fingertips_on_the_contacts(hands, kins, retargeters, nam
     assert mean_mm < 5.0, f"mean {mean_mm:.2f} mm"
 
 
-def grasp_objective(retargeter: GraspRetargeter, grasp: Grasp, contacts: ContactSet) -> float:
-    """The solver objective of a returned grasp, recomputed from its base pose (object -> base frame)."""
+def finger_objective(retargeter: GraspRetargeter, grasp: Grasp, contacts: ContactSet) -> np.ndarray:
+    """(F,) each finger's solver objective at a returned grasp, recomputed from its base pose (object -> base)."""
     base = pose_to_matrix(grasp.wrist_pose)
     rot, trans = base[:3, :3], base[:3, 3]
     positions = raise_contacts(contacts.positions[None], retargeter.config.min_contact_height)[0]
     targets = torch.as_tensor(((positions - trans) @ rot)[None])
     normals = torch.as_tensor((contacts.normals @ rot)[None])
-    return float(retargeter.solver.objective(torch.as_tensor(grasp.q)[None], targets, normals)[0])
+    return retargeter.solver.finger_objective(torch.as_tensor(grasp.q)[None], targets, normals)[0].numpy()
+
+
+def grasp_objective(retargeter: GraspRetargeter, grasp: Grasp, contacts: ContactSet) -> float:
+    """The solver objective of a returned grasp (every finger weighted by its slot count alone)."""
+    return float(finger_objective(retargeter, grasp, contacts).sum())
 
 
 @pytest.mark.parametrize("name", HANDS)
@@ -317,6 +325,25 @@ def test_wrist_search_fits_at_least_as_well_as_the_papers_placement(hands, kins,
         assert b <= a + 1e-12
         better += b < 0.5 * a
     assert better >= 1, f"{name}: the search never halved the objective"
+
+
+@pytest.mark.parametrize("name", HANDS)
+def test_thumb_weight_trades_the_other_fingers_fit_for_the_thumbs(hands, kins, name):
+    """The fingers are solved apart, so the thumb's weight only ranks the placements: raising it can only lower the
+    thumb's fit term at the winning placement and raise the others' (the argmin of a sum with one term weighted
+    more), and on these boxes it does move the wrist."""
+    plain, thumbed = (
+        GraspRetargeter(hands[name], RetargetConfig(wrist_search={"thumb_weight": w}), kinematics=kins[name])
+        for w in (1.0, 8.0)
+    )
+    contacts = box_contact_sets()
+    thumb, moved = plain.solver.thumb_finger, 0
+    for c, a, b in zip(contacts, plain.retarget_many(contacts), thumbed.retarget_many(contacts), strict=True):
+        fa, fb = finger_objective(plain, a, c), finger_objective(plain, b, c)
+        assert fb[thumb] <= fa[thumb] + 1e-12, (c.object_id, fa, fb)
+        assert np.delete(fb, thumb).sum() >= np.delete(fa, thumb).sum() - 1e-12, (c.object_id, fa, fb)
+        moved += fb[thumb] < 0.5 * fa[thumb]
+    assert moved >= 2, f"{name}: the thumb's weight halved its fit term on {moved} of {len(contacts)} boxes"
 
 
 def test_lateral_slide_moves_the_wrist_along_the_lateral_axis(hands, kins):

@@ -221,8 +221,10 @@ class GraspRetargeter:
         q, residual = self.solver.solve(targets, q0, normals=normals_base)
         q_open = torch.where(self._opened, self.solver.open_pose, q)  # how refinement and the pre-grasp start
         at_grasp = self._hand_points(q, base)
+        fit = self.solver.finger_objective(q, targets, normals_base)
+        fit[:, self.solver.thumb_finger] *= c.wrist_search.thumb_weight
         cost = (
-            self.solver.objective(q, targets, normals_base).numpy()
+            fit.sum(-1).numpy()
             + table_penalty(at_grasp[..., 2], c.wrist_search)
             + table_penalty(self._hand_points(q_open, base)[..., 2], c.wrist_search)
             + self._object_penalty(at_grasp, clouds, m)

@@ -7,8 +7,8 @@ fingers then push the object sideways and no grasp holds. This module makes the 
 small search: candidate placements vary the paper's roll, pitch, palm distance and ``y_d`` and add a
 yaw about the palm normal through the contacts' centre and a slide along the lateral axis; every
 candidate's joints are solved (one batch), and the candidate with the lowest retargeting objective
-(fingertip + pad terms, plus the table and object penalties) wins. The paper's own placement is
-candidate 0 and wins ties. ``enabled=False`` gives the paper's placement.
+(fingertip + pad terms, the thumb's weighted ``thumb_weight`` times, plus the table and object penalties) wins.
+The paper's own placement is candidate 0 and wins ties. ``enabled=False`` gives the paper's placement.
 
 The candidate set is a fixed, seeded sample of the grid, the same for every grasp, so a grasp's
 result never depends on its batch mates.
@@ -23,7 +23,7 @@ import numpy as np
 import torch
 from pydantic import Field
 
-from ges_core.config import ConfigModel
+from ges_core.config import STORED_WHEN_SET, ConfigModel
 from ges_core.synthesis.retarget.wrist import HandFrame, TopologyDescriptors, wrist_poses
 
 __all__ = [
@@ -64,6 +64,14 @@ class WristSearchConfig(ConfigModel):
         96, ge=1, description="placements tried per grasp without lateral slide: the paper's plus a seeded sample"
     )
     seed: int = Field(0, description="seed of the grid sample")
+    # thumb_weight: the fingers' joints are solved apart (VectorRetargeter), so this only ranks the placements. The
+    # thumb opposes all the others; a placement where it lands off its contact is rarely held. MEASURED_PLACEHOLDER
+    thumb_weight: float = Field(
+        1.0,
+        ge=0,
+        description="weight of the thumb's fit term against each other finger's when ranking placements",
+        json_schema_extra=STORED_WHEN_SET,  # added after datasets were written: stored only when set
+    )
     # Table: points on every link's collision geometry (ges_core.collision_points) should stay 5 mm above
     # the table (closing fingers move a few mm). Without it the search traded table contact for fingertip
     # fit (Allegro refinement table_contact 2 -> 5 of 19 demo objects).

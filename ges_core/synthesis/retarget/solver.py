@@ -216,6 +216,11 @@ class VectorRetargeter:
         residual = (points[:, self.layout.slot_finger, 0] - aims).norm(dim=-1).mean(dim=1)
         return q, residual
 
+    @property
+    def thumb_finger(self) -> int:
+        """Index among the F used fingers (:meth:`finger_objective`'s columns) of the finger serving the thumb slot."""
+        return int(self.layout.slot_finger[FINGER_SLOTS.index("thumb")])
+
     def objective(
         self,
         q: torch.Tensor,
@@ -225,11 +230,21 @@ class VectorRetargeter:
         """(B,) the fit part of the objective at ``q`` (B, K): weighted squared distances of the aimed points, m^2.
 
         targets, normals: as for :meth:`solve`. Lets a caller compare solutions of different problems
-        (e.g. wrist placements) on one scale."""
+        (e.g. wrist placements) on one scale. The sum over fingers of :meth:`finger_objective`."""
+        return self.finger_objective(q, targets, normals).sum(-1)
+
+    def finger_objective(
+        self,
+        q: torch.Tensor,
+        targets: torch.Tensor | np.ndarray,
+        normals: torch.Tensor | np.ndarray | None = None,
+    ) -> torch.Tensor:
+        """(B, F) each used finger's share of :meth:`objective` (its slot count times its points' weighted squared
+        distances), m^2, fingers in :attr:`num_fingers` order (the thumb's column: :attr:`thumb_finger`)."""
         problem = self._problem(self._check_targets(targets) * self.config.alpha, normals)
         points = self._points(torch.as_tensor(q).to(self.dtype), problem.offsets)
         fit = problem.weights * ((points - problem.targets) ** 2).sum(-1)
-        return (self.layout.weights * fit.sum(-1)).sum(-1)
+        return self.layout.weights * fit.sum(-1)
 
     # -- input checks -----------------------------------------------------------------------
     def _check_targets(self, targets: torch.Tensor | np.ndarray, what: str = "targets") -> torch.Tensor:
