@@ -352,17 +352,54 @@ def test_fixed_object_is_not_moved_even_without_freezing(allegro, sim_name):
 @pytest.mark.sim
 @pytest.mark.parametrize("sim_name", SIMS)
 def test_creep_brings_fingertips_that_stop_short_onto_the_object(allegro, sim_name):
-    """A retargeted pose a little short of the surface: without the creep no tip ever touches."""
+    """A retargeted pose a little short of the surface: without the creep no tip ever touches. Short along the
+    closing path from the open pose, so the close starts there (from the retracted hand, the default, PyBullet's
+    index reached the box at this pose: short along one path is not along every other)."""
     d = allegro.description
     with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
         touching = refine_grasp(sim, allegro, box_object(), top_grasp(allegro), RefineConfig(overshoot=0.0)).grasp
         q_open = np.where(open_joint_mask(d, 1), np.asarray(d.open_pose), touching.q)
         q_short = touching.q - 0.05 * closing_direction(q_open, touching.q)  # each joint 0.05 rad more open
         short = Grasp(hand=touching.hand, wrist_pose=touching.wrist_pose, q=q_short)
-        stops = refine_grasp(sim, allegro, box_object(), short, RefineConfig(overshoot=0.0))
-        creeps = refine_grasp(sim, allegro, box_object(), short)
+        stops = refine_grasp(sim, allegro, box_object(), short, RefineConfig(overshoot=0.0, start="open_pose"))
+        creeps = refine_grasp(sim, allegro, box_object(), short, RefineConfig(start="open_pose"))
     assert stops.grasp.meta["touching_fingers"] == () and refine_verdict(stops, allegro) == "few_contacts"
     assert {"index", "thumb"} <= set(creeps.frozen) and refine_verdict(creeps, allegro) == "ok"
+
+
+def _spy_hand_states(sim: SimBackend) -> list[np.ndarray]:
+    """The joints (B, K) of every ``sim.set_hand_state`` call from now on (the backend still runs them)."""
+    given, set_state = [], sim.set_hand_state
+
+    def spy(q, *args, **kwargs):
+        given.append(np.array(q))
+        return set_state(q, *args, **kwargs)
+
+    sim.set_hand_state = spy
+    return given
+
+
+@pytest.mark.sim
+def test_the_close_starts_from_the_retracted_hand_by_default(allegro):
+    """refine_grasp puts the hand first at ``retract_joints`` of the grasp (the pre-grasp's opened hand), or with
+    ``start="open_pose"`` at the open pose but the thumb's kept joints; a spy on the real backend reads the state it
+    is given."""
+    from ges_core.synthesis.physics.squeeze import retract_joints
+
+    d, grasp = allegro.description, top_grasp(allegro)
+    q = d.apply_couplings(grasp.q)
+    expected = {
+        "retract": retract_joints(allegro, q, travel=RefineConfig().start_retract),
+        "open_pose": np.where(open_joint_mask(d, THUMB_KEEP), np.asarray(d.open_pose), q),
+    }
+    assert RefineConfig().start == "retract"
+    for start, q_start in expected.items():
+        with REGISTRY.build_sim("sapien", SceneConfig()) as sim:
+            given = _spy_hand_states(sim)
+            refine_grasp(sim, allegro, box_object(), grasp, RefineConfig(start=start, rest_steps=0))
+        assert len(given) == 1, len(given)  # staging puts the object only; the close moves the hand by drives
+        np.testing.assert_allclose(given[0][0], q_start, atol=1e-12, err_msg=start)
+    assert np.abs(expected["retract"] - expected["open_pose"]).max() > 0.1  # two different hands
 
 
 @pytest.mark.sim
