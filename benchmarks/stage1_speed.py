@@ -22,7 +22,12 @@ Also measured:
   the solver skipped, at 6 and 20 iterations.
 
     python benchmarks/stage1_speed.py [--procedural N] [--real N] [--hands allegro shadow] [--load 2] [--robust]
-        [--skip-threads] [--results NAME]
+        [--skip-threads] [--baseline KEY=VALUE ...] [--results NAME]
+
+``--baseline KEY=VALUE`` (repeatable, the synthesis config's dotted keys as ``ges synth -o`` takes them, e.g.
+``hand_settings.shadow.retarget.wrist_search.thumb_weight=1``): the pipeline is also timed with those values, set by
+set in turn with the defaults' run (baseline first), and a third table gives each median's ratio, defaults over
+baseline.
 
 Also counted: the physics steps of each record (every backend's steps while the record's refinement and nominal
 trials ran, and apart those of its perturbation trials): unlike seconds, the count does not drift with the
@@ -49,8 +54,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from ges_core.config import apply_overrides, parse_model
 from ges_core.dataset import open_dataset, software_versions
-from ges_core.errors import AssetError, SynthesisError
+from ges_core.errors import AssetError, ConfigError, SynthesisError
 from ges_core.objects.library import LibraryConfig
 from ges_core.objects.procedural import CATEGORIES
 from ges_core.sim import SimBackend
@@ -343,6 +349,18 @@ def print_pipeline_table(summary: dict) -> None:
         )
 
 
+def print_ratio_table(baseline: dict, summary: dict) -> None:
+    """Each median of the defaults' run over the baseline's (below 1: the defaults cost less)."""
+    keys = ("total", "refinement", "validation", "attempts", "physics_steps")
+    print("\nratio, defaults / baseline:\n")
+    print("| set | hand | " + " | ".join(keys) + " |")
+    print("|---|---|" + "---|" * len(keys))
+    for (group, hand), s in summary.items():
+        b = baseline[(group, hand)]
+        cells = [f"{s[k] / b[k]:.2f}" if s[k] is not None and b[k] else "-" for k in keys]
+        print(f"| {group} | {hand} | " + " | ".join(cells) + " |")
+
+
 def print_tables(threads: dict | None, solver: list[dict]) -> None:
     if threads:
         cores = threads["cores"]
@@ -369,6 +387,13 @@ def main() -> None:
     parser.add_argument("--skip-threads", action="store_true", help="skip the torch-threads comparison")
     parser.add_argument("--results", default="stage1_speed", help="benchmarks/results/NAME.json")
     parser.add_argument(
+        "--baseline",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="also time the pipeline with this synthesis config value (repeatable) and print the ratios",
+    )
+    parser.add_argument(
         "--clock",
         choices=("cpu", "wall"),
         default="cpu",
@@ -381,22 +406,34 @@ def main() -> None:
     library = library_config.build()
     sets = object_sets(library, args.procedural, args.real)
     process_seconds, no_collision = warm_up(library, [i for ids in sets.values() for i in ids])
-    config = SynthesisConfig.model_validate(
-        {"library": library_config.model_dump(), "robust": {"enabled": args.robust}}
-    )
-    summary, records, wall = {}, {}, {}
+    data = {"library": library_config.model_dump(), "robust": {"enabled": args.robust}}
+    config = parse_model(SynthesisConfig, data)
+    runs = {"defaults": config}
+    if args.baseline:
+        try:  # a bad key stops here, not after the defaults' runs
+            runs = {"baseline": parse_model(SynthesisConfig, apply_overrides(data, args.baseline)), **runs}
+        except ConfigError as error:
+            raise SystemExit(f"--baseline: {error}") from error
+    timed = {name: ({}, {}, {}) for name in runs}  # run -> (summary, records, wall)
     with tempfile.TemporaryDirectory() as tmp:
         run_pipeline([first_object(sets)], args.hands, config, Path(tmp) / "warm", "wall")  # imports: untimed
         for group, ids in sets.items():
-            with steps_per_record() as counts:
-                got, wall[group] = run_pipeline(ids, args.hands, config, Path(tmp) / group, args.clock)
-            wall[group]["cpu_per_record"] = wall[group]["cpu"] / len(got)
-            rows = [per_record(r, counts) for r in got]
-            records[group] = rows
-            for hand in args.hands:
-                summary[(group, hand)] = summarize([r for r in rows if r["hand"] == hand], set(no_collision))
-    print(f"\nmedian seconds per object ({args.clock} clock), one process, one torch thread:")
-    print_pipeline_table(summary)
+            for name, run_config in runs.items():
+                summary, records, wall = timed[name]
+                with steps_per_record() as counts:
+                    got, wall[group] = run_pipeline(ids, args.hands, run_config, Path(tmp) / name / group, args.clock)
+                wall[group]["cpu_per_record"] = wall[group]["cpu"] / len(got)
+                rows = [per_record(r, counts) for r in got]
+                records[group] = rows
+                for hand in args.hands:
+                    summary[(group, hand)] = summarize([r for r in rows if r["hand"] == hand], set(no_collision))
+    summary, records, wall = timed["defaults"]
+    for name in runs:
+        what = f"with {' '.join(args.baseline)}" if name == "baseline" else "defaults"
+        print(f"\nmedian seconds per object ({args.clock} clock), one process, one torch thread, {what}:")
+        print_pipeline_table(timed[name][0])
+    if args.baseline:
+        print_ratio_table(timed["baseline"][0], summary)
     threads = None
     if not args.skip_threads and "real" in sets:  # the comparison retargets real scans
         threads = threads_under_load(library, sets["real"], args.hands, args.load)
@@ -415,6 +452,14 @@ def main() -> None:
             "benchmark": "stage1_speed",
             "goal_seconds": GOAL_SECONDS,
             "summary": [{"set": g, "hand": h, **s} for (g, h), s in summary.items()],
+            "baseline": None
+            if not args.baseline
+            else {
+                "overrides": args.baseline,
+                "summary": [{"set": g, "hand": h, **s} for (g, h), s in timed["baseline"][0].items()],
+                "run_seconds": timed["baseline"][2],
+                "records": timed["baseline"][1],
+            },
             "run_seconds": wall,
             "process_seconds_uncached_or_cached": process_seconds,
             "no_collision_model": no_collision,
