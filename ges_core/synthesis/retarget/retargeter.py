@@ -219,7 +219,9 @@ class GraspRetargeter:
         normals_base = torch.as_tensor(np.einsum("bji,bsj->bsi", rot, normals))
         q0 = torch.as_tensor(self.q_init).expand(b * m, -1)
         q, residual = self.solver.solve(targets, q0, normals=normals_base)
-        q_open = torch.where(self._opened, self.solver.open_pose, q)  # how refinement and the pre-grasp start
+        # the open-pose hand: refinement's start with refine.start=open_pose (the default, retract, backs each finger
+        # off its grasp instead; checking that hand here measured no better, docs/synthesis/refine_validate.md)
+        q_open = torch.where(self._opened, self.solver.open_pose, q)
         at_grasp = self._hand_points(q, base)
         fit = self.solver.finger_objective(q, targets, normals_base)
         fit[:, self.solver.thumb_finger] *= c.wrist_search.thumb_weight

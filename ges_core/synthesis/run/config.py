@@ -101,13 +101,14 @@ class SynthesisConfig(ConfigModel):
             return "failed" if value else "never"
         return value
 
-    # One opened hand for every step: retargeting checks the table clearance of the hand that refinement
-    # starts from and that the pre-grasp opens (see THUMB_KEEP for the value).
+    # The open-pose hand of every step: refinement's start with refine.start=open_pose, the pre-grasp's with
+    # pregrasp.opening=open_pose (both default to retracting each finger instead), and the hand whose table clearance
+    # the wrist search checks (see THUMB_KEEP for the value).
     thumb_keep: int = Field(
         THUMB_KEEP,
         ge=0,
-        description="proximal thumb joints the opened hand keeps at the grasp's values (refinement's start, "
-        "the pre-grasp, the wrist search's clearance check)",
+        description="proximal thumb joints the open-pose hand keeps at the grasp's values (refinement's start and "
+        "the pre-grasp when they open to the open pose; the wrist search's clearance check)",
     )
     # threads: how the run executes, not what it computes (records are bit-identical across counts), so it is
     # left out of dump() and of the dataset's run_config hash; ges_core.threads says why one is the default.
