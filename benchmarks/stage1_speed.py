@@ -414,32 +414,31 @@ def main() -> None:
             runs = {"baseline": parse_model(SynthesisConfig, apply_overrides(data, args.baseline)), **runs}
         except ConfigError as error:
             raise SystemExit(f"--baseline: {error}") from error
-    timed = {name: ({}, {}, {}) for name in runs}  # run -> (summary, records, wall)
+    # summaries[run][(set, hand)]: medians; records[run][set]: rows; walls[run][set]: seconds
+    summaries, records, walls = ({name: {} for name in runs} for _ in range(3))
     with tempfile.TemporaryDirectory() as tmp:
         run_pipeline([first_object(sets)], args.hands, config, Path(tmp) / "warm", "wall")  # imports: untimed
         for group, ids in sets.items():
             for name, run_config in runs.items():
-                summary, records, wall = timed[name]
                 with steps_per_record() as counts:
-                    got, wall[group] = run_pipeline(ids, args.hands, run_config, Path(tmp) / name / group, args.clock)
-                wall[group]["cpu_per_record"] = wall[group]["cpu"] / len(got)
-                rows = [per_record(r, counts) for r in got]
-                records[group] = rows
+                    got, wall = run_pipeline(ids, args.hands, run_config, Path(tmp) / name / group, args.clock)
+                walls[name][group] = {**wall, "cpu_per_record": wall["cpu"] / len(got)}
+                rows = records[name][group] = [per_record(r, counts) for r in got]
                 for hand in args.hands:
-                    summary[(group, hand)] = summarize([r for r in rows if r["hand"] == hand], set(no_collision))
-    summary, records, wall = timed["defaults"]
+                    rows_of_hand = [r for r in rows if r["hand"] == hand]
+                    summaries[name][(group, hand)] = summarize(rows_of_hand, set(no_collision))
     for name in runs:
         what = f"with {' '.join(args.baseline)}" if name == "baseline" else "defaults"
         print(f"\nmedian seconds per object ({args.clock} clock), one process, one torch thread, {what}:")
-        print_pipeline_table(timed[name][0])
+        print_pipeline_table(summaries[name])
     if args.baseline:
-        print_ratio_table(timed["baseline"][0], summary)
+        print_ratio_table(summaries["baseline"], summaries["defaults"])
     threads = None
     if not args.skip_threads and "real" in sets:  # the comparison retargets real scans
         threads = threads_under_load(library, sets["real"], args.hands, args.load)
     solver = solver_active_set()
     print_tables(threads, solver)
-    for group, w in wall.items():
+    for group, w in walls["defaults"].items():
         print(
             f"{group}: whole run {w['wall']:.1f} s wall, {w['cpu']:.1f} s CPU = {w['cpu_per_record']:.3f} CPU s per "
             "record (everything: the four steps, simulator setup, dataset writing)"
@@ -451,21 +450,21 @@ def main() -> None:
         {
             "benchmark": "stage1_speed",
             "goal_seconds": GOAL_SECONDS,
-            "summary": [{"set": g, "hand": h, **s} for (g, h), s in summary.items()],
+            "summary": [{"set": g, "hand": h, **s} for (g, h), s in summaries["defaults"].items()],
             "baseline": None
             if not args.baseline
             else {
                 "overrides": args.baseline,
-                "summary": [{"set": g, "hand": h, **s} for (g, h), s in timed["baseline"][0].items()],
-                "run_seconds": timed["baseline"][2],
-                "records": timed["baseline"][1],
+                "summary": [{"set": g, "hand": h, **s} for (g, h), s in summaries["baseline"].items()],
+                "run_seconds": walls["baseline"],
+                "records": records["baseline"],
             },
-            "run_seconds": wall,
+            "run_seconds": walls["defaults"],
             "process_seconds_uncached_or_cached": process_seconds,
             "no_collision_model": no_collision,
             "torch_threads": threads,
             "solver_active_set": solver,
-            "records": records,
+            "records": records["defaults"],
             "config": {
                 "workers": 1,
                 "torch_threads": 1,

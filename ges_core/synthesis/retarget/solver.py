@@ -242,9 +242,7 @@ class VectorRetargeter:
         """(B, F) each used finger's share of :meth:`objective` (its slot count times its points' weighted squared
         distances), m^2, fingers in :attr:`num_fingers` order (the thumb's column: :attr:`thumb_finger`)."""
         problem = self._problem(self._check_targets(targets) * self.config.alpha, normals)
-        points = self._points(torch.as_tensor(q).to(self.dtype), problem.offsets)
-        fit = problem.weights * ((points - problem.targets) ** 2).sum(-1)
-        return self.layout.weights * fit.sum(-1)
+        return self._fit(self._points(torch.as_tensor(q).to(self.dtype), problem.offsets), problem)
 
     # -- input checks -----------------------------------------------------------------------
     def _check_targets(self, targets: torch.Tensor | np.ndarray, what: str = "targets") -> torch.Tensor:
@@ -301,13 +299,17 @@ class VectorRetargeter:
         q[:, fol] = torch.maximum(torch.minimum(value, hi), lo)
         return q, (value >= lo) & (value <= hi)
 
+    def _fit(self, points: torch.Tensor, problem: _Problem) -> torch.Tensor:
+        """(B, F) each finger's fit term: its slot count times its aimed points' weighted squared distances, m^2;
+        points (B, F, P, 3) as ``problem`` aims them."""
+        return self.layout.weights * (problem.weights * ((points - problem.targets) ** 2).sum(-1)).sum(-1)
+
     def _cost(self, points: torch.Tensor, q: torch.Tensor, problem: _Problem, prev: torch.Tensor) -> torch.Tensor:
-        """(B, F) each finger's share of the objective; points (B, F, P, 3) as ``problem`` aims them."""
-        lay = self.layout
-        fit = lay.weights * (problem.weights * ((points - problem.targets) ** 2).sum(-1)).sum(-1)
+        """(B, F) each finger's share of the objective (fit plus the beta term); points (B, F, P, 3) as ``problem``
+        aims them."""
         dq2 = torch.zeros(q.shape[0], self.num_fingers + 1, dtype=self.dtype)
-        dq2.index_add_(1, lay.joint_finger, (q - prev) ** 2)
-        return fit + self.config.beta * dq2[:, :-1]
+        dq2.index_add_(1, self.layout.joint_finger, (q - prev) ** 2)
+        return self._fit(points, problem) + self.config.beta * dq2[:, :-1]
 
     def _seed_table(self) -> tuple[torch.Tensor, torch.Tensor]:
         """(M, K) random joint values (other joints open, couplings applied) and (M, F, 2, 3) their aimed points."""
