@@ -118,13 +118,19 @@ def press_directions(d: HandDescription, tips: np.ndarray) -> np.ndarray:
 
 
 def retract_joints(
-    hand: HandModel, q_grasp: np.ndarray, *, travel: float, max_angle: float = MAX_RETRACT_ANGLE
+    hand: HandModel,
+    q_grasp: np.ndarray,
+    *,
+    travel: float,
+    max_angle: float = MAX_RETRACT_ANGLE,
+    finger_scale: np.ndarray | None = None,
 ) -> np.ndarray:
     """(K,) joints with each fingertip backed off about ``travel`` m from ``q_grasp`` (K,) against its press direction.
 
     Per finger f, the joints move along ``-J_f^T u_f`` (:func:`press_torques`, reversed), scaled so the tip's
     first-order travel along ``-u_f`` is ``travel``; the finger's largest change is capped at ``max_angle`` rad
-    (the whole finger scaled, so the direction is kept), then joint limits and couplings are applied. Joints
+    (the whole finger scaled, so the direction is kept), then multiplied by ``finger_scale[f]`` ((F,) in [0, 1],
+    fingers in ``description.fingers`` order; None: all 1), then joint limits and couplings are applied. Joints
     of no finger (the Shadow's wrist) keep their values. ``travel = 0`` returns ``q_grasp`` (couplings applied).
     """
     d = hand.description
@@ -143,6 +149,8 @@ def retract_joints(
         largest = float(np.abs(step).max())
         if largest > max_angle:
             step *= max_angle / largest
+        if finger_scale is not None:
+            step *= float(finger_scale[f])
         out[idx] = np.clip(q[idx] + step, limits[idx, 0], limits[idx, 1])
     return d.apply_couplings(out)
 
