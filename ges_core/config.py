@@ -20,7 +20,9 @@ __all__ = [
     "ConfigModel",
     "Defaults",
     "RegistryConfig",
+    "absent_means",
     "apply_overrides",
+    "fill_absent",
     "load_config",
     "parse_model",
     "read_yaml",
@@ -42,9 +44,35 @@ in every record): :func:`stored_dump` leaves it out while it holds its default, 
 stores what it stored before the field existed, and such a stored config still matches."""
 
 
+def absent_means(value: object) -> dict:
+    """``json_schema_extra`` of a field added after configs were stored whose *default changes what runs*: a stored
+    config leaves it out while it holds ``value``, what the code did before the field existed. So a config stored
+    before matches a run that asks for ``value`` (and resumes it), a run at the new default is refused on resume
+    rather than mixed, and :func:`fill_absent` reads an old stored config as ``value``, not as the new default.
+    (:data:`STORED_WHEN_SET` is the case where the default is the old behaviour.)"""
+    return {"absent_means": value}
+
+
+def fill_absent(cls: type[BaseModel], data: dict) -> dict:
+    """A copy of stored config ``data`` (for ``cls``) with every :func:`absent_means` field it lacks, nested ones
+    included, set to what its absence means; parse it then (:func:`parse_model`)."""
+    out = dict(data)
+    for name, info in cls.model_fields.items():
+        key, extra = info.alias or name, info.json_schema_extra or {}
+        sub = info.annotation
+        if isinstance(sub, type) and issubclass(sub, BaseModel):
+            if isinstance(out.get(key), dict) or key not in out:
+                filled = fill_absent(sub, out.get(key, {}))
+                if key in out or filled:
+                    out[key] = filled
+        elif isinstance(extra, dict) and "absent_means" in extra and key not in out:
+            out[key] = extra["absent_means"]
+    return out
+
+
 def stored_dump(model: ConfigModel) -> dict:
     """JSON-ready ``model`` (keys by alias) for storing, without the :data:`STORED_WHEN_SET` fields, nested ones
-    included, that hold their defaults."""
+    included, that hold their defaults, nor the :func:`absent_means` fields that hold what their absence means."""
     data = model.model_dump(mode="json", by_alias=True)
     _drop_unset_late_fields(model, data)
     return data
@@ -57,14 +85,20 @@ def _drop_unset_late_fields(model: BaseModel, data: dict) -> None:
             continue
         if isinstance(value, BaseModel):
             _drop_unset_late_fields(value, data[key])
-        elif (info.json_schema_extra or {}).get("stored_when_set") and value == info.get_default(
-            call_default_factory=True
-        ):
+        elif _left_out(info, value):
             del data[key]
         elif isinstance(value, dict):  # models keyed by name (LibraryConfig.object_properties)
             for item, sub in value.items():
                 if isinstance(sub, BaseModel) and isinstance(data[key].get(item), dict):
                     _drop_unset_late_fields(sub, data[key][item])
+
+
+def _left_out(info, value) -> bool:
+    """Whether a field's ``value`` is left out of a stored config (:data:`STORED_WHEN_SET`, :func:`absent_means`)."""
+    extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+    if extra.get("stored_when_set"):
+        return value == info.get_default(call_default_factory=True)
+    return "absent_means" in extra and value == extra["absent_means"]
 
 
 class Defaults(ConfigModel):

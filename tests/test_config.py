@@ -5,7 +5,16 @@ from __future__ import annotations
 import pytest
 from pydantic import Field
 
-from ges_core.config import STORED_WHEN_SET, ConfigModel, RegistryConfig, apply_overrides, load_config, stored_dump
+from ges_core.config import (
+    STORED_WHEN_SET,
+    ConfigModel,
+    RegistryConfig,
+    absent_means,
+    apply_overrides,
+    fill_absent,
+    load_config,
+    stored_dump,
+)
 from ges_core.errors import ConfigError
 from ges_core.sim import SceneConfig
 from ges_core.sim_check import SimCheckConfig
@@ -139,3 +148,28 @@ def test_stored_dump_leaves_out_late_fields_at_their_defaults_at_any_depth():
     named = _Outer.model_validate({"by_name": {"x": {}, "y": {"late": 4}}})
     assert stored_dump(named)["by_name"] == {"x": {"kept": 1}, "y": {"kept": 1, "late": 4}}
     assert _Outer.model_validate(stored_dump(_Outer())) == _Outer()  # what is left out reads back as the default
+
+
+class _Changed(ConfigModel):
+    kept: int = 1
+    cap: float | None = Field(0.005, json_schema_extra=absent_means(None))
+
+
+class _HoldsChanged(ConfigModel):
+    inner: _Changed = Field(default_factory=_Changed)
+    other: _Inner = Field(default_factory=_Inner)
+
+
+def test_a_field_whose_default_changed_behaviour_is_stored_unless_it_asks_for_the_old_behaviour():
+    """absent_means(None): the new default is stored (an old config, which lacks it, no longer matches a default run),
+    the old behaviour is left out (it matches, and resumes), and a stored config that lacks it reads as the old
+    behaviour, not as the new default, at any depth."""
+    old_stored = {"inner": {"kept": 1}, "other": {"kept": 1}}  # written before the field existed
+    assert stored_dump(_HoldsChanged()) == {"inner": {"kept": 1, "cap": 0.005}, "other": {"kept": 1}}
+    assert stored_dump(_HoldsChanged.model_validate({"inner": {"cap": None}})) == old_stored
+    assert stored_dump(_HoldsChanged.model_validate({"inner": {"cap": 0.01}}))["inner"]["cap"] == 0.01
+    read = _HoldsChanged.model_validate(fill_absent(_HoldsChanged, old_stored))
+    assert read.inner.cap is None and _HoldsChanged.model_validate(old_stored).inner.cap == 0.005
+    assert fill_absent(_HoldsChanged, {}) == {"inner": {"cap": None}}  # a section stored without it: the same
+    assert fill_absent(_HoldsChanged, {"inner": {"cap": 0.01}}) == {"inner": {"cap": 0.01}}  # stored: kept
+    assert old_stored == {"inner": {"kept": 1}, "other": {"kept": 1}}  # the input is not changed

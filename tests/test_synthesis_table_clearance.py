@@ -4,6 +4,8 @@ retraction (every finger clears, none is shortened more than it must be) and a r
 
 from __future__ import annotations
 
+from types import SimpleNamespace
+
 import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
@@ -180,3 +182,20 @@ def test_the_pregrasp_clears_the_table_at_both_ends_of_its_approach(hand):
         np.testing.assert_array_equal(pre.q, alone)
     full = pregrasp(hand, grasp, np.array([0.0, 0.0, -1.0]), PregraspConfig(clearance=None)).q
     np.testing.assert_array_equal(full, retract_joints(hand, q, travel=config.retract))
+
+
+def test_a_dataset_written_before_the_cap_reads_and_resumes_as_the_full_retraction():
+    """Its stored run config lacks both keys: read back, they are null (the full retraction it ran with, not the new
+    5 mm), and a run asking for null stores exactly what it stored, so it resumes; the default stores 5 mm, so a
+    default run is refused on resume rather than mixed."""
+    from ges_core.synthesis import SynthesisConfig
+
+    full = SynthesisConfig.model_validate({"refine": {"start_clearance": None}, "pregrasp": {"clearance": None}})
+    old = full.dump()
+    assert "start_clearance" not in old["refine"] and "clearance" not in old["pregrasp"]
+    new = SynthesisConfig().dump()
+    assert (new["refine"]["start_clearance"], new["pregrasp"]["clearance"]) == (CLEARANCE, CLEARANCE)
+    written = SimpleNamespace(run_config=old, manifest={"version": 3}, root="old-dataset")  # what of_dataset reads
+    read = SynthesisConfig.of_dataset(written)
+    assert read.refine.start_clearance is None and read.pregrasp.clearance is None
+    assert read == full

@@ -32,7 +32,7 @@ import numpy as np
 from pydantic import Field
 
 from ges_core.arrays import checked_array
-from ges_core.config import ConfigModel
+from ges_core.config import ConfigModel, absent_means
 from ges_core.errors import ArrayError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.synthesis.physics.scene import check_grasp
@@ -76,6 +76,7 @@ class PregraspConfig(ConfigModel):
         ge=0,
         description="opening=retract: m each retracted finger stays above the table at the pre-grasp and the grasp "
         "pose (null: the full retraction)",
+        json_schema_extra=absent_means(None),
     )
 
 

@@ -34,7 +34,7 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from ges_core.config import ConfigModel
+from ges_core.config import ConfigModel, absent_means
 from ges_core.errors import SimulationError, SynthesisError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
@@ -123,6 +123,7 @@ class RefineConfig(ConfigModel):
         0.005,
         ge=0,
         description="start=retract: m each retracted finger stays above the table (null: the full retraction)",
+        json_schema_extra=absent_means(None),
     )
     # Resting-pose check (issue 11: a scanned strawberry rolled 23 mm in 1 s in another engine). Before the close,
     # the object is set down alone, tilted rest_tilt_deg, for rest_steps; moving more than rest_max_shift or

@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from ges_core.config import STORED_WHEN_SET, ConfigModel, parse_model, stored_dump
+from ges_core.config import STORED_WHEN_SET, ConfigModel, fill_absent, parse_model, stored_dump
 from ges_core.errors import ConfigError
 from ges_core.hand_settings import check_settings, merge_settings, stage1_settings
 from ges_core.objects.library import LibraryConfig
@@ -211,7 +211,7 @@ class SynthesisConfig(ConfigModel):
             keeps = [section.pop("thumb_keep") for section in _v1_keep_sections(data) if "thumb_keep" in section]
             if keeps:
                 data["thumb_keep"] = keeps[0]
-        return parse_model(cls, data, where=f"{dataset.root} run_config")
+        return parse_model(cls, fill_absent(cls, data), where=f"{dataset.root} run_config")
 
 
 def _v1_keep_sections(data: dict) -> list[dict]:
