@@ -20,6 +20,8 @@ the object, rather than a fixed open pose that may sweep through it.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import torch
 
@@ -33,6 +35,7 @@ __all__ = [
     "SQUEEZE_FORCE",
     "press_directions",
     "press_torques",
+    "RetractSteps",
     "retract_joints",
     "squeeze_targets",
     "tips_and_jacobians",
@@ -133,26 +136,58 @@ def retract_joints(
     fingers in ``description.fingers`` order; None: all 1), then joint limits and couplings are applied. Joints
     of no finger (the Shadow's wrist) keep their values. ``travel = 0`` returns ``q_grasp`` (couplings applied).
     """
-    d = hand.description
-    q = d.apply_couplings(np.asarray(q_grasp, dtype=np.float64))
-    tips, jac = tips_and_jacobians(hand, q)
-    directions = press_directions(d, tips)
-    limits = d.limits_array
-    out = q.copy()
-    for f, finger in enumerate(d.fingers):
-        idx = d.joint_index(finger.joints)
-        grad = jac[f][:, idx].T @ directions[f]  # joint direction that moves the tip along u_f
-        speed = float(directions[f] @ (jac[f][:, idx] @ grad))  # tip travel along u_f per unit of grad, m
-        if speed <= 1e-12 or travel <= 0.0:
-            continue
-        step = -grad * (travel / speed)
-        largest = float(np.abs(step).max())
-        if largest > max_angle:
-            step *= max_angle / largest
-        if finger_scale is not None:
-            step *= float(finger_scale[f])
-        out[idx] = np.clip(q[idx] + step, limits[idx, 0], limits[idx, 1])
-    return d.apply_couplings(out)
+    return RetractSteps.of(hand, q_grasp, travel=travel, max_angle=max_angle).joints(finger_scale)
+
+
+@dataclass(frozen=True)
+class RetractSteps:
+    """Each finger's full retraction step from one grasp (:func:`retract_joints`), computed once (one Jacobian)
+    and applied at any per-finger fraction."""
+
+    description: HandDescription
+    q: np.ndarray
+    """(K,) the grasp's joints, couplings applied."""
+    steps: tuple[np.ndarray | None, ...]
+    """Per finger, (K,) its joint change at the full travel (zero off its joints; capped at ``max_angle``); None
+    where it does not move (no travel, or a tip its joints cannot move along its press direction)."""
+
+    @classmethod
+    def of(
+        cls, hand: HandModel, q_grasp: np.ndarray, *, travel: float, max_angle: float = MAX_RETRACT_ANGLE
+    ) -> RetractSteps:
+        d = hand.description
+        q = d.apply_couplings(np.asarray(q_grasp, dtype=np.float64))
+        tips, jac = tips_and_jacobians(hand, q)
+        directions = press_directions(d, tips)
+        steps = []
+        for f, finger in enumerate(d.fingers):
+            idx = d.joint_index(finger.joints)
+            grad = jac[f][:, idx].T @ directions[f]  # joint direction that moves the tip along u_f
+            speed = float(directions[f] @ (jac[f][:, idx] @ grad))  # tip travel along u_f per unit of grad, m
+            if speed <= 1e-12 or travel <= 0.0:
+                steps.append(None)
+                continue
+            own = -grad * (travel / speed)
+            largest = float(np.abs(own).max())
+            if largest > max_angle:
+                own *= max_angle / largest
+            step = np.zeros_like(q)
+            step[idx] = own
+            steps.append(step)
+        return cls(d, q, tuple(steps))
+
+    def joints(self, finger_scale: np.ndarray | None = None) -> np.ndarray:
+        """(K,) the grasp with each finger f moved ``finger_scale[f]`` of its step (None: all of it), then joint
+        limits and couplings."""
+        d, out = self.description, self.q.copy()
+        limits = d.limits_array
+        for f, finger in enumerate(d.fingers):
+            if self.steps[f] is None:
+                continue
+            idx = d.joint_index(finger.joints)
+            step = self.steps[f][idx] if finger_scale is None else self.steps[f][idx] * float(finger_scale[f])
+            out[idx] = np.clip(self.q[idx] + step, limits[idx, 0], limits[idx, 1])
+        return d.apply_couplings(out)
 
 
 def tips_and_jacobians(hand: HandModel, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -23,7 +23,7 @@ import torch
 
 from ges_core.hand import HandModel
 from ges_core.kinematics import HandKinematics, shared_kinematics
-from ges_core.synthesis.physics.squeeze import retract_joints
+from ges_core.synthesis.physics.squeeze import RetractSteps
 from ges_core.transforms import pose_to_matrix
 
 __all__ = ["FingerPoints", "finger_points", "table_clear_retract"]
@@ -47,16 +47,21 @@ class FingerPoints:
     finger_of: np.ndarray
     """(N,) index into ``description.fingers`` of the finger whose joints move each point; -1: none (the palm)."""
 
+    def local(self, kinematics: HandKinematics, q: np.ndarray) -> np.ndarray:
+        """(B, N, 3) every point in the hand's base frame, m, for joints ``q`` (B, K)."""
+        poses = kinematics.link_poses(torch.as_tensor(q, dtype=torch.float64), list(self.links))
+        poses = poses.numpy()[:, self.link_of]  # (B, N, 4, 4), base frame
+        return np.einsum("bnij,nj->bni", poses[..., :3, :3], self.points) + poses[..., :3, 3]
+
     def heights(self, kinematics: HandKinematics, q: np.ndarray, base: np.ndarray) -> np.ndarray:
         """(B, N) z of every point, m, for joints ``q`` (B, K) and the base-link pose ``base`` (4, 4), z-up frame."""
-        poses = kinematics.link_poses(torch.as_tensor(q, dtype=torch.float64), list(self.links))
-        poses = poses[:, torch.as_tensor(self.link_of)].numpy()  # (B, N, 4, 4), base frame
-        local = np.einsum("bnij,nj->bni", poses[..., :3, :3], self.points) + poses[..., :3, 3]
-        return local @ base[2, :3] + base[2, 3]
+        return self.local(kinematics, q) @ base[2, :3] + base[2, 3]
 
 
 def finger_points(hand: HandModel) -> FingerPoints:
-    """The :class:`FingerPoints` of ``hand`` (built once per URDF, joint order and fingers, then shared)."""
+    """The :class:`FingerPoints` of ``hand`` (built once per URDF, joint order and fingers, then shared, read-only):
+    the points the wrist search (:class:`ges_core.synthesis.retarget.retargeter.GraspRetargeter`), refinement's
+    start and the pre-grasp keep off the table."""
     d = hand.description
     fingers = tuple(tuple(d.joint_index(f.joints)) for f in d.fingers)
     key = (hand.urdf_text(), str(hand.urdf_path().parent), tuple(d.joint_names), fingers)
@@ -92,7 +97,10 @@ def _build(hand: HandModel, fingers: tuple[tuple[int, ...], ...]) -> FingerPoint
         np.abs(turned[1:] - turned[0]).max(axis=(-1, -2)) > _MOVED
     )  # (F, L)
     finger_of_link = np.where(moved.any(axis=0), moved.argmax(axis=0), -1)
-    return FingerPoints(links, points, link_of, finger_of_link[link_of])
+    arrays = (points, link_of, finger_of_link[link_of])
+    for a in arrays:  # shared by every caller (the wrist search, refinement, the pre-grasp)
+        a.flags.writeable = False
+    return FingerPoints(links, *arrays)
 
 
 def table_clear_retract(
@@ -104,7 +112,8 @@ def table_clear_retract(
     clearance: float,
     fractions: int = 4,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``retract_joints(hand, q_grasp, travel=travel)`` with each finger's travel shortened to clear the table.
+    """:func:`ges_core.synthesis.physics.squeeze.retract_joints` of ``q_grasp`` with each finger's travel shortened
+    to clear the table.
 
     q_grasp: (K,) grasp joints. base_pose: (7,) or (P, 7) the hand's base-link pose(s) [x, y, z, qw, qx, qy, qz] in
     the object's resting frame (table top at z = 0), m; with several, a finger must clear the table at each (the
@@ -118,11 +127,12 @@ def table_clear_retract(
     d = hand.description
     n_fingers = len(d.fingers)
     steps = np.linspace(1.0, 0.0, fractions + 1)
-    qs = np.stack([retract_joints(hand, q_grasp, travel=travel, finger_scale=np.full(n_fingers, s)) for s in steps])
+    retract = RetractSteps.of(hand, q_grasp, travel=travel)  # one Jacobian for every fraction
+    qs = np.stack([retract.joints(np.full(n_fingers, s)) for s in steps])
     pts = finger_points(hand)
+    local = pts.local(shared_kinematics(hand), qs)  # (S, N, 3): one forward-kinematics batch
     bases = pose_to_matrix(np.asarray(base_pose, dtype=np.float64).reshape(-1, 7))
-    kin = shared_kinematics(hand)
-    z = np.min([pts.heights(kin, qs, base) for base in bases], axis=0)  # (S, N), lowest over the poses
+    z = np.min([local @ base[2, :3] + base[2, 3] for base in bases], axis=0)  # (S, N), lowest over the poses
     kept = np.ones(n_fingers)
     for f in range(n_fingers):
         mine = pts.finger_of == f
@@ -131,4 +141,4 @@ def table_clear_retract(
         low = z[:, mine].min(axis=1)  # (S,), the last row is the grasp's own joints
         floor = min(clearance, float(low[-1]))
         kept[f] = steps[int(np.argmax(low >= floor))]
-    return retract_joints(hand, q_grasp, travel=travel, finger_scale=kept), kept
+    return retract.joints(kept), kept

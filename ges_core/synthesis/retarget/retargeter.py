@@ -22,14 +22,13 @@ import numpy as np
 import torch
 from pydantic import Field
 
-from ges_core.collision_points import collision_points
 from ges_core.config import ConfigModel
 from ges_core.contact import FINGER_SLOTS, ContactSet
 from ges_core.errors import SynthesisError
 from ges_core.hand import HandModel
-from ges_core.hand_prep.engine_urdf import engine_urdf
 from ges_core.kinematics import HandKinematics
 from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, open_joint_mask
+from ges_core.synthesis.physics.table_clearance import finger_points
 from ges_core.synthesis.retarget.search import (
     ObjectCloud,
     WristSearchConfig,
@@ -129,15 +128,15 @@ class GraspRetargeter:
         # 2 cm lower than at the grasp and pressed the table at 80-200 N on flat objects (jenga, random_urdfs/000).
         self._opened = torch.as_tensor(open_joint_mask(d, thumb_keep))
         """(K,) joints the pre-grasp and refinement open (their table clearance is checked too)."""
-        # engine_urdf: what the simulators load (absolute mesh paths, converted meshes, prepared parts); the
-        # very same text for a URDF that needs none of it (Allegro, Shadow), relative paths for a FileHand's.
-        hull = collision_points(engine_urdf(hand.urdf_text(), hand.urdf_path().parent))
-        self.hull_links = list(hull)
+        # the collision points refinement's start and the pre-grasp keep off the table too (engine_urdf: what the
+        # simulators load: absolute mesh paths, converted meshes, prepared parts)
+        hull = finger_points(hand)
+        self.hull_links = list(hull.links)
         """Links whose collision geometry the wrist search keeps off the table."""
-        self._hull_link_of = torch.as_tensor(np.repeat(np.arange(len(hull)), [len(v) for v in hull.values()]))
-        self._hull_points = torch.as_tensor(np.concatenate(list(hull.values())))  # (N, 3), link frames
+        self._hull_link_of = torch.tensor(hull.link_of)  # copies: the shared arrays are read-only
+        self._hull_points = torch.tensor(hull.points)  # (N, 3), link frames
         tips = {f.tip_link for f in d.fingers}
-        self._body_point = np.array([link not in tips for link in hull])[self._hull_link_of.numpy()]
+        self._body_point = np.array([link not in tips for link in hull.links])[hull.link_of]
         """(N,) True for collision points of links other than fingertips (kept out of the object)."""
 
     def retarget(self, contacts: ContactSet) -> Grasp:
