@@ -58,14 +58,13 @@ def fill_absent(cls: type[BaseModel], data: dict) -> dict:
     included, set to what its absence means; parse it then (:func:`parse_model`)."""
     out = dict(data)
     for name, info in cls.model_fields.items():
-        key, extra = info.alias or name, info.json_schema_extra or {}
-        sub = info.annotation
+        key, sub, extra = info.alias or name, info.annotation, _extra(info)
         if isinstance(sub, type) and issubclass(sub, BaseModel):
             if isinstance(out.get(key), dict) or key not in out:
                 filled = fill_absent(sub, out.get(key, {}))
-                if key in out or filled:
+                if key in out or filled:  # a section stored without the field gains it; none is made up
                     out[key] = filled
-        elif isinstance(extra, dict) and "absent_means" in extra and key not in out:
+        elif "absent_means" in extra and key not in out:
             out[key] = extra["absent_means"]
     return out
 
@@ -93,9 +92,15 @@ def _drop_unset_late_fields(model: BaseModel, data: dict) -> None:
                     _drop_unset_late_fields(sub, data[key][item])
 
 
+def _extra(info) -> dict:
+    """A field's ``json_schema_extra`` when it is a dict (where :data:`STORED_WHEN_SET` and :func:`absent_means`
+    live), else empty."""
+    return info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+
+
 def _left_out(info, value) -> bool:
     """Whether a field's ``value`` is left out of a stored config (:data:`STORED_WHEN_SET`, :func:`absent_means`)."""
-    extra = info.json_schema_extra if isinstance(info.json_schema_extra, dict) else {}
+    extra = _extra(info)
     if extra.get("stored_when_set"):
         return value == info.get_default(call_default_factory=True)
     return "absent_means" in extra and value == extra["absent_means"]

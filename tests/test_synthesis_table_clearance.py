@@ -132,6 +132,8 @@ def test_a_hand_high_above_the_table_keeps_the_full_retraction(hand):
     out, kept = table_clear_retract(hand, q, base, travel=TRAVEL, clearance=CLEARANCE)
     assert (kept == 1.0).all()
     np.testing.assert_array_equal(out, retract_joints(hand, q, travel=TRAVEL))
+    with pytest.raises(ValueError, match="fractions must be at least 1"):
+        table_clear_retract(hand, q, base, travel=TRAVEL, clearance=CLEARANCE, fractions=0)
 
 
 @pytest.mark.sim

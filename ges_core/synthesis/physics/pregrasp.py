@@ -103,8 +103,7 @@ def pregrasp(
     pose[:3] -= config.backoff * direction
     if config.opening == "retract" and config.clearance is not None:
         poses = np.stack([np.asarray(grasp.wrist_pose, dtype=np.float64), pose])
-        q = d.apply_couplings(np.asarray(grasp.q, dtype=np.float64))
-        q_init, _ = table_clear_retract(hand, q, poses, travel=config.retract, clearance=config.clearance)
+        q_init, _ = table_clear_retract(hand, grasp.q, poses, travel=config.retract, clearance=config.clearance)
     else:
         q_init = opened_joints(hand, grasp.q, config, thumb_keep=thumb_keep)
     meta = {**grasp.meta, "pregrasp_backoff": config.backoff, "approach": direction.tolist()}

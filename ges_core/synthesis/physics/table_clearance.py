@@ -7,8 +7,8 @@ point was already below the table before the close began (docs/synthesis/refine_
 hand meets the table"). :func:`table_clear_retract` keeps each finger's retraction only as far as its collision
 points (:mod:`ges_core.collision_points`) stay ``clearance`` above the table, or as high as they are at the grasp
 where that is lower: it tries the fractions 1, 3/4, ..., 0 of each finger's travel and keeps the largest that
-clears. Fingers are independent chains below the base, so one forward-kinematics batch per fraction decides every
-finger at once.
+clears. Fingers are independent chains below the base, so one forward-kinematics batch (every fraction applied to
+every finger at once) decides them all.
 
 Frames: the grasp's base pose is in the object's resting frame, whose z = 0 is the table top (the wrist search's
 table penalty reads the same heights, :func:`ges_core.synthesis.retarget.search.table_penalty`).
@@ -124,6 +124,8 @@ def table_clear_retract(
     Returns the (K,) retracted joints (limits and couplings applied) and the (F,) fraction of the travel each
     finger kept (``description.fingers`` order).
     """
+    if fractions < 1:
+        raise ValueError(f"table_clear_retract: fractions must be at least 1, got {fractions}")
     d = hand.description
     n_fingers = len(d.fingers)
     steps = np.linspace(1.0, 0.0, fractions + 1)
