@@ -84,6 +84,28 @@ def test_a_killed_pool_worker_loses_no_task(tmp_path):
     assert done[2].attempts == 2 and len(list(tmp_path.glob("attempt-*"))) == 2
 
 
+def test_a_pool_that_breaks_between_a_result_and_the_next_submit_loses_no_task(monkeypatch):
+    """A worker that dies after ``wait`` returned another call's result makes the pool's next ``submit`` raise
+    BrokenProcessPool (seen once under load in the suite: the error escaped and ended the run). Forced here on the
+    real pool's third submit: the refused call waits for the next pool and every call finishes, once each."""
+    from concurrent.futures import ProcessPoolExecutor
+    from concurrent.futures.process import BrokenProcessPool
+
+    submit, submits = ProcessPoolExecutor.submit, []
+
+    def refuse_third(pool, *args, **kwargs):
+        submits.append(1)
+        if len(submits) == 3:
+            raise BrokenProcessPool("a child process terminated abruptly (forced by the test)")
+        return submit(pool, *args, **kwargs)
+
+    monkeypatch.setattr(ProcessPoolExecutor, "submit", refuse_third)
+    done = run_all(LocalExecutor(workers=2), square_with_pid, range(5))
+    assert {i: d.value[0] for i, d in done.items()} == {i: i * i for i in range(5)}
+    assert all(d.ok and d.attempts == 1 for d in done.values())  # the refused call never ran: not an attempt
+    assert len(submits) == 6  # five calls and the refused submit
+
+
 def test_a_task_that_always_kills_its_worker_is_reported_lost_and_the_others_finish(tmp_path):
     done = run_all(LocalExecutor(workers=2, max_retries=1), die_on_victim, range(6), 2, str(tmp_path), 99)
     # one death beside another call (no one charged), then two alone: the first attempt and max_retries=1

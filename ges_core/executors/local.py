@@ -11,7 +11,9 @@ call running then fails with ``BrokenProcessPool``, and the pool does not say wh
 ``workers`` calls are in flight, so only those are affected: the finished calls are kept, and the broken ones
 are run again one at a time in a fresh pool, where a death names its call. A call whose worker dies alone is
 rerun at most ``max_retries`` times, then reported lost; the calls that merely shared the broken pool are not
-charged, and the rest of the queue goes on. A call that dies in this process (``workers == 1``) ends the run,
+charged, and the rest of the queue goes on. A worker that dies between one result and the next submission makes
+that ``submit`` raise ``BrokenProcessPool``: the call never ran, so it goes back to the queue uncharged for the next
+pool (the running calls report the break as above). A call that dies in this process (``workers == 1``) ends the run,
 as before. The workers die with the process that started them (:func:`ges_core.process_guard.die_with_parent`):
 a killed ``ges synth --workers 2`` leaves no worker finishing its chunk.
 """
@@ -89,12 +91,21 @@ class LocalExecutor(Executor):
             max_workers=min(limit, len(queue)), mp_context=ctx, initializer=die_with_parent, initargs=(os.getpid(),)
         )
         running: dict[Future, _Call] = {}
+        refused = False  # the pool broke after the last wait: submit raises; the running calls report it
         try:
             while queue or running:
-                while queue and len(running) < limit and not broken:
+                while queue and len(running) < limit and not broken and not refused:
                     call = queue.popleft()
+                    try:
+                        future = pool.submit(call_with_setup, self.setup, self.setup_args, call[1], call[2])
+                    except BrokenProcessPool:  # a worker died since the last wait; this call never ran
+                        queue.appendleft(call)
+                        refused = True
+                        break
                     attempts[call[0]] += 1
-                    running[pool.submit(call_with_setup, self.setup, self.setup_args, call[1], call[2])] = call
+                    running[future] = call
+                if not running:  # refused with nothing running: the next pool takes the queue
+                    return
                 finished, _ = wait(running, return_when=FIRST_COMPLETED)
                 for future in finished:
                     call = running.pop(future)
@@ -103,7 +114,7 @@ class LocalExecutor(Executor):
                         broken.append(call)
                     else:
                         yield Done(call[0], None if error else future.result(), error, attempts[call[0]])
-                if broken and not running:
+                if (broken or refused) and not running:
                     return
         finally:  # stopped early or done: start nothing more; a stop waits for the running calls to end
             pool.shutdown(wait=True, cancel_futures=True)
