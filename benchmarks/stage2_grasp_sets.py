@@ -8,7 +8,7 @@ per Stage 1 verdict of the new grasp (:mod:`ges_core.experts.by_grasp`). Several
 pooled first. Prints the tables and writes ``benchmarks/results/stage2_grasp_sets.json``.
 
     python benchmarks/stage2_grasp_sets.py --old M_OLD [M_OLD ...] --new M_NEW [M_NEW ...] [--experts scripted,res1s2]
-        [--results PATH]
+        [--results NAME]
 
 The two sides must have run the same settings (the matrices' ``run``: hand, simulator, seeds, environment) and the
 same settings per compared column; anything else is refused.
@@ -30,9 +30,8 @@ from ges_core.experts.matrix import PROTOCOLS, SuccessMatrix, load_matrix, read_
 from ges_core.experts.table import expert_table, split_rates
 from ges_core.objects.splits import SPLITS
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
-RESULTS = Path(__file__).parent / "results" / "stage2_grasp_sets.json"
 OLD, NEW = "old grasps", "new grasps"
 
 
@@ -66,8 +65,11 @@ def main() -> None:
     parser.add_argument("--new", nargs="+", type=Path, required=True, help="matrices run on the new dataset")
     parser.add_argument("--experts", default="scripted", help="expert columns to compare (comma-separated)")
     parser.add_argument("--protocol", default="paper", choices=tuple(PROTOCOLS))
-    parser.add_argument("--results", type=Path, default=RESULTS, help=f"results JSON (default {RESULTS.name})")
+    parser.add_argument(
+        "--results", default="stage2_grasp_sets", help="benchmarks/results/NAME.json (default stage2_grasp_sets)"
+    )
     args = parser.parse_args()
+    results = results_path(args.results)  # a bad name stops here, before any work
     old, new = pool_matrices([load_matrix(p) for p in args.old]), pool_matrices([load_matrix(p) for p in args.new])
     data = read_matrix_json(args.new[0])
     if differ := config_differences(read_matrix_json(args.old[0])["run"], data["run"]):
@@ -97,7 +99,7 @@ def main() -> None:
             "split_differences": [_row(d) for d in split_diffs],
             "group_differences": [_row(d) for d in group_diffs],
         }
-    write_results(args.results, out)
+    write_results(results, out)
     print(json.dumps({e: v["rates"]["all"] for e, v in out["experts"].items()}))
 
 

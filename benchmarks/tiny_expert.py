@@ -10,11 +10,12 @@ dashed in the PNG), writes ``benchmarks/results/tiny_expert.json`` and a PNG of 
     ges train-expert runs/tiny/dataset --cluster 1 -o action_mode=residual --out runs/tiny/experts/expert1_residual
     ges train-expert runs/tiny/dataset --cluster 1 -o warm_start.enabled=true -o warm_start.anchor_steps=10 \
         --out runs/tiny/experts/expert1_abs_bc_anchor
-    python benchmarks/tiny_expert.py [RUN_DIR ...] [--bin 25] [--matrix MATRIX.json ...] [--results PATH --title T]
+    python benchmarks/tiny_expert.py [RUN_DIR ...] [--bin 25] [--matrix MATRIX.json ...] [--results NAME --title T]
 
 ``--matrix``: success matrices of ``ges eval-experts`` (randomization on, and the ``-norand`` file for off): their
-per-split table (paper and peers protocols) goes into the results beside the curves. ``--results``: another results
-file (its PNG beside it, same stem), for runs other than runs/tiny's; ``--title`` the figure's title.
+per-split table (paper and peers protocols) goes into the results beside the curves. ``--results NAME``: another
+results file, ``benchmarks/results/NAME.json`` (its PNG beside it), for runs other than runs/tiny's; ``--title`` the
+figure's title.
 """
 
 from __future__ import annotations
@@ -23,10 +24,9 @@ import argparse
 import json
 from pathlib import Path
 
-from _results import code_state, write_results
+from _results import code_state, results_path, write_results
 
 ROOT = Path(__file__).resolve().parent.parent
-RESULTS = Path(__file__).resolve().parent / "results" / "tiny_expert.json"
 
 
 LABELS = {
@@ -147,10 +147,13 @@ def main() -> None:
     parser.add_argument("runs", nargs="*", type=Path)
     parser.add_argument("--bin", type=int, default=25, help="iterations per row of the table")
     parser.add_argument("--matrix", type=Path, nargs="*", default=[], help="ges eval-experts matrices to tabulate")
-    parser.add_argument("--results", type=Path, default=RESULTS, help="results JSON (the PNG beside it)")
+    parser.add_argument(
+        "--results", default="tiny_expert", help="benchmarks/results/NAME.json, the PNG beside it (default tiny_expert)"
+    )
     parser.add_argument("--title", default="tiny experts (Allegro, SAPIEN, cluster 1)", help="the figure's title")
     args = parser.parse_args()
-    picture = args.results.with_suffix(".png")
+    results = results_path(args.results)  # a bad name stops here, before any work
+    picture = results.with_suffix(".png")
     folders = args.runs or sorted(p for p in (ROOT / "runs" / "tiny" / "experts").iterdir() if p.is_dir())
     runs = []
     for folder in folders:
@@ -182,7 +185,7 @@ def main() -> None:
         print(ev["table_paper"])
         print(ev["table_peers"])
         evals.append(ev)
-    write_results(args.results, {"benchmark": "tiny_expert", "runs": runs, "evaluations": evals,
+    write_results(results, {"benchmark": "tiny_expert", "runs": runs, "evaluations": evals,
                                  "picture": picture.name, "code": code_state()})  # fmt: skip
 
 

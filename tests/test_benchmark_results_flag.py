@@ -11,13 +11,6 @@ from pathlib import Path
 
 BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
 
-PATH_VALUED = {
-    "stage2_grasp_sets.py": "docs/experts.md runs it with --results results/stage2_grasp_sets_shadow.json",
-    "tiny_expert.py": "docs/training.md runs it with --results benchmarks/results/stage2_rreal_eval_curves.json",
-}
-"""Scripts whose ``--results`` takes a PATH (documented so), not a name: they keep the flag but not
-``results_path``. Remove a script from here once its ``--results`` takes a NAME."""
-
 
 def offenders(folder: Path = BENCHMARKS) -> list[str]:
     """The scripts of ``folder`` that call ``write_results(`` without ``"--results"`` or ``results_path(``."""
@@ -29,8 +22,6 @@ def offenders(folder: Path = BENCHMARKS) -> list[str]:
         if "write_results(" not in text:
             continue
         missing = [s for s in ('"--results"', "results_path(") if s not in text]
-        if script.name in PATH_VALUED:
-            missing = [s for s in missing if s != "results_path("]
         if missing:
             bad.append(f"{script.name} (no {' and no '.join(missing)})")
     return bad
@@ -42,14 +33,6 @@ def test_every_results_writer_takes_results_name() -> None:
         "benchmark scripts that write results without a --results NAME flag resolved by results_path() "
         f"(see benchmarks/stage1_robust.py): {', '.join(bad)}"
     )
-
-
-def test_path_valued_exceptions_are_still_needed() -> None:
-    for name in PATH_VALUED:
-        text = (BENCHMARKS / name).read_text(encoding="utf-8")
-        assert "write_results(" in text and "results_path(" not in text, (
-            f"{name} no longer needs its PATH_VALUED exception here: remove it"
-        )
 
 
 def test_the_check_finds_a_script_without_the_flag(tmp_path: Path) -> None:
