@@ -21,6 +21,7 @@ __all__ = [
     "Defaults",
     "RegistryConfig",
     "absent_means",
+    "absent_paths",
     "apply_overrides",
     "fill_absent",
     "load_config",
@@ -65,6 +66,19 @@ def fill_absent(cls: type[BaseModel], data: dict) -> dict:
                 if key in out or filled:  # a section stored without the field gains it; none is made up
                     out[key] = filled
         elif "absent_means" in extra and key not in out:
+            out[key] = extra["absent_means"]
+    return out
+
+
+def absent_paths(cls: type[BaseModel], prefix: str = "") -> dict[str, object]:
+    """``{dotted key: value}`` of every :func:`absent_means` field of ``cls``, nested ones included (by alias): what
+    a stored config that lacks the key ran with (the dataset writer names them when it refuses a resume)."""
+    out: dict[str, object] = {}
+    for name, info in cls.model_fields.items():
+        key, sub, extra = prefix + (info.alias or name), info.annotation, _extra(info)
+        if isinstance(sub, type) and issubclass(sub, BaseModel):
+            out.update(absent_paths(sub, key + "."))
+        elif "absent_means" in extra:
             out[key] = extra["absent_means"]
     return out
 

@@ -10,6 +10,7 @@ from ges_core.config import (
     ConfigModel,
     RegistryConfig,
     absent_means,
+    absent_paths,
     apply_overrides,
     fill_absent,
     load_config,
@@ -173,3 +174,4 @@ def test_a_field_whose_default_changed_behaviour_is_stored_unless_it_asks_for_th
     assert fill_absent(_HoldsChanged, {}) == {"inner": {"cap": None}}  # a section stored without it: the same
     assert fill_absent(_HoldsChanged, {"inner": {"cap": 0.01}}) == {"inner": {"cap": 0.01}}  # stored: kept
     assert old_stored == {"inner": {"kept": 1}, "other": {"kept": 1}}  # the input is not changed
+    assert absent_paths(_HoldsChanged) == {"inner.cap": None}  # what the dataset writer names on a refused resume

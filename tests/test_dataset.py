@@ -273,6 +273,24 @@ def test_config_mismatch_fails_clearly_or_is_allowed(tmp_path, records):
     assert manifest["config_history"][0]["run_config"]["refine"]["gamma"] == 2.5
 
 
+def test_a_refused_resume_names_the_settings_the_folder_predates_and_how_to_reproduce_them(tmp_path, records):
+    """``absent_means``: a folder written before ``refine.cap`` existed ran as cap=null; refused at the new default
+    with that said, it resumes when the run asks for null (which the stored config leaves out, as before)."""
+    with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
+        writer.add(records[0])
+    newer = dict(CONFIG, refine={**CONFIG["refine"], "cap": 0.005})
+    with pytest.raises(ConfigError) as info:
+        DatasetWriter(tmp_path / "ds", newer, absent_means={"refine.cap": None, "other.key": 1})
+    message = str(info.value)
+    assert "refine.cap: '<absent>' -> 0.005" in message and "predates refine.cap: it ran as refine.cap=null" in message
+    assert "-o refine.cap=null resumes it as it was" in message and "other.key" not in message  # only what differs
+    with pytest.raises(ConfigError) as plain:  # a difference that is no late setting: no such sentence
+        DatasetWriter(tmp_path / "ds", dict(CONFIG, refine={"gamma": 3.0}), absent_means={"refine.cap": None})
+    assert "predates" not in str(plain.value)
+    with DatasetWriter(tmp_path / "ds", CONFIG, absent_means={"refine.cap": None}) as writer:  # null: left out
+        assert writer.has("procedural/box/000", "shadow")
+
+
 def test_same_config_in_another_form_is_accepted(tmp_path):
     from dataclasses import dataclass
 

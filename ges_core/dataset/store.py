@@ -17,6 +17,7 @@ folder at a time: the writer holds the folder's lock (:mod:`.lock`) until it is 
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from collections.abc import Iterator
@@ -100,9 +101,13 @@ class DatasetWriter:
         allow_config_change: bool = False,
         manifest_interval: float = MANIFEST_INTERVAL_S,
         hands: dict[str, dict] | None = None,
+        absent_means: dict[str, object] | None = None,
     ) -> None:
         self.root = Path(path)
         self.run_config = normalize_config(run_config)
+        self.absent_means = dict(absent_means or {})
+        """Dotted run-config keys added after folders were written whose absence means a value (what the code did
+        before them; :func:`ges_core.config.absent_paths`): a refused resume says so and how to reproduce it."""
         self.hands = None if hands is None else normalize_config(hands)
         self.config_hash = config_hash(self.run_config)
         """What :meth:`add` stamps on records that carry no run-config hash."""
@@ -255,13 +260,23 @@ class DatasetWriter:
         if not allow_change:
             raise ConfigError(
                 f"dataset {self.root} was written with another run config ({'; '.join(diffs)}). "
-                "Rerun with the stored values, or write to a new folder (ges: --out DIR; ges demo --fresh moves "
-                "this one aside); `ges synth --allow-config-change` (in Python, DatasetWriter(..., "
+                f"{self._predated(diffs)}Rerun with the stored values, or write to a new folder (ges: --out DIR; ges "
+                "demo --fresh moves this one aside); `ges synth --allow-config-change` (in Python, DatasetWriter(..., "
                 "allow_config_change=True)) continues it and keeps the old config in the manifest's config_history",
                 problems=diffs,
             )
         history = [*manifest.get("config_history", []), {"until": utc_now(), "run_config": old}]
         return dict(manifest, run_config=self.run_config, config_history=history)
+
+    def _predated(self, diffs: list[str]) -> str:
+        """The sentence naming the settings this folder was written before (``<absent>`` there) and the values that
+        reproduce what it ran; empty when none differs."""
+        old = [key for key in self.absent_means if any(d.startswith(f"{key}: '<absent>' -> ") for d in diffs)]
+        if not old:
+            return ""
+        ran = ", ".join(f"{key}={json.dumps(self.absent_means[key])}" for key in old)
+        options = " ".join(f"-o {key}={json.dumps(self.absent_means[key])}" for key in old)
+        return f"The folder predates {', '.join(old)}: it ran as {ran} (ges synth: {options} resumes it as it was). "
 
     def _check_records_config(self, manifest: dict, index: FolderIndex, allow_change: bool, *, why: str = "") -> dict:
         """Refuse records made with a run config the manifest does not name (records without a hash, version 1,

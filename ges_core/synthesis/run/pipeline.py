@@ -32,6 +32,7 @@ from collections.abc import Callable, Generator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from ges_core.config import absent_paths
 from ges_core.dataset import DatasetWriter
 from ges_core.errors import ConfigError
 from ges_core.executors import DEFAULT_MAX_RETRIES, TaskLostError, make_executor
@@ -112,7 +113,10 @@ def run_synthesis(
         check_handedness_fingers(hand.description)
     warn_undecomposed_hulls(built)  # `ges synth` / `ges demo` decomposed them before calling this
     entries = hand_entries(built)  # a resumed dataset refuses hands that changed (docs/dataset.md)
-    with DatasetWriter(out, config.dump(), hands=entries, allow_config_change=allow_config_change) as writer:
+    absent = absent_paths(type(config))  # settings a folder may predate: a refused resume names them
+    with DatasetWriter(
+        out, config.dump(), hands=entries, allow_config_change=allow_config_change, absent_means=absent
+    ) as writer:
         report = RunReport(Path(out))
         report.redone = set_aside_misfits(writer, object_ids, hands, config.library.build())
         report.recovered = list(writer.recovered)
