@@ -6,6 +6,7 @@ dotted path and raises one :class:`~ges_core.errors.ConfigError`.
 
 from __future__ import annotations
 
+import copy
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any, TypeVar
@@ -56,17 +57,17 @@ def absent_means(value: object) -> dict:
 
 def fill_absent(cls: type[BaseModel], data: dict) -> dict:
     """A copy of stored config ``data`` (for ``cls``) with every :func:`absent_means` field it lacks, nested ones
-    included, set to what its absence means; parse it then (:func:`parse_model`)."""
-    out = dict(data)
-    for name, info in cls.model_fields.items():
-        key, sub, extra = info.alias or name, info.annotation, _extra(info)
-        if isinstance(sub, type) and issubclass(sub, BaseModel):
-            if isinstance(out.get(key), dict) or key not in out:
-                filled = fill_absent(sub, out.get(key, {}))
-                if key in out or filled:  # a section stored without the field gains it; none is made up
-                    out[key] = filled
-        elif "absent_means" in extra and key not in out:
-            out[key] = extra["absent_means"]
+    included (:func:`absent_paths`), set to what its absence means; parse it then (:func:`parse_model`)."""
+    out = copy.deepcopy(data)
+    for path, value in absent_paths(cls).items():
+        *sections, key = path.split(".")
+        node = out
+        for name in sections:
+            node = node.setdefault(name, {})
+            if not isinstance(node, dict):  # a section stored as something else: parsing will say so
+                break
+        else:
+            node.setdefault(key, value)
     return out
 
 

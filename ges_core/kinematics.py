@@ -50,7 +50,7 @@ from ges_core.errors import AssetError, UnknownNameError
 if TYPE_CHECKING:
     from ges_core.hand import HandModel
 
-__all__ = ["HandKinematics", "palm_offset", "shared_kinematics"]
+__all__ = ["HandKinematics", "cached_kinematics", "palm_offset", "shared_kinematics"]
 
 _REVOLUTE = 1
 """Index of ``"revolute"`` in ``pytorch_kinematics.frame.Joint.TYPES`` (0 fixed, 2 prismatic)."""
@@ -258,11 +258,12 @@ def shared_kinematics(hand: HandModel) -> HandKinematics:
     For code that needs the hand's kinematics now and then (a squeeze, a start pose) rather than keeping its
     own: parsing the URDF takes 20 ms to 0.7 s. Callers must not change the object (it is shared)."""
     d = hand.description
-    return _cached_kinematics(hand.urdf_text(), tuple(d.joint_names))
+    return cached_kinematics(hand.urdf_text(), tuple(d.joint_names))
 
 
 @lru_cache(maxsize=8)
-def _cached_kinematics(urdf_text: str, joint_names: tuple[str, ...]) -> HandKinematics:
+def cached_kinematics(urdf_text: str, joint_names: tuple[str, ...]) -> HandKinematics:
+    """:func:`shared_kinematics` by its key (for caches keyed by the URDF text rather than a hand object)."""
     return HandKinematics(urdf_text, joint_names)
 
 

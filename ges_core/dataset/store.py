@@ -260,7 +260,7 @@ class DatasetWriter:
         if not allow_change:
             raise ConfigError(
                 f"dataset {self.root} was written with another run config ({'; '.join(diffs)}). "
-                f"{self._predated(diffs)}Rerun with the stored values, or write to a new folder (ges: --out DIR; ges "
+                f"{self._predated(old)}Rerun with the stored values, or write to a new folder (ges: --out DIR; ges "
                 "demo --fresh moves this one aside); `ges synth --allow-config-change` (in Python, DatasetWriter(..., "
                 "allow_config_change=True)) continues it and keeps the old config in the manifest's config_history",
                 problems=diffs,
@@ -268,10 +268,10 @@ class DatasetWriter:
         history = [*manifest.get("config_history", []), {"until": utc_now(), "run_config": old}]
         return dict(manifest, run_config=self.run_config, config_history=history)
 
-    def _predated(self, diffs: list[str]) -> str:
-        """The sentence naming the settings this folder was written before (``<absent>`` there) and the values that
-        reproduce what it ran; empty when none differs."""
-        old = [key for key in self.absent_means if any(d.startswith(f"{key}: '<absent>' -> ") for d in diffs)]
+    def _predated(self, stored: object) -> str:
+        """The sentence naming the settings the ``stored`` run config was written before (it lacks them, this run
+        has them) and the values that reproduce what it ran; empty when there are none."""
+        old = [key for key in self.absent_means if not _has(stored, key) and _has(self.run_config, key)]
         if not old:
             return ""
         ran = ", ".join(f"{key}={json.dumps(self.absent_means[key])}" for key in old)
@@ -438,3 +438,12 @@ def _notes(index: FolderIndex, adopted: tuple[str, ...]) -> tuple[str, ...]:
     if untimed:
         notes.append(f"{len(untimed)} record(s) have no usable timing file: their times are unknown")
     return tuple(notes)
+
+
+def _has(config: object, dotted: str) -> bool:
+    """Whether JSON ``config`` holds the dotted key ``dotted`` (``refine.start_clearance``)."""
+    for name in dotted.split("."):
+        if not isinstance(config, dict) or name not in config:
+            return False
+        config = config[name]
+    return True

@@ -36,7 +36,6 @@ from ges_core.config import ConfigModel, absent_means
 from ges_core.errors import ArrayError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.synthesis.physics.scene import check_grasp
-from ges_core.synthesis.physics.squeeze import retract_joints
 from ges_core.synthesis.physics.table_clearance import table_clear_retract
 from ges_core.synthesis.types import Grasp
 
@@ -101,23 +100,23 @@ def pregrasp(
     direction = _unit(approach)
     pose = np.array(grasp.wrist_pose, dtype=np.float64)
     pose[:3] -= config.backoff * direction
-    if config.opening == "retract" and config.clearance is not None:
-        poses = np.stack([np.asarray(grasp.wrist_pose, dtype=np.float64), pose])
-        q_init, _ = table_clear_retract(hand, grasp.q, poses, travel=config.retract, clearance=config.clearance)
-    else:
-        q_init = opened_joints(hand, grasp.q, config, thumb_keep=thumb_keep)
+    poses = np.stack([np.asarray(grasp.wrist_pose, dtype=np.float64), pose])  # the approach's two ends
+    q_init = opened_joints(hand, grasp.q, config, poses, thumb_keep=thumb_keep)
     meta = {**grasp.meta, "pregrasp_backoff": config.backoff, "approach": direction.tolist()}
     return Grasp(hand=grasp.hand, wrist_pose=pose, q=q_init, meta=meta)
 
 
 def opened_joints(
-    hand: HandModel, q: np.ndarray, config: PregraspConfig, *, thumb_keep: int = THUMB_KEEP
+    hand: HandModel, q: np.ndarray, config: PregraspConfig, poses: np.ndarray, *, thumb_keep: int = THUMB_KEEP
 ) -> np.ndarray:
-    """(K,) the opened hand of grasp joints ``q`` (K,) as ``config.opening`` says (module docs), couplings applied."""
+    """(K,) the opened hand of grasp joints ``q`` (K,) as ``config.opening`` says (module docs), couplings applied.
+
+    poses: (P, 7) base poses, object frame, where a retracted finger must clear the table (``config.clearance``).
+    """
     d = hand.description
     q = np.asarray(q, dtype=np.float64)
     if config.opening == "retract":
-        return retract_joints(hand, q, travel=config.retract)
+        return table_clear_retract(hand, q, poses, travel=config.retract, clearance=config.clearance)[0]
     mask = open_joint_mask(d, thumb_keep)
     opened = q + config.open_fraction * (np.asarray(d.open_pose) - q)
     return d.apply_couplings(np.where(mask, opened, q))

@@ -49,7 +49,7 @@ from ges_core.synthesis.physics.scene import (
     stage_scene,
     tip_forces,
 )
-from ges_core.synthesis.physics.squeeze import press_torques, retract_joints
+from ges_core.synthesis.physics.squeeze import press_torques
 from ges_core.synthesis.physics.table_clearance import table_clear_retract
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 from ges_core.transforms import compose, relative
@@ -163,13 +163,11 @@ def refine_grasp(
     object_pose = stage_scene(sim, hand, obj, fixed=config.fix_object)
     wrist = compose(object_pose, np.asarray(grasp.wrist_pose, dtype=np.float64))
     q_grasp = d.apply_couplings(grasp.q)
-    if config.start == "retract" and config.start_clearance is not None:
+    if config.start == "retract":
         base = np.asarray(grasp.wrist_pose, dtype=np.float64)
         q_open, _ = table_clear_retract(
             hand, q_grasp, base, travel=config.start_retract, clearance=config.start_clearance
         )
-    elif config.start == "retract":
-        q_open = retract_joints(hand, q_grasp, travel=config.start_retract)
     else:
         q_open = np.where(open_joint_mask(d, thumb_keep), np.asarray(d.open_pose), q_grasp)
     sim.set_hand_state(q_open[None], wrist[None])

@@ -17,12 +17,14 @@ table penalty reads the same heights, :func:`ges_core.synthesis.retarget.search.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
+from pathlib import Path
 
 import numpy as np
 import torch
 
 from ges_core.hand import HandModel
-from ges_core.kinematics import HandKinematics, shared_kinematics
+from ges_core.kinematics import HandKinematics, cached_kinematics, shared_kinematics
 from ges_core.synthesis.physics.squeeze import RetractSteps
 from ges_core.transforms import pose_to_matrix
 
@@ -64,33 +66,33 @@ def finger_points(hand: HandModel) -> FingerPoints:
     start and the pre-grasp keep off the table."""
     d = hand.description
     fingers = tuple(tuple(d.joint_index(f.joints)) for f in d.fingers)
-    key = (hand.urdf_text(), str(hand.urdf_path().parent), tuple(d.joint_names), fingers)
-    if key not in _CACHE:
-        if len(_CACHE) >= 8:
-            _CACHE.pop(next(iter(_CACHE)))
-        _CACHE[key] = _build(hand, fingers)
-    return _CACHE[key]
+    return _finger_points(
+        hand.urdf_text(), str(hand.urdf_path().parent), tuple(d.joint_names), fingers, tuple(d.open_pose)
+    )
 
 
-_CACHE: dict[tuple, FingerPoints] = {}
-
-
-def _build(hand: HandModel, fingers: tuple[tuple[int, ...], ...]) -> FingerPoints:
+@lru_cache(maxsize=8)
+def _finger_points(
+    urdf_text: str,
+    urdf_dir: str,
+    joint_names: tuple[str, ...],
+    fingers: tuple[tuple[int, ...], ...],
+    open_pose: tuple[float, ...],
+) -> FingerPoints:
     # imported here: both pull in trimesh, which the scripted expert's import of the physics package must not
     from ges_core.collision_points import collision_points
     from ges_core.hand_prep.engine_urdf import engine_urdf
 
     # engine_urdf: the geometry the simulators load (absolute mesh paths, prepared parts), as the wrist search reads
-    hull = collision_points(engine_urdf(hand.urdf_text(), hand.urdf_path().parent))
+    hull = collision_points(engine_urdf(urdf_text, Path(urdf_dir)))
     links = tuple(hull)
     link_of = np.repeat(np.arange(len(links)), [len(v) for v in hull.values()])
     points = np.concatenate(list(hull.values())) if hull else np.zeros((0, 3))
     # A link belongs to the finger whose joints move it: each finger's joints turned _PROBE rad from the open pose.
-    q0 = np.asarray(hand.description.open_pose, dtype=np.float64)
-    probes = np.repeat(q0[None], len(fingers) + 1, axis=0)
+    probes = np.repeat(np.asarray(open_pose, dtype=np.float64)[None], len(fingers) + 1, axis=0)
     for f, idx in enumerate(fingers):
         probes[f + 1, list(idx)] += _PROBE
-    poses = shared_kinematics(hand).link_poses(torch.as_tensor(probes), list(links))
+    poses = cached_kinematics(urdf_text, joint_names).link_poses(torch.as_tensor(probes), list(links))
     origins = poses[..., :3, 3].numpy()  # (F + 1, L, 3)
     turned = poses[..., :3, :3].numpy()
     moved = (np.linalg.norm(origins[1:] - origins[0], axis=-1) > _MOVED) | (
@@ -109,7 +111,7 @@ def table_clear_retract(
     base_pose: np.ndarray,
     *,
     travel: float,
-    clearance: float,
+    clearance: float | None,
     fractions: int = 4,
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`ges_core.synthesis.physics.squeeze.retract_joints` of ``q_grasp`` with each finger's travel shortened
@@ -119,7 +121,7 @@ def table_clear_retract(
     the object's resting frame (table top at z = 0), m; with several, a finger must clear the table at each (the
     pre-grasp's approach: a move between two poses of one rotation is lowest at one of its ends).
     clearance: m the retracted finger's collision points should stay above the table; a finger lower than that at
-    the grasp joints itself is kept no lower than it is there.
+    the grasp joints itself is kept no lower than it is there; None: the full retraction (no table read).
     fractions: travel is tried at 1, 1 - 1/fractions, ..., 0.
     Returns the (K,) retracted joints (limits and couplings applied) and the (F,) fraction of the travel each
     finger kept (``description.fingers`` order).
@@ -130,6 +132,8 @@ def table_clear_retract(
     n_fingers = len(d.fingers)
     steps = np.linspace(1.0, 0.0, fractions + 1)
     retract = RetractSteps.of(hand, q_grasp, travel=travel)  # one Jacobian for every fraction
+    if clearance is None:
+        return retract.joints(), np.ones(n_fingers)
     qs = np.stack([retract.joints(np.full(n_fingers, s)) for s in steps])
     pts = finger_points(hand)
     local = pts.local(shared_kinematics(hand), qs)  # (S, N, 3): one forward-kinematics batch
