@@ -283,7 +283,8 @@ def test_a_refused_resume_names_the_settings_the_folder_predates_and_how_to_repr
         DatasetWriter(tmp_path / "ds", newer, absent_means={"refine.cap": None, "other.key": 1})
     message = str(info.value)
     assert "refine.cap: '<absent>' -> 0.005" in message and "predates refine.cap: it ran as refine.cap=null" in message
-    assert "-o refine.cap=null resumes it as it was" in message and "other.key" not in message  # only what differs
+    assert "ges synth: -o refine.cap=null; ges demo: -o synthesis.refine.cap=null resumes it as it was" in message
+    assert "other.key" not in message  # only what differs
     with pytest.raises(ConfigError) as plain:  # a difference that is no late setting: no such sentence
         DatasetWriter(tmp_path / "ds", dict(CONFIG, refine={"gamma": 3.0}), absent_means={"refine.cap": None})
     assert "predates" not in str(plain.value)

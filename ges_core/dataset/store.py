@@ -275,8 +275,12 @@ class DatasetWriter:
         if not old:
             return ""
         ran = ", ".join(f"{key}={json.dumps(self.absent_means[key])}" for key in old)
-        options = " ".join(f"-o {key}={json.dumps(self.absent_means[key])}" for key in old)
-        return f"The folder predates {', '.join(old)}: it ran as {ran} (ges synth: {options} resumes it as it was). "
+        synth = " ".join(f"-o {key}={json.dumps(self.absent_means[key])}" for key in old)
+        demo = " ".join(f"-o synthesis.{key}={json.dumps(self.absent_means[key])}" for key in old)
+        return (
+            f"The folder predates {', '.join(old)}: it ran as {ran} (ges synth: {synth}; ges demo: {demo} resumes it "
+            "as it was). "
+        )
 
     def _check_records_config(self, manifest: dict, index: FolderIndex, allow_change: bool, *, why: str = "") -> dict:
         """Refuse records made with a run config the manifest does not name (records without a hash, version 1,
