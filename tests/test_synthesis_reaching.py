@@ -75,6 +75,9 @@ def test_the_pipeline_refines_the_first_placement_that_reaches(tmp_path, monkeyp
     # differ by at least 15 degrees or 2 cm)
     kept = np.asarray(record.grasp.wrist_pose)
     assert np.abs(kept - placements[1].wrist_pose).max() < np.abs(kept - placements[0].wrist_pose).max()
+    # the record says the best fit was left out, where the pass's tries begin and by how much the fit missed
+    (note,) = record.extra["unreached_best_fit"]
+    assert note == {"before_attempt": 0, "residual": placements[0].meta["residual"]}
 
 
 @pytest.mark.sim
@@ -83,3 +86,26 @@ def test_where_no_placement_reaches_the_pair_stops_at_unreachable(tmp_path, monk
     assert len(ranked[0]) == 3 and tried == []
     assert record.steps["retargeting"].reason == "unreachable"
     assert record.steps["refinement"].reason == "skipped"
+    assert "unreached_best_fit" not in record.extra  # the best fit was the one tried (and it missed)
+
+
+def test_joined_passes_place_each_left_out_best_fit_before_its_own_pass_tries():
+    """Both passes' notes survive whichever pass is kept, the second's index moved past the first's attempts."""
+    from ges_core.dataset.record import AttemptVerdict
+    from ges_core.synthesis.run.records import PairResult
+    from ges_core.synthesis.run.worker import _joined
+
+    def pass_(attempts: int, notes: tuple[dict, ...]) -> PairResult:
+        verdicts = tuple(AttemptVerdict(refinement="ok", validation="ok") for _ in range(attempts))
+        return PairResult(steps={}, attempts=verdicts, unreached_best=notes)
+
+    first = pass_(3, ({"before_attempt": 0, "residual": 0.02},))
+    second = pass_(2, ({"before_attempt": 0, "residual": 0.03},))
+    for kept in (True, False):
+        joined = _joined(first, second, kept)
+        assert len(joined.attempts) == 5
+        assert joined.unreached_best == (
+            {"before_attempt": 0, "residual": 0.02},
+            {"before_attempt": 3, "residual": 0.03},
+        )
+    assert _joined(pass_(3, ()), pass_(2, ()), True).unreached_best == ()

@@ -272,8 +272,11 @@ class GraspRecord:
     picture: str | None = None
     """Path of the record's picture (POSIX), when pictures were drawn."""
     extra: Mapping[str, Any] = field(default_factory=dict)
-    """Free-form JSON-ready notes of other writers; the Stage 1 pipeline writes none (a version-1 record's
-    ``extra`` keys that have no typed field land here)."""
+    """Free-form JSON-ready notes: the Stage 1 pipeline's second passes (``other_strategy``, ``balanced_thumb``,
+    ``low_raise``: where each pass's tries begin in ``attempts``, whether it was kept and why not) and
+    ``unreached_best_fit`` (per pass whose best fit missed its contacts and was left out for the placements that
+    reached: where that pass's tries begin and the fit's residual, m); other writers' notes; a version-1 record's
+    ``extra`` keys that have no typed field."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "joint_names", tuple(self.joint_names))

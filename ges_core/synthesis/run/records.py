@@ -89,6 +89,11 @@ class PairResult:
     merit: tuple[int, float] = (0, 0.0)
     """The chosen attempt's merit (``ges_core.synthesis.run.worker._Attempt.merit``; greater held better), which
     compares the two strategies' passes of one pair; (0, 0.0) when no attempt ran."""
+    unreached_best: tuple[dict, ...] = ()
+    """Per pass whose best fit was left out because it missed its contacts while later placements reached them
+    (``ges_core.synthesis.run.worker._reaching``): ``{"before_attempt": index in attempts where the pass's tries
+    begin, "residual": the best fit's mean fingertip-to-aim distance, m}``; the record keeps them in
+    ``extra["unreached_best_fit"]``."""
 
 
 def build_record(state, hand: str, work: ObjectWork, pair: PairResult) -> GraspRecord:

@@ -257,6 +257,8 @@ def _finish(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> 
             work, pair, notes["low_raise"] = _second_pass(
                 state, sims, hand, work, pair, again, "the raised contacts'", retargeter=low
             )
+    if pair.unreached_best:
+        notes["unreached_best_fit"] = list(pair.unreached_best)
     record = build_record(state, hand, work, pair)
     return replace(record, extra={**record.extra, **notes}) if notes else record
 
@@ -268,14 +270,19 @@ def _pair(state: _State, sims: _Sims, hand: str, work: ObjectWork, result) -> Pa
     if isinstance(result, SynthesisError):
         steps["retargeting"] = StepOutcome.failed(result.reason)
         return PairResult(steps | _skipped("refinement", "validation", "robust"), errors={"retargeting": str(result)})
-    result = _reaching(result)
-    best = result[0]
+    reaching = _reaching(result)
+    best = reaching[0]
     seconds = float(best.meta.get("seconds", 0.0))
     if not _reached(best):
         steps["retargeting"] = StepOutcome.failed("unreachable", seconds)
         return PairResult(steps | _skipped("refinement", "validation", "robust"), grasp=best, stage="retargeting")
     steps["retargeting"] = StepOutcome(ok=True, seconds=seconds)
-    return _attempts(state, sims, hand, work, result, steps)
+    pair = _attempts(state, sims, hand, work, reaching, steps)
+    if reaching[0] is result[0]:
+        return pair
+    residual = result[0].meta.get("residual")
+    skipped = {"before_attempt": 0, "residual": None if residual is None else float(residual)}
+    return replace(pair, unreached_best=(skipped,))
 
 
 def _reached(grasp: Grasp) -> bool:
@@ -412,7 +419,16 @@ def _joined(first: PairResult, second: PairResult, second_kept: bool) -> PairRes
         name: replace(outcome, seconds=first.steps[name].seconds + second.steps[name].seconds)
         for name, outcome in kept.steps.items()
     }
-    return replace(kept, steps=steps, attempts=first.attempts + second.attempts, attempt=attempt)
+    later = tuple(
+        {**note, "before_attempt": note["before_attempt"] + len(first.attempts)} for note in second.unreached_best
+    )
+    return replace(
+        kept,
+        steps=steps,
+        attempts=first.attempts + second.attempts,
+        attempt=attempt,
+        unreached_best=first.unreached_best + later,
+    )
 
 
 def _skipped(*names: str) -> dict[str, StepOutcome]:
