@@ -87,6 +87,19 @@ def test_soft_targets_must_be_probabilities_of_every_object_and_expert(registry,
             gate.fit(data, config, soft_targets=soft)
 
 
+def test_the_student_trains_for_distill_epochs_when_set(registry, data, teacher, tmp_path):  # noqa: F811
+    """``distill_epochs`` is the student's epoch count alone: the members' config (epochs 3) is unchanged, the
+    student's history has 2 rows, and a state written by it resumes (the count is not part of its identity)."""
+    _, averaged = teacher
+    config = FOLDS.model_copy(update={"distill_epochs": 2})
+    student, result = distill(lambda: build(registry, "pointnet2"), averaged, data, config, tmp_path, state_every=1)
+    assert len(result.history) == 2 and config.epochs == 3 and config.student_epochs == 2
+    assert FOLDS.student_epochs == FOLDS.epochs  # unset: the members' count, as before
+    longer = config.model_copy(update={"distill_epochs": 4})  # a finished student extended, as any training
+    _, extended = distill(lambda: build(registry, "pointnet2"), averaged, data, longer, tmp_path, resume=True)
+    assert len(extended.history) == 4 and json.dumps(extended.history[:2]) == json.dumps(result.history)  # NaN val
+
+
 def test_distill_without_folds_is_refused_at_the_config():
     with pytest.raises(ConfigError, match="train.distill distils the averaged networks of train.folds >= 2"):
         parse_model(TrainConfig, {"distill": True}, where="train")
@@ -102,13 +115,17 @@ def test_ges_train_gate_distill_stores_the_student_and_the_average(tmp_path, cap
     args = ["train-gate", str(matrix), "--config", str(tmp_path / "gate.yaml"), "--out", str(out)]
     assert main([*args, "--distill"]) == 1
     assert "folds is 1: set folds (e.g. --folds 5)" in capsys.readouterr().err and not out.exists()
-    assert main([*args, "--folds", "3", "--distill", "--no-progress"]) == 0
+    assert main([*args, "--distill-epochs", "2", "--no-progress"]) == 1  # without --distill it would be ignored
+    assert "train.distill_epochs (2) sets the distilled network's epochs, and distill is off" in capsys.readouterr().err
+    assert main([*args, "--folds", "3", "--distill", "--distill-epochs", "2", "--no-progress"]) == 0
     assert "distilled into one network" in capsys.readouterr().out
     student, averaged = load_gate(out / "gate.pt", registry), load_gate(out / "averaged.pt", registry)
     assert student.members == 1 and averaged.members == 3
     assert read_pick_rule(out / "gate.pt") == read_pick_rule(out / "averaged.pt")
     summary = json.loads((out / "summary.json").read_text())
-    assert set(json.loads((out / "history.json").read_text())) == {"fold-0", "fold-1", "fold-2", "distilled"}
+    history = json.loads((out / "history.json").read_text())
+    assert set(history) == {"fold-0", "fold-1", "fold-2", "distilled"}
+    assert [len(history[k]) for k in sorted(history)] == [2, 3, 3, 3]  # the student's 2 epochs, each member's 3
     clouds = torch.load(out / "clouds-128-0.pt", weights_only=True)
     kept = sorted(averaged.train_info["train_ids"])
     x = torch.stack([clouds[i] for i in kept])

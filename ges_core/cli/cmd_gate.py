@@ -38,6 +38,8 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--distill", action="store_true", help="with --folds K: then train one network towards the K "
                    "networks' averaged scores and store it as OUT/gate.pt (one network's inference time; the average "
                    "kept as OUT/averaged.pt; docs/gating.md, 'Distilled')")  # fmt: skip
+    p.add_argument("--distill-epochs", type=positive_int, metavar="N", help="with --distill: epochs of the distilled "
+                   "network (default: --epochs, the members')")  # fmt: skip
     p.add_argument("--no-augment", action="store_true", help="train on the clouds as sampled (no rotation/scaling)")
     p.add_argument("--resume", action="store_true", help="continue a killed run from OUT/train_state.pt (written with "
                    "each checkpoint); it ends as if it had never stopped")  # fmt: skip

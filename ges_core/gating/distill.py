@@ -31,11 +31,11 @@ __all__ = ["agreement_of", "distill", "student_config"]
 
 
 def student_config(config: TrainConfig) -> TrainConfig:
-    """The student's training settings: ``config``'s (epochs, batches, learning rate, augmentation, seed) on every
-    kept object, no validation split, the last epoch kept, no category smoothing (the teacher's targets carry it)."""
-    return config.model_copy(
-        update={"folds": 1, "distill": False, "val_fraction": 0.0, "keep": "last", "category_smoothing": 0.0}
-    )
+    """The student's training settings: ``config``'s (batches, learning rate, augmentation, seed; epochs
+    ``distill_epochs``, else the members') on every kept object, no validation split, the last epoch kept, no
+    category smoothing (the teacher's targets carry it)."""
+    update = {"folds": 1, "distill": False, "distill_epochs": None, "val_fraction": 0.0, "keep": "last"}
+    return config.model_copy(update=update | {"category_smoothing": 0.0, "epochs": config.student_epochs})
 
 
 def distill(

@@ -97,6 +97,8 @@ def config_from_args(args: argparse.Namespace) -> TrainGateConfig:
             train[key] = value
     if args.distill:
         train["distill"] = True
+    if args.distill_epochs is not None:
+        train["distill_epochs"] = args.distill_epochs
     if args.no_augment:
         train.setdefault("augment", {})["enabled"] = False
     return parse_model(TrainGateConfig, apply_overrides(data, args.overrides), where="ges train-gate config")
@@ -195,8 +197,8 @@ def train_gate_run(
     checkpoint = out / "gate.pt"
 
     folds, epochs = config.train.folds, config.train.epochs
-    networks = folds + config.train.distill
-    bar = tqdm(total=networks * epochs, desc=f"gate {config.gate}", unit="epoch", disable=not progress)
+    total = folds * epochs + (config.train.student_epochs if config.train.distill else 0)
+    bar = tqdm(total=total, desc=f"gate {config.gate}", unit="epoch", disable=not progress)
 
     def on_epoch(fold: int, epoch: int, result: TrainResult) -> None:
         if folds == 1 and epoch % config.checkpoint_every == 0:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 from pydantic import Field, model_validator
 
-from ges_core.config import ConfigModel
+from ges_core.config import STORED_WHEN_SET, ConfigModel
 from ges_core.errors import ArrayError, ConfigError, StorageError
 from ges_core.gating.clouds import AugmentConfig, augment
 from ges_core.gating.data import (
@@ -70,6 +70,14 @@ class TrainConfig(ConfigModel):
         "towards their averaged probabilities and store it as the gate (one network's inference time instead of "
         "K's; ges_core.gating.distill)",
     )
+    # distill_epochs: the student learns one fixed target per object (the teacher's scores), not the K members'
+    # noisy rates, and may need fewer or more passes than a member; None keeps the members' count (as before).
+    distill_epochs: int | None = Field(
+        None,
+        ge=1,
+        description="with distill: epochs of the distilled network (None: epochs, the members' count)",
+        json_schema_extra=STORED_WHEN_SET,  # added after gate runs were written: stored only when set
+    )
     seed: int = Field(0, description="seed of the weights, the split, the batch order and the augmentation")
     all_failed: Literal["drop", "uniform"] = Field(
         "drop", description="objects where every expert failed: left out (drop) or a uniform target"
@@ -93,7 +101,17 @@ class TrainConfig(ConfigModel):
                 f"train.distill distils the averaged networks of train.folds >= 2 into one; folds is {self.folds}: "
                 "set folds (e.g. --folds 5) or leave distill off"
             )
+        if self.distill_epochs is not None and not self.distill:
+            raise ValueError(
+                f"train.distill_epochs ({self.distill_epochs}) sets the distilled network's epochs, and distill is "
+                "off: add --distill (train.distill=true) or leave distill_epochs unset"
+            )
         return self
+
+    @property
+    def student_epochs(self) -> int:
+        """Epochs of the distilled network: ``distill_epochs``, else ``epochs``."""
+        return self.epochs if self.distill_epochs is None else self.distill_epochs
 
 
 @dataclass(frozen=True)
@@ -322,7 +340,7 @@ def _identity(
     when given."""
     unset = set() if config.category_smoothing else {"category_smoothing"}  # states written before these existed
     unset |= set() if config.folds > 1 else {"folds"}
-    unset |= {"distill"}  # what follows the folds' networks, not how one trains
+    unset |= {"distill", "distill_epochs"}  # what follows the folds' networks, not how one trains
     identity = {
         "config": config.model_dump(mode="json", exclude={"epochs"} | unset),
         "object_ids": list(data.rates.object_ids),
