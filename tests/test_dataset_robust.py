@@ -146,3 +146,22 @@ def test_info_counts_the_pairs_that_tried_a_balanced_thumb_or_a_lower_raise(tmp_
     at = lines.index("the kept contacts retargeted with a lower raise (pairs that went on to it; why a second pass was "
                      "not kept):")  # fmt: skip
     assert lines[at + 1] == "  shadow              tried 1 of 2, kept 0; not kept: contacts: none lower x1"
+
+
+def test_info_counts_the_records_whose_best_fit_was_left_out(tmp_path, capsys):
+    """``extra["unreached_best_fit"]`` (the Stage 1 pipeline's note) counted per hand, records without it too."""
+    from dataclasses import replace
+
+    note = {"unreached_best_fit": [{"before_attempt": 0, "residual": 0.018}]}
+    with DatasetWriter(tmp_path / "ds", CONFIG) as writer:
+        for i, extra in enumerate([note, {}, note]):
+            writer.add(replace(make_record(f"procedural/box/00{i}", "shadow"), extra=extra))
+        writer.add(make_record("procedural/box/000", "allegro"))
+    summary = summarize(open_dataset(tmp_path / "ds"))
+    assert summary.unreached_best == {"shadow": (2, 3)}  # the allegro's one record has none: left out
+    assert cli.main(["dataset", "info", str(tmp_path / "ds")]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    at = lines.index(
+        "best fit left out for missing its contacts (the ranked placements that reached them tried instead):"
+    )
+    assert lines[at + 1] == "  shadow              2 of 3" and not lines[at + 2].startswith("  allegro")

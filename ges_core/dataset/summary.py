@@ -30,11 +30,13 @@ __all__ = [
     "format_failures",
     "format_second_pass",
     "format_sim_stats",
+    "format_unreached_best",
     "second_pass_stats",
     "reason_meanings",
     "sim_stats",
     "step_stats",
     "summarize",
+    "unreached_best_stats",
 ]
 
 TOTAL_TIME = "total time = " + " + ".join(TOTAL_STEPS) + " (the nominal trial), median per record; robust trials apart"
@@ -105,6 +107,9 @@ class DatasetSummary:
     second_passes: dict[str, dict[str, dict]] = field(default_factory=dict)
     """Per second pass (:data:`SECOND_PASSES`' keys), per hand, the pairs that went on to it
     (:func:`second_pass_stats`)."""
+    unreached_best: dict[str, tuple[int, int]] = field(default_factory=dict)
+    """Per hand, records whose best fit was left out for missing its contacts, and its records
+    (:func:`unreached_best_stats`)."""
 
     def format(self) -> str:
         """Human-readable text, one table row per group."""
@@ -121,6 +126,7 @@ class DatasetSummary:
         lines += [f"  {g.label:<20}{format_failures(g.failures)}" for g in self.groups]
         for key, stats in self.second_passes.items():
             lines += format_second_pass(stats, key)
+        lines += format_unreached_best(self.unreached_best)
         if self.sims:
             lines += ["", format_sim_stats(self.sims, self.agreement)]
         lines += reason_meanings([r for g in self.groups for step in g.failures.values() for r in step], self.sims)
@@ -160,6 +166,7 @@ def summarize(dataset: Dataset) -> DatasetSummary:
         sim_stats(records),
         agreement(records),
         {key: second_pass_stats(records, key) for key in SECOND_PASSES},
+        unreached_best_stats(records),
     )
 
 
@@ -204,6 +211,29 @@ def format_second_pass(stats: dict[str, dict], key: str) -> list[str]:
         reasons = ", ".join(f"{k} x{n}" for k, n in row["reasons"].items()) or "-"
         lines.append(f"  {hand:<20}tried {row['tried']} of {row['records']}, kept {row['kept']}; not kept: {reasons}")
     return lines
+
+
+UNREACHED_BEST = "unreached_best_fit"
+"""The ``extra`` key of the Stage 1 pipeline's note on a best fit left out for missing its contacts."""
+
+
+def unreached_best_stats(records: Iterable[GraspRecord]) -> dict[str, tuple[int, int]]:
+    """Per hand, (records whose pair left its best fit out because it missed its contacts while later placements
+    reached them: ``extra["unreached_best_fit"]``, records); hands with none left out are left out."""
+    left: Counter[str] = Counter()
+    seen: Counter[str] = Counter()
+    for record in records:
+        seen[record.hand] += 1
+        left[record.hand] += bool(record.extra.get(UNREACHED_BEST))
+    return {hand: (n, seen[hand]) for hand, n in sorted(left.items()) if n}
+
+
+def format_unreached_best(stats: dict[str, tuple[int, int]]) -> list[str]:
+    """:func:`unreached_best_stats` as text lines, a heading and one per hand; none when no best fit was left out."""
+    if not stats:
+        return []
+    lines = ["best fit left out for missing its contacts (the ranked placements that reached them tried instead):"]
+    return lines + [f"  {hand:<20}{n} of {total}" for hand, (n, total) in stats.items()]
 
 
 def _group(label: str, entries: list[dict]) -> GroupStats:

@@ -27,10 +27,12 @@ from ges_core.dataset.summary import (
     format_failures,
     format_second_pass,
     format_sim_stats,
+    format_unreached_best,
     reason_meanings,
     second_pass_stats,
     sim_stats,
     step_stats,
+    unreached_best_stats,
 )
 
 __all__ = ["TableRow", "agreement_rates", "format_table", "table_rows"]
@@ -152,6 +154,7 @@ def format_table(rows: list[TableRow]) -> str:
         reasons += [reason for _, reason in failed]
     for key in SECOND_PASSES:
         lines += format_second_pass(second_pass_stats(records, key), key)
+    lines += format_unreached_best(unreached_best_stats(records))
     lines += reason_meanings(reasons, sims)
     return "\n".join(lines)
 
