@@ -199,6 +199,22 @@ class SynthesisConfig(ConfigModel):
         merged = parse_model(SynthesisConfig, data, where=where)
         return merged.model_copy(update={"threads": self.threads})
 
+    def shadowed_by(self, hand: str, settings: dict[str, Any] | None) -> list[tuple[str, Any, Any]]:
+        """The values this config gives away from the defaults that ``hand``'s YAML ``settings`` replace for that
+        hand (:meth:`for_hand`: run config < the hand's YAML settings < ``hand_settings[hand]``), as (dotted key,
+        this config's value, the hand's value), JSON-ready. A key ``hand_settings[hand]`` sets is left out (the
+        run set it for that hand), as is one where the two values agree."""
+        own = _flat(stage1_settings(settings))
+        if not own:
+            return []
+        ran, default = _flat(self.dump()), _flat(type(self)().dump())
+        per_hand = _flat(stage1_settings(self.hand_settings.get(hand)))
+        return [
+            (key, ran[key], value)
+            for key, value in own.items()
+            if key in ran and key not in per_hand and ran[key] != default.get(key, _MISSING) and ran[key] != value
+        ]
+
     @classmethod
     def of_dataset(cls, dataset) -> SynthesisConfig:
         """The settings a dataset was written with (its manifest's ``run_config``); ConfigError if invalid.
@@ -223,3 +239,16 @@ def _v1_keep_sections(data: dict) -> list[dict]:
         retarget.get("wrist_search") if isinstance(retarget, dict) else None,
     ]
     return [s for s in sections if isinstance(s, dict)]
+
+
+_MISSING = object()
+
+
+def _flat(data: Any, prefix: str = "") -> dict[str, Any]:
+    """Dotted key -> value of every leaf of nested mappings (a list is a leaf)."""
+    if not isinstance(data, dict):
+        return {prefix: data} if prefix else {}
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        out.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
+    return out

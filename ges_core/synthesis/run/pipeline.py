@@ -27,10 +27,13 @@ hand's description and hash in the manifest and refuses to resume with a hand th
 
 from __future__ import annotations
 
+import json
+import logging
 import uuid
-from collections.abc import Callable, Generator, Sequence
+from collections.abc import Callable, Generator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from ges_core.config import absent_paths
 from ges_core.dataset import DatasetWriter
@@ -51,7 +54,12 @@ from ges_core.synthesis.run.tasks import (
 from ges_core.synthesis.run.worker import run_task
 from ges_core.threads import resolve_threads, set_torch_threads
 
-__all__ = ["RunReport", "run_synthesis"]
+if TYPE_CHECKING:
+    from ges_core.hand import HandModel
+
+__all__ = ["RunReport", "run_synthesis", "warn_shadowed_settings"]
+
+_LOG = logging.getLogger(__name__)
 
 
 @dataclass
@@ -68,6 +76,24 @@ class RunReport:
     redone: list[tuple[str, str]] = field(default_factory=list)
     """Stored pairs whose record no longer fit its object as the library builds it now (:mod:`.resume`): moved to
     the dataset's ``.damaged/`` folder and made again by this run."""
+
+
+def warn_shadowed_settings(config: SynthesisConfig, hands: Mapping[str, HandModel]) -> list[str]:
+    """Log (and return) a note per run setting a hand's own YAML settings replace for that hand
+    (:meth:`SynthesisConfig.shadowed_by`): ``-o retarget.low_raise_height=0.01`` does not reach the Allegro, whose
+    YAML sets 0.02, and without the note nothing says so."""
+    notes = []
+    for name, hand in hands.items():
+        for key, ran, own in config.shadowed_by(name, hand.description.settings):
+            value = json.dumps(ran)
+            notes.append(
+                f"hand '{name}' sets {key}={json.dumps(own)} in its own settings, over this run's {value}; "
+                f"hand_settings.{name}.{key}={value} sets it for that hand (ges synth -o hand_settings.{name}.{key}="
+                f"{value}; ges demo -o synthesis.hand_settings.{name}.{key}={value})"
+            )
+    for note in notes:
+        _LOG.warning("ges: note: %s", note)
+    return notes
 
 
 def run_synthesis(
@@ -112,6 +138,7 @@ def run_synthesis(
     for hand in built.values():  # a hand Stage 1 cannot place fails here, not in a worker after the folder exists
         check_handedness_fingers(hand.description)
     warn_undecomposed_hulls(built)  # `ges synth` / `ges demo` decomposed them before calling this
+    warn_shadowed_settings(config, built)
     entries = hand_entries(built)  # a resumed dataset refuses hands that changed (docs/dataset.md)
     absent = absent_paths(type(config))  # settings a folder may predate: a refused resume names them
     with DatasetWriter(
