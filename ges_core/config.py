@@ -24,6 +24,7 @@ __all__ = [
     "absent_means",
     "absent_paths",
     "apply_overrides",
+    "dotted_leaves",
     "fill_absent",
     "load_config",
     "parse_model",
@@ -82,6 +83,18 @@ def absent_paths(cls: type[BaseModel], prefix: str = "") -> dict[str, object]:
         elif "absent_means" in extra:
             out[key] = extra["absent_means"]
     return out
+
+
+def dotted_leaves(data: object, prefix: str = "") -> dict[str, object]:
+    """Dotted key -> value of every leaf of nested mappings, keys in sorted order at each level (a list is a leaf;
+    ``prefix`` starts every key)."""
+    if isinstance(data, dict):
+        return {
+            k: v
+            for key, value in sorted(data.items())
+            for k, v in dotted_leaves(value, f"{prefix}.{key}" if prefix else str(key)).items()
+        }
+    return {prefix: data}
 
 
 def stored_dump(model: ConfigModel) -> dict:

@@ -27,6 +27,7 @@ import warnings
 import xml.etree.ElementTree as ET
 from pathlib import Path
 
+from ges_core.config import dotted_leaves
 from ges_core.dataset.layout import utc_now
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription, HandModel
@@ -116,14 +117,8 @@ def describe_hand(d: HandDescription) -> dict[str, object]:
     out |= {f"slot_fill[{slot}]": finger for slot, finger in sorted(d.slot_fill.items())}
     out |= {f"couplings[{c.follower}]": [c.leader, c.ratio, c.offset] for c in d.couplings}
     out |= {f"self_collision_exclude[{a}, {b}]": True for a, b in d.self_collision_exclude}  # none: no key
-    out |= _flat({k: v for k, v in d.settings.items() if k != TRAIN}, "settings")
+    out |= dotted_leaves({k: v for k, v in d.settings.items() if k != TRAIN}, "settings")
     return json.loads(json.dumps(out))  # tuples -> lists, as read back from the manifest
-
-
-def _flat(data: object, prefix: str) -> dict[str, object]:
-    if isinstance(data, dict):
-        return {k: v for key, value in sorted(data.items()) for k, v in _flat(value, f"{prefix}.{key}").items()}
-    return {prefix: data}
 
 
 def urdf_fields(text: str, base_dir: Path) -> dict[str, str]:

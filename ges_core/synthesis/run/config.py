@@ -7,7 +7,7 @@ from typing import Any, Literal
 
 from pydantic import ConfigDict, Field, field_validator, model_validator
 
-from ges_core.config import STORED_WHEN_SET, ConfigModel, fill_absent, parse_model, stored_dump
+from ges_core.config import STORED_WHEN_SET, ConfigModel, dotted_leaves, fill_absent, parse_model, stored_dump
 from ges_core.errors import ConfigError
 from ges_core.hand_settings import check_settings, merge_settings, stage1_settings
 from ges_core.objects.library import LibraryConfig
@@ -204,11 +204,11 @@ class SynthesisConfig(ConfigModel):
         hand (:meth:`for_hand`: run config < the hand's YAML settings < ``hand_settings[hand]``), as (dotted key,
         this config's value, the hand's value), JSON-ready. A key ``hand_settings[hand]`` sets is left out (the
         run set it for that hand), as is one where the two values agree."""
-        own = _flat(stage1_settings(settings))
+        own = dotted_leaves(stage1_settings(settings))
         if not own:
             return []
-        ran, default = _flat(self.dump()), _flat(type(self)().dump())
-        per_hand = _flat(stage1_settings(self.hand_settings.get(hand)))
+        ran, default = dotted_leaves(self.dump()), dotted_leaves(type(self)().dump())
+        per_hand = dotted_leaves(stage1_settings(self.hand_settings.get(hand)))
         return [
             (key, ran[key], value)
             for key, value in own.items()
@@ -242,13 +242,3 @@ def _v1_keep_sections(data: dict) -> list[dict]:
 
 
 _MISSING = object()
-
-
-def _flat(data: Any, prefix: str = "") -> dict[str, Any]:
-    """Dotted key -> value of every leaf of nested mappings (a list is a leaf)."""
-    if not isinstance(data, dict):
-        return {prefix: data} if prefix else {}
-    out: dict[str, Any] = {}
-    for key, value in data.items():
-        out.update(_flat(value, f"{prefix}.{key}" if prefix else str(key)))
-    return out
