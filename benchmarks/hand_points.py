@@ -63,11 +63,12 @@ def main() -> None:
 def _row(hand, rounds: int) -> dict:
     from unittest import mock
 
-    import ges_core.synthesis.retarget.retargeter as retargeter_module
+    import ges_core.collision_points as points_module
     from ges_core.collision_points import collision_points
     from ges_core.errors import SynthesisError
     from ges_core.synthesis import SynthesisConfig
     from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS, generate_contacts
+    from ges_core.synthesis.physics import table_clearance
     from ges_core.synthesis.retarget.retargeter import GraspRetargeter
     from ges_core.synthesis.retarget.search import ObjectCloud
     from ges_core.synthesis.run.demo import DEMO_OBJECTS
@@ -90,8 +91,13 @@ def _row(hand, rounds: int) -> dict:
         clouds.append(ObjectCloud(points, normals))
     every_part = lambda text: collision_points(text, max_link_points=10**9)  # noqa: E731
     solvers = {"capped": GraspRetargeter(hand, cfg.retarget, thumb_keep=cfg.thumb_keep)}
-    with mock.patch.object(retargeter_module, "collision_points", every_part):
+    # the points come from table_clearance.finger_points (cached per URDF), which imports collision_points when
+    # it builds them: the uncapped solver gets a fresh build with the patched function, and the cache is cleared
+    # again so that nothing after it reads every part's points
+    table_clearance._finger_points.cache_clear()
+    with mock.patch.object(points_module, "collision_points", every_part):
         solvers["all"] = GraspRetargeter(hand, cfg.retarget, thumb_keep=cfg.thumb_keep)
+    table_clearance._finger_points.cache_clear()
     seconds: dict[str, list[float]] = {"capped": [], "all": []}
     best = {}
     for _ in range(rounds):
@@ -115,7 +121,7 @@ def _row(hand, rounds: int) -> dict:
     capped, every = statistics.median(seconds["capped"]), statistics.median(seconds["all"])
     return {
         "hand": hand.name, "objects": len(contacts),
-        "points_capped": int(len(solvers["capped"]._hull_points)), "points_all": int(len(solvers["all"]._hull_points)),
+        "points_capped": len(solvers["capped"].hull.points), "points_all": len(solvers["all"].hull.points),
         "capped_s": capped, "all_s": every, "ratio": capped / every, "seconds": seconds,
         "same_best": int(same_best), "same_reached": int(same_reached),
     }  # fmt: skip

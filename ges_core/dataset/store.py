@@ -24,6 +24,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
 
+from ges_core.config import dotted_leaves
 from ges_core.dataset.checks import record_problems
 from ges_core.dataset.hands import check_hands
 from ges_core.dataset.layout import (
@@ -271,7 +272,8 @@ class DatasetWriter:
     def _predated(self, stored: object) -> str:
         """The sentence naming the settings the ``stored`` run config was written before (it lacks them, this run
         has them) and the values that reproduce what it ran; empty when there are none."""
-        old = [key for key in self.absent_means if not _has(stored, key) and _has(self.run_config, key)]
+        stored_keys, run_keys = dotted_leaves(stored), dotted_leaves(self.run_config)
+        old = [key for key in self.absent_means if key not in stored_keys and key in run_keys]
         if not old:
             return ""
         ran = ", ".join(f"{key}={json.dumps(self.absent_means[key])}" for key in old)
@@ -442,12 +444,3 @@ def _notes(index: FolderIndex, adopted: tuple[str, ...]) -> tuple[str, ...]:
     if untimed:
         notes.append(f"{len(untimed)} record(s) have no usable timing file: their times are unknown")
     return tuple(notes)
-
-
-def _has(config: object, dotted: str) -> bool:
-    """Whether JSON ``config`` holds the dotted key ``dotted`` (``refine.start_clearance``)."""
-    for name in dotted.split("."):
-        if not isinstance(config, dict) or name not in config:
-            return False
-        config = config[name]
-    return True

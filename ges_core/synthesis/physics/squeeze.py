@@ -148,8 +148,9 @@ class RetractSteps:
     q: np.ndarray
     """(K,) the grasp's joints, couplings applied."""
     steps: tuple[np.ndarray | None, ...]
-    """Per finger, (K,) its joint change at the full travel (zero off its joints; capped at ``max_angle``); None
-    where it does not move (no travel, or a tip its joints cannot move along its press direction)."""
+    """Per finger, its joints' change at the full travel (``description.joint_index(finger.joints)`` order, capped
+    at ``max_angle``); None where it does not move (no travel, or a tip its joints cannot move along its press
+    direction)."""
 
     @classmethod
     def of(
@@ -167,12 +168,10 @@ class RetractSteps:
             if speed <= 1e-12 or travel <= 0.0:
                 steps.append(None)
                 continue
-            own = -grad * (travel / speed)
-            largest = float(np.abs(own).max())
+            step = -grad * (travel / speed)
+            largest = float(np.abs(step).max())
             if largest > max_angle:
-                own *= max_angle / largest
-            step = np.zeros_like(q)
-            step[idx] = own
+                step *= max_angle / largest
             steps.append(step)
         return cls(d, q, tuple(steps))
 
@@ -185,7 +184,7 @@ class RetractSteps:
             if self.steps[f] is None:
                 continue
             idx = d.joint_index(finger.joints)
-            step = self.steps[f][idx] if finger_scale is None else self.steps[f][idx] * float(finger_scale[f])
+            step = self.steps[f] if finger_scale is None else self.steps[f] * float(finger_scale[f])
             out[idx] = np.clip(self.q[idx] + step, limits[idx, 0], limits[idx, 1])
         return d.apply_couplings(out)
 

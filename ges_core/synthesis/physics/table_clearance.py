@@ -49,11 +49,11 @@ class FingerPoints:
     finger_of: np.ndarray
     """(N,) index into ``description.fingers`` of the finger whose joints move each point; -1: none (the palm)."""
 
-    def local(self, kinematics: HandKinematics, q: np.ndarray) -> np.ndarray:
+    def local(self, kinematics: HandKinematics, q: np.ndarray | torch.Tensor) -> np.ndarray:
         """(B, N, 3) every point in the hand's base frame, m, for joints ``q`` (B, K)."""
         poses = kinematics.link_poses(torch.as_tensor(q, dtype=torch.float64), list(self.links))
-        poses = poses.numpy()[:, self.link_of]  # (B, N, 4, 4), base frame
-        return np.einsum("bnij,nj->bni", poses[..., :3, :3], self.points) + poses[..., :3, 3]
+        poses = poses[:, torch.tensor(self.link_of)]  # (B, N, 4, 4), base frame (copies: the arrays are read-only)
+        return ((poses[..., :3, :3] @ torch.tensor(self.points)[..., None])[..., 0] + poses[..., :3, 3]).numpy()
 
     def heights(self, kinematics: HandKinematics, q: np.ndarray, base: np.ndarray) -> np.ndarray:
         """(B, N) z of every point, m, for joints ``q`` (B, K) and the base-link pose ``base`` (4, 4), z-up frame."""

@@ -130,13 +130,10 @@ class GraspRetargeter:
         """(K,) joints the pre-grasp and refinement open (their table clearance is checked too)."""
         # the collision points refinement's start and the pre-grasp keep off the table too (engine_urdf: what the
         # simulators load: absolute mesh paths, converted meshes, prepared parts)
-        hull = finger_points(hand)
-        self.hull_links = list(hull.links)
-        """Links whose collision geometry the wrist search keeps off the table."""
-        self._hull_link_of = torch.tensor(hull.link_of)  # copies: the shared arrays are read-only
-        self._hull_points = torch.tensor(hull.points)  # (N, 3), link frames
+        self.hull = finger_points(hand)
+        """The collision points (per link, link frames) the wrist search keeps off the table."""
         tips = {f.tip_link for f in d.fingers}
-        self._body_point = np.array([link not in tips for link in hull.links])[hull.link_of]
+        self._body_point = np.array([link not in tips for link in self.hull.links])[self.hull.link_of]
         """(N,) True for collision points of links other than fingertips (kept out of the object)."""
 
     def retarget(self, contacts: ContactSet) -> Grasp:
@@ -243,8 +240,7 @@ class GraspRetargeter:
 
     def _hand_points(self, q: torch.Tensor, base: np.ndarray) -> np.ndarray:
         """(B, N, 3) the hand's collision points (:mod:`ges_core.collision_points`), object frame, for q (B, K)."""
-        poses = self.kinematics.link_poses(q, self.hull_links)[:, self._hull_link_of]  # (B, N, 4, 4), base frame
-        points = ((poses[..., :3, :3] @ self._hull_points[..., None])[..., 0] + poses[..., :3, 3]).numpy()
+        points = self.hull.local(self.kinematics, q)  # (B, N, 3), base frame
         return np.einsum("bij,bnj->bni", base[:, :3, :3], points) + base[:, None, :3, 3]
 
     def _object_penalty(self, points: np.ndarray, clouds: Sequence[ObjectCloud | None], m: int) -> np.ndarray:
