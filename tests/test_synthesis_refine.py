@@ -20,7 +20,7 @@ from ges_core.sim import SceneConfig, SimBackend
 from ges_core.sim_check import grasp_start_pose
 from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, PregraspConfig, open_joint_mask, pregrasp
 from ges_core.synthesis.physics.refine import RefineConfig, creep_direction, refine_grasp, refine_verdict
-from ges_core.synthesis.physics.scene import closing_direction, stage_scene
+from ges_core.synthesis.physics.scene import TOUCH_SEPARATION, closing_direction, hand_contacts, stage_scene
 from ges_core.synthesis.types import Grasp, RefinedGrasp
 
 REGISTRY = load_registry(autoload=False)
@@ -426,3 +426,47 @@ def test_refinement_touches_without_penetrating_for_every_hand(hand_name, sim_na
     print(f"\n{hand_name} in {sim_name}: frozen {refined.frozen}, {refined.max_penetration * 1e3:.2f} mm")
     assert len(refined.frozen) >= 2
     assert refined.max_penetration < 0.003 and not refined.table_contact
+
+
+@pytest.mark.sim
+@pytest.mark.parametrize("sim_name", SIMS)
+def test_table_separation_decides_whether_a_hand_just_above_the_table_touches(allegro, sim_name):
+    """The open hand lowered until the engine reports it a fraction of a millimetre above the table with no force:
+    it touches the table by the default rule (closer than TOUCH_SEPARATION) and not with ``table_separation=None``;
+    pressed 3 mm further down it touches by both (its force above ``table_force``)."""
+    d, config = allegro.description, RefineConfig()
+    q = d.apply_couplings(d.open_pose)
+    above = top_grasp(allegro, height=0.12).wrist_pose
+    away = box_asset((0.02, 0.02, 0.02), density=300.0, object_id="test/away_box")
+
+    def held_at(sim, drop: float):
+        base = above.copy()
+        base[2] -= drop
+        sim.set_hand_state(q[None], base[None])
+        sim.set_joint_targets(q[None])
+        sim.set_wrist_targets(base[None])
+        sim.step(1)
+        pairs = [p for p in sim.contact_pairs(0) if {p.body_a, p.body_b} == {"hand", "table"}]
+        gap = min((p.separation for p in pairs), default=np.inf)
+        force = max((p.force for p in pairs), default=0.0)
+        return gap, force
+
+    with REGISTRY.build_sim(sim_name, SceneConfig()) as sim:
+        stage_scene(sim, allegro, away)
+        sim.set_object_pose(np.array([[0.5, 0.5, 0.02, 1.0, 0.0, 0.0, 0.0]]))
+        assert held_at(sim, 0.0)[0] > TOUCH_SEPARATION  # the start is clear of the table
+        lo, hi = 0.0, 0.2  # drop (m): clear at lo; at hi far into the table
+        for _ in range(40):  # bisect for a drop that leaves a gap of 0.1-0.4 mm
+            mid = 0.5 * (lo + hi)
+            gap, force = held_at(sim, mid)
+            if 1e-4 < gap < 4e-4 and force == 0.0:
+                break
+            lo, hi = (mid, hi) if gap >= 4e-4 else (lo, mid)
+        else:
+            pytest.fail(f"{sim_name}: no drop left the hand 0.1-0.4 mm above the table with no force")
+        default = hand_contacts(sim, config.table_force, config.table_separation).table
+        force_only = hand_contacts(sim, config.table_force, None).table
+        assert (default, force_only) == (True, False)
+        gap, force = held_at(sim, mid + 0.003)
+        assert force > config.table_force
+        assert hand_contacts(sim, config.table_force, None).table

@@ -34,13 +34,14 @@ from typing import Literal
 import numpy as np
 from pydantic import Field
 
-from ges_core.config import ConfigModel, absent_means
+from ges_core.config import STORED_WHEN_SET, ConfigModel, absent_means
 from ges_core.errors import SimulationError, SynthesisError
 from ges_core.hand import HandDescription, HandModel
 from ges_core.objects.asset import ObjectAsset
 from ges_core.sim import SimBackend
 from ges_core.synthesis.physics.pregrasp import THUMB_KEEP, open_joint_mask
 from ges_core.synthesis.physics.scene import (
+    TOUCH_SEPARATION,
     check_grasp,
     closing_direction,
     finger_joint_indices,
@@ -93,6 +94,14 @@ class RefineConfig(ConfigModel):
     max_object_turn: float = Field(15.0, ge=0, description="refine_verdict: object rotation during the close, deg")
     max_object_shift: float = Field(0.02, ge=0, description="refine_verdict: object displacement during the close, m")
     table_force: float = Field(0.05, ge=0, description="a hand-table pair pushing harder than this touches, N")
+    # A hand-table pair also touches when this close (the contact solvers report pairs a little apart as touching
+    # with 0 N). null leaves table_force alone to say it: a lower-raise grasp of a low lying handle whose pads may
+    # rest on the table (docs/synthesis/refine_validate.md, "Low round handles lying on the table").
+    table_separation: float | None = Field(
+        TOUCH_SEPARATION,
+        description="a hand-table pair closer than this touches, m (null: only table_force counts)",
+        json_schema_extra=STORED_WHEN_SET,  # added after datasets were written; its default is the old rule
+    )
     # overshoot: retargeting puts fingertips *on* their contacts, give or take a few mm, so a tip often
     # stops 1-3 mm short and never touches (0-2 of 4 Allegro fingers frozen on the procedural objects).
     # Creeping 0.1 rad further (~1 cm at the tip) after the ramp lets them reach the surface and freeze;
@@ -340,7 +349,7 @@ def _result(
     q = sim.joint_state()[0][0]
     object_pose = sim.object_pose()[0]
     moved = relative(object_start, object_pose)
-    contacts = hand_contacts(sim, config.table_force)
+    contacts = hand_contacts(sim, config.table_force, config.table_separation)
     names = tuple(f.name for f, hit in zip(d.fingers, frozen, strict=True) if hit)
     touching = tuple(
         f.name for f, hit in zip(d.fingers, frozen, strict=True) if hit or f.tip_link in contacts.object_links

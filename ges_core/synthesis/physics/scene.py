@@ -226,12 +226,16 @@ class HandContacts:
     """Hand links touching the object (closer than :data:`TOUCH_SEPARATION` or pushing)."""
 
 
-def hand_contacts(sim: SimBackend, table_force: float) -> HandContacts:
+def hand_contacts(
+    sim: SimBackend, table_force: float, table_separation: float | None = TOUCH_SEPARATION
+) -> HandContacts:
     """Penetration, table contact and object-touching links of the hand in env 0.
 
-    A hand-table pair touches when closer than :data:`TOUCH_SEPARATION` or pushing harder than
-    ``table_force`` N. Reads the slow pair list: call it once, not every step.
+    A hand-table pair touches when pushing harder than ``table_force`` N or closer than ``table_separation`` m
+    (:data:`TOUCH_SEPARATION` by default; None: the force alone says it). Reads the slow pair list: call it once, not
+    every step.
     """
+    near = -np.inf if table_separation is None else table_separation
     depth, table, links = 0.0, False, set()
     for pair in sim.contact_pairs(0):
         bodies = {pair.body_a, pair.body_b}
@@ -239,6 +243,6 @@ def hand_contacts(sim: SimBackend, table_force: float) -> HandContacts:
             depth = max(depth, -pair.separation)
             if pair.separation < TOUCH_SEPARATION or pair.force > 0.0:
                 links.add(pair.link_a if pair.body_a == "hand" else pair.link_b)
-        elif bodies == {"hand", "table"} and (pair.separation < TOUCH_SEPARATION or pair.force > table_force):
+        elif bodies == {"hand", "table"} and (pair.separation < near or pair.force > table_force):
             table = True
     return HandContacts(depth, table, frozenset(links))
