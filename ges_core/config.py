@@ -189,19 +189,38 @@ def apply_overrides(data: dict, overrides: Iterable[str]) -> dict:
     return out
 
 
-def parse_model(model: type[M], data: dict, *, where: str = "config") -> M:
-    """Validate ``data`` into ``model``; one ConfigError listing every problem by dotted path."""
+def parse_model(
+    model: type[M], data: dict, *, where: str = "config", overrides: Iterable[str] = (), flag: str = "-o"
+) -> M:
+    """Validate ``data`` into ``model``; one ConfigError listing every problem by dotted path.
+
+    overrides: the ``key=value`` items :func:`apply_overrides` applied to ``data`` (given on the command line as
+    ``flag KEY=VALUE``); a problem at or under (or above) an override's key names it, so a bad override is not read
+    as a problem of the file ``where`` names.
+    """
     try:
         return model.model_validate(data)
     except ValidationError as exc:
-        problems = [f"{'.'.join(str(p) for p in err['loc']) or '<root>'}: {err['msg']}" for err in exc.errors()]
+        keys = {item.partition("=")[0].strip(): item for item in overrides}
+        problems = []
+        for err in exc.errors():
+            loc = ".".join(str(p) for p in err["loc"]) or "<root>"
+            origin = next((item for key, item in keys.items() if _related(key, loc)), None)
+            problems.append(f"{loc}: {err['msg']}" + (f" (set by {flag} {origin})" if origin else ""))
         raise ConfigError(f"invalid {where}: " + "; ".join(problems), problems=problems) from None
+
+
+def _related(key: str, loc: str) -> bool:
+    """The dotted ``key`` and ``loc`` are the same path or one lies under the other."""
+    return key == loc or loc.startswith(key + ".") or key.startswith(loc + ".")
 
 
 def load_config(model: type[M], path: str | Path | None = None, overrides: Iterable[str] = ()) -> M:
     """Read ``path`` (or start empty), apply overrides, validate into ``model``."""
     data = read_yaml(path) if path is not None else {}
-    return parse_model(model, apply_overrides(data, overrides), where=str(path or model.__name__))
+    overrides = list(overrides)
+    where = str(path or model.__name__)
+    return parse_model(model, apply_overrides(data, overrides), where=where, overrides=overrides)
 
 
 def _deep_copy(data: Any) -> Any:

@@ -323,7 +323,13 @@ def load_registry(
     """Read registry.yaml (default: :func:`default_registry_path`), discover plugins, collect specs."""
     path = Path(path) if path is not None else default_registry_path()
     data = read_yaml(path) if path is not None else {}
-    config = parse_model(RegistryConfig, apply_overrides(data, overrides), where=str(path or "registry"))
+    config = parse_model(
+        RegistryConfig,
+        apply_overrides(data, overrides),
+        where=str(path or "registry"),
+        overrides=overrides,
+        flag="--set",
+    )
     base_dir = path.resolve().parent if path is not None else Path.cwd()
     pm = get_plugin_manager(local_plugins=config.plugins, base_dir=base_dir, blocked=blocked, autoload=autoload)
     registry = Registry(pm, config)

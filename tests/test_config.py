@@ -49,6 +49,26 @@ def test_every_problem_listed_with_path(tmp_path):
     assert str(path) in str(err.value)
 
 
+def test_a_problem_an_override_made_names_the_override_and_the_files_do_not(tmp_path):
+    """The file's own bad value is listed as the file's; each bad -o item is named beside its problem, whether it
+    set the failing key itself, a mapping holding it, or a key under a value that is not a mapping."""
+    path = tmp_path / "c.yaml"
+    path.write_text("closure: 2\n")
+    overrides = ["scene.timestep=-1", "scene.typo=3", "box_half_extents=wide", "hand=allegro"]
+    with pytest.raises(ConfigError) as err:
+        load_config(SimCheckConfig, path, overrides)
+    problems = {p.split(":")[0]: p for p in err.value.problems}
+    assert not problems["closure"].endswith(")")  # the file's: no override named
+    assert problems["scene.timestep"].endswith(" (set by -o scene.timestep=-1)")
+    assert problems["scene.typo"].endswith(" (set by -o scene.typo=3)")
+    assert problems["box_half_extents"].endswith(" (set by -o box_half_extents=wide)")
+    assert not any("hand=allegro" in p for p in err.value.problems)  # a valid override is named nowhere
+    with pytest.raises(ConfigError) as err:
+        load_config(SimCheckConfig, None, ["scene={timestep: -1}"])  # a mapping set whole: its keys are its
+    assert err.value.problems[0].startswith("scene.timestep: ")
+    assert err.value.problems[0].endswith(" (set by -o scene={timestep: -1})")
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [("a: [1, 2\n", "not valid YAML"), ("- 1\n- 2\n", "must hold a mapping")],

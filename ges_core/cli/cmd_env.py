@@ -60,7 +60,8 @@ def run_baseline_cmd(args: argparse.Namespace) -> int:
     registry.spec("hand", hand), registry.spec("sim", sim)  # known names
     data = {"hand": hand, "sim": sim, "envs": args.envs, "selection": args.select, "expert": expert.name}
     data |= {"expert_settings": expert.settings} | ({"splits": tuple(args.split)} if args.split else {})
-    config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where="ges env baseline")
+    data = apply_overrides(data, args.overrides)
+    config = parse_model(BaselineConfig, data, where="ges env baseline", overrides=args.overrides)
     out = args.out or args.dataset.parent / "baseline"
     fanout = fanout_from_args(args)
     report = evaluate_baseline(

@@ -118,7 +118,8 @@ def run_from_args(
         data |= copy.deepcopy({key: base[key] for key in ("seed", "env", "scene") if key in base})
         if args.no_randomization:
             data.setdefault("env", {}).setdefault("randomization", {})["enabled"] = False
-    return experts, parse_model(BaselineConfig, apply_overrides(data, args.overrides), where=where)
+    config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where=where, overrides=args.overrides)
+    return experts, config
 
 
 def randomization_text(config: BaselineConfig) -> str:

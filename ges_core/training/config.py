@@ -281,8 +281,9 @@ def load_train_config(preset: str | None = "tiny", path: str | Path | None = Non
         data["preset"] = preset
     if path is not None:
         data = _merge(data, read_yaml(path))
+    overrides = list(overrides)
     data = apply_overrides(data, overrides)
-    return parse_model(TrainConfig, data, where=str(path or f"preset {preset}"))
+    return parse_model(TrainConfig, data, where=str(path or f"preset {preset}"), overrides=overrides)
 
 
 def _merge(base: dict, top: dict) -> dict:
