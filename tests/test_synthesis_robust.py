@@ -244,6 +244,42 @@ def test_the_fingertips_bound_lies_between_the_trial_that_held_and_the_one_that_
 
 
 @pytest.mark.sim
+@pytest.mark.parametrize("sim_name", ["sapien", "pybullet"])
+def test_the_fingers_a_close_leaves_pressing_are_those_the_engine_lists_on_the_object(weak_box_run, sim_name, capsys):
+    """``pressing_fingers`` runs the limits trial's approach and close: the fingers it names are those whose tip
+    links the engine's slow pair list (another reading of its contacts) shows pushing the object right after, the
+    thumb among them on this held grasp; ``ges dataset capacity --pressing SIM`` lists the same fingers in the
+    record's row and bounds the trials with them alone."""
+    from ges_core.synthesis.physics.robust import trial_limits
+    from ges_core.synthesis.physics.validate import pressing_fingers
+
+    record, config, folder = weak_box_run
+    registry = load_registry()
+    hand = registry.build_hand("allegro")
+    cfg = config.for_hand("allegro", hand.description.settings)
+    obj = cfg.library.build().get(record.object_id)
+    grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
+    pre = Grasp("allegro", record.pregrasp.wrist_pose, record.pregrasp.q)
+    scenes = TrialScenes(registry.build_sim, sim_name, cfg.scene, hand)
+    with scenes.open() as sim:
+        limits = trial_limits(scenes, cfg.robust)
+        pressing = pressing_fingers(sim, hand, obj, grasp, pre, cfg.validate_, drive_limits=limits)
+        pushed: dict[str, float] = {}
+        for pair in sim.contact_pairs(0):
+            if {pair.body_a, pair.body_b} == {"hand", "object"}:
+                link = pair.link_a if pair.body_a == "hand" else pair.link_b
+                pushed[link] = pushed.get(link, 0.0) + pair.force
+    d = hand.description
+    listed = tuple(f.name for f in d.fingers if pushed.get(f.tip_link, 0.0) > cfg.validate_.min_tip_force)
+    assert pressing == listed and "thumb" in pressing and len(pressing) >= 2, (pressing, pushed)
+    assert cli.main(["dataset", "capacity", str(folder), "--pressing", sim_name]) == 0
+    row = next(ln for ln in capsys.readouterr().out.splitlines() if ln.startswith("| allegro | procedural/box/000 |"))
+    assert f"| {len(pressing)} of {'+'.join(pressing)} |" in row, row
+    assert cli.main(["dataset", "capacity", str(folder), "--pressing", "mujocoo"]) == 1
+    assert "mujocoo" in capsys.readouterr().err
+
+
+@pytest.mark.sim
 def test_capacity_of_a_hand_the_dataset_does_not_hold_names_the_hands_it_does(weak_box_run, capsys):
     """``--hand shadow`` on a dataset of Allegro records is an error naming the hands it holds, not an empty
     table (a typo read as "no record with trials" before); ``--hand allegro`` still gives the table."""

@@ -25,6 +25,7 @@ samples alone, 6.7 / 11 % with the slots' contacts.
 
 from __future__ import annotations
 
+from collections.abc import Collection
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,14 +73,17 @@ def fingertip_capacity(
     center: np.ndarray | tuple[float, float, float] = (0.0, 0.0, 0.0),
     near: float = NEAR,
     contacts: ContactSet | None = None,
+    fingers: Collection[str] | None = None,
 ) -> TipCapacity:
     """The weight ``grasp``'s fingertips can hold at friction ``mu`` within ``hand``'s effort limits (module docs).
 
     points, normals: (N, 3) the object's surface samples and outward unit normals, object frame (the grasp's), metres;
     center: (3,) the object's centre of mass there (a library object's lies above the origin: only its horizontal
     part matters for a vertical weight); contacts: the grasp's Stage 1 contacts (a record's ``contacts``), whose slot
-    contact, when within ``near`` of a finger's pad, gives that finger's normal (the pad stays the point of force). A
-    hand that declares no effort limits is a ConfigError: there is no bound.
+    contact, when within ``near`` of a finger's pad, gives that finger's normal (the pad stays the point of force);
+    fingers: only these may count as touching (e.g. those a simulated close left pressing the object,
+    :func:`ges_core.synthesis.physics.validate.pressing_fingers`); None: every finger. A hand that declares no effort
+    limits is a ConfigError: there is no bound.
     """
     d = hand.description
     effort = d.effort_limits_array
@@ -92,6 +96,8 @@ def fingertip_capacity(
     nearest = gaps.argmin(axis=1)
     touching, pushes = [], []
     for f, finger in enumerate(d.fingers):
+        if fingers is not None and finger.name not in fingers:
+            continue
         slot = FINGER_SLOTS.index(finger.slot)
         if contacts is not None and np.linalg.norm(contacts.positions[slot] - tips[f]) <= near:
             touching.append(f)

@@ -73,6 +73,7 @@ __all__ = [
     "ValidateConfig",
     "agreement",
     "classify",
+    "pressing_fingers",
     "shifted",
     "tips_needed",
     "validate_grasp",
@@ -223,6 +224,38 @@ def validate_grasp(
     return ValidationResult(reason == "success", reason, flags, time.perf_counter() - start)
 
 
+def pressing_fingers(
+    sim: SimBackend,
+    hand: HandModel,
+    obj: ObjectAsset,
+    grasp: Grasp,
+    pregrasp_grasp: Grasp,
+    config: ValidateConfig | None = None,
+    *,
+    drive_limits: np.ndarray | None = None,
+    squeeze_mass: float | None = None,
+) -> tuple[str, ...]:
+    """The fingers (``HandDescription.fingers`` names, in that order) whose tips press ``obj`` harder than
+    ``config.min_tip_force`` at the end of :func:`validate_grasp`'s close: its scene, approach and close with the
+    same arguments, no lift. A finger the close leaves on another finger or short of the object is not among them,
+    though its pad may lie near its contact. SimulationError or ArrayError propagate (a blow-up has no answer)."""
+    config = config or ValidateConfig()
+    d = hand.description
+    if drive_limits is None and config.drive_limits:
+        drive_limits = d.effort_limits_array
+    check_grasp(d, grasp, "pressing_fingers grasp")
+    check_grasp(d, pregrasp_grasp, "pressing_fingers pregrasp")
+    capped: list[bool] = []
+    thumb = config.thumb_force(obj.mass if squeeze_mass is None else squeeze_mass)
+    try:
+        probe, _, _ = _close(sim, hand, obj, grasp, pregrasp_grasp, config, None, drive_limits, capped, thumb, False)
+    finally:
+        if capped and not sim.closed:
+            sim.set_drive_limits(None)
+    pressing = probe.forces > config.min_tip_force  # the probe's tips are d.tip_links: the fingers' order
+    return tuple(f.name for f, hit in zip(d.fingers, pressing, strict=True) if hit)
+
+
 def classify(record: HoldRecord, config: ValidateConfig) -> str:
     """The reason code of a run (module docs): success, palm_only, dropped, no_contact or not_lifted."""
     if record.lifted and bool(np.all(record.hold_high)):
@@ -260,6 +293,29 @@ def _run(
 ) -> HoldRecord:
     """The four phases; fills ``flags`` as it goes and returns the measurements (``capped`` gets an entry once
     the drive limits are set)."""
+    probe, goal, z0 = _close(sim, hand, obj, grasp, pre, config, shift, limits, capped, thumb_force, full_hold)
+    flags["reached_grasp"] = bool(np.linalg.norm(sim.wrist_pose()[0, :3] - goal[:3]) < config.reach_tolerance)
+    flags["fingertips_touching"] = probe.rule()
+    lost = _lift(sim, goal, probe, z0, config, full_hold)
+    flags["lifted"] = not lost and bool(sim.object_pose()[0, 2] - z0 >= config.lift_height - config.lift_tolerance)
+    return _hold(sim, probe, z0, flags["lifted"], config, full_hold)
+
+
+def _close(
+    sim: SimBackend,
+    hand: HandModel,
+    obj: ObjectAsset,
+    grasp: Grasp,
+    pre: Grasp,
+    config: ValidateConfig,
+    shift: np.ndarray | None,
+    limits: np.ndarray | None,
+    capped: list[bool] | None,
+    thumb_force: float | None,
+    full_hold: bool,
+) -> tuple[_Probe, np.ndarray, float]:
+    """The scene, the approach and the close of :func:`_run`: (the probe, whose forces are the last close step's;
+    the grasp's wrist pose, world; the object's resting height, m)."""
     d = hand.description
     object_pose = stage_scene(sim, hand, obj)
     if limits is not None:
@@ -286,11 +342,7 @@ def _run(
     for i in range(1, config.close_steps + 1):
         sim.set_joint_targets((q_pre + (q_close - q_pre) * i / config.close_steps)[None])
         probe.step(read=i == config.close_steps)  # the fingertip rule after closing reads the last step's forces
-    flags["reached_grasp"] = bool(np.linalg.norm(sim.wrist_pose()[0, :3] - goal[:3]) < config.reach_tolerance)
-    flags["fingertips_touching"] = probe.rule()
-    lost = _lift(sim, goal, probe, z0, config, full_hold)
-    flags["lifted"] = not lost and bool(sim.object_pose()[0, 2] - z0 >= config.lift_height - config.lift_tolerance)
-    return _hold(sim, probe, z0, flags["lifted"], config, full_hold)
+    return probe, goal, z0
 
 
 def shifted(pose: np.ndarray, shift: np.ndarray) -> np.ndarray:

@@ -14,6 +14,8 @@ from __future__ import annotations
 from collections import Counter
 from pathlib import Path
 
+from tqdm import tqdm
+
 from ges_core.errors import ConfigError
 from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS
 from ges_core.synthesis.physics.capacity import NEAR, fingertip_capacity
@@ -27,22 +29,37 @@ CLOUD_POINTS = 4096
 """Surface samples per object for the touching test and the normals (about 2 mm apart on a 10 cm object)."""
 
 
-def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str] | None = None) -> list[dict]:
+def trial_bounds(
+    folder: Path,
+    registry,
+    *,
+    near: float = NEAR,
+    hands: list[str] | None = None,
+    pressing: str | None = None,
+    progress: bool = False,
+) -> list[dict]:
     """One row per record of the dataset at ``folder`` with a grasp and drive-limited perturbation trials (``hands``:
     only theirs): hand, object, mass (kg), fingers touching, the capacity over the weight per friction coefficient,
     and per drive-limited trial and simulator whether it passed and whether its ask is within the bound. Each trial's
     ask comes from the trial itself as the run made it (:func:`~ges_core.synthesis.physics.robust.perturbations` under
     the hand's settings of the dataset's config): its density factor at the friction it ran with. A name in ``hands``
-    that no record is of is a ConfigError naming the hands the dataset holds."""
+    that no record is of is a ConfigError naming the hands the dataset holds.
+
+    pressing: a simulator's name: the ``limits`` trial's close is run again there for each record (drives capped, the
+    nominal object; :func:`~ges_core.synthesis.physics.validate.pressing_fingers`) and only the fingers it leaves
+    pressing the object count (``fingers_pressing`` in the row): a finger that ends on another finger or short of the
+    object carries nothing, though its pad may lie near its contact. About 0.1-0.5 s per record; ``progress``: a bar.
+    """
     from ges_core.dataset import open_dataset
-    from ges_core.env.grasp_source import library_for
+    from ges_core.env.grasp_source import library_for, record_asset
 
     dataset = open_dataset(folder)
     _check_hands_held(dataset, hands)
     config = SynthesisConfig.of_dataset(dataset)
     library = library_for(dataset)
     models, configs, clouds, rows = {}, {}, {}, []
-    for record in sorted(dataset.records(), key=lambda r: (r.hand, r.object_id)):
+    records = sorted(dataset.records(), key=lambda r: (r.hand, r.object_id))
+    for record in tqdm(records, desc="replaying closes", unit="record", disable=not (progress and pressing)):
         trials = {sim: v.trials for sim, v in record.validations.items() if v.trials}
         if record.grasp is None or not trials or (hands and record.hand not in hands):
             continue
@@ -58,11 +75,14 @@ def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str]
         nominal = effective_friction(cfg.scene.hand_friction, asset.friction)
         asks = trial_asks(cfg, asset, record.seed)
         grasp = Grasp(record.hand, record.grasp.wrist_pose, record.grasp.q)
+        pressed = None
+        if pressing is not None:
+            pressed = _pressing(registry, pressing, cfg, models[record.hand], record_asset(library, record), record)
         ratio, fingers = {}, 0
         for mu in sorted({nominal} | {mu for _, mu in asks.values()}):
             tip = fingertip_capacity(
                 models[record.hand], grasp, *clouds[record.object_id], mu, center=LIBRARY_CENTER_OF_MASS, near=near,
-                contacts=record.contacts,
+                contacts=record.contacts, fingers=pressed,
             )  # fmt: skip
             ratio[mu], fingers = tip.ratio(asset.mass, abs(cfg.scene.gravity)), len(tip.fingers)
         outcomes: dict[str, dict[str, dict[str, bool]]] = {}
@@ -74,8 +94,24 @@ def trial_bounds(folder: Path, registry, *, near: float = NEAR, hands: list[str]
         rows.append({
             "hand": record.hand, "object": record.object_id, "mass": asset.mass, "fingers_touching": fingers,
             "ratio_by_mu": {f"{mu:g}": r for mu, r in ratio.items()}, "trials": outcomes,
-        })  # fmt: skip
+        } | ({} if pressed is None else {"fingers_pressing": list(pressed)}))  # fmt: skip
     return rows
+
+
+def _pressing(registry, sim: str, cfg: SynthesisConfig, hand, asset, record) -> tuple[str, ...]:
+    """The fingers the ``limits`` trial's close leaves pressing the object, run again in ``sim`` (a fresh backend)."""
+    from ges_core.synthesis.physics.robust import trial_limits
+    from ges_core.synthesis.physics.scene import TrialScenes
+    from ges_core.synthesis.physics.validate import pressing_fingers
+
+    scenes = TrialScenes(registry.build_sim, sim, cfg.scene, hand)
+    grasp = Grasp(record.hand, record.grasp.wrist_pose, record.grasp.q)
+    pre = Grasp(record.hand, record.pregrasp.wrist_pose, record.pregrasp.q)
+    with scenes.open() as backend:
+        return pressing_fingers(
+            backend, hand, asset, grasp, pre, cfg.validate_, drive_limits=trial_limits(scenes, cfg.robust),
+            squeeze_mass=asset.mass,
+        )  # fmt: skip
 
 
 def trial_asks(cfg: SynthesisConfig, asset, seed: int) -> dict[str, tuple[float, float]]:
@@ -128,8 +164,11 @@ def bounds_table(rows: list[dict]) -> str:
             )
             for name in trials
         ]
+        tips = str(row["fingers_touching"])
+        if "fingers_pressing" in row:  # the close's pressing fingers: the bound's candidates
+            tips += f" of {'+'.join(row['fingers_pressing']) or 'none'}"
         lines.append(
-            f"| {row['hand']} | {row['object']} | {row['mass']:.3f} | {row['fingers_touching']} | {caps} | "
+            f"| {row['hand']} | {row['object']} | {row['mass']:.3f} | {tips} | {caps} | "
             + " | ".join(cells) + " |"
         )  # fmt: skip
     return "\n".join(lines) + "\n(+ held, - failed; ! beyond the fingertips' bound: no closing of them could pass)"
