@@ -8,10 +8,12 @@ the object's weight. Each drive-limited trial's bound follows: ``limits`` needs 
 simulator, and counts per hand how many failed trials were beyond the bound (no closing of those fingertips could
 pass them), how many failed within it, and how many passed beyond it (contacts the model leaves out or misreads:
 phalanges, the palm, a pad's nearest sample on the wrong face of a thin part). Pose trials are not bounded (their
-weight is the nominal's; they fail by geometry) and are left out.
+weight is the nominal's; they fail by geometry) and are left out. ``--pressing SIM`` counts only the fingers that
+press the object at the end of the limits trial's close, replayed in SIM.
 
     python benchmarks/stage1_capacity.py --dataset runs/real_s41 runs/demo/dataset [--near 0.02]
     python benchmarks/stage1_capacity.py --dataset runs/library --no-records --results stage1_capacity_library
+    python benchmarks/stage1_capacity.py --dataset runs/real --pressing sapien --results stage1_capacity_pressing
 
 Prints the tables and writes ``benchmarks/results/stage1_capacity.json`` (``--results`` another name). The rows and
 counts are ``ges_core.synthesis.run.capacity``'s, as ``ges dataset capacity`` prints them.
@@ -36,13 +38,18 @@ def main() -> None:
     parser.add_argument("--near", type=float, default=NEAR, help="a pad this close to the surface touches, m")
     parser.add_argument("--results", default="stage1_capacity", help="name of the JSON under benchmarks/results/")
     parser.add_argument("--no-records", action="store_true", help="store the counts only (a whole-library run)")
+    parser.add_argument(
+        "--pressing", metavar="SIM", default=None,
+        help="bound with the fingers the limits trial's close leaves pressing, replayed in SIM (as `ges dataset "
+        "capacity --pressing`)",
+    )  # fmt: skip
     args = parser.parse_args()
     results = results_path(args.results)  # a bad name stops here, not after the datasets
     set_torch_threads(1)
     registry = load_registry()
-    out = {"near": args.near, "datasets": {}, "code": code_state()}
+    out = {"near": args.near, "pressing": args.pressing, "datasets": {}, "code": code_state()}
     for folder in args.dataset:
-        rows = trial_bounds(folder, registry, near=args.near)
+        rows = trial_bounds(folder, registry, near=args.near, pressing=args.pressing, progress=True)
         counts = bound_counts(rows)
         by_source = {}  # object ids' first two parts: procedural/cone, pybullet/random_urdfs, real/can, ...
         for source in sorted({"/".join(r["object"].split("/")[:2]) for r in rows}):
