@@ -176,6 +176,18 @@ def weak_box_run(tmp_path_factory):
     return record, config, folder
 
 
+def _stored_grasp(run):
+    """The registry, the Allegro, its settings of the run's config, the object, and the record's grasp and pre-grasp."""
+    record, config, _ = run
+    registry = load_registry()
+    hand = registry.build_hand("allegro")
+    cfg = config.for_hand("allegro", hand.description.settings)
+    obj = cfg.library.build().get(record.object_id)
+    grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
+    pre = Grasp("allegro", record.pregrasp.wrist_pose, record.pregrasp.q)
+    return registry, hand, cfg, obj, grasp, pre
+
+
 @pytest.mark.sim
 def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(weak_box_run):
     """Allegro on the box, SAPIEN and PyBullet: nominal and drive-limits trials hold, 30 times the mass does not."""
@@ -199,13 +211,8 @@ def test_a_weak_perturbation_fails_where_the_nominal_trial_passes(weak_box_run):
 def test_a_stored_verdict_replays_exactly_outside_the_pipeline(weak_box_run, sim_name):
     """Every trial runs in a backend of its own, so the record's verdicts are the grasp's own: replaying the stored
     grasp alone (the nominal trial in a new backend, then robust_validate) gives every stored reason and flag."""
-    record, config, _ = weak_box_run
-    registry = load_registry()
-    hand = registry.build_hand("allegro")
-    cfg = config.for_hand("allegro", hand.description.settings)
-    obj = cfg.library.build().get(record.object_id)
-    grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
-    pre = Grasp("allegro", record.pregrasp.wrist_pose, record.pregrasp.q)
+    record, _, _ = weak_box_run
+    registry, hand, cfg, obj, grasp, pre = _stored_grasp(weak_box_run)
     built = []
     scenes = TrialScenes(lambda *a: built.append(a) or registry.build_sim(*a), sim_name, cfg.scene, hand)
     stored = record.validations[sim_name]
@@ -253,13 +260,8 @@ def test_the_fingers_a_close_leaves_pressing_are_those_the_engine_lists_on_the_o
     from ges_core.synthesis.physics.robust import trial_limits
     from ges_core.synthesis.physics.validate import pressing_fingers
 
-    record, config, folder = weak_box_run
-    registry = load_registry()
-    hand = registry.build_hand("allegro")
-    cfg = config.for_hand("allegro", hand.description.settings)
-    obj = cfg.library.build().get(record.object_id)
-    grasp = Grasp("allegro", record.grasp.wrist_pose, record.grasp.q)
-    pre = Grasp("allegro", record.pregrasp.wrist_pose, record.pregrasp.q)
+    folder = weak_box_run[2]
+    registry, hand, cfg, obj, grasp, pre = _stored_grasp(weak_box_run)
     scenes = TrialScenes(registry.build_sim, sim_name, cfg.scene, hand)
     with scenes.open() as sim:
         limits = trial_limits(scenes, cfg.robust)

@@ -201,15 +201,12 @@ def validate_grasp(
     """
     config = config or ValidateConfig()
     start = time.perf_counter()
-    d = hand.description
-    if drive_limits is None and config.drive_limits:
-        drive_limits = d.effort_limits_array  # None when the hand declares no effort limits
-    check_grasp(d, grasp, "validate_grasp grasp")
-    check_grasp(d, pregrasp_grasp, "validate_grasp pregrasp")
+    drive_limits, thumb = _trial_inputs(
+        hand, obj, grasp, pregrasp_grasp, config, drive_limits, squeeze_mass, "validate_grasp"
+    )
     flags = dict.fromkeys(("reached_grasp", "fingertips_touching", "lifted", "held"), False)
     shift = None if object_shift is None else checked_poses(object_shift, None, "validate_grasp object_shift")
     capped: list[bool] = []
-    thumb = config.thumb_force(obj.mass if squeeze_mass is None else squeeze_mass)
     try:
         record = _run(
             sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped, thumb, full_hold
@@ -240,20 +237,37 @@ def pressing_fingers(
     same arguments, no lift. A finger the close leaves on another finger or short of the object is not among them,
     though its pad may lie near its contact. SimulationError or ArrayError propagate (a blow-up has no answer)."""
     config = config or ValidateConfig()
-    d = hand.description
-    if drive_limits is None and config.drive_limits:
-        drive_limits = d.effort_limits_array
-    check_grasp(d, grasp, "pressing_fingers grasp")
-    check_grasp(d, pregrasp_grasp, "pressing_fingers pregrasp")
+    drive_limits, thumb = _trial_inputs(
+        hand, obj, grasp, pregrasp_grasp, config, drive_limits, squeeze_mass, "pressing_fingers"
+    )
     capped: list[bool] = []
-    thumb = config.thumb_force(obj.mass if squeeze_mass is None else squeeze_mass)
     try:
         probe, _, _ = _close(sim, hand, obj, grasp, pregrasp_grasp, config, None, drive_limits, capped, thumb, False)
     finally:
         if capped and not sim.closed:
             sim.set_drive_limits(None)
-    pressing = probe.forces > config.min_tip_force  # the probe's tips are d.tip_links: the fingers' order
-    return tuple(f.name for f, hit in zip(d.fingers, pressing, strict=True) if hit)
+    pressing = probe.forces > config.min_tip_force  # the probe's tips are the tip links: the fingers' order
+    return tuple(f.name for f, hit in zip(hand.description.fingers, pressing, strict=True) if hit)
+
+
+def _trial_inputs(
+    hand: HandModel,
+    obj: ObjectAsset,
+    grasp: Grasp,
+    pre: Grasp,
+    config: ValidateConfig,
+    drive_limits: np.ndarray | None,
+    squeeze_mass: float | None,
+    what: str,
+) -> tuple[np.ndarray | None, float]:
+    """Both grasps checked (errors name ``what``); the trial's drive caps (``drive_limits``, else the hand's effort
+    limits when ``config.drive_limits``, else None) and the thumb's squeeze force, N."""
+    d = hand.description
+    if drive_limits is None and config.drive_limits:
+        drive_limits = d.effort_limits_array  # None when the hand declares no effort limits
+    check_grasp(d, grasp, f"{what} grasp")
+    check_grasp(d, pre, f"{what} pregrasp")
+    return drive_limits, config.thumb_force(obj.mass if squeeze_mass is None else squeeze_mass)
 
 
 def classify(record: HoldRecord, config: ValidateConfig) -> str:
