@@ -17,7 +17,7 @@ table penalty reads the same heights, :func:`ges_core.synthesis.retarget.search.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from functools import lru_cache
+from functools import cached_property, lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -51,9 +51,15 @@ class FingerPoints:
 
     def local(self, kinematics: HandKinematics, q: np.ndarray | torch.Tensor) -> np.ndarray:
         """(B, N, 3) every point in the hand's base frame, m, for joints ``q`` (B, K)."""
-        poses = kinematics.link_poses(torch.as_tensor(q, dtype=torch.float64), list(self.links))
-        poses = poses[:, torch.tensor(self.link_of)]  # (B, N, 4, 4), base frame (copies: the arrays are read-only)
-        return ((poses[..., :3, :3] @ torch.tensor(self.points)[..., None])[..., 0] + poses[..., :3, 3]).numpy()
+        link_of, points = self._tensors
+        poses = kinematics.link_poses(torch.as_tensor(q, dtype=torch.float64), list(self.links))[:, link_of]
+        return ((poses[..., :3, :3] @ points[..., None])[..., 0] + poses[..., :3, 3]).numpy()  # (B, N, 3), base frame
+
+    @cached_property
+    def _tensors(self) -> tuple[torch.Tensor, torch.Tensor]:
+        """``link_of`` and ``points`` as tensors, made once (copies: the shared arrays are read-only); the wrist
+        search calls :meth:`local` twice per batch of placements."""
+        return torch.tensor(self.link_of), torch.tensor(self.points)
 
     def heights(self, kinematics: HandKinematics, q: np.ndarray, base: np.ndarray) -> np.ndarray:
         """(B, N) z of every point, m, for joints ``q`` (B, K) and the base-link pose ``base`` (4, 4), z-up frame."""
