@@ -282,6 +282,31 @@ def test_the_fingers_a_close_leaves_pressing_are_those_the_engine_lists_on_the_o
 
 
 @pytest.mark.sim
+def test_a_replay_that_blows_up_is_named_and_the_command_goes_on(weak_box_run, monkeypatch, capsys):
+    """A simulator that explodes while ``--pressing`` replays a record's close (made to raise here: no stored grasp
+    blows up a real engine) costs that record's row, not the command: it ends normally, names the record and the
+    error, and counts none of its trials; the plain bound (no replay) is untouched."""
+    from ges_core.errors import SimulationError
+    from ges_core.synthesis.run import capacity
+
+    folder = weak_box_run[2]
+
+    def explode(*args, **kwargs):
+        raise SimulationError("object position is NaN after step 40")
+
+    monkeypatch.setattr(capacity, "_pressing", explode)
+    assert cli.main(["dataset", "capacity", str(folder), "--pressing", "sapien"]) == 0
+    out = capsys.readouterr().out
+    assert "not replayed: allegro / procedural/box/000: SimulationError: object position is NaN after step 40" in out
+    assert "| allegro | procedural/box/000 |" not in out and "| allegro | 0 | 0 | 0 | 0 |" in out  # no row, no count
+    rows = capacity.trial_bounds(folder, load_registry(), pressing="sapien")
+    assert [(r["object"], r["trials"], "pressing_error" in r) for r in rows] == [("procedural/box/000", {}, True)]
+    assert capacity.bound_counts(rows) == {"allegro": {}}
+    assert cli.main(["dataset", "capacity", str(folder)]) == 0  # without --pressing nothing is replayed
+    assert "| allegro | procedural/box/000 |" in capsys.readouterr().out
+
+
+@pytest.mark.sim
 def test_capacity_of_a_hand_the_dataset_does_not_hold_names_the_hands_it_does(weak_box_run, capsys):
     """``--hand shadow`` on a dataset of Allegro records is an error naming the hands it holds, not an empty
     table (a typo read as "no record with trials" before); ``--hand allegro`` still gives the table."""

@@ -16,7 +16,7 @@ from pathlib import Path
 
 from tqdm import tqdm
 
-from ges_core.errors import ConfigError
+from ges_core.errors import ArrayError, ConfigError, SimulationError
 from ges_core.synthesis.contacts.generate import LIBRARY_CENTER_OF_MASS
 from ges_core.synthesis.physics.capacity import NEAR, fingertip_capacity
 from ges_core.synthesis.physics.robust import effective_friction, perturbations
@@ -49,6 +49,8 @@ def trial_bounds(
     nominal object; :func:`~ges_core.synthesis.physics.validate.pressing_fingers`) and only the fingers it leaves
     pressing the object count (``fingers_pressing`` in the row): a finger that ends on another finger or short of the
     object carries nothing, though its pad may lie near its contact. About 0.1-0.5 s per record; ``progress``: a bar.
+    A record whose replay blows up (SimulationError, ArrayError) gets a row with ``pressing_error`` (the message) and
+    no trials, so it counts nowhere; the other records go on.
     """
     from ges_core.dataset import open_dataset
     from ges_core.env.grasp_source import library_for, record_asset
@@ -77,7 +79,14 @@ def trial_bounds(
         grasp = Grasp(record.hand, record.grasp.wrist_pose, record.grasp.q)
         pressed = None
         if pressing is not None:
-            pressed = _pressing(registry, pressing, cfg, models[record.hand], record_asset(library, record), record)
+            try:
+                pressed = _pressing(registry, pressing, cfg, models[record.hand], record_asset(library, record), record)
+            except (SimulationError, ArrayError) as error:  # no pressing fingers to bound with: say so, go on
+                rows.append({
+                    "hand": record.hand, "object": record.object_id, "mass": asset.mass, "fingers_touching": 0,
+                    "ratio_by_mu": {}, "trials": {}, "pressing_error": f"{type(error).__name__}: {error}",
+                })  # fmt: skip
+                continue
         ratio, fingers = {}, 0
         for mu in sorted({nominal} | {mu for _, mu in asks.values()}):
             tip = fingertip_capacity(
@@ -149,7 +158,16 @@ def bound_counts(rows: list[dict]) -> dict[str, dict[str, int]]:
 
 
 def bounds_table(rows: list[dict]) -> str:
-    """Markdown: one line per record, each trial's outcome per simulator, ``!`` beyond the bound."""
+    """Markdown: one line per record, each trial's outcome per simulator, ``!`` beyond the bound; then the records
+    whose replay of the close failed (``pressing_error``), one line each."""
+    failed = [row for row in rows if "pressing_error" in row]
+    rows = [row for row in rows if "pressing_error" not in row]
+    not_replayed = [
+        f"not replayed: {row['hand']} / {row['object']}: {row['pressing_error']} (no bound; counted nowhere)"
+        for row in failed
+    ]
+    if not rows:
+        return "\n".join(not_replayed)
     trials = sorted({name for row in rows for name in row["trials"]})
     lines = [
         "| hand | object | kg | tips | capacity / weight | " + " | ".join(trials) + " |",
@@ -171,7 +189,8 @@ def bounds_table(rows: list[dict]) -> str:
             f"| {row['hand']} | {row['object']} | {row['mass']:.3f} | {tips} | {caps} | "
             + " | ".join(cells) + " |"
         )  # fmt: skip
-    return "\n".join(lines) + "\n(+ held, - failed; ! beyond the fingertips' bound: no closing of them could pass)"
+    lines.append("(+ held, - failed; ! beyond the fingertips' bound: no closing of them could pass)")
+    return "\n".join(lines + not_replayed)
 
 
 def counts_table(counts: dict[str, dict[str, int]]) -> str:
