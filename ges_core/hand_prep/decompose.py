@@ -17,29 +17,13 @@ from ges_core.hand_prep.engine_files import note_parts_written
 from ges_core.objects.decompose import FAST, cached_parts, decompose, decomposition_dir
 from ges_core.paths import file_sha256
 
-__all__ = [
-    "HAND_COACD",
-    "HAND_MAX_PARTS",
-    "cached_link_parts",
-    "decompose_link_mesh",
-    "decomposition_seconds",
-    "parts_gap",
-]
-
-HAND_MAX_PARTS = 16
-"""Convex parts per hand link mesh at most (CoACD's ``max_convex_hull``: past it, CoACD merges the parts whose merge
-adds the least concavity). Every part is a shape both engines collide at every step. The Inspire hand's .glb meshes
-gave 12-140 parts each without a cap, 583 shapes for the hand (the Allegro 23, the Shadow 22, the Ability 60); with
-16 it has 211, and Stage 1 took 13 % (procedural) and 24 % (real scans) less CPU per object with the same
-single-trial verdicts, its parts reaching at most 3.1 mm beyond a finger's mesh as before, 10.7 instead of 7.6 mm
-beyond the palm's (``benchmarks/hand_parts.py``, docs/hands/assets.md). Meshes under the cap decompose exactly as
-without it (the Ability hand's 5 and 7 parts: the same files, the same hand hash)."""
+__all__ = ["HAND_COACD", "cached_link_parts", "decompose_link_mesh", "decomposition_seconds"]
 
 # CoACD's FAST settings of the objects (6.5x faster than its defaults) with CoACD's default concavity threshold
 # 0.05 instead of FAST's 0.08. Measured on the Ability hand (2026-12-01, shared 2-core machine): the distal
 # phalanx idx-F2_C.obj (hull 7.3 mm off the mesh) gave 4 parts at 0.08 (3.9 s), 7 at 0.05 (5.2 s) and 12 at
 # 0.03 (16.8 s); the palm gave 5 parts at each.
-HAND_COACD = replace(FAST, threshold=0.05, max_convex_hull=HAND_MAX_PARTS)
+HAND_COACD = replace(FAST, threshold=0.05)
 """CoACD arguments for hand link meshes."""
 
 
@@ -67,14 +51,3 @@ def decomposition_seconds(mesh: Path) -> float:
     """CoACD's run time for ``mesh`` as its manifest recorded it, seconds (0 when not decomposed)."""
     manifest = decomposition_dir(file_sha256(mesh), HAND_COACD) / "manifest.json"
     return float(json.loads(manifest.read_text())["seconds"]) if manifest.is_file() else 0.0
-
-
-def parts_gap(mesh, parts: list[Path]) -> float:
-    """How far a decomposition's convex parts reach beyond ``mesh``: the deepest point of the mesh's surface inside any
-    part, metres (0 when every part hugs the surface). The measure of :func:`ges_core.hand_prep.geometry.hull_gap`
-    taken per part (the same surface samples): a fingertip meets the parts that much before the mesh."""
-    import trimesh
-
-    from ges_core.objects.decompose import hull_depth
-
-    return max([0.0] + [hull_depth(mesh, trimesh.load(str(p), force="mesh")) for p in parts])

@@ -26,7 +26,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 
 from ges_core.hand import HandModel
-from ges_core.hand_prep.decompose import cached_link_parts, decompose_link_mesh, decomposition_seconds, parts_gap
+from ges_core.hand_prep.decompose import cached_link_parts, decompose_link_mesh, decomposition_seconds
 from ges_core.hand_prep.geometry import (
     HULL_OVERLAP_TOL,
     PairOverlap,
@@ -76,8 +76,6 @@ class MeshPlan:
     overlaps: list[str] = field(default_factory=list)
     """Links whose hulls overlap this one's where the meshes are apart."""
     parts: int = 0
-    parts_gap: float = 0.0
-    """m, deepest point of the mesh inside one of its parts: how far the parts reach beyond it (0 when kept)."""
     seconds: float = 0.0
     """CoACD's run time (from the cache's manifest when it ran before)."""
     cached: bool = False
@@ -107,17 +105,14 @@ class PrepareReport:
     def format(self) -> str:
         """A table: one row per collision mesh, then the overlaps left."""
         lines = [f"hand '{self.hand}': {len(self.converted)} mesh file(s) converted to OBJ (cached by hash)"]
-        lines.append(
-            f"  {'collision mesh':<28}{'links':<34}{'hull gap':>9}{'parts':>7}{'parts gap':>10}{'CoACD s':>9}  reason"
-        )
+        lines.append(f"  {'collision mesh':<28}{'links':<34}{'hull gap':>9}{'parts':>7}{'CoACD s':>9}  reason")
         for m in self.meshes:
             links = ", ".join(m.links)
             links = links if len(links) <= 32 else links[:29] + "..."
             parts = str(m.parts) if m.parts else "-"
             secs = (f"{m.seconds:.1f}" + ("*" if m.cached else "")) if m.parts else "-"
             gap = f"{m.hull_gap * 1000:>6.1f} mm"
-            reach = f"{m.parts_gap * 1000:>7.1f} mm" if m.parts else f"{'-':>10}"
-            lines.append(f"  {m.path.name[:27]:<28}{links:<34}{gap}{parts:>7}{reach}{secs:>9}  {m.reason or 'kept'}")
+            lines.append(f"  {m.path.name[:27]:<28}{links:<34}{gap}{parts:>7}{secs:>9}  {m.reason or 'kept'}")
         lines.append(
             f"  hull overlaps beyond the meshes': {len(self.overlaps_before)} before, {len(self.overlaps_after)} after"
         )
@@ -252,12 +247,10 @@ def _plan(shapes, overlaps: list[PairOverlap], path=engine_mesh) -> list[MeshPla
 
 
 def _decompose(plans: list[MeshPlan], progress: bool) -> None:
-    import trimesh
     from tqdm import tqdm
 
     todo = [p for p in plans if p.reason]
     for plan in tqdm(todo, desc="CoACD", unit="mesh", disable=not progress or not todo):
         plan.cached = cached_link_parts(plan.path) is not None
-        parts = decompose_link_mesh(plan.path, name=f"hand mesh {plan.path.name} ({', '.join(plan.links)})")
-        plan.parts, plan.seconds = len(parts), decomposition_seconds(plan.path)
-        plan.parts_gap = parts_gap(trimesh.load(str(plan.path), force="mesh"), parts)
+        plan.parts = len(decompose_link_mesh(plan.path, name=f"hand mesh {plan.path.name} ({', '.join(plan.links)})"))
+        plan.seconds = decomposition_seconds(plan.path)
