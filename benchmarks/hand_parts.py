@@ -5,11 +5,11 @@ with the cap put into ``ges_core.hand_prep.decompose.HAND_COACD``: the decomposi
 (parts, CoACD seconds), ``ges sim check``'s close-and-lift of a box in SAPIEN and PyBullet with the hand's settings
 (its verdict, or the blow-up that stopped it: a merged part can bulge far beyond the mesh it stands for), the engines'
 raw step time with the hand closed on a box (``benchmarks/sim_throughput.py``'s scene; none where it blew up),
-then Stage 1 on procedural objects and real scans as
-``benchmarks/stage1_speed.py`` times it (one process, one torch thread, CPU clock, SAPIEN, the single nominal trial:
-robust trials off), with each record's physics steps. The caps run in turn, round after round (``--rounds``), so that
-all meet the same machine load; a table per cap gives the medians over rounds, the ratio to "none", and how many
-objects were validated. Which objects changed verdict between caps is listed.
+then Stage 1 on procedural objects and real scans as ``benchmarks/stage1_speed.py`` times it (one process, one torch
+thread, CPU clock, SAPIEN, the single nominal trial: robust trials off), with each record's physics steps. The caps
+run in turn, round after round (``--rounds``), so that all meet the same machine load. The table has a row per cap
+(medians over the rounds, how many objects were validated), then the ratios to the first cap given, the objects whose
+verdict changed, each cap's sim checks and its parts per mesh.
 
     python benchmarks/hand_parts.py [--hand inspire] [--caps none 32 16 8] [--procedural 12] [--real 10] [--rounds 2]
         [--results hand_parts]

@@ -83,7 +83,7 @@ def trial_bounds(
                 pressed = _pressing(registry, pressing, cfg, models[record.hand], record_asset(library, record), record)
             except (SimulationError, ArrayError) as error:  # no pressing fingers to bound with: say so, go on
                 rows.append({
-                    "hand": record.hand, "object": record.object_id, "mass": asset.mass, "fingers_touching": 0,
+                    "hand": record.hand, "object": record.object_id, "mass": asset.mass, "fingers_touching": None,
                     "ratio_by_mu": {}, "trials": {}, "pressing_error": f"{type(error).__name__}: {error}",
                 })  # fmt: skip
                 continue
