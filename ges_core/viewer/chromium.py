@@ -7,10 +7,13 @@ Chromium on a machine without a GPU otherwise draws no 3D canvas at all.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
+import signal
 import subprocess
 import tempfile
+import time
 from pathlib import Path
 
 from ges_core.errors import BackendUnavailable
@@ -61,18 +64,40 @@ def screenshot(
     ends the message).
     """
     path = Path(path).resolve()
-    with tempfile.TemporaryDirectory(prefix="ges-chromium-") as profile:
-        cmd = chromium_command(Path(profile), size, f"--virtual-time-budget={wait_ms}", f"--screenshot={path}", url)
+    profile = Path(tempfile.mkdtemp(prefix="ges-chromium-"))
+    try:
+        cmd = chromium_command(profile, size, f"--virtual-time-budget={wait_ms}", f"--screenshot={path}", url)
         try:
             run = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout, check=False)
         except subprocess.TimeoutExpired as exc:
             raise BackendUnavailable(f"Chromium took over {timeout:.0f} s to screenshot {url}") from exc
+    finally:
+        remove_profile(profile)
     if not path.is_file():
         tail = (run.stderr or run.stdout).strip().splitlines()[-3:]
         raise BackendUnavailable(
             f"Chromium wrote no screenshot of {url} (exit {run.returncode}): {' | '.join(tail) or 'no output'}"
         )
     return path
+
+
+PROFILE_REMOVAL_TRIES = 20
+"""Tries, 0.1 s apart, at removing a Chromium profile folder: its helper processes may still write into it for a
+moment after the browser exited (a test saw ``Directory not empty: 'Default'``)."""
+
+
+def remove_profile(profile: Path) -> None:
+    """Remove a Chromium profile folder, trying again while files still appear in it; what is left after
+    :data:`PROFILE_REMOVAL_TRIES` tries stays in the temporary folder (a leftover there is not worth an error)."""
+    for _ in range(PROFILE_REMOVAL_TRIES):
+        try:
+            shutil.rmtree(profile)
+            return
+        except FileNotFoundError:
+            return
+        except OSError:
+            time.sleep(0.1)
+    shutil.rmtree(profile, ignore_errors=True)
 
 
 class HeadlessPage:
@@ -88,9 +113,10 @@ class HeadlessPage:
 
     def __init__(self, size: tuple[int, int] = (1280, 800), *, timeout: float = 60.0) -> None:
         self.size, self.timeout = size, timeout
-        self._profile = tempfile.TemporaryDirectory(prefix="ges-chromium-")
-        cmd = chromium_command(Path(self._profile.name), size, "--remote-debugging-port=0", "about:blank")
-        self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        self._profile = Path(tempfile.mkdtemp(prefix="ges-chromium-"))
+        cmd = chromium_command(self._profile, size, "--remote-debugging-port=0", "about:blank")
+        # a session of its own: close() ends the browser's helper processes with it
+        self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
         self._next_id = 0
         try:
             self._ws = self._connect()
@@ -101,12 +127,11 @@ class HeadlessPage:
 
     def _connect(self):
         import json
-        import time
         import urllib.request
 
         from websockets.sync.client import connect
 
-        port_file, deadline = Path(self._profile.name) / "DevToolsActivePort", time.monotonic() + self.timeout
+        port_file, deadline = self._profile / "DevToolsActivePort", time.monotonic() + self.timeout
         while not port_file.is_file() or not port_file.read_text().strip():
             if self._proc.poll() is not None or time.monotonic() > deadline:
                 raise BackendUnavailable(f"Chromium did not open its DevTools port (exit {self._proc.poll()})")
@@ -148,8 +173,6 @@ class HeadlessPage:
 
     def _capture(self) -> dict:
         """Page.captureScreenshot, retried while a navigation swaps the page ("Not attached to an active page")."""
-        import time
-
         deadline = time.monotonic() + self.timeout
         while True:
             try:
@@ -172,7 +195,9 @@ class HeadlessPage:
             except subprocess.TimeoutExpired:
                 self._proc.kill()
                 self._proc.wait()
-        self._profile.cleanup()
+        with contextlib.suppress(ProcessLookupError, PermissionError):  # helpers left in the browser's session
+            os.killpg(self._proc.pid, signal.SIGKILL)
+        remove_profile(self._profile)
 
     def __enter__(self) -> HeadlessPage:
         return self
