@@ -88,7 +88,7 @@ class SimCheckReport:
             lines.append(
                 f"  the open hand started {depth * 1000:.1f} mm inside the box ({link}): the start pose keeps the "
                 f"wrist link's origin {PALM_CLEARANCE * 1000:.0f} mm above the box, not its geometry; this check "
-                "cannot judge the hand as it starts (docs/hands/inspire.md)"
+                "cannot judge the hand as it starts (docs/tutorials/new-hand.md, step 4)"
             )
         return "\n".join(lines)
 

@@ -3,9 +3,14 @@ test once failed in CI on ``Directory not empty: 'Default'`` after the browser h
 
 from __future__ import annotations
 
+import tempfile
 import threading
 import time
 
+import pytest
+
+from ges_core.errors import BackendUnavailable
+from ges_core.viewer import chromium
 from ges_core.viewer.chromium import remove_profile
 
 
@@ -39,3 +44,14 @@ def test_a_profile_still_being_written_is_removed(tmp_path):
 def test_removing_a_missing_profile_is_harmless(tmp_path):
     remove_profile(tmp_path / "never-made")
     assert not (tmp_path / "never-made").exists()
+
+
+def test_a_browser_that_cannot_start_leaves_no_profile(tmp_path, monkeypatch):
+    """Without Chromium, HeadlessPage and screenshot raise BackendUnavailable and leave no profile folder behind."""
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    monkeypatch.setattr(chromium, "find_chromium", lambda: None)
+    with pytest.raises(BackendUnavailable, match="no Chromium found"):
+        chromium.HeadlessPage()
+    with pytest.raises(BackendUnavailable, match="no Chromium found"):
+        chromium.screenshot("http://127.0.0.1:1", tmp_path / "shot.png")
+    assert list(tmp_path.iterdir()) == []

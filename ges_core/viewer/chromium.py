@@ -114,9 +114,15 @@ class HeadlessPage:
     def __init__(self, size: tuple[int, int] = (1280, 800), *, timeout: float = 60.0) -> None:
         self.size, self.timeout = size, timeout
         self._profile = Path(tempfile.mkdtemp(prefix="ges-chromium-"))
-        cmd = chromium_command(self._profile, size, "--remote-debugging-port=0", "about:blank")
-        # a session of its own: close() ends the browser's helper processes with it
-        self._proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+        try:
+            cmd = chromium_command(self._profile, size, "--remote-debugging-port=0", "about:blank")
+            # a session of its own: close() ends the browser's helper processes with it
+            self._proc = subprocess.Popen(
+                cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True
+            )
+        except BaseException:  # no browser to start: nothing will remove the profile later
+            remove_profile(self._profile)
+            raise
         self._next_id = 0
         try:
             self._ws = self._connect()
