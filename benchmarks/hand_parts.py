@@ -42,7 +42,7 @@ def child(cap: int, hand: str, procedural: int, real: int, out: Path) -> None:
 
     decompose.HAND_COACD = replace(decompose.HAND_COACD, max_convex_hull=cap)  # read at call time by the lookups
     from sim_throughput import bench_pair
-    from stage1_speed import object_sets, per_record, run_pipeline, steps_per_record, summarize, warm_up
+    from stage1_speed import first_object, object_sets, per_record, run_pipeline, steps_per_record, summarize, warm_up
 
     from ges_core.config import parse_model
     from ges_core.errors import SimulationError
@@ -82,7 +82,7 @@ def child(cap: int, hand: str, procedural: int, real: int, out: Path) -> None:
     config = parse_model(SynthesisConfig, {"library": library_config.model_dump(), "robust": {"enabled": False}})
     runs = {}
     with tempfile.TemporaryDirectory() as tmp:
-        run_pipeline([sets[next(iter(sets))][0]], [hand], config, Path(tmp) / "warm", "wall")  # imports: untimed
+        run_pipeline([first_object(sets)], [hand], config, Path(tmp) / "warm", "wall")  # imports: untimed
         for group, ids in sets.items():
             with steps_per_record() as counts:
                 got, wall = run_pipeline(ids, [hand], config, Path(tmp) / group, "cpu")

@@ -28,6 +28,7 @@ __all__ = [
     "fill_absent",
     "load_config",
     "parse_model",
+    "parse_overridden",
     "read_yaml",
     "stored_dump",
 ]
@@ -215,12 +216,18 @@ def _related(key: str, loc: str) -> bool:
     return key == loc or loc.startswith(key + ".") or key.startswith(loc + ".")
 
 
+def parse_overridden(
+    model: type[M], data: dict, overrides: Iterable[str], *, where: str = "config", flag: str = "-o"
+) -> M:
+    """:func:`apply_overrides` then :func:`parse_model`; a problem an override made names it (``flag KEY=VALUE``)."""
+    overrides = list(overrides)  # read twice: an iterator would name nothing the second time
+    return parse_model(model, apply_overrides(data, overrides), where=where, overrides=overrides, flag=flag)
+
+
 def load_config(model: type[M], path: str | Path | None = None, overrides: Iterable[str] = ()) -> M:
     """Read ``path`` (or start empty), apply overrides, validate into ``model``."""
     data = read_yaml(path) if path is not None else {}
-    overrides = list(overrides)
-    where = str(path or model.__name__)
-    return parse_model(model, apply_overrides(data, overrides), where=where, overrides=overrides)
+    return parse_overridden(model, data, overrides, where=str(path or model.__name__))
 
 
 def _deep_copy(data: Any) -> Any:

@@ -20,7 +20,7 @@ from typing import Any
 import pluggy
 from pydantic import ConfigDict, TypeAdapter, ValidationError
 
-from ges_core.config import RegistryConfig, apply_overrides, parse_model, read_yaml
+from ges_core.config import RegistryConfig, parse_overridden, read_yaml
 from ges_core.errors import (
     BackendUnavailable,
     ConfigError,
@@ -323,13 +323,7 @@ def load_registry(
     """Read registry.yaml (default: :func:`default_registry_path`), discover plugins, collect specs."""
     path = Path(path) if path is not None else default_registry_path()
     data = read_yaml(path) if path is not None else {}
-    config = parse_model(
-        RegistryConfig,
-        apply_overrides(data, overrides),
-        where=str(path or "registry"),
-        overrides=overrides,
-        flag="--set",
-    )
+    config = parse_overridden(RegistryConfig, data, overrides, where=str(path or "registry"), flag="--set")
     base_dir = path.resolve().parent if path is not None else Path.cwd()
     pm = get_plugin_manager(local_plugins=config.plugins, base_dir=base_dir, blocked=blocked, autoload=autoload)
     registry = Registry(pm, config)

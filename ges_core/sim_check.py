@@ -171,6 +171,7 @@ def run_sim_check(
 ) -> SimCheckReport:
     """Run the close-and-lift scene in ``sim`` (already built) and report fingertip forces."""
     from ges_core.graspability import check_graspable
+    from ges_core.synthesis.physics.scene import hand_contacts
 
     d = hand.description
     obj = obj or build_check_object(config)
@@ -186,7 +187,8 @@ def run_sim_check(
     start_overlap = None
     if config.settle_steps:
         sim.step()  # then the rest: the same steps as one call (the report's figures are unchanged)
-        start_overlap = _deepest_overlap(sim.contact_pairs(0))
+        inside = hand_contacts(sim, table_force=np.inf)
+        start_overlap = None if inside.deepest_link is None else (inside.deepest_link, inside.depth)
         if config.settle_steps > 1:
             sim.step(config.settle_steps - 1)
     for i in range(1, config.close_steps + 1):
@@ -212,14 +214,3 @@ def run_sim_check(
         time.perf_counter() - start,
         start_overlap,
     )
-
-
-def _deepest_overlap(pairs) -> tuple[str, float] | None:
-    """(hand link, depth m) of the deepest hand-object penetration among ``pairs`` (SimBackend.contact_pairs), or
-    None when no hand link is inside the object."""
-    inside = [
-        (p.link_a if p.body_a == "hand" else p.link_b, -p.separation)
-        for p in pairs
-        if {p.body_a, p.body_b} == {"hand", "object"} and p.separation < 0
-    ]
-    return max(inside, key=lambda item: item[1]) if inside else None

@@ -43,7 +43,7 @@ def add_parser(sub: argparse._SubParsersAction) -> None:
 def run_baseline_cmd(args: argparse.Namespace) -> int:
     """Evaluate, print the table and where the results are."""
     from ges_core.cli import registry_from_args
-    from ges_core.config import apply_overrides, parse_model
+    from ges_core.config import parse_overridden
     from ges_core.env.evaluate import BaselineConfig, evaluate_baseline
     from ges_core.env.grasp_source import dataset_hand
     from ges_core.experts.choice import parse_expert
@@ -60,8 +60,7 @@ def run_baseline_cmd(args: argparse.Namespace) -> int:
     registry.spec("hand", hand), registry.spec("sim", sim)  # known names
     data = {"hand": hand, "sim": sim, "envs": args.envs, "selection": args.select, "expert": expert.name}
     data |= {"expert_settings": expert.settings} | ({"splits": tuple(args.split)} if args.split else {})
-    data = apply_overrides(data, args.overrides)
-    config = parse_model(BaselineConfig, data, where="ges env baseline", overrides=args.overrides)
+    config = parse_overridden(BaselineConfig, data, args.overrides, where="ges env baseline")
     out = args.out or args.dataset.parent / "baseline"
     fanout = fanout_from_args(args)
     report = evaluate_baseline(

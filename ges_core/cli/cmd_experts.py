@@ -96,7 +96,7 @@ def run_from_args(
     options (:func:`add_episode_options`, :func:`add_run_options`); unknown hand, simulator or expert names fail
     here, listing the known ones. ``base``: a success matrix's ``run`` header whose ``seed``, ``env`` and ``scene``
     the run takes instead of the defaults (``--no-randomization`` and ``-o`` still apply on top)."""
-    from ges_core.config import apply_overrides, parse_model
+    from ges_core.config import parse_overridden
     from ges_core.env.evaluate import BaselineConfig
     from ges_core.env.grasp_source import dataset_hand
     from ges_core.experts.choice import parse_expert
@@ -118,8 +118,7 @@ def run_from_args(
         data |= copy.deepcopy({key: base[key] for key in ("seed", "env", "scene") if key in base})
         if args.no_randomization:
             data.setdefault("env", {}).setdefault("randomization", {})["enabled"] = False
-    config = parse_model(BaselineConfig, apply_overrides(data, args.overrides), where=where, overrides=args.overrides)
-    return experts, config
+    return experts, parse_overridden(BaselineConfig, data, args.overrides, where=where)
 
 
 def randomization_text(config: BaselineConfig) -> str:

@@ -11,7 +11,7 @@ from typing import Any, Literal
 
 from pydantic import Field, model_validator
 
-from ges_core.config import ConfigModel, apply_overrides, parse_model, read_yaml
+from ges_core.config import ConfigModel, parse_overridden, read_yaml
 from ges_core.env.grasp_env import EnvConfig
 from ges_core.errors import ConfigError
 from ges_core.sim import SceneConfig
@@ -281,9 +281,7 @@ def load_train_config(preset: str | None = "tiny", path: str | Path | None = Non
         data["preset"] = preset
     if path is not None:
         data = _merge(data, read_yaml(path))
-    overrides = list(overrides)
-    data = apply_overrides(data, overrides)
-    return parse_model(TrainConfig, data, where=str(path or f"preset {preset}"), overrides=overrides)
+    return parse_overridden(TrainConfig, data, overrides, where=str(path or f"preset {preset}"))
 
 
 def _merge(base: dict, top: dict) -> dict:

@@ -224,6 +224,8 @@ class HandContacts:
     """Some hand link touches the table."""
     object_links: frozenset[str]
     """Hand links touching the object (closer than :data:`TOUCH_SEPARATION` or pushing)."""
+    deepest_link: str | None = None
+    """The hand link of :attr:`depth` (None: no hand link inside the object)."""
 
 
 def hand_contacts(
@@ -236,13 +238,15 @@ def hand_contacts(
     every step.
     """
     near = -np.inf if table_separation is None else table_separation
-    depth, table, links = 0.0, False, set()
+    depth, deepest, table, links = 0.0, None, False, set()
     for pair in sim.contact_pairs(0):
         bodies = {pair.body_a, pair.body_b}
         if bodies == {"hand", "object"}:
-            depth = max(depth, -pair.separation)
+            link = pair.link_a if pair.body_a == "hand" else pair.link_b
+            if -pair.separation > depth:
+                depth, deepest = -pair.separation, link
             if pair.separation < TOUCH_SEPARATION or pair.force > 0.0:
-                links.add(pair.link_a if pair.body_a == "hand" else pair.link_b)
+                links.add(link)
         elif bodies == {"hand", "table"} and (pair.separation < near or pair.force > table_force):
             table = True
-    return HandContacts(depth, table, frozenset(links))
+    return HandContacts(depth, table, frozenset(links), deepest)

@@ -45,7 +45,8 @@ of the lift), ``held`` (high enough at every hold step with the fingertip rule h
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import numpy as np
@@ -206,16 +207,13 @@ def validate_grasp(
     )
     flags = dict.fromkeys(("reached_grasp", "fingertips_touching", "lifted", "held"), False)
     shift = None if object_shift is None else checked_poses(object_shift, None, "validate_grasp object_shift")
-    capped: list[bool] = []
     try:
-        record = _run(
-            sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped, thumb, full_hold
-        )
+        with _caps_undone(sim) as capped:
+            record = _run(
+                sim, hand, obj, grasp, pregrasp_grasp, config, flags, shift, drive_limits, capped, thumb, full_hold
+            )
     except (SimulationError, ArrayError):  # a blow-up, or a NaN command computed from a blown-up state
         return ValidationResult(False, "unstable", flags, time.perf_counter() - start)
-    finally:
-        if capped and not sim.closed:
-            sim.set_drive_limits(None)  # undone after the trial
     reason = classify(record, config)
     flags["held"] = reason == "success"
     return ValidationResult(reason == "success", reason, flags, time.perf_counter() - start)
@@ -240,14 +238,22 @@ def pressing_fingers(
     drive_limits, thumb = _trial_inputs(
         hand, obj, grasp, pregrasp_grasp, config, drive_limits, squeeze_mass, "pressing_fingers"
     )
+    with _caps_undone(sim) as capped:
+        probe, _, _ = _close(sim, hand, obj, grasp, pregrasp_grasp, config, None, drive_limits, capped, thumb, False)
+    pressing = probe.forces > config.min_tip_force  # the probe's tips are the tip links: the fingers' order
+    return tuple(f.name for f, hit in zip(hand.description.fingers, pressing, strict=True) if hit)
+
+
+@contextmanager
+def _caps_undone(sim: SimBackend) -> Iterator[list[bool]]:
+    """A list the trial appends to once it caps the drives (:func:`_close`); the caps are lifted on leaving, however
+    the trial ended (a backend already closed is left alone)."""
     capped: list[bool] = []
     try:
-        probe, _, _ = _close(sim, hand, obj, grasp, pregrasp_grasp, config, None, drive_limits, capped, thumb, False)
+        yield capped
     finally:
         if capped and not sim.closed:
             sim.set_drive_limits(None)
-    pressing = probe.forces > config.min_tip_force  # the probe's tips are the tip links: the fingers' order
-    return tuple(f.name for f, hit in zip(hand.description.fingers, pressing, strict=True) if hit)
 
 
 def _trial_inputs(

@@ -79,8 +79,10 @@ def trial_bounds(
         grasp = Grasp(record.hand, record.grasp.wrist_pose, record.grasp.q)
         pressed = None
         if pressing is not None:
+            pre = Grasp(record.hand, record.pregrasp.wrist_pose, record.pregrasp.q)
+            checked = record_asset(library, record)  # the object as Stage 2 builds it for this record
             try:
-                pressed = _pressing(registry, pressing, cfg, models[record.hand], record_asset(library, record), record)
+                pressed = _pressing(registry, pressing, cfg, models[record.hand], checked, grasp, pre)
             except (SimulationError, ArrayError) as error:  # no pressing fingers to bound with: say so, go on
                 rows.append({
                     "hand": record.hand, "object": record.object_id, "mass": asset.mass, "fingers_touching": None,
@@ -107,15 +109,13 @@ def trial_bounds(
     return rows
 
 
-def _pressing(registry, sim: str, cfg: SynthesisConfig, hand, asset, record) -> tuple[str, ...]:
+def _pressing(registry, sim: str, cfg: SynthesisConfig, hand, asset, grasp: Grasp, pre: Grasp) -> tuple[str, ...]:
     """The fingers the ``limits`` trial's close leaves pressing the object, run again in ``sim`` (a fresh backend)."""
     from ges_core.synthesis.physics.robust import trial_limits
     from ges_core.synthesis.physics.scene import TrialScenes
     from ges_core.synthesis.physics.validate import pressing_fingers
 
     scenes = TrialScenes(registry.build_sim, sim, cfg.scene, hand)
-    grasp = Grasp(record.hand, record.grasp.wrist_pose, record.grasp.q)
-    pre = Grasp(record.hand, record.pregrasp.wrist_pose, record.pregrasp.q)
     with scenes.open() as backend:
         return pressing_fingers(
             backend, hand, asset, grasp, pre, cfg.validate_, drive_limits=trial_limits(scenes, cfg.robust),
