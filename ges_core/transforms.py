@@ -205,6 +205,13 @@ def euler_xyz_to_quat(angles: np.ndarray) -> np.ndarray:
 def quat_to_euler_xyz(quat: np.ndarray) -> np.ndarray:
     """(..., 4) quaternions wxyz (normalised first) -> (..., 3) angles (rx, ry, rz) with ``R = Rx Ry Rz``.
 
+    At gimbal lock (ry = +-pi/2, where only rx + rz or rx - rz is defined) rz is 0 and rx carries the whole turn about
+    the shared axis, as scipy's ``as_euler("XYZ")`` does; the lock is taken where ``cos(ry)`` is below
+    ``_GIMBAL_LOCK_COS`` (1e-8), the point from which the general formulas, whose rx and rz are then arctangents of
+    rounding noise, lose more than the lock's ``rz = 0`` does (both below 1e-5 degrees there; at ``cos(ry)`` 1e-13
+    the general formulas are 0.7 degrees off, at exact lock up to 180). Without it a base pose at the lock reached
+    the wrist turned by up to 180 degrees about the shared axis (the Inspire hand's palm-down start: 90 degrees).
+
     For up to ``_FEW_ROWS`` rows of shape (M, 4) the same float64 operations run in the same order on
     Python floats (IEEE arithmetic, correctly rounded square root) and only arcsin and arctan2 go to numpy,
     whose results do not depend on the array's length: bit for bit the numpy path, about 6 µs instead of
@@ -214,7 +221,7 @@ def quat_to_euler_xyz(quat: np.ndarray) -> np.ndarray:
     quat = np.asarray(quat, dtype=np.float64)
     if quat.ndim != 2 or len(quat) > _FEW_ROWS:
         return _euler_xyz_numpy(quat)
-    r02, r12, r22, r01, r00 = [], [], [], [], []
+    r02, r12, r22, r01, r00, r21, r11, lock = [], [], [], [], [], [], [], []
     for w, x, y, z in quat.tolist():
         n = math.sqrt(w * w + x * x + y * y + z * z)
         w, x, y, z = w / n, x / n, y / n, z / n
@@ -223,7 +230,17 @@ def quat_to_euler_xyz(quat: np.ndarray) -> np.ndarray:
         r22.append(1 - 2 * (x * x + y * y))
         r01.append(-(2 * (x * y - w * z)))
         r00.append(1 - 2 * (y * y + z * z))
-    return np.stack([np.arctan2(r12, r22), np.arcsin(r02), np.arctan2(r01, r00)], axis=-1).reshape(len(quat), 3)
+        r21.append(2 * (y * z + w * x))
+        r11.append(1 - 2 * (x * x + z * z))
+        lock.append(r12[-1] * r12[-1] + r22[-1] * r22[-1] < _GIMBAL_LOCK_COS2)
+    rx = np.where(lock, np.arctan2(r21, r11), np.arctan2(r12, r22))
+    rz = np.where(lock, 0.0, np.arctan2(r01, r00))
+    return np.stack([rx, np.arcsin(r02), rz], axis=-1).reshape(len(quat), 3)
+
+
+_GIMBAL_LOCK_COS = 1e-8
+"""``cos(ry)`` below which :func:`quat_to_euler_xyz` takes gimbal lock (docstring there)."""
+_GIMBAL_LOCK_COS2 = _GIMBAL_LOCK_COS * _GIMBAL_LOCK_COS
 
 
 def _euler_xyz_numpy(quat: np.ndarray) -> np.ndarray:
@@ -235,9 +252,12 @@ def _euler_xyz_numpy(quat: np.ndarray) -> np.ndarray:
     r22 = 1 - 2 * (x * x + y * y)
     r01 = 2 * (x * y - w * z)
     r00 = 1 - 2 * (y * y + z * z)
+    r21 = 2 * (y * z + w * x)
+    r11 = 1 - 2 * (x * x + z * z)
+    lock = r12 * r12 + r22 * r22 < _GIMBAL_LOCK_COS2
     ry = np.arcsin(np.clip(r02, -1.0, 1.0))
-    rx = np.arctan2(-r12, r22)
-    rz = np.arctan2(-r01, r00)
+    rx = np.where(lock, np.arctan2(r21, r11), np.arctan2(-r12, r22))
+    rz = np.where(lock, 0.0, np.arctan2(-r01, r00))
     return np.stack([rx, ry, rz], axis=-1)
 
 

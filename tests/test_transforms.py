@@ -33,6 +33,31 @@ def test_euler_matches_scipy_intrinsic_xyz():
     assert np.allclose(tf.quat_to_euler_xyz(ours), angles)
 
 
+@pytest.mark.parametrize("rows", [1, 50])  # the Python-float path and the numpy path
+def test_euler_at_and_near_gimbal_lock_gives_back_the_rotation(rows):
+    """At ry = +-pi/2 only rx + rz (or rx - rz) is defined: the angles must still give the rotation back, and at the
+    lock itself equal scipy's, which sets rz to 0 there. Before the lock was taken, such rotations came back turned by
+    up to 180 degrees about the shared axis (the Inspire hand's palm-down start: 90)."""
+    rng = np.random.default_rng(11)
+    angles = rng.uniform(-np.pi, np.pi, size=(rows, 3))
+    angles[:, 1] = np.pi / 2 * rng.choice([-1.0, 1.0], size=rows)
+    at_lock = Rotation.from_euler("XYZ", angles)
+    quarter = np.pi / 2 * rng.integers(-2, 3, size=(rows, 3))  # axis-aligned: exact zeros in the matrix
+    quarter[:, 1] = np.pi / 2 * rng.choice([-1.0, 1.0], size=rows)
+    axis_aligned = Rotation.from_matrix(np.round(Rotation.from_euler("XYZ", quarter).as_matrix()))
+    near = angles.copy()
+    near[:, 1] -= np.sign(near[:, 1]) * 10.0 ** -rng.uniform(4, 16, size=rows)
+    for rotation in (at_lock, axis_aligned, Rotation.from_euler("XYZ", near)):
+        ours = tf.quat_to_euler_xyz(_wxyz(rotation))
+        back = tf.quat_to_matrix(tf.euler_xyz_to_quat(ours))
+        np.testing.assert_allclose(back, rotation.as_matrix(), atol=1e-7)
+    with pytest.warns(UserWarning, match="Gimbal lock"):
+        expected = at_lock.as_euler("XYZ")
+    ours = tf.quat_to_euler_xyz(_wxyz(at_lock))
+    turns = (ours - expected + np.pi) % (2 * np.pi) - np.pi
+    assert np.abs(turns[:, [0, 2]]).max() < 1e-9 and np.abs(turns[:, 1]).max() < 1e-7
+
+
 @pytest.mark.parametrize("rows", [0, 1, 2, 5, 8, 9, 64])
 def test_euler_few_rows_path_is_the_numpy_path_bit_for_bit(rows):
     """Up to 8 rows quat_to_euler_xyz computes on Python floats; it must give the numpy path's exact bits
