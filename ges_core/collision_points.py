@@ -24,7 +24,7 @@ from ges_core.errors import AssetError
 from ges_core.objects.pointcloud import farthest_point_indices
 from ges_core.urdf import parse_urdf
 
-__all__ = ["MAX_LINK_POINTS", "collision_points", "spread_subset"]
+__all__ = ["MAX_LINK_POINTS", "collision_parts", "collision_points", "spread_subset"]
 
 
 MAX_LINK_POINTS = 96
@@ -37,15 +37,27 @@ def collision_points(
 ) -> dict[str, np.ndarray]:
     """``{link: (P, 3) points}`` on each link's collision geometry, link frame, metres (links without any left out);
     ``P <= max_link_points`` (module docs)."""
+    grouped: dict[str, list[np.ndarray]] = {}
+    for link, points in collision_parts(urdf_text, max_mesh_points=max_mesh_points):
+        grouped.setdefault(link, []).append(points)
     out: dict[str, np.ndarray] = {}
+    for link, points in grouped.items():
+        joined = np.concatenate(points)
+        if len(joined) > max_link_points:
+            joined = joined[spread_subset(joined, max_link_points)]
+        out[link] = joined
+    return out
+
+
+def collision_parts(urdf_text: str, *, max_mesh_points: int = 24) -> list[tuple[str, np.ndarray]]:
+    """``(link, (P, 3) points)`` for each ``<collision>`` element of the URDF, in file order, link frame, metres
+    (elements without geometry left out): the points of :func:`collision_points` before a link's are joined."""
+    out = []
     for link in parse_urdf(urdf_text).iter("link"):
-        points = [_shape_points(c, max_mesh_points) for c in link.findall("collision")]
-        points = [p for p in points if len(p)]
-        if points:
-            joined = np.concatenate(points)
-            if len(joined) > max_link_points:
-                joined = joined[spread_subset(joined, max_link_points)]
-            out[link.get("name")] = joined
+        for collision in link.findall("collision"):
+            points = _shape_points(collision, max_mesh_points)
+            if len(points):
+                out.append((link.get("name"), points))
     return out
 
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from ges_core.collision_points import collision_points
+from ges_core.collision_points import collision_parts, collision_points
 from ges_core.errors import AssetError
 from ges_core.registry import load_registry
 
@@ -76,3 +76,21 @@ def test_a_link_of_many_parts_keeps_its_hull_and_a_spread_of_the_rest(tmp_path):
     gaps = np.linalg.norm(centres[:, None] - kept[None], axis=-1).min(axis=1)
     assert gaps.max() < 0.01, gaps.max()
     np.testing.assert_array_equal(kept, collision_points(urdf, max_link_points=60)["palm"])
+
+
+def test_collision_parts_are_the_links_points_one_element_each(tmp_path):
+    """collision_parts gives each <collision> element on its own, in file order: a link of two parts gives two
+    entries whose joined points are the link's collision_points (under the cap), each part's corners its own."""
+    paths = []
+    for i, centre in enumerate([(0.0, 0.0, 0.0), (0.05, 0.0, 0.0)]):
+        paths.append(tmp_path / f"part{i}.obj")
+        trimesh.creation.box(extents=(0.01, 0.02, 0.03)).apply_translation(centre).export(paths[-1])
+    meshes = "".join(f'<collision><geometry><mesh filename="{path}"/></geometry></collision>' for path in paths)
+    urdf = URDF.format(mesh=paths[0]).replace('<link name="empty"/>', f'<link name="two">{meshes}</link>')
+    parts = collision_parts(urdf)
+    assert [link for link, _ in parts] == ["box", "caps", "mesh", "two", "two"]
+    (_, first), (_, second) = parts[-2:]
+    np.testing.assert_allclose(first.mean(axis=0), [0.0, 0.0, 0.0], atol=1e-9)
+    np.testing.assert_allclose(second.mean(axis=0), [0.05, 0.0, 0.0], atol=1e-9)
+    assert len(first) == len(second) == 8
+    np.testing.assert_array_equal(np.concatenate([first, second]), collision_points(urdf)["two"])

@@ -149,11 +149,12 @@ def test_shadow_collides_only_the_mjcf_pairs_unless_told_all(registry, sim_name)
 
 
 @pytest.mark.parametrize("sim_name", ["sapien", "pybullet"])
-def test_the_sim_check_reports_how_deep_the_hand_starts_inside_the_box(registry, sim_name):
-    """The check's start pose keeps the wrist link's origin 5 mm above the box, and the Allegro's palm box reaches
-    below that origin: the engine's deepest hand-box contact after the first step is the palm, as deep below the
-    box's top as forward kinematics puts the palm's lowest collision point (pytorch-kinematics and the URDF's
-    collision box, no engine). A failed check deeper than START_OVERLAP_NOTE says so; a passing one does not."""
+def test_the_sim_check_starts_the_open_hand_clear_of_the_box(registry, sim_name):
+    """The wrist link's origin 5 mm above the box left the Allegro's palm box 6.7 mm inside it (the engines' deepest
+    hand-box contact after the first step); the start pose is raised until the collision geometry over the box lies
+    PALM_CLEARANCE above its top. Forward kinematics (pytorch-kinematics and the URDF's collision box, no engine)
+    puts the palm's lowest point that high, and the engine then sees no hand-box contact at the start. A failed
+    check whose hand still started deeper than START_OVERLAP_NOTE inside says so; a passing one does not."""
     import dataclasses
 
     import torch
@@ -161,7 +162,14 @@ def test_the_sim_check_reports_how_deep_the_hand_starts_inside_the_box(registry,
     from ges_core.collision_points import collision_points
     from ges_core.hand_prep.engine_urdf import engine_urdf
     from ges_core.kinematics import HandKinematics
-    from ges_core.sim_check import START_OVERLAP_NOTE, _object_bounds, build_check_object, grasp_start_pose
+    from ges_core.sim_check import (
+        PALM_CLEARANCE,
+        START_OVERLAP_NOTE,
+        _object_bounds,
+        build_check_object,
+        clear_of_object,
+        grasp_start_pose,
+    )
     from ges_core.transforms import pose_to_matrix
 
     hand = registry.build_hand("allegro")
@@ -173,16 +181,21 @@ def test_the_sim_check_reports_how_deep_the_hand_starts_inside_the_box(registry,
         obj = build_check_object(config)
         sim.load_object(obj)
         bounds = _object_bounds(sim, obj)
-    base = pose_to_matrix(grasp_start_pose(hand, bounds.mean(axis=0), config.closure, object_top=bounds[1, 2]))
     kin = HandKinematics.from_hand(hand)
-    palm_pose = base @ kin.link_poses(torch.as_tensor(np.asarray(d.open_pose))[None], [d.wrist.link])[0, 0].numpy()
     palm = collision_points(engine_urdf(hand.urdf_text(), hand.urdf_path().parent))[d.wrist.link]
-    below_top = bounds[1, 2] - (palm @ palm_pose[:3, :3].T + palm_pose[:3, 3])[:, 2].min()
-    link, depth = report.start_overlap
-    assert link == d.wrist.link and below_top > 0.003, (report.start_overlap, below_top)
-    assert depth == pytest.approx(below_top, abs=5e-4)
-    assert report.ok and "inside the box" not in report.format()
-    deeper = dataclasses.replace(report, tip_forces=np.zeros_like(report.tip_forces), start_overlap=(link, 0.03))
+    palm_in_base = kin.link_poses(torch.as_tensor(np.asarray(d.open_pose))[None], [d.wrist.link])[0, 0].numpy()
+
+    def palm_above_top(base: np.ndarray) -> float:
+        pose = pose_to_matrix(base) @ palm_in_base
+        return float((palm @ pose[:3, :3].T + pose[:3, 3])[:, 2].min() - bounds[1, 2])
+
+    origin_rule = grasp_start_pose(hand, bounds.mean(axis=0), config.closure, object_top=bounds[1, 2])
+    assert palm_above_top(origin_rule) < -0.003  # the origin rule's start: the palm inside the box
+    assert palm_above_top(clear_of_object(hand, origin_rule, bounds)) == pytest.approx(PALM_CLEARANCE, abs=1e-9)
+    assert report.start_overlap is None and report.ok and "inside the box" not in report.format()
+    deeper = dataclasses.replace(
+        report, tip_forces=np.zeros_like(report.tip_forces), start_overlap=(d.wrist.link, 0.03)
+    )
     assert "the open hand started 30.0 mm inside the box (base_link)" in deeper.format()
-    shallow = dataclasses.replace(deeper, start_overlap=(link, START_OVERLAP_NOTE / 2))
+    shallow = dataclasses.replace(deeper, start_overlap=(d.wrist.link, START_OVERLAP_NOTE / 2))
     assert "inside the box" not in shallow.format() and "FAILED" in shallow.format()
