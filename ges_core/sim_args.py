@@ -21,7 +21,7 @@ from collections.abc import Sequence
 import numpy as np
 
 from ges_core.errors import ArrayError, ConfigError
-from ges_core.transforms import quat_to_euler_xyz
+from ges_core.transforms import GIMBAL_LOCK_COS, quat_to_euler_xyz
 
 __all__ = [
     "IDENTITY_POSE",
@@ -93,11 +93,45 @@ def wrist_coordinates(pose: np.ndarray, reference: np.ndarray | None = None) -> 
 
     reference: (M, 3) angles the new ones are unwrapped toward (:func:`unwrap_angles`); None keeps
     :func:`ges_core.transforms.quat_to_euler_xyz`'s principal values (a teleport, which has no "before").
+    With a reference, a rotation's angles are the ones nearest it among all that give it:
+
+    * its second set, (rx + pi, pi - ry, rz + pi), is unwrapped too and the nearer set taken. The principal values
+      keep ry within +-pi/2, so a stream that turns through ry = +-pi/2 jumped rx and rz by pi each there and the
+      wrist drives swung the hand half a turn about and back (measured: 160-180 degrees off a 15 degree turn from
+      a palm-down start, both engines; docs/simulators.md, "Gimbal lock").
+    * at gimbal lock itself (``cos(ry)`` below :data:`~ges_core.transforms.GIMBAL_LOCK_COS`), where only rx + rz
+      (ry = pi/2) or rx - rz (ry = -pi/2) is defined, the change that sum needs is split evenly between rx and rz
+      instead of rz going to 0 (:func:`_split_at_lock`).
     """
     angles = quat_to_euler_xyz(pose[:, 3:])
     if reference is not None:
-        angles = unwrap_angles(angles, reference)
+        principal = unwrap_angles(angles, reference)
+        other = unwrap_angles(angles * _MIRROR + _SECOND_SET, reference)
+        nearer = ((other - reference) ** 2).sum(axis=1) < ((principal - reference) ** 2).sum(axis=1)
+        angles = np.where(nearer[:, None], other, principal)
+        locked = np.abs(np.cos(angles[:, 1])) < GIMBAL_LOCK_COS
+        if locked.any():
+            angles[locked] = _split_at_lock(angles[locked], reference[locked])
     return np.concatenate([pose[:, :3], angles], axis=1)
+
+
+_MIRROR = np.array([1.0, -1.0, 1.0])
+_SECOND_SET = np.array([np.pi, np.pi, np.pi])
+"""``angles * _MIRROR + _SECOND_SET``: (rx + pi, pi - ry, rz + pi), the other angles of the same rotation."""
+
+
+def _split_at_lock(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """(N, 3) angles at gimbal lock (ry = +-pi/2 up to whole turns) re-split nearest ``reference`` (N, 3).
+
+    At ry = pi/2 the rotation depends on rx + rz alone, at ry = -pi/2 on rx - rz: that sum's change from the
+    reference's (to the nearest turn) goes half to rx and half (signed) to rz, the split nearest the reference.
+    """
+    sign = np.sign(np.sin(angles[:, 1]))
+    total = angles[:, 0] + sign * angles[:, 2]
+    reference_total = reference[:, 0] + sign * reference[:, 2]
+    half = 0.5 * (total + _TURN * np.round((reference_total - total) / _TURN) - reference_total)
+    split = np.stack([reference[:, 0] + half, angles[:, 1], reference[:, 2] + sign * half], axis=1)
+    return unwrap_angles(split, reference)
 
 
 def unwrap_angles(angles: np.ndarray, reference: np.ndarray) -> np.ndarray:

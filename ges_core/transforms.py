@@ -19,6 +19,7 @@ import numpy as np
 __all__ = [
     "bilinear_matrix",
     "compose",
+    "GIMBAL_LOCK_COS",
     "euler_xyz_to_quat",
     "interpolate_pose",
     "matrix_to_pose",
@@ -207,7 +208,7 @@ def quat_to_euler_xyz(quat: np.ndarray) -> np.ndarray:
 
     At gimbal lock (ry = +-pi/2, where only rx + rz or rx - rz is defined) rz is 0 and rx carries the whole turn about
     the shared axis, as scipy's ``as_euler("XYZ")`` does; the lock is taken where ``cos(ry)`` is below
-    ``_GIMBAL_LOCK_COS`` (1e-8), the point from which the general formulas, whose rx and rz are then arctangents of
+    ``GIMBAL_LOCK_COS`` (1e-8), the point from which the general formulas, whose rx and rz are then arctangents of
     rounding noise, lose more than the lock's ``rz = 0`` does (both below 1e-5 degrees there; at ``cos(ry)`` 1e-13
     the general formulas are 0.7 degrees off, at exact lock up to 180). Without it a base pose at the lock reached
     the wrist turned by up to 180 degrees about the shared axis (the Inspire hand's palm-down start: 90 degrees).
@@ -238,9 +239,9 @@ def quat_to_euler_xyz(quat: np.ndarray) -> np.ndarray:
     return np.stack([rx, np.arcsin(r02), rz], axis=-1).reshape(len(quat), 3)
 
 
-_GIMBAL_LOCK_COS = 1e-8
+GIMBAL_LOCK_COS = 1e-8
 """``cos(ry)`` below which :func:`quat_to_euler_xyz` takes gimbal lock (docstring there)."""
-_GIMBAL_LOCK_COS2 = _GIMBAL_LOCK_COS * _GIMBAL_LOCK_COS
+_GIMBAL_LOCK_COS2 = GIMBAL_LOCK_COS * GIMBAL_LOCK_COS
 
 
 def _euler_xyz_numpy(quat: np.ndarray) -> np.ndarray:

@@ -57,6 +57,29 @@ def test_wrist_coordinates_rebuild_the_base_rotation():
     np.testing.assert_allclose(wrist_coordinates(pose, other_turn)[:, 3:], other_turn, atol=1e-12)
 
 
+def test_a_target_stream_through_gimbal_lock_stays_continuous():
+    """Base rotations turning 0.5 degrees a step through ry = +-pi/2 (both signs, several rx + rz), each converted
+    against the previous targets as a backend does: every set rebuilds its rotation, and no angle moves more than
+    the turn asks (the principal values alone keep ry within +-pi/2 and jump rx and rz by pi at the crossing)."""
+    from scipy.spatial.transform import Rotation
+
+    step = np.radians(0.5)
+    for sign in (1.0, -1.0):
+        for twist in (0.0, 0.7, -2.4):
+            turns = Rotation.from_euler("y", np.arange(-20, 21)[:, None] * step) * Rotation.from_euler(
+                "XYZ", [twist, sign * np.pi / 2, 0.0]
+            )
+            quats = turns.as_quat()[:, [3, 0, 1, 2]]
+            targets = wrist_coordinates(np.r_[0.0, 0.0, 0.3, quats[0]][None])[:, 3:]
+            for quat, matrix in zip(quats[1:], turns[1:].as_matrix(), strict=True):
+                previous = targets
+                targets = wrist_coordinates(np.r_[0.0, 0.0, 0.3, quat][None], previous)[:, 3:]
+                np.testing.assert_allclose(quat_to_matrix(euler_xyz_to_quat(targets[0])), matrix, atol=1e-7)
+                assert np.abs(targets - previous).max() < 2 * step, (sign, twist, previous, targets)
+            principal = quat_to_euler_xyz(quats)  # ry never past pi/2: rx and rz jump 2.4-3.1 rad at the crossing
+            assert np.abs(principal[:, 1]).max() <= np.pi / 2 and np.abs(np.diff(principal, axis=0)).max() > 2.0
+
+
 def test_unit_quaternions_divide_by_the_norm_and_keep_the_position():
     pose = np.array([[0.1, 0.2, 0.3, 2.0, 0.0, 0.0, 0.0], [0.0, 0.0, 0.0, 1.0, 1.0, 1.0, 1.0]])
     np.testing.assert_array_equal(unit_quaternions(pose), [[0.1, 0.2, 0.3, 1, 0, 0, 0], [0, 0, 0, 0.5, 0.5, 0.5, 0.5]])
