@@ -17,9 +17,9 @@ import math
 import numpy as np
 
 __all__ = [
+    "GIMBAL_LOCK_COS",
     "bilinear_matrix",
     "compose",
-    "GIMBAL_LOCK_COS",
     "euler_xyz_to_quat",
     "interpolate_pose",
     "matrix_to_pose",
