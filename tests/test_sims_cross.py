@@ -152,7 +152,7 @@ def test_shadow_collides_only_the_mjcf_pairs_unless_told_all(registry, sim_name)
 def test_the_sim_check_starts_the_open_hand_clear_of_the_box(registry, sim_name):
     """The wrist link's origin 5 mm above the box left the Allegro's palm box 6.7 mm inside it (the engines' deepest
     hand-box contact after the first step); the start pose is raised until the collision geometry over the box lies
-    PALM_CLEARANCE above its top. Forward kinematics (pytorch-kinematics and the URDF's collision box, no engine)
+    START_CLEARANCE above its top. Forward kinematics (pytorch-kinematics and the URDF's collision box, no engine)
     puts the palm's lowest point that high, and the engine then sees no hand-box contact at the start. A failed
     check whose hand still started deeper than START_OVERLAP_NOTE inside says so; a passing one does not."""
     import dataclasses
@@ -163,7 +163,7 @@ def test_the_sim_check_starts_the_open_hand_clear_of_the_box(registry, sim_name)
     from ges_core.hand_prep.engine_urdf import engine_urdf
     from ges_core.kinematics import HandKinematics
     from ges_core.sim_check import (
-        PALM_CLEARANCE,
+        START_CLEARANCE,
         START_OVERLAP_NOTE,
         _object_bounds,
         build_check_object,
@@ -191,7 +191,7 @@ def test_the_sim_check_starts_the_open_hand_clear_of_the_box(registry, sim_name)
 
     origin_rule = grasp_start_pose(hand, bounds.mean(axis=0), config.closure, object_top=bounds[1, 2])
     assert palm_above_top(origin_rule) < -0.003  # the origin rule's start: the palm inside the box
-    assert palm_above_top(clear_of_object(hand, origin_rule, bounds)) == pytest.approx(PALM_CLEARANCE, abs=1e-9)
+    assert palm_above_top(clear_of_object(hand, origin_rule, bounds)) == pytest.approx(START_CLEARANCE, abs=1e-9)
     assert report.start_overlap is None and report.ok and "inside the box" not in report.format()
     deeper = dataclasses.replace(
         report, tip_forces=np.zeros_like(report.tip_forces), start_overlap=(d.wrist.link, 0.03)
