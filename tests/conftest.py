@@ -3,7 +3,9 @@
 from __future__ import annotations
 
 import functools
+import importlib
 import importlib.util
+import sys
 from pathlib import Path
 
 import pytest
@@ -14,6 +16,17 @@ EXAMPLE_HAND_PKG = REPO / "tests" / "data" / "ges_example_hand"
 """Source of the third-party example hand plugin package."""
 ABILITY_PKG = REPO / "examples" / "ges-ability-hand" / "ges_ability_hand"
 """Source of the Ability hand package (docs/tutorials/new-hand.md)."""
+
+
+def benchmark_module(name: str):
+    """``benchmarks/NAME.py`` imported as a module, for tests of a benchmark's measure; its folder is on ``sys.path``
+    only while it imports (its own ``_results`` and sibling imports)."""
+    folder = str(REPO / "benchmarks")
+    sys.path.insert(0, folder)
+    try:
+        return importlib.import_module(name)
+    finally:
+        sys.path.remove(folder)
 
 
 @functools.cache

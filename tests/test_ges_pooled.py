@@ -2,26 +2,18 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from ges_core.experts.matrix import PROTOCOLS
 from ges_core.ges_eval.table import GesRow
 
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+from conftest import benchmark_module
 
 
 @pytest.fixture(scope="module")
 def pooled():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import ges_pooled
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    return ges_pooled
+    return benchmark_module("ges_pooled")
 
 
 def _row(label: str, rng: np.random.Generator, n: int = 5) -> GesRow:

@@ -16,7 +16,7 @@ from ges_core.lint.urdf_tree import UrdfTree
 from ges_core.registry import load_registry
 from ges_core.sim import SceneConfig
 
-from conftest import REPO
+from conftest import REPO, benchmark_module
 from helpers_hands import write_l_palm_hand
 
 pytestmark = pytest.mark.sim
@@ -86,14 +86,7 @@ def test_mimic_followers_match_the_formula_and_pytorch_kinematics(ability, sim_n
 def test_sapien_own_mimic_tendons_explode_which_is_why_they_are_not_built(ability):
     """The raw URDF through SAPIEN's loader with its mimic joints built: joint speeds pass 100 rad/s in a few
     steps under the same PD drives. If this stops happening, the mimic handling could be revisited."""
-    import sys
-
-    sys.path.insert(0, str(REPO / "benchmarks"))
-    try:
-        from hand_mimic import sapien_with_tendons
-    finally:
-        sys.path.remove(str(REPO / "benchmarks"))
-    result = sapien_with_tendons(ability)
+    result = benchmark_module("hand_mimic").sapien_with_tendons(ability)
     assert result["first_step_over_100_rad_s"] is not None and result["first_step_over_100_rad_s"] < 60
 
 

@@ -2,24 +2,16 @@
 
 from __future__ import annotations
 
-import sys
-from pathlib import Path
-
 import numpy as np
 import pytest
 import trimesh
 
-BENCHMARKS = Path(__file__).resolve().parent.parent / "benchmarks"
+from conftest import benchmark_module
 
 
 @pytest.fixture(scope="module")
 def bulge():
-    sys.path.insert(0, str(BENCHMARKS))
-    try:
-        import part_bulge
-    finally:
-        sys.path.remove(str(BENCHMARKS))
-    return part_bulge
+    return benchmark_module("part_bulge")
 
 
 def _box(extents, centre=(0.0, 0.0, 0.0)) -> trimesh.Trimesh:
