@@ -40,17 +40,20 @@ def _wxyz(rotation: Rotation) -> np.ndarray:
     return rotation.as_quat()[[3, 0, 1, 2]]
 
 
-def worst_error(sim, hand, base: np.ndarray, start: Rotation, axis: str) -> float:
-    """Degrees: the largest angle between the base's rotation and its target while the targets turn and hold."""
+def follow_errors(sim, hand, base: np.ndarray, start: Rotation, axis: str) -> tuple[float, float]:
+    """Degrees between the base's rotation and its target: the largest while the targets turn and hold, and the last.
+
+    sim: a backend with ``hand`` loaded floating; base: (7,) pose whose position the wrist keeps; start: the rotation
+    the hand is teleported to first; axis: the world axis the targets turn about (``"x"``, ``"y"`` or ``"z"``)."""
     sim.set_hand_state(np.asarray(hand.description.open_pose)[None], np.r_[base[:3], _wxyz(start)][None])
-    worst = 0.0
+    errors = []
     for i in range(1, TURN_STEPS + HOLD_STEPS + 1):
         goal = Rotation.from_euler(axis, TURN_DEG * min(i, TURN_STEPS) / TURN_STEPS, degrees=True) * start
         sim.set_wrist_targets(np.r_[base[:3], _wxyz(goal)][None])
         sim.step()
         got = Rotation.from_quat(sim.wrist_pose()[0, [4, 5, 6, 3]])
-        worst = max(worst, float(np.degrees((goal.inv() * got).magnitude())))
-    return worst
+        errors.append(float(np.degrees((goal.inv() * got).magnitude())))
+    return max(errors), errors[-1]
 
 
 def main() -> None:
@@ -77,7 +80,7 @@ def main() -> None:
         with registry.build_sim(sim_name, SceneConfig()) as sim:
             sim.load_hand(hand, floating=True)
             for label, offset in STARTS.items():
-                errors = {axis: worst_error(sim, hand, base, offset * palm_down, axis) for axis in "xyz"}
+                errors = {axis: follow_errors(sim, hand, base, offset * palm_down, axis)[0] for axis in "xyz"}
                 rows.append({"sim": sim_name, "start": label, **{f"turn_{a}_deg": e for a, e in errors.items()}})
     print(f"hand {args.hand}: palm-down start at ry = {ry:.6f} rad; worst base error (degrees) while the targets turn")
     print(f"{TURN_DEG:.0f} degrees in {TURN_STEPS} steps and hold {HOLD_STEPS}:\n")
