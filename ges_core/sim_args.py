@@ -106,9 +106,12 @@ def wrist_coordinates(pose: np.ndarray, reference: np.ndarray | None = None) -> 
     angles = quat_to_euler_xyz(pose[:, 3:])
     if reference is not None:
         principal = unwrap_angles(angles, reference)
-        other = unwrap_angles(angles * _MIRROR + _SECOND_SET, reference)
-        nearer = ((other - reference) ** 2).sum(axis=1) < ((principal - reference) ** 2).sum(axis=1)
-        angles = np.where(nearer[:, None], other, principal)
+        far = np.abs(principal - reference).max(axis=1) > np.pi / 4
+        if far.any():  # within pi/4 the second set lies over 3 pi/4 off in rx and rz: never nearer
+            other = unwrap_angles(angles * _MIRROR + _SECOND_SET, reference)
+            nearer = far & (((other - reference) ** 2).sum(axis=1) < ((principal - reference) ** 2).sum(axis=1))
+            principal = np.where(nearer[:, None], other, principal)
+        angles = principal
         locked = np.abs(np.cos(angles[:, 1])) < GIMBAL_LOCK_COS
         if locked.any():
             angles[locked] = _split_at_lock(angles[locked], reference[locked])
