@@ -165,6 +165,17 @@ class ExpertScope:
         return out
 
 
+def _wrist_hint(expert: ExpertScope, env: ExpertScope) -> str:
+    """The setting that turns the environment's ``wrist_pose`` block into the expert's, where only its form differs."""
+    from ges_core.env.layout import WRIST_ROTATIONS  # the env package imports this module's interfaces
+
+    a, b = dict(expert.observation).get("wrist_pose"), dict(env.observation).get("wrist_pose")
+    forms = {3 + k: name for name, k in WRIST_ROTATIONS.items()}
+    if a != b and a in forms and b in forms:
+        return f"; its wrist_pose holds the rotation as '{forms[a]}': set -o env.wrist_rotation={forms[a]}"
+    return ""
+
+
 def _close(a: Sequence[float], b: Sequence[float]) -> bool:
     return len(a) == len(b) and all(
         math.isclose(x, y, rel_tol=0, abs_tol=LIMIT_TOLERANCE) for x, y in zip(a, b, strict=True)
@@ -203,7 +214,8 @@ def check_expert_fits(expert: Expert | ExpertScope, context: ExpertContext, *, w
         raise ConfigError(
             f"{name} was made for {scope.describe()}; this environment has {env.describe()}. They differ in: "
             f"{'; '.join(diffs)}. Use an expert trained for this hand and environment settings, or evaluate it "
-            f"where it was trained (same hand, env.goal_prior, env.max_wrist_step, env.max_wrist_turn)",
+            "where it was trained (same hand, env.goal_prior, env.wrist_rotation, env.max_wrist_step, "
+            f"env.max_wrist_turn){_wrist_hint(scope, env)}",
             problems=diffs,
         )
 

@@ -106,6 +106,28 @@ def matrix_to_quat(rot: np.ndarray) -> np.ndarray:
     return wxyz.reshape(r.shape[:-2] + (4,))
 
 
+def matrix_columns(rot: np.ndarray) -> np.ndarray:
+    """(..., 3, 3) rotation matrices -> (..., 6) their first two columns, first column first: a rotation's
+    continuous 6-number form (Zhou et al., CVPR 2019), inverted by :func:`columns_to_matrix`."""
+    r = np.asarray(rot, dtype=np.float64)
+    return np.concatenate([r[..., :, 0], r[..., :, 1]], axis=-1)
+
+
+def columns_to_matrix(cols: np.ndarray) -> np.ndarray:
+    """(..., 6) two 3-vectors, as :func:`matrix_columns` gives -> (..., 3, 3) the nearest rotation keeping the first
+    column's direction: Gram-Schmidt on the pair, the third column their cross product. Rows whose two vectors are
+    zero, parallel or not finite define no rotation and come out NaN (as a blown-up env's observation reads)."""
+    c = np.asarray(cols, dtype=np.float64)
+    a, b = c[..., :3], c[..., 3:6]
+    with np.errstate(all="ignore"):
+        na = np.linalg.norm(a, axis=-1, keepdims=True)
+        b = b - np.sum(a * b, axis=-1, keepdims=True) / (na * na) * a
+        nb = np.linalg.norm(b, axis=-1, keepdims=True)
+        undefined = ~((na > 1e-9) & (nb > 1e-9))  # NaN compares False: undefined too
+        a, b = a / np.where(undefined, np.nan, na), b / np.where(undefined, np.nan, nb)
+        return np.stack([a, b, np.cross(a, b)], axis=-1)
+
+
 def pose_to_matrix(pose: np.ndarray) -> np.ndarray:
     """(..., 7) -> (..., 4, 4) homogeneous transforms."""
     p = np.asarray(pose, dtype=np.float64)

@@ -167,7 +167,7 @@ def _ref_observe(s: dict, prev: torch.Tensor, prev_action: torch.Tensor, env: Gr
         "contact": (forces.norm(dim=-1) > env.cfg.contact_threshold).to(torch.float64),
         "tip_force": quat_rotate(inv, forces[:, :f]),
         "tip_pos": quat_rotate(inv, tip_world - wrist[:, None, :3]),
-        "wrist_pose": torch.cat([wrist[:, :3], quat_to_rotvec(wrist[:, 3:])], dim=1),
+        "wrist_pose": torch.cat([wrist[:, :3], _ref_wrist_rotation(wrist[:, 3:], env.cfg.wrist_rotation)], dim=1),
         "wrist_vel": vel,
         "prev_action": prev_action,
         "obj_pos": t["obj"][:, :3],
@@ -178,6 +178,15 @@ def _ref_observe(s: dict, prev: torch.Tensor, prev_action: torch.Tensor, env: Gr
     blocks = {name: blocks[name] for name in env.obs_layout.slices}
     state = {"q": t["q"], "dq": t["dq"], "tip_world": tip_world, "obj": t["obj"][:, :3], "wrist_vel": vel}
     return env.obs_layout.pack(blocks), state
+
+
+def _ref_wrist_rotation(quat: torch.Tensor, form: str) -> torch.Tensor:
+    """The wrist's rotation as the observation holds it: a rotation vector, or the world x and y axes of the base
+    link (the rotation matrix's first two columns) turned by its quaternion."""
+    if form == "rotvec":
+        return quat_to_rotvec(quat)
+    axes = torch.eye(3, dtype=quat.dtype)[:2]  # (2, 3): x, y
+    return quat_rotate(quat[:, None], axes.expand(len(quat), 2, 3)).reshape(len(quat), 6)
 
 
 def _ref_reasons(cfg: SuccessConfig, held, max_rise, rise, timeout) -> torch.Tensor:
@@ -236,11 +245,11 @@ def test_folded_end_reasons_match_the_where_chain() -> None:
     assert set(got.tolist()) == {0, 1, 2, 3, 4}  # the draws reach every reason but unstable
 
 
-@pytest.mark.parametrize("goal_prior", [True, False])
-def test_grasp_env_steps_match_the_torch_reference(goal_prior: bool) -> None:
+@pytest.mark.parametrize(("goal_prior", "wrist_rotation"), [(True, "matrix"), (False, "matrix"), (True, "rotvec")])
+def test_grasp_env_steps_match_the_torch_reference(goal_prior: bool, wrist_rotation: str) -> None:
     hand = load_registry().build_hand("allegro")
     sim = _RandomBackend(hand, N, seed=3)
-    cfg = EnvConfig(goal_prior=goal_prior, reach_steps=0, settle_steps=0)
+    cfg = EnvConfig(goal_prior=goal_prior, wrist_rotation=wrist_rotation, reach_steps=0, settle_steps=0)
     env = GraspEnv(sim, hand, box_asset((0.02, 0.02, 0.02), object_id="t/box"), grasp_targets(hand, N), cfg)
     env.reset_all()
     assert isinstance(env.obs_layout, ObservationLayout) and env.obs_layout.goal is goal_prior

@@ -16,18 +16,43 @@ def _wxyz(r: Rotation) -> np.ndarray:
     return r.as_quat()[..., [3, 0, 1, 2]]
 
 
-def test_layout_allegro_blocks_are_contiguous_and_sized() -> None:
+@pytest.mark.parametrize(("form", "wrist"), [("matrix", 3 + 6), ("rotvec", 3 + 3)])
+def test_layout_allegro_blocks_are_contiguous_and_sized(form: str, wrist: int) -> None:
     hand = load_registry().build_hand("allegro").description
     contact = (*hand.tip_links, hand.wrist.link)
-    layout = ObservationLayout.for_hand(hand, contact)
+    layout = ObservationLayout.for_hand(hand, contact, wrist_rotation=form)
     k, f = hand.num_joints, len(hand.fingers)
     assert (k, f) == (16, 4)
-    expected = 2 * k + len(contact) + 6 * f + 6 + 6 + (k + 6) + 3 + 3 + 3 + k
-    assert layout.size == expected
+    expected = 2 * k + len(contact) + 6 * f + wrist + 6 + (k + 6) + 3 + 3 + 3 + k
+    assert layout.size == expected and layout.sizes()["wrist_pose"] == wrist
     assert list(layout.slices) == list(BLOCK_DOCS)
     ends = [s.stop for s in layout.slices.values()]
     starts = [s.start for s in layout.slices.values()]
     assert starts == [0, *ends[:-1]] and ends[-1] == layout.size
+    bare = ObservationLayout.for_hand(hand, contact, goal=False, wrist_rotation=form)
+    assert bare.with_goal() == layout
+
+
+def test_wrist_quat_reads_both_forms_as_scipy_writes_them() -> None:
+    """The rotation packed as scipy's matrix columns or rotation vector reads back as scipy's quaternion, near the
+    half turn too (where the rotation vector flips to its opposite and the two columns do not move)."""
+    turns = Rotation.from_rotvec(np.array([[0, 0, np.pi - 1e-7], [0, 0, -np.pi + 1e-7], [1, 1, 0]]))
+    rots = Rotation.concatenate([Rotation.random(200, random_state=3), turns])
+    for form in ("matrix", "rotvec"):
+        layout = ObservationLayout(3, 2, 1, wrist_rotation=form)
+        blocks = {name: torch.zeros(len(rots), size, dtype=torch.float64) for name, size in layout.sizes().items()}
+        part = rots.as_matrix()[:, :, :2].transpose(0, 2, 1).reshape(-1, 6) if form == "matrix" else rots.as_rotvec()
+        blocks["wrist_pose"] = torch.cat([torch.rand(len(rots), 3, dtype=torch.float64), torch.as_tensor(part)], 1)
+        got = layout.wrist_quat(layout.pack(blocks)).numpy()
+        angle = (Rotation.from_quat(got, scalar_first=True).inv() * rots).magnitude()
+        assert got.dtype == np.float64 and np.all(got[:, 0] >= 0) and angle.max() < 1e-6  # float32 observations
+    matrix = ObservationLayout(3, 2, 1)
+    bad = torch.zeros(2, matrix.size)
+    bad[0, matrix.slices["wrist_pose"]] = torch.tensor([0, 0, 0, 1, 0, 0, 2, 0, 0])  # parallel columns: no rotation
+    bad[1, matrix.slices["wrist_pose"]] = torch.tensor([0, 0, 0, 1, 0, 0, 0, float("nan"), 0])
+    assert torch.isnan(matrix.wrist_quat(bad)).all()
+    with pytest.raises(ConfigError, match="wrist_rotation 'euler' is not one of"):
+        ObservationLayout(3, 2, 1, wrist_rotation="euler")
 
 
 def test_add_goal_puts_the_goal_blocks_where_a_goal_layout_packs_them() -> None:

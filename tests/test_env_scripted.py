@@ -42,7 +42,8 @@ class Scene:
         """Wrist move (3,) m, wrist turn (3,) rad and joint targets (K,) rad of one step; the wrist follows."""
         zeros = {n: torch.zeros(1, s) for n, s in self.obs_layout.sizes().items()}
         blocks = {**zeros, "q": self.q[None], "obj_pos": self.obj[None], "goal_pos": (GRASP - self.wrist)[None]}
-        blocks["wrist_pose"] = torch.cat([self.wrist, torch.zeros(3)])[None]  # identity orientation
+        identity = torch.tensor([1.0, 0.0, 0.0, 0.0, 1.0, 0.0])  # the identity's first two columns
+        blocks["wrist_pose"] = torch.cat([self.wrist, identity])[None]
         blocks["goal_q"] = (GOAL_Q - self.q)[None]
         blocks["contact"] = torch.tensor([[0.0, float(self.palm)]])  # fingertip, then the wrist link
         action = self.expert.act(self.obs_layout.pack(blocks)).to(torch.float64)
@@ -162,9 +163,9 @@ def test_palm_and_finger_shifts_move_the_grasp_along_the_hands_own_axes(hand_nam
     acts = ActionLayout(lower, upper, STEP, TURN)
     zeros = {n: torch.zeros(1, s) for n, s in layout.sizes().items()}
     open_q, closed_q = torch.as_tensor(d.open_pose), torch.as_tensor(d.closed_pose(0.5))
-    rotvec = Rotation.from_quat(pose[3:], scalar_first=True).as_rotvec()
+    columns = Rotation.from_quat(pose[3:], scalar_first=True).as_matrix()[:, :2].T.reshape(6)
     blocks = {**zeros, "q": open_q[None], "goal_q": (closed_q - open_q)[None], "obj_pos": torch.tensor(centre)[None]}
-    blocks["wrist_pose"] = torch.as_tensor(np.concatenate([pose[:3], rotvec]))[None]
+    blocks["wrist_pose"] = torch.as_tensor(np.concatenate([pose[:3], columns]))[None]
     obs = layout.pack(blocks)
 
     def grasp_pos(**shift: float) -> torch.Tensor:

@@ -174,6 +174,23 @@ def test_other_settings_under_a_stored_label_or_run_are_refused(full, dataset):
         evaluate_experts(dataset, run_config(), [parse_expert("scriptd")], out, registry=refuse)
 
 
+def test_a_matrix_from_before_the_wrist_matrix_is_reused_only_with_the_rotation_vector(full, dataset, tmp_path):
+    """A matrix written before ``env.wrist_rotation`` existed lacks the key: its cells ran the rotation vector. A run
+    that asks for it reuses every cell; today's default (the matrix form) is refused naming the setting."""
+    report, _, _ = full
+    raw = json.loads(report.path.read_text())
+    assert raw["run"]["env"]["wrist_rotation"] == "matrix"  # today's default is stored
+    del raw["run"]["env"]["wrist_rotation"]  # as the code before the setting wrote it
+    (tmp_path / report.path.name).write_text(json.dumps(raw))
+    experts = [parse_expert(e) for e in EXPERTS]
+    env = {"randomization": RANDOMIZED}
+    with pytest.raises(ConfigError, match=r"written with other settings \(env.wrist_rotation: .*matrix"):
+        evaluate_experts(dataset, run_config(), experts, tmp_path, registry=InterruptingRegistry(refuse=True))
+    rotvec = run_config(env=env | {"wrist_rotation": "rotvec"})
+    again = evaluate_experts(dataset, rotvec, experts, tmp_path, registry=InterruptingRegistry(refuse=True))
+    assert again.evaluated == 0 and again.reused == sum(len(c) for c in raw["cells"].values())
+
+
 def test_a_matrix_left_without_cells_is_started_over(dataset, tmp_path):
     """A run that fails before its first cell (here: every simulator build raises) leaves the matrix with its
     objects and no cell; a rerun with other settings (envs 3, another column) then starts it over instead of

@@ -20,14 +20,16 @@ from ges_plugins.experts.scripted.config import ScriptedConfig
 from ges_plugins.experts.scripted.expert import ScriptedExpert
 
 
-def context(hand_name: str, *, goal: bool = True, wrist_step: float = 0.005, registry=None) -> ExpertContext:
+def context(
+    hand_name: str, *, goal: bool = True, wrist_step: float = 0.005, registry=None, wrist_rotation: str = "matrix"
+) -> ExpertContext:
     """The context a GraspEnv of ``hand_name`` gives (its layouts built by the env's rule), without a simulator."""
     hand = (registry or load_registry()).build_hand(hand_name)
     d = hand.description
     links = tuple(dict.fromkeys([*d.tip_links, d.wrist.link]))
     lim = torch.as_tensor(d.limits_array)
     return ExpertContext(
-        obs_layout=ObservationLayout.for_hand(d, links, goal),
+        obs_layout=ObservationLayout.for_hand(d, links, goal, wrist_rotation),
         act_layout=ActionLayout(lim[:, 0], lim[:, 1], wrist_step, 0.1),
         hand=hand,
         num_envs=2,
@@ -48,7 +50,9 @@ def test_the_scripted_expert_is_built_by_name_with_its_registered_settings(alleg
     expert = registry.build_expert("scripted", allegro)
     assert isinstance(expert, ScriptedExpert) and isinstance(expert, Expert) and expert.made_for is None
     assert expert.close_steps == ScriptedConfig().close_steps and expert.hand is allegro.hand
-    action = expert.act(torch.zeros(2, allegro.obs_layout.size))
+    obs = torch.zeros(2, allegro.obs_layout.size)
+    obs[:, allegro.obs_layout.slices["wrist_pose"]] = torch.tensor([0, 0, 0.2, 1, 0, 0, 0, 1, 0])  # identity rotation
+    action = expert.act(obs)
     assert action.shape == (2, allegro.act_layout.size) and action.abs().max() <= 1.0
 
 
@@ -104,6 +108,22 @@ def test_mismatch_names_both_sides(allegro):
                                   "expert's; goal_q only in the expert's)"]  # fmt: skip
     with pytest.raises(ConfigError, match=r"max_wrist_step 0.005 vs 0.01"):
         check_expert_fits(scope, context("allegro", wrist_step=0.01))
+
+
+@pytest.mark.parametrize(("made", "env"), [("rotvec", "matrix"), ("matrix", "rotvec")])
+def test_a_wrist_rotation_mismatch_names_the_setting_that_fits(made: str, env: str):
+    """A checkpoint from before the matrix form (its wrist_pose 6 floats) in today's default env, and the reverse:
+    the error names the block's sizes and the one setting that makes the env fit the expert."""
+    scope = ExpertScope.of(context("allegro", wrist_rotation=made))
+    sizes = {"matrix": 9, "rotvec": 6}
+    with pytest.raises(
+        ConfigError, match=rf"wrist_pose {sizes[made]} vs {sizes[env]}\b.*-o env.wrist_rotation={made}$"
+    ):
+        check_expert_fits(scope, context("allegro", wrist_rotation=env), who="checkpoint old.pt")
+    check_expert_fits(scope, context("allegro", wrist_rotation=made))
+    with pytest.raises(ConfigError) as other:  # another difference alone: no wrist hint
+        check_expert_fits(scope, context("allegro", wrist_rotation=made, wrist_step=0.01))
+    assert "env.wrist_rotation=" not in str(other.value)
 
 
 PLUGIN = """

@@ -87,6 +87,31 @@ def test_run_checkpoint_resume_and_curriculum(tmp_path, clusters) -> None:
     assert {p.name for p in (out / "logs").iterdir() if p.name.startswith("events")}  # TensorBoard files
 
 
+def test_a_run_from_before_the_wrist_matrix_resumes_with_its_rotation_vector(tmp_path, clusters) -> None:
+    """A checkpoint written before ``env.wrist_rotation`` existed (its stored config lacks the key; its policy reads
+    the wrist as a rotation vector, ``wrist_pose`` 6 floats) resumes as it ran, not at today's default; the same
+    checkpoint in today's default environment is refused naming the setting that fits it."""
+    out = tmp_path / "old"
+    _train(out, clusters, "iterations=1", "env.wrist_rotation=rotvec")
+    for path in (out / "checkpoints").glob("*.pt"):  # as the code before the setting wrote it
+        data = torch.load(path, weights_only=False)
+        del data["ges"]["train_config"]["env"]["wrist_rotation"]
+        torch.save(data, path)
+    assert dict(read_checkpoint(out / "checkpoints" / "last.pt")["ges"]["made_for"]["observation"])["wrist_pose"] == 6
+    again = _train(out, clusters, "iterations=2", resume=True)
+    assert again.iterations == 2 and again.resumed_from.endswith("last.pt")
+    assert dict(read_checkpoint(out / "checkpoints" / "last.pt")["ges"]["made_for"]["observation"])["wrist_pose"] == 6
+    from helpers_env import build_grasp_env
+
+    env = build_grasp_env("sapien", 1)  # today's default: the matrix form
+    try:
+        context = ExpertContext.of_env(env, sim="sapien")
+        with pytest.raises(ConfigError, match=r"wrist_pose 6 vs 9.*set -o env.wrist_rotation=rotvec"):
+            load_registry().build_expert("ppo", context, checkpoint=str(out / "checkpoints" / "last.pt"))
+    finally:
+        env.sim.close()
+
+
 def test_seeded_runs_repeat_exactly(tmp_path, clusters) -> None:
     runs = [_train(tmp_path / name, clusters, "iterations=2", f"seed={seed}") for name, seed in
             (("a", 3), ("b", 3), ("c", 4))]  # fmt: skip

@@ -170,3 +170,19 @@ def test_the_two_pose_interpolations_give_one_pose():
         ours = np.stack([tf.interpolate_pose(x, y, s) for x, y in zip(a, b, strict=True)])
         twin = tt.interpolate_pose(torch.as_tensor(a), torch.as_tensor(b), s).numpy()
         np.testing.assert_allclose(_canonical(ours), _canonical(twin), atol=1e-12)
+
+
+def test_matrix_columns_round_trip_and_noisy_columns_give_a_rotation() -> None:
+    """The two columns of scipy's matrices come back as those matrices; perturbed columns (observation noise) give a
+    proper rotation whose first column keeps the given direction; zero, parallel or NaN columns give NaN."""
+    rots = Rotation.random(500, random_state=7).as_matrix()
+    cols = tf.matrix_columns(rots)
+    np.testing.assert_array_equal(cols, np.concatenate([rots[:, :, 0], rots[:, :, 1]], axis=1))
+    np.testing.assert_allclose(tf.columns_to_matrix(cols), rots, atol=1e-14)
+    noisy = tf.columns_to_matrix(cols + np.random.default_rng(0).normal(scale=0.002, size=cols.shape))
+    np.testing.assert_allclose(noisy @ noisy.transpose(0, 2, 1), np.broadcast_to(np.eye(3), noisy.shape), atol=1e-12)
+    np.testing.assert_allclose(np.linalg.det(noisy), 1.0, atol=1e-12)
+    angle = Rotation.from_matrix(noisy).inv() * Rotation.from_matrix(rots)
+    assert angle.magnitude().max() < 0.02  # a few times the noise
+    bad = tf.columns_to_matrix(np.array([[0, 0, 0, 0, 1, 0], [1, 0, 0, -3, 0, 0], [np.nan, 0, 0, 0, 1, 0.0]]))
+    assert np.isnan(bad).all()

@@ -35,14 +35,14 @@ physics (benchmarks/env_throughput.py). tests/test_env_fast_path.py checks it ag
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Literal
 
 import numpy as np
 import torch
 from pydantic import Field
 
 from ges_core.arrays import as_numpy, checked_array
-from ges_core.config import ConfigModel
+from ges_core.config import ConfigModel, absent_means
 from ges_core.env.layout import GOAL_BLOCKS, ActionLayout, ObservationLayout
 from ges_core.env.priors import PRIOR_PRESETS, open_hand_start_pose, prior_preset
 from ges_core.env.randomization import RandomizationConfig, Randomizer
@@ -55,6 +55,7 @@ from ges_core.sim import SimBackend
 from ges_core.sim_args import env_id_list
 from ges_core.transforms import (
     compose,
+    matrix_columns,
     quat_conj,
     quat_mul,
     quat_to_rotvec,
@@ -90,6 +91,13 @@ class EnvConfig(ConfigModel):
         True, description="Init: stage one reaches the pre-grasp; False (NoInit): open hand above the object"
     )
     goal_prior: bool = Field(True, description="Goal: observation holds G (goal_pos, goal_rot, goal_q); False: not")
+    wrist_rotation: Literal["matrix", "rotvec"] = Field(
+        "matrix",
+        description="the observation's wrist rotation: 'matrix', the rotation matrix's first two columns (6 floats, "
+        "continuous); 'rotvec', a rotation vector (3 floats; jumps to the opposite vector where the wrist's angle "
+        "passes pi; what checkpoints from before 8 December 2026 read)",
+        json_schema_extra=absent_means("rotvec"),
+    )
     noinit_height: float = Field(
         0.25, gt=0, description="NoInit: metres of the wrist-link origin above the object's origin at the start"
     )
@@ -151,7 +159,9 @@ class GraspEnv:
         self.tip_offsets = torch.tensor([f.tip_offset for f in d.fingers], dtype=torch.float64)
         self._tip_offsets = self.tip_offsets.numpy()[:, :, None]  # (F, 3, 1) for batched R @ offset
         self.contact_links = list(dict.fromkeys([*d.tip_links, d.wrist.link]))
-        self.obs_layout = ObservationLayout.for_hand(d, tuple(self.contact_links), goal=cfg.goal_prior)
+        self.obs_layout = ObservationLayout.for_hand(
+            d, tuple(self.contact_links), goal=cfg.goal_prior, wrist_rotation=cfg.wrist_rotation
+        )
         lim = torch.as_tensor(d.limits_array)
         self.act_layout = ActionLayout(lim[:, 0], lim[:, 1], cfg.max_wrist_step, cfg.max_wrist_turn)
         self._action_shape, self._action_doc = (self.n, self.act_layout.size), self.act_layout.describe()
@@ -434,7 +444,7 @@ class GraspEnv:
             "contact": np.sqrt(np.einsum("nli,nli->nl", forces, forces)) > self.cfg.contact_threshold,
             "tip_force": local[:, :f].reshape(n, -1),
             "tip_pos": local[:, f:].reshape(n, -1),
-            "wrist_pose": np.concatenate([wpos, rotvec[0]], axis=1),
+            "wrist_pose": np.concatenate([wpos, self._wrist_rotation(rot[:, 0], rotvec[0])], axis=1),
             "wrist_vel": vel,
             "prev_action": self.prev_action,
             "obj_pos": obj,
@@ -443,6 +453,13 @@ class GraspEnv:
             "goal_q": self._goal_q - q,
         }
         return blocks, tip_world, vel
+
+    def _wrist_rotation(self, matrix: np.ndarray, rotvec: np.ndarray) -> np.ndarray:
+        """(n, R) the ``wrist_pose`` block's rotation part from the wrist's (n, 3, 3) matrix and (n, 3) rotation
+        vector, in the form ``EnvConfig.wrist_rotation`` names (:data:`~ges_core.env.layout.WRIST_ROTATIONS`)."""
+        if self.cfg.wrist_rotation == "rotvec":
+            return rotvec
+        return matrix_columns(matrix)
 
     def reward(self, state: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
         """Reward (n,) float64 and its terms (n,) before weighting, for the state returned by :meth:`observe`."""

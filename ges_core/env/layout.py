@@ -14,8 +14,10 @@ import torch
 
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription
+from ges_core.transforms import columns_to_matrix, matrix_to_quat
+from ges_core.transforms_torch import rotvec_to_quat
 
-__all__ = ["BLOCK_DOCS", "GOAL_BLOCKS", "WRIST_DOF", "ObservationLayout", "ActionLayout"]
+__all__ = ["BLOCK_DOCS", "GOAL_BLOCKS", "WRIST_DOF", "WRIST_ROTATIONS", "ObservationLayout", "ActionLayout"]
 
 WRIST_DOF = 6
 """Virtual wrist joints of the floating base: 3 translations + 3 rotations."""
@@ -26,7 +28,8 @@ BLOCK_DOCS: dict[str, str] = {
     "contact": "(L,) 1.0 where the link touches the object (contact force > threshold), else 0.0",
     "tip_force": "(F, 3) contact force of the object on each fingertip link, wrist frame, N",
     "tip_pos": "(F, 3) fingertip points, wrist (base-link) frame, m",
-    "wrist_pose": "(6,) base-link position (world, m) then rotation vector (world, rad)",
+    "wrist_pose": "(3 + R,) base-link position (world, m) then its rotation (world): R = 6, the rotation matrix's "
+    "first two columns (wrist_rotation 'matrix'), or R = 3, a rotation vector, rad ('rotvec')",
     "wrist_vel": "(6,) base-link linear (m/s) then angular (rad/s) velocity, world, finite difference per control step",
     "prev_action": "(K + 6,) the previous normalized action, in ActionLayout order",
     "obj_pos": "(3,) object-frame origin, world, m",
@@ -35,6 +38,12 @@ BLOCK_DOCS: dict[str, str] = {
     "goal_q": "(K,) g_q: goal joint angles minus current, rad",
 }
 """Shape, frame and unit of every observation block, in layout order."""
+
+WRIST_ROTATIONS: dict[str, int] = {"matrix": 6, "rotvec": 3}
+"""Forms of the ``wrist_pose`` block's rotation -> its floats. ``matrix``: the first two columns of the base link's
+rotation matrix, world frame (continuous in the rotation; Zhou et al., CVPR 2019). ``rotvec``: a rotation vector,
+angle in [0, pi], which jumps to the opposite vector where the angle passes pi (the same wrist, a hair apart, reads
+as two vectors 2 pi apart); the only form before 8 December 2026."""
 
 GOAL_BLOCKS = ("goal_pos", "goal_rot", "goal_q")
 """The goal prior G = (ĝ_p, ĝ_r, g_q): left out of layouts with ``goal=False`` (the NoGoal ablation)."""
@@ -45,12 +54,14 @@ class ObservationLayout:
     """Slices of the flat (num_envs, size) float32 observation, for K joints, L contact links, F tips.
 
     goal: False leaves out the goal blocks :data:`GOAL_BLOCKS` (6 + K floats; the NoGoal ablation).
+    wrist_rotation: how ``wrist_pose`` holds the wrist's rotation, a key of :data:`WRIST_ROTATIONS`.
     """
 
     num_joints: int
     num_contact_links: int
     num_tips: int
     goal: bool = True
+    wrist_rotation: str = "matrix"
     slices: dict[str, slice] = field(init=False, repr=False)
     _total: int = field(init=False, repr=False, compare=False)
 
@@ -60,6 +71,10 @@ class ObservationLayout:
                 f"observation layout: K={self.num_joints}, L={self.num_contact_links}, F={self.num_tips}; "
                 "every count must be >= 1 (check the hand's joints, fingers and contact links)"
             )
+        if self.wrist_rotation not in WRIST_ROTATIONS:
+            raise ConfigError(
+                f"observation layout: wrist_rotation '{self.wrist_rotation}' is not one of {list(WRIST_ROTATIONS)}"
+            )
         start, slices = 0, {}
         for name, size in self.sizes().items():
             slices[name] = slice(start, start + size)
@@ -68,9 +83,12 @@ class ObservationLayout:
         object.__setattr__(self, "_total", start)
 
     @classmethod
-    def for_hand(cls, hand: HandDescription, contact_links: tuple[str, ...], goal: bool = True) -> ObservationLayout:
-        """Layout for ``hand`` with contact booleans on ``contact_links``, goal blocks if ``goal``."""
-        return cls(hand.num_joints, len(contact_links), len(hand.fingers), goal)
+    def for_hand(
+        cls, hand: HandDescription, contact_links: tuple[str, ...], goal: bool = True, wrist_rotation: str = "matrix"
+    ) -> ObservationLayout:
+        """Layout for ``hand`` with contact booleans on ``contact_links``, goal blocks if ``goal``, the wrist's
+        rotation as ``wrist_rotation`` (:data:`WRIST_ROTATIONS`)."""
+        return cls(hand.num_joints, len(contact_links), len(hand.fingers), goal, wrist_rotation)
 
     def sizes(self) -> dict[str, int]:
         """Block name -> number of floats, in layout order."""
@@ -81,7 +99,7 @@ class ObservationLayout:
             "contact": self.num_contact_links,
             "tip_force": 3 * f,
             "tip_pos": 3 * f,
-            "wrist_pose": 6,
+            "wrist_pose": 3 + WRIST_ROTATIONS[self.wrist_rotation],
             "wrist_vel": 6,
             "prev_action": k + WRIST_DOF,
             "obj_pos": 3,
@@ -125,7 +143,9 @@ class ObservationLayout:
 
     def with_goal(self) -> ObservationLayout:
         """This layout with the goal blocks :data:`GOAL_BLOCKS` (itself if it has them)."""
-        return self if self.goal else ObservationLayout(self.num_joints, self.num_contact_links, self.num_tips, True)
+        if self.goal:
+            return self
+        return ObservationLayout(self.num_joints, self.num_contact_links, self.num_tips, True, self.wrist_rotation)
 
     def add_goal(self, obs: torch.Tensor, goal: torch.Tensor) -> torch.Tensor:
         """Observations of :meth:`with_goal`'s layout (num_envs, size + 6 + K) float32: ``obs`` (num_envs, size) of
@@ -154,6 +174,20 @@ class ObservationLayout:
             hint = " (a NoGoal layout: goal=False leaves out the goal blocks)" if name in GOAL_BLOCKS else ""
             raise ConfigError(f"observation block '{name}' is not in this layout{hint}; blocks: {list(self.slices)}")
         return obs[:, self.slices[name]]
+
+    def wrist_quat(self, obs: torch.Tensor) -> torch.Tensor:
+        """(num_envs, 4) float64 wxyz, w >= 0: the base link's world rotation held in observations (num_envs, size),
+        read from either form of :data:`WRIST_ROTATIONS` (the matrix's two columns made orthonormal first, so
+        observation noise on them still gives a rotation)."""
+        rot = self.unpack(obs, "wrist_pose")[:, 3:].to(torch.float64)
+        if self.wrist_rotation == "rotvec":
+            return rotvec_to_quat(rot)
+        mat = columns_to_matrix(rot.detach().cpu().numpy())
+        quat = np.full((len(mat), 4), np.nan)  # a row that holds no rotation (a blown-up env's) reads NaN
+        ok = np.isfinite(mat).all(axis=(1, 2))
+        if ok.any():
+            quat[ok] = matrix_to_quat(mat[ok])
+        return torch.from_numpy(quat)
 
 
 @dataclass(frozen=True)

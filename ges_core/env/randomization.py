@@ -38,7 +38,8 @@ NOISE_BLOCKS: dict[str, float] = {
 }
 """Default observation-noise standard deviations per observation block (``docs/env.md``): joint angles rad
 (0.3 degrees, an encoder's error), joint velocities rad/s, fingertip and object positions m (2 mm, a tracker's
-error), wrist pose m and rad. Blocks not named get none (contact flags, forces, previous action, goal blocks)."""
+error), wrist pose m, and per rotation-matrix entry (or rad, ``wrist_rotation: rotvec``). Blocks not named get none
+(contact flags, forces, previous action, goal blocks)."""
 
 
 class RandomizationConfig(ConfigModel):

@@ -29,7 +29,7 @@ import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from ges_core.config import parse_model
+from ges_core.config import parse_model, stored_dump
 from ges_core.dataset.layout import config_differences
 from ges_core.env.evaluate import BaselineConfig, config_records, grasp_key
 from ges_core.env.evaluate.fanout import Cell, Fanout, evaluate_cells
@@ -116,8 +116,13 @@ class EvalReport:
 
 
 def run_header(config: BaselineConfig) -> dict:
-    """What every cell depends on besides its expert and grasp: the config but the record choice and the expert."""
-    return config.model_dump(mode="json", exclude={"selection", "splits", "expert", "expert_settings"})
+    """What every cell depends on besides its expert and grasp: the config but the record choice and the expert, as
+    stored (:func:`~ges_core.config.stored_dump`: a setting added later is left out at what its absence means, so
+    cells run before it existed still match)."""
+    data = stored_dump(config)
+    for key in ("selection", "splits", "expert", "expert_settings"):
+        data.pop(key, None)
+    return data
 
 
 def evaluate_experts(

@@ -20,6 +20,7 @@ from pathlib import Path
 import torch
 import yaml
 
+from ges_core.config import fill_absent
 from ges_core.errors import ConfigError
 from ges_core.paths import atomic_write_text
 from ges_core.training.checkpoint import find_checkpoints, latest_loadable
@@ -192,7 +193,8 @@ def train_expert(
         update = {"iterations": cfg.iterations, "time_limit": cfg.time_limit}
         if cfg.evaluation != EvaluationConfig():  # evaluations leave the training alone: a resume may set them
             update["evaluation"] = cfg.evaluation.model_dump()
-        cfg = TrainConfig.model_validate(previous[1]["ges"]["train_config"] | update)
+        stored = fill_absent(TrainConfig, previous[1]["ges"]["train_config"])  # a later setting: what it ran with
+        cfg = TrainConfig.model_validate(stored | update)
     torch.manual_seed(cfg.seed)
     setup = build_setup(dataset, cfg, registry, clusters)
     cfg = setup.config  # with the hand's settings.train (what the run left unset)

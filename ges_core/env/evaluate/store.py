@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ges_core.config import stored_dump
 from ges_core.dataset import GraspRecord
 from ges_core.dataset.layout import config_differences, utc_now
 from ges_core.env.evaluate.config import BaselineConfig
@@ -52,8 +53,11 @@ def results_path(out: str | Path, config: BaselineConfig) -> Path:
 
 def results_header(config: BaselineConfig, defaults: dict) -> dict:
     """What a stored result depends on: the expert, its registered settings (``defaults``: the plugin's, then
-    registry.yaml's) and every setting but the record choice (``config.expert_settings`` included)."""
-    settings = config.model_dump(mode="json", exclude={"selection", "splits"})
+    registry.yaml's) and every setting but the record choice (``config.expert_settings`` included), as stored
+    (:func:`~ges_core.config.stored_dump`: a setting added later is left out at what its absence means)."""
+    settings = stored_dump(config)
+    settings.pop("selection", None)
+    settings.pop("splits", None)
     return {"expert": config.expert, "expert_defaults": defaults, "config": settings}
 
 

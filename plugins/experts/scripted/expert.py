@@ -156,7 +156,7 @@ class ScriptedExpert(Expert):
         unpack = self.obs_layout.unpack
         q, wrist = unpack(obs, "q"), unpack(obs, "wrist_pose")
         goal_q = q + unpack(obs, "goal_q")
-        rot = rotvec_to_quat(wrist[:, 3:])
+        rot = self.obs_layout.wrist_quat(obs)
         grasp_rot = quat_mul(rotvec_to_quat(unpack(obs, "goal_rot")), rot)
         new = {
             "start_q": q,
