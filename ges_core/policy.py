@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from abc import ABC, abstractmethod
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -139,6 +139,22 @@ class ExpertScope:
                 "joint_names, joint_limits, max_wrist_step, max_wrist_turn (ExpertScope.to_dict)"
             ) from exc
 
+    @property
+    def wrist_rotation(self) -> str | None:
+        """The form of the wrist's rotation in its ``wrist_pose`` block (``EnvConfig.wrist_rotation``), read from the
+        block's size; None without the block or at a size no form has."""
+        from ges_core.env.layout import WRIST_ROTATIONS  # lazy: the interfaces stay free of the env package
+
+        size = dict(self.observation).get("wrist_pose")
+        return next((form for form, k in WRIST_ROTATIONS.items() if 3 + k == size), None)
+
+    def with_wrist_rotation(self, form: str) -> ExpertScope:
+        """This scope with its ``wrist_pose`` block in ``form`` (a key of ``WRIST_ROTATIONS``)."""
+        from ges_core.env.layout import WRIST_ROTATIONS
+
+        blocks = tuple((n, 3 + WRIST_ROTATIONS[form] if n == "wrist_pose" else k) for n, k in self.observation)
+        return replace(self, observation=blocks)
+
     def describe(self) -> str:
         """One line: hand, observation blocks with sizes, action size and wrist steps."""
         blocks = ", ".join(f"{n}:{k}" for n, k in self.observation)
@@ -167,12 +183,9 @@ class ExpertScope:
 
 def _wrist_hint(expert: ExpertScope, env: ExpertScope) -> str:
     """The setting that turns the environment's ``wrist_pose`` block into the expert's, where only its form differs."""
-    from ges_core.env.layout import WRIST_ROTATIONS  # the env package imports this module's interfaces
-
-    a, b = dict(expert.observation).get("wrist_pose"), dict(env.observation).get("wrist_pose")
-    forms = {3 + k: name for name, k in WRIST_ROTATIONS.items()}
-    if a != b and a in forms and b in forms:
-        return f"; its wrist_pose holds the rotation as '{forms[a]}': set -o env.wrist_rotation={forms[a]}"
+    a, b = expert.wrist_rotation, env.wrist_rotation
+    if a != b and a is not None and b is not None:
+        return f"; its wrist_pose holds the rotation as '{a}': set -o env.wrist_rotation={a}"
     return ""
 
 

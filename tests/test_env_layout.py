@@ -113,3 +113,30 @@ def test_action_layout_maps_limits() -> None:
     assert torch.allclose(dr, torch.tensor([[0.0, 0.0, 0.1]]))  # clipped to 1
     q = torch.tensor([[0.25, 1.5]])
     assert torch.allclose(act.joint_targets(torch.cat([torch.zeros(1, 6), act.normalize_joints(q)], 1)), q)
+
+
+def test_recast_rewrites_only_the_wrist_rotation() -> None:
+    """Observations recast from the matrix form to the rotation vector and back: every other block copied bit for bit,
+    the rotation the same (float32); a layout differing in anything else is refused."""
+    matrix, rotvec = ObservationLayout(3, 2, 1), ObservationLayout(3, 2, 1, wrist_rotation="rotvec")
+    assert matrix.with_wrist_rotation("rotvec") == rotvec and matrix.with_wrist_rotation("matrix") is matrix
+    rots = Rotation.random(50, random_state=5)
+    blocks = {name: torch.randn(50, size, dtype=torch.float64) for name, size in matrix.sizes().items()}
+    part = torch.as_tensor(rots.as_matrix()[:, :, :2].transpose(0, 2, 1).reshape(-1, 6))
+    blocks["wrist_pose"] = torch.cat([blocks["wrist_pose"][:, :3], part], dim=1)
+    obs = matrix.pack(blocks)
+    as_rotvec = matrix.recast(obs, rotvec)
+    assert as_rotvec.dtype == torch.float32 and as_rotvec.shape == (50, rotvec.size)
+    for name in matrix.slices:
+        if name != "wrist_pose":
+            assert torch.equal(rotvec.unpack(as_rotvec, name), matrix.unpack(obs, name))
+    wrist = rotvec.unpack(as_rotvec, "wrist_pose")
+    assert torch.equal(wrist[:, :3], matrix.unpack(obs, "wrist_pose")[:, :3])
+    np.testing.assert_allclose(
+        (Rotation.from_rotvec(wrist[:, 3:].double().numpy()).inv() * rots).magnitude(), 0.0, atol=1e-6
+    )
+    back = rotvec.recast(as_rotvec, matrix)
+    torch.testing.assert_close(back, obs, atol=1e-6, rtol=0)
+    assert matrix.recast(obs, matrix) is obs
+    with pytest.raises(ConfigError, match="differ in more than the wrist's rotation form"):
+        matrix.recast(obs, ObservationLayout(3, 2, 1, goal=False, wrist_rotation="rotvec"))

@@ -87,29 +87,39 @@ def test_run_checkpoint_resume_and_curriculum(tmp_path, clusters) -> None:
     assert {p.name for p in (out / "logs").iterdir() if p.name.startswith("events")}  # TensorBoard files
 
 
-def test_a_run_from_before_the_wrist_matrix_resumes_with_its_rotation_vector(tmp_path, clusters) -> None:
+@pytest.mark.parametrize("mode", ["absolute", "residual"])
+def test_a_run_from_before_the_wrist_matrix_resumes_and_acts_in_todays_env(tmp_path, clusters, mode) -> None:
     """A checkpoint written before ``env.wrist_rotation`` existed (its stored config lacks the key; its policy reads
-    the wrist as a rotation vector, ``wrist_pose`` 6 floats) resumes as it ran, not at today's default; the same
-    checkpoint in today's default environment is refused naming the setting that fits it."""
+    the wrist as a rotation vector, ``wrist_pose`` 6 floats) resumes as it ran, not at today's default; in today's
+    default environment (the matrix form) it acts on the recast observations exactly as in a rotation-vector one,
+    the residual policy's base expert included."""
+    from helpers_env import build_grasp_env
+
+    from ges_core.experts.wrist_form import RecastWrist
+
     out = tmp_path / "old"
-    _train(out, clusters, "iterations=1", "env.wrist_rotation=rotvec")
+    _train(out, clusters, "iterations=1", "env.wrist_rotation=rotvec", f"action_mode={mode}")
     for path in (out / "checkpoints").glob("*.pt"):  # as the code before the setting wrote it
         data = torch.load(path, weights_only=False)
         del data["ges"]["train_config"]["env"]["wrist_rotation"]
         torch.save(data, path)
-    assert dict(read_checkpoint(out / "checkpoints" / "last.pt")["ges"]["made_for"]["observation"])["wrist_pose"] == 6
+    last = out / "checkpoints" / "last.pt"
+    assert dict(read_checkpoint(last)["ges"]["made_for"]["observation"])["wrist_pose"] == 6
     again = _train(out, clusters, "iterations=2", resume=True)
     assert again.iterations == 2 and again.resumed_from.endswith("last.pt")
-    assert dict(read_checkpoint(out / "checkpoints" / "last.pt")["ges"]["made_for"]["observation"])["wrist_pose"] == 6
-    from helpers_env import build_grasp_env
-
-    env = build_grasp_env("sapien", 1)  # today's default: the matrix form
-    try:
-        context = ExpertContext.of_env(env, sim="sapien")
-        with pytest.raises(ConfigError, match=r"wrist_pose 6 vs 9.*set -o env.wrist_rotation=rotvec"):
-            load_registry().build_expert("ppo", context, checkpoint=str(out / "checkpoints" / "last.pt"))
-    finally:
-        env.sim.close()
+    assert dict(read_checkpoint(last)["ges"]["made_for"]["observation"])["wrist_pose"] == 6
+    actions = {}
+    for form in ("rotvec", "matrix"):
+        env = build_grasp_env("sapien", 2, reach_steps=4, settle_steps=1, wrist_rotation=form)
+        try:
+            env.reset_all()
+            obs, _ = env.observe()
+            expert = load_registry().build_expert("ppo", ExpertContext.of_env(env, sim="sapien"), checkpoint=str(last))
+            assert isinstance(expert, RecastWrist) == (form == "matrix") and obs.shape[1] == env.obs_layout.size
+            actions[form] = expert.act(obs)
+        finally:
+            env.sim.close()
+    torch.testing.assert_close(actions["matrix"], actions["rotvec"], atol=1e-5, rtol=0)
 
 
 def test_seeded_runs_repeat_exactly(tmp_path, clusters) -> None:

@@ -7,15 +7,15 @@ F fingertips. Frames and units are in ``docs/env.md`` and in :data:`BLOCK_DOCS`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 import torch
 
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription
-from ges_core.transforms import columns_to_matrix, matrix_to_quat
-from ges_core.transforms_torch import rotvec_to_quat
+from ges_core.transforms import columns_to_matrix, matrix_columns, matrix_to_quat, quat_to_matrix
+from ges_core.transforms_torch import quat_to_rotvec, rotvec_to_quat
 
 __all__ = ["BLOCK_DOCS", "GOAL_BLOCKS", "WRIST_DOF", "WRIST_ROTATIONS", "ObservationLayout", "ActionLayout"]
 
@@ -188,6 +188,34 @@ class ObservationLayout:
         if ok.any():
             quat[ok] = matrix_to_quat(mat[ok])
         return torch.from_numpy(quat)
+
+    def with_wrist_rotation(self, form: str) -> ObservationLayout:
+        """This layout with the wrist's rotation in ``form`` (:data:`WRIST_ROTATIONS`; itself if it is already)."""
+        return self if form == self.wrist_rotation else replace(self, wrist_rotation=form)
+
+    def recast(self, obs: torch.Tensor, to: ObservationLayout) -> torch.Tensor:
+        """Observations (num_envs, size) of this layout as ``to`` lays them out, ``to`` being this layout with the
+        wrist's rotation in another form (:meth:`with_wrist_rotation`): every other block copied, the rotation read
+        (:meth:`wrist_quat`) and written in ``to``'s form, in ``obs``'s dtype. ``obs`` itself when the forms agree;
+        ConfigError when the layouts differ in anything else."""
+        if to == self:
+            return obs
+        if to.with_wrist_rotation(self.wrist_rotation) != self:
+            raise ConfigError(f"observation recast: {self} and {to} differ in more than the wrist's rotation form")
+        out = torch.empty(obs.shape[0], to.size, dtype=obs.dtype, device=obs.device)
+        for name, sl in self.slices.items():
+            if name != "wrist_pose":
+                out[:, to.slices[name]] = obs[:, sl]
+        start, stop = to.slices["wrist_pose"].start, to.slices["wrist_pose"].stop
+        out[:, start : start + 3] = obs[:, self.slices["wrist_pose"]][:, :3]
+        quat = self.wrist_quat(obs)
+        rot = (
+            quat_to_rotvec(quat)
+            if to.wrist_rotation == "rotvec"
+            else torch.from_numpy(matrix_columns(quat_to_matrix(quat.numpy())))
+        )
+        out[:, start + 3 : stop] = rot.to(device=obs.device, dtype=obs.dtype)
+        return out
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,9 @@ The checkpoint says what the policy was made for (``ges.made_for``, an :class:`~
 how to rebuild its actor (``ges.model``: observation groups and sizes, the rsl-rl ``MLPModel`` config; the
 observation normalizer's statistics are part of the actor's weights). Built for an environment whose hand,
 observation layout or action layout differ, it raises the one ConfigError of
-:func:`~ges_core.policy.check_expert_fits`, naming both sides. A residual checkpoint (``action_mode: residual``)
+:func:`~ges_core.policy.check_expert_fits`, naming both sides; the one difference it bridges is the form of the
+wrist's rotation (:mod:`ges_core.experts.wrist_form`: a checkpoint from before ``EnvConfig.wrist_rotation`` reads a
+rotation vector). A residual checkpoint (``action_mode: residual``)
 builds its base expert through the context's registry and acts ``clamp(base + residual_scale x policy)``.
 """
 
@@ -17,6 +19,7 @@ from rsl_rl.models import MLPModel
 from tensordict import TensorDict
 
 from ges_core.errors import ConfigError
+from ges_core.experts.wrist_form import RecastWrist, inner_context
 from ges_core.policy import Expert, ExpertContext, ExpertScope, check_expert_fits
 from ges_core.training.checkpoint import read_checkpoint
 from ges_core.training.residual import BASE_GROUP, residual_action
@@ -68,11 +71,16 @@ def _actor(model: dict, state: dict) -> MLPModel:
     return actor.eval()
 
 
-def build_expert(context: ExpertContext, checkpoint: str | None = None, deterministic: bool = True) -> PPOExpert:
+def build_expert(
+    context: ExpertContext, checkpoint: str | None = None, deterministic: bool = True
+) -> PPOExpert | RecastWrist:
     """The expert factory (``registry.build_expert("ppo", context, checkpoint=PATH)``).
 
-    ConfigError without a checkpoint, or when the checkpoint was made for another hand or other observation or
-    action layouts (naming both); AssetError when the file is missing or not a GES PPO checkpoint."""
+    A checkpoint made for the other form of the wrist's rotation (one trained before ``EnvConfig.wrist_rotation``
+    existed reads a rotation vector) acts through :class:`~ges_core.experts.wrist_form.RecastWrist`, its base
+    expert built for that form too. ConfigError without a checkpoint, or when the checkpoint was made for another
+    hand or other observation or action layouts (naming both); AssetError when the file is missing or not a GES PPO
+    checkpoint."""
     if not checkpoint:
         raise ConfigError(
             "expert 'ppo' needs its checkpoint: give the setting checkpoint=PATH (e.g. --expert "
@@ -80,11 +88,13 @@ def build_expert(context: ExpertContext, checkpoint: str | None = None, determin
         )
     data = read_checkpoint(checkpoint)
     scope = ExpertScope.from_dict(data["ges"]["made_for"], where=f"checkpoint {checkpoint}")
-    check_expert_fits(scope, context, who=f"PPO checkpoint {checkpoint}")
+    inner = inner_context(scope, context)
+    check_expert_fits(scope, inner, who=f"PPO checkpoint {checkpoint}")
     base = None
     if data["ges"]["action_mode"] == "residual":
-        base = _base_expert(data["ges"]["base_expert"], context, data["ges"].get("base_expert_settings", {}))
-    return PPOExpert(data, base=base, deterministic=bool(deterministic), path=str(Path(checkpoint)))
+        base = _base_expert(data["ges"]["base_expert"], inner, data["ges"].get("base_expert_settings", {}))
+    expert = PPOExpert(data, base=base, deterministic=bool(deterministic), path=str(Path(checkpoint)))
+    return expert if inner is context else RecastWrist(expert, context, inner.obs_layout)
 
 
 def _base_expert(name: str, context: ExpertContext, settings: dict) -> Expert:
