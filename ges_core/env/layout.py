@@ -14,8 +14,9 @@ import torch
 
 from ges_core.errors import ConfigError
 from ges_core.hand import HandDescription
-from ges_core.transforms import columns_to_matrix, matrix_columns, matrix_to_quat, quat_to_matrix
-from ges_core.transforms_torch import quat_to_rotvec, rotvec_to_quat
+from ges_core.transforms import columns_to_matrix, matrix_columns, quat_to_matrix
+from ges_core.transforms import rotvec_to_quat as rotvec_to_quat_np
+from ges_core.transforms_torch import rotvec_to_quat
 
 __all__ = ["BLOCK_DOCS", "GOAL_BLOCKS", "WRIST_DOF", "WRIST_ROTATIONS", "ObservationLayout", "ActionLayout"]
 
@@ -182,11 +183,8 @@ class ObservationLayout:
         rot = self.unpack(obs, "wrist_pose")[:, 3:].to(torch.float64)
         if self.wrist_rotation == "rotvec":
             return rotvec_to_quat(rot)
-        mat = columns_to_matrix(rot.detach().cpu().numpy())
-        quat = np.full((len(mat), 4), np.nan)  # a row that holds no rotation (a blown-up env's) reads NaN
-        ok = np.isfinite(mat).all(axis=(1, 2))
-        if ok.any():
-            quat[ok] = matrix_to_quat(mat[ok])
+        quat = _from_matrices(columns_to_matrix(rot.detach().cpu().numpy()), "quat")
+        quat *= np.where(quat[:, :1] < 0, -1.0, 1.0)
         return torch.from_numpy(quat)
 
     def with_wrist_rotation(self, form: str) -> ObservationLayout:
@@ -196,7 +194,7 @@ class ObservationLayout:
     def recast(self, obs: torch.Tensor, to: ObservationLayout) -> torch.Tensor:
         """Observations (num_envs, size) of this layout as ``to`` lays them out, ``to`` being this layout with the
         wrist's rotation in another form (:meth:`with_wrist_rotation`): every other block copied, the rotation read
-        (:meth:`wrist_quat`) and written in ``to``'s form, in ``obs``'s dtype. ``obs`` itself when the forms agree;
+        and written in ``to``'s form (float64 in between), in ``obs``'s dtype. ``obs`` itself when the forms agree;
         ConfigError when the layouts differ in anything else."""
         if to == self:
             return obs
@@ -207,15 +205,29 @@ class ObservationLayout:
             if name != "wrist_pose":
                 out[:, to.slices[name]] = obs[:, sl]
         start, stop = to.slices["wrist_pose"].start, to.slices["wrist_pose"].stop
-        out[:, start : start + 3] = obs[:, self.slices["wrist_pose"]][:, :3]
-        quat = self.wrist_quat(obs)
-        rot = (
-            quat_to_rotvec(quat)
-            if to.wrist_rotation == "rotvec"
-            else torch.from_numpy(matrix_columns(quat_to_matrix(quat.numpy())))
-        )
-        out[:, start + 3 : stop] = rot.to(device=obs.device, dtype=obs.dtype)
+        wrist = obs[:, self.slices["wrist_pose"]]
+        out[:, start : start + 3] = wrist[:, :3]
+        rot = wrist[:, 3:].detach().cpu().numpy().astype(np.float64)
+        if to.wrist_rotation == "rotvec":  # from the matrix's columns
+            new = _from_matrices(columns_to_matrix(rot), "rotvec")
+        else:
+            new = matrix_columns(quat_to_matrix(rotvec_to_quat_np(rot)))
+        out[:, start + 3 : stop] = torch.from_numpy(new).to(device=obs.device, dtype=obs.dtype)
         return out
+
+
+def _from_matrices(mat: np.ndarray, form: str) -> np.ndarray:
+    """(n, 4) wxyz quaternions (``form`` 'quat') or (n, 3) rotation vectors ('rotvec') of (n, 3, 3) rotation matrices
+    that are orthonormal already (:func:`~ges_core.transforms.columns_to_matrix`'s), float64; NaN rows where a
+    matrix is not finite (an observation that holds no rotation, a blown-up env's)."""
+    from scipy.spatial.transform import Rotation
+
+    out = np.full((len(mat), 4 if form == "quat" else 3), np.nan)
+    ok = np.isfinite(mat).all(axis=(1, 2))
+    if ok.any():
+        rot = Rotation.from_matrix(mat[ok], assume_valid=True)  # orthonormal: no SVD (49 -> 10 us for 8)
+        out[ok] = rot.as_quat(scalar_first=True) if form == "quat" else rot.as_rotvec()
+    return out
 
 
 @dataclass(frozen=True)
