@@ -11,10 +11,14 @@ built in. Nothing else may differ: a checkpoint for another hand, goal prior or 
 from __future__ import annotations
 
 from dataclasses import replace
+from typing import TYPE_CHECKING
 
 import torch
 
 from ges_core.policy import Expert, ExpertContext, ExpertScope
+
+if TYPE_CHECKING:
+    from ges_core.env.layout import ObservationLayout
 
 __all__ = ["RecastWrist", "inner_context"]
 
@@ -31,7 +35,7 @@ def inner_context(scope: ExpertScope, context: ExpertContext) -> ExpertContext:
 class RecastWrist(Expert):
     """``inner`` (built in :func:`inner_context`), fed this environment's observations recast to its wrist form."""
 
-    def __init__(self, inner: Expert, context: ExpertContext, inner_layout) -> None:
+    def __init__(self, inner: Expert, context: ExpertContext, inner_layout: ObservationLayout) -> None:
         self.inner, self.outer_layout, self.inner_layout = inner, context.obs_layout, inner_layout
         self.name = inner.name
         scope = inner.made_for

@@ -6,8 +6,8 @@ observation normalizer's statistics are part of the actor's weights). Built for 
 observation layout or action layout differ, it raises the one ConfigError of
 :func:`~ges_core.policy.check_expert_fits`, naming both sides; the one difference it bridges is the form of the
 wrist's rotation (:mod:`ges_core.experts.wrist_form`: a checkpoint from before ``EnvConfig.wrist_rotation`` reads a
-rotation vector). A residual checkpoint (``action_mode: residual``)
-builds its base expert through the context's registry and acts ``clamp(base + residual_scale x policy)``.
+rotation vector). A residual checkpoint (``action_mode: residual``) builds its base expert through the context's
+registry and acts ``clamp(base + residual_scale x policy)``.
 """
 
 from __future__ import annotations
