@@ -177,9 +177,10 @@ class ObservationLayout:
         return obs[:, self.slices[name]]
 
     def wrist_quat(self, obs: torch.Tensor) -> torch.Tensor:
-        """(num_envs, 4) float64 wxyz, w >= 0: the base link's world rotation held in observations (num_envs, size),
-        read from either form of :data:`WRIST_ROTATIONS` (the matrix's two columns made orthonormal first, so
-        observation noise on them still gives a rotation)."""
+        """(num_envs, 4) float64 wxyz: the base link's world rotation held in observations (num_envs, size), read
+        from either form of :data:`WRIST_ROTATIONS`: from the matrix's two columns made orthonormal first (so
+        observation noise on them still gives a rotation), w >= 0; from a rotation vector its own quaternion (w < 0
+        only where noise took its angle past pi: the same rotation)."""
         rot = self.unpack(obs, "wrist_pose")[:, 3:].to(torch.float64)
         if self.wrist_rotation == "rotvec":
             return rotvec_to_quat(rot)
