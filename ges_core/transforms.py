@@ -114,9 +114,11 @@ def matrix_columns(rot: np.ndarray) -> np.ndarray:
 
 
 def columns_to_matrix(cols: np.ndarray) -> np.ndarray:
-    """(..., 6) two 3-vectors, as :func:`matrix_columns` gives -> (..., 3, 3) the nearest rotation keeping the first
-    column's direction: Gram-Schmidt on the pair, the third column their cross product. Rows whose two vectors are
-    zero, parallel or not finite define no rotation and come out NaN (as a blown-up env's observation reads)."""
+    """(..., 6) two 3-vectors, as :func:`matrix_columns` gives -> (..., 3, 3) the rotation whose first column is the
+    first vector's direction and whose second lies in the pair's plane (Gram-Schmidt; not the nearest rotation in
+    the SVD sense, which would also turn the first column), the third column their cross product. Rows whose two
+    vectors are zero, parallel or not finite define no rotation and come out NaN (as a blown-up env's observation
+    reads)."""
     c = np.asarray(cols, dtype=np.float64)
     a, b = c[..., :3], c[..., 3:6]
     with np.errstate(all="ignore"):
